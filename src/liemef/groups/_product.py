@@ -1,0 +1,137 @@
+from __future__ import annotations
+
+import functools
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from ._base import LieGroup, as_float_array
+
+
+def _split(v, sizes):
+    out, start = [], 0
+    for n in sizes:
+        out.append(v[..., start : start + n])
+        start += n
+    return out
+
+
+def _block_diag(blocks):
+    """Block-diagonal matrices with shared leading batch axes."""
+    batch = jnp.broadcast_shapes(*(b.shape[:-2] for b in blocks))
+    rows = sum(b.shape[-2] for b in blocks)
+    cols = sum(b.shape[-1] for b in blocks)
+    out = jnp.zeros((*batch, rows, cols), dtype=blocks[0].dtype)
+    r = c = 0
+    for b in blocks:
+        out = out.at[..., r : r + b.shape[-2], c : c + b.shape[-1]].set(b)
+        r, c = r + b.shape[-2], c + b.shape[-1]
+    return out
+
+
+class Product(LieGroup):
+    """Direct product of groups: ``Product[SE2, R3]`` is TSE(2) = SE(2) x R^3.
+
+    The algebra coordinates concatenate the factors' coordinates in order; so do :meth:`coords`; the matrix
+    representation is block diagonal. An element is built from its factors: ``TSE2((SE2(...), R3(...)))``.
+    """
+
+    factors: tuple
+
+    factor_types: ClassVar[tuple[type[LieGroup], ...]]
+    tangent_dim: ClassVar[int]
+    matrix_dim: ClassVar[int]
+    coords_dim: ClassVar[int]
+
+    def __init__(self, factors):
+        factors = tuple(factors)
+        types = self.factor_types
+        if len(factors) != len(types) or not all(isinstance(f, t) for f, t in zip(factors, types, strict=False)):
+            got = tuple(type(f).__name__ for f in factors)
+            raise ValueError(f"{type(self).__name__}: expected factors of types "
+                             f"{tuple(t.__name__ for t in types)}, got {got}")
+        self.factors = factors
+
+    @classmethod
+    @functools.cache
+    def __class_getitem__(cls, factor_types) -> type[Product]:
+        if not isinstance(factor_types, tuple):
+            factor_types = (factor_types,)
+        if not all(isinstance(t, type) and issubclass(t, LieGroup) and hasattr(t, "tangent_dim")
+                   for t in factor_types):
+            raise ValueError(f"Product[...]: expected concrete LieGroup types, got {factor_types!r}")
+        name = "x".join(t.__name__ for t in factor_types)
+        return type(cls)(name, (cls,), {
+            "factor_types": factor_types,
+            "tangent_dim": sum(t.tangent_dim for t in factor_types),
+            "matrix_dim": sum(t.matrix_dim for t in factor_types),
+            "coords_dim": sum(t.coords_dim for t in factor_types),
+            "__module__": cls.__module__,
+            "__qualname__": name,
+        })
+
+    @classmethod
+    def _tangent_sizes(cls):
+        return [t.tangent_dim for t in cls.factor_types]
+
+    @classmethod
+    def identity(cls, batch_shape=()):
+        return cls(tuple(t.identity(batch_shape) for t in cls.factor_types))
+
+    @classmethod
+    def exp(cls, xi):
+        parts = _split(as_float_array(xi), cls._tangent_sizes())
+        return cls(tuple(t.exp(p) for t, p in zip(cls.factor_types, parts, strict=True)))
+
+    @classmethod
+    def from_matrix(cls, M):
+        M = as_float_array(M)
+        out, k = [], 0
+        for t in cls.factor_types:
+            out.append(t.from_matrix(M[..., k : k + t.matrix_dim, k : k + t.matrix_dim]))
+            k += t.matrix_dim
+        return cls(tuple(out))
+
+    @classmethod
+    def from_coords(cls, q):
+        parts = _split(as_float_array(q), [t.coords_dim for t in cls.factor_types])
+        return cls(tuple(t.from_coords(p) for t, p in zip(cls.factor_types, parts, strict=True)))
+
+    def compose(self, other):
+        return type(self)(tuple(a @ b for a, b in zip(self.factors, other.factors, strict=True)))
+
+    def inverse(self):
+        return type(self)(tuple(a.inverse() for a in self.factors))
+
+    def log(self):
+        return jnp.concatenate([f.log() for f in self.factors], axis=-1)
+
+    def coords(self):
+        return jnp.concatenate([f.coords() for f in self.factors], axis=-1)
+
+    def as_matrix(self):
+        return _block_diag([f.as_matrix() for f in self.factors])
+
+    def Ad(self):
+        return _block_diag([f.Ad() for f in self.factors])
+
+    @classmethod
+    def hat(cls, xi):
+        parts = _split(as_float_array(xi), cls._tangent_sizes())
+        return _block_diag([t.hat(p) for t, p in zip(cls.factor_types, parts, strict=True)])
+
+    @classmethod
+    def vee(cls, X):
+        X = as_float_array(X)
+        out, k = [], 0
+        for t in cls.factor_types:
+            out.append(t.vee(X[..., k : k + t.matrix_dim, k : k + t.matrix_dim]))
+            k += t.matrix_dim
+        return jnp.concatenate(out, axis=-1)
+
+    @classmethod
+    def ad(cls, xi):
+        parts = _split(as_float_array(xi), cls._tangent_sizes())
+        return _block_diag([t.ad(p) for t, p in zip(cls.factor_types, parts, strict=True)])
+
+

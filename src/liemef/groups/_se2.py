@@ -1,0 +1,127 @@
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from ._base import LieGroup, as_float_array
+from ._so2 import SO2
+
+_TAYLOR = 1e-2  # |omega| below which exp/log use Taylor series (see _so3._TAYLOR_SQ)
+
+
+class SE2(LieGroup):
+    """Planar rigid motions ``(R, p)``, stored as ``(cos theta, sin theta, x, y)``; se(2) = (omega, v_x, v_y).
+
+    The algebra's first coordinate is the rotation rate, as in the papers (Rigo et al. 2022, eq. 9).
+    """
+
+    cos_sin_xy: jnp.ndarray
+
+    tangent_dim: ClassVar[int] = 3
+    matrix_dim: ClassVar[int] = 3
+    coords_dim: ClassVar[int] = 3
+
+    def __init__(self, cos_sin_xy):
+        self.cos_sin_xy = as_float_array(cos_sin_xy)
+
+    @classmethod
+    def identity(cls, batch_shape=()):
+        return cls(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 0.0]), (*batch_shape, 4)))
+
+    @classmethod
+    def from_rotation_translation(cls, rotation: SO2, p):
+        rot, p = rotation.cos_sin, as_float_array(p)
+        rot, p = jnp.broadcast_arrays(rot, p)
+        return cls(jnp.concatenate([rot, p], axis=-1))
+
+    @classmethod
+    def from_coords(cls, q):
+        """From ``(theta, x, y)``."""
+        q = as_float_array(q)
+        return cls.from_rotation_translation(SO2.from_angle(q[..., 0]), q[..., 1:3])
+
+    @classmethod
+    def exp(cls, xi):
+        xi = as_float_array(xi)
+        w, v = xi[..., 0], xi[..., 1:3]
+        small = jnp.abs(w) < _TAYLOR
+        w_safe = jnp.where(small, 1.0, w)
+        w2 = w * w
+        a = jnp.where(small, 1.0 - w2 / 6.0 + w2**2 / 120.0 - w2**3 / 5040.0, jnp.sin(w_safe) / w_safe)
+        b = jnp.where(small, w / 2.0 - w * w2 / 24.0 + w * w2**2 / 720.0 - w * w2**3 / 40320.0,
+                      (1.0 - jnp.cos(w_safe)) / w_safe)
+        p = jnp.stack([a * v[..., 0] - b * v[..., 1], b * v[..., 0] + a * v[..., 1]], -1)
+        return cls.from_rotation_translation(SO2.from_angle(w), p)
+
+    @classmethod
+    def from_matrix(cls, M):
+        M = as_float_array(M)
+        return cls.from_rotation_translation(SO2.from_matrix(M[..., :2, :2]), M[..., :2, 2])
+
+    def rotation(self) -> SO2:
+        return SO2(self.cos_sin_xy[..., :2])
+
+    def translation(self):
+        return self.cos_sin_xy[..., 2:4]
+
+    def compose(self, other):
+        rot = self.rotation()
+        return SE2.from_rotation_translation(rot @ other.rotation(), rot.act(other.translation()) + self.translation())
+
+    def inverse(self):
+        rot_inv = self.rotation().inverse()
+        return SE2.from_rotation_translation(rot_inv, -rot_inv.act(self.translation()))
+
+    def log(self):
+        theta = self.rotation().angle()
+        small = jnp.abs(theta) < _TAYLOR
+        t_safe = jnp.where(small, 1.0, theta)
+        t2 = theta * theta
+        # V(theta)^{-1} = [[A, B], [-B, A]] with A = (theta/2) cot(theta/2), B = theta/2
+        A = jnp.where(small, 1.0 - t2 / 12.0 - t2**2 / 720.0 - t2**3 / 30240.0,
+                      0.5 * t_safe * jnp.sin(t_safe) / (1.0 - jnp.cos(t_safe)))
+        B = theta / 2.0
+        p = self.translation()
+        v = jnp.stack([A * p[..., 0] + B * p[..., 1], -B * p[..., 0] + A * p[..., 1]], -1)
+        return jnp.concatenate([theta[..., None], v], axis=-1)
+
+    def coords(self):
+        """``(theta, x, y)`` with theta in (-pi, pi]."""
+        return jnp.concatenate([self.rotation().log(), self.translation()], axis=-1)
+
+    def as_matrix(self):
+        Rm = self.rotation().as_matrix()
+        p = self.translation()
+        top = jnp.concatenate([Rm, p[..., :, None]], axis=-1)
+        bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0]), (*top.shape[:-2], 1, 3))
+        return jnp.concatenate([top, bottom], axis=-2)
+
+    def act(self, p):
+        """Transform planar points ``p`` (``R @ p + t``)."""
+        return self.rotation().act(p) + self.translation()
+
+    def Ad(self):
+        c, s, x, y = (self.cos_sin_xy[..., i] for i in range(4))
+        o, one = jnp.zeros_like(c), jnp.ones_like(c)
+        return jnp.stack([jnp.stack([one, o, o], -1), jnp.stack([y, c, -s], -1), jnp.stack([-x, s, c], -1)], -2)
+
+    @classmethod
+    def hat(cls, xi):
+        xi = as_float_array(xi)
+        w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]
+        o = jnp.zeros_like(w)
+        return jnp.stack([jnp.stack([o, -w, vx], -1), jnp.stack([w, o, vy], -1), jnp.stack([o, o, o], -1)], -2)
+
+    @classmethod
+    def vee(cls, X):
+        X = as_float_array(X)
+        return jnp.stack([X[..., 1, 0], X[..., 0, 2], X[..., 1, 2]], -1)
+
+    @classmethod
+    def ad(cls, xi):
+        # Rigo et al. 2022, eq. (33)
+        xi = as_float_array(xi)
+        w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]
+        o = jnp.zeros_like(w)
+        return jnp.stack([jnp.stack([o, o, o], -1), jnp.stack([vy, o, -w], -1), jnp.stack([-vx, w, o], -1)], -2)

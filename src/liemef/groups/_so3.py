@@ -1,0 +1,131 @@
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax.numpy as jnp
+
+from ._base import LieGroup, as_float_array
+
+# Below this squared angle, exp/log use Taylor series: the values and their first and second derivatives stay
+# finite and accurate at exactly 0 (the engine differentiates exp twice at 0).
+_TAYLOR_SQ = 1e-4
+
+
+def _skew(w):
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2)
+
+
+class SO3(LieGroup):
+    """Rotations in space, stored as a unit quaternion ``(w, x, y, z)``; so(3) = (w_x, w_y, w_z).
+
+    The quaternion is an implementation detail: :meth:`as_matrix` / :meth:`from_matrix` are the papers'
+    rotation matrices R (body to world), and every operation agrees with the matrix group.
+    """
+
+    wxyz: jnp.ndarray
+
+    tangent_dim: ClassVar[int] = 3
+    matrix_dim: ClassVar[int] = 3
+    coords_dim: ClassVar[int] = 3
+
+    def __init__(self, wxyz):
+        self.wxyz = as_float_array(wxyz)
+
+    @classmethod
+    def identity(cls, batch_shape=()):
+        return cls(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 0.0]), (*batch_shape, 4)))
+
+    @classmethod
+    def exp(cls, xi):
+        w = as_float_array(xi)
+        theta_sq = jnp.sum(w**2, axis=-1)
+        small = theta_sq < _TAYLOR_SQ
+        theta = jnp.sqrt(jnp.where(small, 1.0, theta_sq))  # double-where: no NaN in the unused branch
+        real = jnp.where(small, 1.0 - theta_sq / 8.0 + theta_sq**2 / 384.0 - theta_sq**3 / 46080.0,
+                         jnp.cos(theta / 2.0))
+        imag = jnp.where(small, 0.5 - theta_sq / 48.0 + theta_sq**2 / 3840.0 - theta_sq**3 / 645120.0,
+                         jnp.sin(theta / 2.0) / theta)
+        return cls(jnp.concatenate([real[..., None], imag[..., None] * w], axis=-1))
+
+    @classmethod
+    def from_matrix(cls, M):
+        # Shepperd's method: pick the numerically largest of the four candidate quaternion components.
+        M = as_float_array(M)
+        m00, m01, m02 = M[..., 0, 0], M[..., 0, 1], M[..., 0, 2]
+        m10, m11, m12 = M[..., 1, 0], M[..., 1, 1], M[..., 1, 2]
+        m20, m21, m22 = M[..., 2, 0], M[..., 2, 1], M[..., 2, 2]
+        t = jnp.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+        cands = jnp.stack([
+            jnp.stack([t[..., 0], m21 - m12, m02 - m20, m10 - m01], -1),
+            jnp.stack([m21 - m12, t[..., 1], m10 + m01, m02 + m20], -1),
+            jnp.stack([m02 - m20, m10 + m01, t[..., 2], m21 + m12], -1),
+            jnp.stack([m10 - m01, m02 + m20, m21 + m12, t[..., 3]], -1),
+        ], -2)
+        k = jnp.argmax(t, axis=-1)
+        q = jnp.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+        tk = jnp.take_along_axis(t, k[..., None], axis=-1)
+        return cls(q * 0.5 / jnp.sqrt(tk))
+
+    @classmethod
+    def from_coords(cls, q):
+        return cls.exp(q)
+
+    def compose(self, other):
+        w1, v1 = self.wxyz[..., :1], self.wxyz[..., 1:]
+        w2, v2 = other.wxyz[..., :1], other.wxyz[..., 1:]
+        w = w1 * w2 - jnp.sum(v1 * v2, axis=-1, keepdims=True)
+        v = w1 * v2 + w2 * v1 + jnp.cross(v1, v2)
+        return SO3(jnp.concatenate([w, v], axis=-1))
+
+    def inverse(self):
+        return SO3(self.wxyz * jnp.array([1.0, -1.0, -1.0, -1.0]))
+
+    def log(self):
+        # jaxlie's formulation: the shorter of the two rotations the quaternion pair represents, finite
+        # derivatives at 0 (Taylor) and at pi (w -> 0).
+        w, v = self.wxyz[..., 0], self.wxyz[..., 1:]
+        n_sq = jnp.sum(v**2, axis=-1)
+        small = n_sq < _TAYLOR_SQ / 4.0
+        n = jnp.sqrt(jnp.where(small, 1.0, n_sq))
+        w_safe = jnp.where(small, w, 1.0)
+        factor = jnp.where(
+            small,
+            2.0 / w_safe - 2.0 / 3.0 * n_sq / w_safe**3,
+            jnp.where(jnp.abs(w) < 1e-12, jnp.where(w > 0, 1.0, -1.0) * jnp.pi / n,
+                      2.0 * jnp.arctan2(jnp.where(w < 0, -n, n), jnp.abs(w)) / n),
+        )
+        return factor[..., None] * v
+
+    def coords(self):
+        """Rotation vector (axis times angle, the principal :meth:`log`)."""
+        return self.log()
+
+    def as_matrix(self):
+        w, x, y, z = (self.wxyz[..., i] for i in range(4))
+        return jnp.stack([
+            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ], -2)
+
+    def act(self, p):
+        """Rotate vectors ``p`` (``R @ p``)."""
+        return jnp.einsum("...ij,...j->...i", self.as_matrix(), as_float_array(p))
+
+    def Ad(self):
+        return self.as_matrix()
+
+    @classmethod
+    def hat(cls, xi):
+        return _skew(as_float_array(xi))
+
+    @classmethod
+    def vee(cls, X):
+        X = as_float_array(X)
+        return jnp.stack([X[..., 2, 1], X[..., 0, 2], X[..., 1, 0]], -1)
+
+    @classmethod
+    def ad(cls, xi):
+        return _skew(as_float_array(xi))
