@@ -1,0 +1,78 @@
+r"""Residual and perturbed Riccati right-hand side of Theorem 4.1 (Saccon et al. 2016), in coordinates.
+
+With $\tilde y = D^{-\top} Q D^{-1} (y - h(\hat g))$ (DESIGN.md §1):
+
+$$r = Dh^\top \tilde y,\quad A = D\lambda - \mathrm{ad}_\lambda - T_\lambda,\quad
+E = Dh^\top D^{-\top} Q D^{-1} Dh - \sum_k \tilde y_k \mathrm{Hess}\, h_k,\quad W = \omega_{K r},$$
+
+$$\hat g^{-1}\dot{\hat g} = \lambda + K r, \qquad
+\dot K = -\alpha K + A K + K A^\top - K E K + B R^{-1} B^\top - W K - K W^\top.$$
+
+The first-order variant drops the Hessian term of E and sets W = 0 (the continuous-time left-invariant EKF).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ..connections import Connection
+from ..groups import LieGroup
+from ..systems import AbstractSystem
+from ._derivatives import left_hessian, left_jacobian
+
+
+class Terms(eqx.Module):
+    """The terms of Theorem 4.1 at one state, in the matrix convention ``M[i, j] = M(e_j)(e_i)``."""
+
+    r: Float[Array, " n"]
+    """Residual $Dh^\\top \\tilde y$ (in the dual of the algebra)."""
+    A: Float[Array, "n n"]
+    E: Float[Array, "n n"]
+    W: Float[Array, "n n"]
+    BRB: Float[Array, "n n"]
+    """$B R^{-1} B^\\top$."""
+    lam: Float[Array, " n"]
+    """Left-trivialized dynamics $\\lambda(\\hat g, u, t)$."""
+    y_tilde: Float[Array, " p"]
+    """Weighted innovation $D^{-\\top} Q D^{-1} (y - h(\\hat g))$."""
+    Dh: Float[Array, "p n"]
+    Dlam: Float[Array, "n n"]
+
+
+class Weights(eqx.Module):
+    """Constant matrices of the cost: $D^{-\\top} Q D^{-1}$ and $B R^{-1} B^\\top$."""
+
+    Wy: Float[Array, "p p"]
+    BRB: Float[Array, "n n"]
+
+    @staticmethod
+    def of(system: AbstractSystem) -> Weights:
+        Dinv = jnp.linalg.inv(system.D)
+        return Weights(Wy=Dinv.T @ system.Q @ Dinv, BRB=system.B @ jnp.linalg.solve(system.R, system.B.T))
+
+
+def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,
+          g: LieGroup, K, u, y, t) -> Terms:
+    """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``."""
+    G = type(g)
+    h0, Dh = left_jacobian(lambda gg: system.output(gg, t), g)
+    y_tilde = weights.Wy @ (y - h0)
+    r = Dh.T @ y_tilde
+    lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
+    A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
+    E = Dh.T @ weights.Wy @ Dh
+    if second_order:
+        # sum_k y_tilde_k Hess h_k = Hess (y_tilde . h) + connection correction linear in r = Dh^T y_tilde
+        E = E - (left_hessian(lambda gg: y_tilde @ system.output(gg, t), g) + conn.hessian_correction(r))
+        W = conn.omega_matrix(K @ r)
+    else:
+        W = jnp.zeros_like(A)
+    return Terms(r=r, A=A, E=E, W=W, BRB=weights.BRB, lam=lam, y_tilde=y_tilde, Dh=Dh, Dlam=Dlam)
+
+
+def riccati_rhs(tm: Terms, K, alpha) -> Float[Array, "n n"]:
+    """Perturbed Riccati equation (Saccon et al. 2016, Theorem 4.1, eq. (11))."""
+    A, E, W = tm.A, tm.E, tm.W
+    return -alpha * K + A @ K + K @ A.T - K @ E @ K + tm.BRB - W @ K - K @ W.T

@@ -1,0 +1,120 @@
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .. import _validate
+from ..groups import LieGroup
+
+
+def matrix(x) -> Array:
+    """Field converter: a float64 JAX array."""
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+class AbstractSystem(eqx.Module):
+    r"""A system on a Lie group G, left-trivialized (Saccon et al. 2016, eqs. (1)-(2)):
+
+    $$\dot g = g\,(\lambda(g, u, t) + B\delta), \qquad y = h(g, t) + D\varepsilon,$$
+
+    with the cost weights Q (on $\varepsilon$, p x p) and R (on $\delta$, d x d) of
+    $J = \tfrac12 \int e^{-\alpha(t-\tau)} (\delta^\top R \delta + \varepsilon^\top Q \varepsilon)\,d\tau$.
+
+    A concrete system sets ``group`` and implements :meth:`dynamics` and :meth:`output` as pure JAX functions;
+    every derivative the filter needs comes from autodiff. Matrices are validated on construction.
+    """
+
+    B: eqx.AbstractVar[Float[Array, "n d"]]
+    D: eqx.AbstractVar[Float[Array, "p p"]]
+    Q: eqx.AbstractVar[Float[Array, "p p"]]
+    R: eqx.AbstractVar[Float[Array, "d d"]]
+
+    @property
+    @abc.abstractmethod
+    def group(self) -> type[LieGroup]:
+        """The Lie group G of the state."""
+
+    @abc.abstractmethod
+    def dynamics(self, g: LieGroup, u: Float[Array, " m"], t: Float[Array, ""]) -> Float[Array, " n"]:
+        r"""Left-trivialized dynamics $\lambda(g, u, t) \in \mathbb R^n$."""
+
+    @abc.abstractmethod
+    def output(self, g: LieGroup, t: Float[Array, ""]) -> Float[Array, " p"]:
+        r"""Output map $h(g, t) \in \mathbb R^p$."""
+
+    @property
+    @abc.abstractmethod
+    def input_dim(self) -> int:
+        """Length m of the input vector u (0 for none)."""
+
+    @property
+    def output_dim(self) -> int:
+        return self.D.shape[0]
+
+    @property
+    def noise_dim(self) -> int:
+        return self.B.shape[1]
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(f"y{k + 1}" for k in range(self.output_dim))
+
+    def __check_init__(self):
+        G = self.group
+        n = G.tangent_dim
+        B = _validate.array("B", self.B, (n, None))
+        d = B.shape[1]
+        _validate.symmetric_psd("R", self.R, d)
+        out = jax.eval_shape(self.output, G.identity(), jnp.zeros(()))
+        if out.shape != (self.D.shape[0],) or self.D.ndim != 2:
+            p = out.shape[0] if out.ndim == 1 else "p"
+            raise ValueError(f"D: expected shape ({p}, {p}) to match the output h(g, t) of shape {out.shape}, "
+                             f"got {self.D.shape}")
+        p = out.shape[0]
+        _validate.invertible("D", self.D, p)
+        _validate.symmetric_psd("Q", self.Q, p)
+        lam = jax.eval_shape(self.dynamics, G.identity(), jnp.zeros((self.input_dim,)), jnp.zeros(()))
+        if lam.shape != (n,):
+            raise ValueError(f"dynamics: expected lambda(g, u, t) of shape ({n},) for group {G.__name__}, "
+                             f"got {lam.shape}")
+
+
+class System(AbstractSystem):
+    """A user-defined system from plain functions: ``System(group, dynamics, output, B=, D=, Q=, R=)``.
+
+    ``dynamics(g, u, t)`` returns an n-vector, ``output(g, t)`` a p-vector; both must be written with
+    ``jax.numpy`` so that autodiff can differentiate them.
+    """
+
+    group_type: type[LieGroup] = eqx.field(static=True)
+    dynamics_fn: Callable = eqx.field(static=True)
+    output_fn: Callable = eqx.field(static=True)
+    B: Float[Array, "n d"] = eqx.field(converter=matrix)
+    D: Float[Array, "p p"] = eqx.field(converter=matrix)
+    Q: Float[Array, "p p"] = eqx.field(converter=matrix)
+    R: Float[Array, "d d"] = eqx.field(converter=matrix)
+    n_inputs: int = eqx.field(static=True, default=0)
+    names: tuple[str, ...] | None = eqx.field(static=True, default=None)
+
+    @property
+    def group(self) -> type[LieGroup]:
+        return self.group_type
+
+    def dynamics(self, g, u, t):
+        return jnp.asarray(self.dynamics_fn(g, u, t), dtype=jnp.float64)
+
+    def output(self, g, t):
+        return jnp.asarray(self.output_fn(g, t), dtype=jnp.float64)
+
+    @property
+    def input_dim(self) -> int:
+        return self.n_inputs
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return self.names if self.names is not None else super().output_names

@@ -1,0 +1,67 @@
+r"""Rigid-body attitude on TSO(3) = SO(3) x R^3 (Saccon et al. 2016, Section V).
+
+State $(R, \Omega)$, body angular velocity $\Omega$; input the torque $\tau$. Left-trivialized dynamics (eqs. (55)-(56)):
+$\lambda = (\Omega,\ \mathbb I^{-1}((\mathbb I\Omega) \times \Omega + \tau))$; model error $B\delta = (0, B_2\delta)$.
+Output (eq. (57)): two known inertial directions seen in the body frame, $(R^\top a_1, R^\top a_2)$; p = 6.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..groups import TSO3
+from ._base import AbstractSystem, matrix
+
+SIGMA_EPS = 0.5 / 3.0
+SIGMA_DELTA = 1.0
+
+
+class RigidBodyAttitude(AbstractSystem):
+    """Saccon et al. 2016's rigid body with two direction sensors.
+
+    Defaults are the paper's experiment: inertia diag(2, 5, 3), a1 = (0, 0, 1), a2 = (0, 1, 0),
+    D = sigma_eps I6, B2 = sigma_delta I3, Q = sigma_eps^2 I6, R = sigma_delta^2 I3 (eqs. (84)-(85)).
+    """
+
+    inertia: Float[Array, "3 3"] = eqx.field(converter=matrix)
+    a1: Float[Array, " 3"] = eqx.field(converter=matrix)
+    a2: Float[Array, " 3"] = eqx.field(converter=matrix)
+    B: Float[Array, "6 3"] = eqx.field(converter=matrix)
+    D: Float[Array, "6 6"] = eqx.field(converter=matrix)
+    Q: Float[Array, "6 6"] = eqx.field(converter=matrix)
+    R: Float[Array, "3 3"] = eqx.field(converter=matrix)
+
+    def __init__(self, inertia=None, a1=(0.0, 0.0, 1.0), a2=(0.0, 1.0, 0.0), B=None, D=None, Q=None, R=None):
+        self.inertia = matrix(np.diag([2.0, 5.0, 3.0]) if inertia is None else inertia)
+        self.a1, self.a2 = matrix(a1), matrix(a2)
+        self.B = matrix(np.vstack([np.zeros((3, 3)), SIGMA_DELTA * np.eye(3)]) if B is None else B)
+        self.D = matrix(SIGMA_EPS * np.eye(6) if D is None else D)
+        self.Q = matrix(SIGMA_EPS**2 * np.eye(6) if Q is None else Q)
+        self.R = matrix(SIGMA_DELTA**2 * np.eye(3) if R is None else R)
+
+    @property
+    def group(self):
+        return TSO3
+
+    @property
+    def input_dim(self) -> int:
+        return 3
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return ("a1x", "a1y", "a1z", "a2x", "a2y", "a2z")
+
+    def dynamics(self, g, u, t):
+        # Saccon et al. 2016, eqs. (55)-(56)
+        Omega = g.factors[1].x
+        I = self.inertia
+        Omega_dot = jnp.linalg.solve(I, jnp.cross(I @ Omega, Omega) + u)
+        return jnp.concatenate([Omega, Omega_dot])
+
+    def output(self, g, t):
+        # Saccon et al. 2016, eq. (57): R^T a_i
+        Rt = g.factors[0].as_matrix().T
+        return jnp.concatenate([Rt @ self.a1, Rt @ self.a2])

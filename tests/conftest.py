@@ -1,0 +1,1 @@
+import liemef  # noqa: F401  (enables float64 before any test creates an array)

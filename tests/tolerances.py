@@ -1,0 +1,18 @@
+"""Every numerical tolerance of the test suite, in one place, each with the reason for its size."""
+
+ROUNDOFF = 1e-12
+"""Exact identities evaluated in float64 (group axioms, round trips, block structure)."""
+NEAR_PI = 1e-9
+"""Round trips near the cut locus (angle within 1e-6 of pi): conditioning of log there."""
+FINITE_DIFF = 1e-6
+"""Autodiff against central finite differences with step 1e-5 (truncation ~1e-10, cancellation ~1e-11/h)."""
+CLOSED_FORM = 1e-9
+"""Generic engine against the papers' printed closed forms at random states."""
+SYMMETRY = 1e-10
+"""Relative asymmetry |K - K^T| / |K| of the (0)-connection gain over a whole run."""
+ON_GROUP = 1e-12
+"""|R^T R - I| of estimates over a whole run."""
+ODE_REFERENCE = 1e-8
+"""Filter against an independent ODE solution (scipy solve_ivp at rtol 1e-12) at the step sizes used."""
+SLOPE = 0.15
+"""Integrator convergence slope against the declared order."""
