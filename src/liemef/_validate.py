@@ -14,7 +14,7 @@ def array(name: str, value, shape: tuple[int | None, ...] | None = None) -> np.n
         raise ValueError(f"{name}: expected a numeric array, got {type(value).__name__} ({err})") from err
     if shape is not None and (a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape,
                                                                                                    strict=False))):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        want = str(tuple("N" if s is None else s for s in shape)).replace("'", "")
         raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
     if not np.all(np.isfinite(a)):
         bad = np.argwhere(~np.isfinite(a))[0]

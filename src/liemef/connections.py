@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._linalg import mv
 from .groups import LieGroup
 
 CARTAN_SCHOUTEN = {"minus": 0.0, "zero": 0.5, "plus": 1.0}
@@ -43,15 +44,16 @@ class Connection(eqx.Module):
 
     def omega(self, X: Float[Array, " n"], Y: Float[Array, " n"]) -> Float[Array, " n"]:
         r"""$\omega(X, Y)$."""
-        return jnp.einsum("mji,j,i->m", self.Gamma, X, Y)
+        return mv(self.omega_matrix(X), Y)
 
     def omega_matrix(self, X: Float[Array, " n"]) -> Float[Array, "n n"]:
         r"""The matrix of $Y \mapsto \omega(X, Y)$ (the papers' $\omega_X$; $W = \omega_{K r}$)."""
-        return jnp.einsum("mji,j->mi", self.Gamma, X)
+        return jnp.sum(self.Gamma * X[None, :, None], axis=1)
 
     def torsion_matrix(self, X: Float[Array, " n"]) -> Float[Array, "n n"]:
         r"""The matrix of $Y \mapsto T(X, Y) = \omega(X, Y) - \omega(Y, X) - \mathrm{ad}_X Y$."""
-        return jnp.einsum("mji,j->mi", self.Gamma - jnp.swapaxes(self.Gamma, 1, 2) - self.C, X)
+        T = self.Gamma - jnp.swapaxes(self.Gamma, 1, 2) - self.C
+        return jnp.sum(T * X[None, :, None], axis=1)
 
     def hessian_correction(self, r: Float[Array, " n"]) -> Float[Array, "n n"]:
         r"""$M[i, j] = r \cdot (\tfrac12 \mathrm{ad}_{e_j} e_i - \omega(e_j, e_i))$.
@@ -59,7 +61,7 @@ class Connection(eqx.Module):
         Added to the autodiff Hessian of $\xi \mapsto f(g \exp \xi)$ at 0 (the (0)-connection Hessian), it gives
         the connection Hessian $\mathrm{Hess}_\omega f(e_j, e_i)$ of a function whose differential is $r$.
         """
-        return jnp.einsum("m,mji->ij", r, 0.5 * self.C - self.Gamma)
+        return jnp.sum(r[:, None, None] * (0.5 * self.C - self.Gamma), axis=0).T
 
 
 def connection(spec: str | float | ConnectionFunction | Connection, group: type[LieGroup]) -> Connection:

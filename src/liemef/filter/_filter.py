@@ -9,6 +9,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .. import _validate
+from .._linalg import mv
 from ..connections import Connection, ConnectionFunction
 from ..connections import connection as make_connection
 from ..groups import LieGroup
@@ -73,7 +74,9 @@ class MinimumEnergyFilter:
         set_(self, "integrator", make_integrator(integrator))
         set_(self, "alpha", _validate.nonnegative("alpha", alpha))
         set_(self, "weights", Weights.of(system))
-        set_(self, "_step_jit", jax.jit(self._step))
+        treedef = jax.tree_util.tree_structure(FilterState(system.group.identity(), jnp.zeros((self.n, self.n))))
+        set_(self, "_treedef", treedef)
+        set_(self, "_step_jit", jax.jit(self._step_leaves))
         set_(self, "_run_jit", jax.jit(self.scan))
         set_(self, "_terms_jit", jax.jit(self._terms))
 
@@ -118,22 +121,32 @@ class MinimumEnergyFilter:
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state (traceable)."""
         tm = self._terms(g_hat, K, u, y, t)
-        return tm.lam + K @ tm.r, riccati_rhs(tm, K, self.alpha)
+        return tm.lam + mv(K, tm.r), riccati_rhs(tm, K, self.alpha)
 
     def _step(self, state: FilterState, t, u, y, dt) -> FilterState:
         f = lambda g, K, tt: self.vector_field(g, K, u, y, tt)  # noqa: E731  (u, y held over the step)
         g, K = self.integrator.step(f, state.g_hat, state.K, t, dt)
         return FilterState(g_hat=g, K=K)
 
+    def _step_leaves(self, leaves, z):
+        # Online step on flat arrays: jit dispatch flattens nested modules in Python (~20 us); a list of arrays
+        # and one packed sample vector z = (t, dt, u, y) take the C++ fast path.
+        m = self.system.input_dim
+        state = jax.tree_util.tree_unflatten(self._treedef, leaves)
+        return jax.tree_util.tree_leaves(self._step(state, z[0], z[2 : 2 + m], z[2 + m :], z[1]))
+
     # --- public drivers -----------------------------------------------------------------------------------
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float) -> FilterState:
         """Advance one sample interval ``[t, t + dt]`` with ``u`` and ``y`` held (online use)."""
+        self._check_state(state)
         u, y = self._check_sample("u", u, self.system.input_dim), self._check_sample("y", y, self.system.output_dim)
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
         if not np.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
-        return self._step_jit(state, jnp.asarray(float(t)), u, y, jnp.asarray(float(dt)))
+        leaves = jax.tree_util.tree_leaves(state)
+        out = self._step_jit(leaves, np.concatenate([[float(t), float(dt)], u, y]))
+        return jax.tree_util.tree_unflatten(self._treedef, out)
 
     def scan(self, state: FilterState, ts, us, ys) -> Trajectory:
         """Traceable core of :meth:`run` (no checks): one ``lax.scan`` over the sample intervals."""
@@ -156,6 +169,7 @@ class MinimumEnergyFilter:
         Sample k is held over ``[ts[k], ts[k+1])``; the result holds the state at every ``ts[k]``, the first
         being ``state``. Compiled once per log length.
         """
+        self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
         _validate.square("state.K", state.K, self.n)
         ts = _validate.sorted_times("ts", ts)
@@ -168,6 +182,15 @@ class MinimumEnergyFilter:
         return self._run_jit(state, jnp.asarray(ts), jnp.asarray(us), jnp.asarray(ys))
 
     # --- checks -------------------------------------------------------------------------------------------
+    def _check_state(self, state):
+        # cheap structural checks only: step() is the online hot path
+        if not isinstance(state, FilterState):
+            raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
+        G, n = self.system.group, self.n
+        if type(state.g_hat) is not G or getattr(state.K, "shape", None) != (n, n):
+            raise ValueError(f"state: expected g_hat in {G.__name__} and K of shape ({n}, {n}), got "
+                             f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
+
     def _check_element(self, name, g):
         G = self.system.group
         if not isinstance(g, G):
@@ -178,5 +201,5 @@ class MinimumEnergyFilter:
             _validate.array(name, leaf)
 
     @staticmethod
-    def _check_sample(name, v, n):
-        return jnp.asarray(_validate.array(name, np.zeros(0) if v is None and n == 0 else v, (n,)))
+    def _check_sample(name, v, n) -> np.ndarray:
+        return _validate.array(name, np.zeros(0) if v is None and n == 0 else v, (n,))

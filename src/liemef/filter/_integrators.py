@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 
+from .._linalg import mv
 from ..groups import LieGroup
 
 VectorField = Callable[[LieGroup, Any, Any], tuple[Any, Any]]
@@ -61,8 +62,8 @@ class RKMK4(AbstractIntegrator):
 
         def dexpinv(theta, xi):
             ad = G.ad(theta)
-            a1 = ad @ xi
-            return xi + 0.5 * a1 + (ad @ a1) / 12.0
+            a1 = mv(ad, xi)
+            return xi + 0.5 * a1 + mv(ad, a1) / 12.0
 
         xi1, L1 = f(g, v, t)
         k1 = dt * xi1

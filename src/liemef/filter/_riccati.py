@@ -17,6 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._linalg import mm, mv
 from ..connections import Connection
 from ..groups import LieGroup
 from ..systems import AbstractSystem
@@ -58,15 +59,15 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
     """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``."""
     G = type(g)
     h0, Dh = left_jacobian(lambda gg: system.output(gg, t), g)
-    y_tilde = weights.Wy @ (y - h0)
-    r = Dh.T @ y_tilde
+    y_tilde = mv(weights.Wy, y - h0)
+    r = mv(Dh.T, y_tilde)
     lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
     A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
-    E = Dh.T @ weights.Wy @ Dh
+    E = mm(Dh.T, mm(weights.Wy, Dh))
     if second_order:
         # sum_k y_tilde_k Hess h_k = Hess (y_tilde . h) + connection correction linear in r = Dh^T y_tilde
         E = E - (left_hessian(lambda gg: y_tilde @ system.output(gg, t), g) + conn.hessian_correction(r))
-        W = conn.omega_matrix(K @ r)
+        W = conn.omega_matrix(mv(K, r))
     else:
         W = jnp.zeros_like(A)
     return Terms(r=r, A=A, E=E, W=W, BRB=weights.BRB, lam=lam, y_tilde=y_tilde, Dh=Dh, Dlam=Dlam)
@@ -75,4 +76,5 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
 def riccati_rhs(tm: Terms, K, alpha) -> Float[Array, "n n"]:
     """Perturbed Riccati equation (Saccon et al. 2016, Theorem 4.1, eq. (11))."""
     A, E, W = tm.A, tm.E, tm.W
-    return -alpha * K + A @ K + K @ A.T - K @ E @ K + tm.BRB - W @ K - K @ W.T
+    AK, WK = mm(A, K), mm(W, K)
+    return -alpha * K + AK + AK.T - mm(K, mm(E, K)) + tm.BRB - WK - WK.T
