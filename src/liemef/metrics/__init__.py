@@ -1,0 +1,22 @@
+r"""Errors between a truth and an estimate, and their statistics over time windows.
+
+Two error measures:
+
+* :func:`state_error`: $\delta = q - \hat q$ in the group's coordinates (truth minus estimate, as in
+  Rigo et al. 2022, Sec. VI), angles wrapped to $(-\pi, \pi]$;
+* :func:`group_error`: $\log(\hat g^{-1} g)$, the body-frame error on the group.
+
+:func:`error_stats` (traceable, vmap-able) gives per-component mean, std and rms over a :class:`Window`;
+:func:`error_table` collects them for several windows with names and units (:func:`state_labels`) into an
+:class:`ErrorTable` that prints and serializes itself. :func:`gain_stats` summarizes the symmetry and
+definiteness of a gain over a run; :func:`continuous_angles` prepares angle time series for figures.
+"""
+
+from ._errors import angle_mask, continuous_angles, coordinate_error, group_error, state_error, wrap_angle
+from ._gain import gain_stats
+from ._labels import group_error_labels, state_labels
+from ._stats import FULL, ErrorTable, Window, error_stats, error_table, window_mask
+
+__all__ = ["wrap_angle", "angle_mask", "coordinate_error", "state_error", "group_error", "state_labels",
+           "group_error_labels", "Window", "FULL", "window_mask", "error_stats", "error_table", "ErrorTable",
+           "continuous_angles", "gain_stats"]
