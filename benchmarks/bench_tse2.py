@@ -1,0 +1,108 @@
+"""Speed of the TSE(2) experiment (Rigo et al. 2022): 50 s at 1 ms, 50,000 steps, on one core.
+
+Prints one JSON document: compile time, run time without compile and microseconds per step of ``run`` for
+RKMK4 and Lie-Euler (second order) and for the first-order filter, and the latency of one online ``step``
+call fed numpy arrays, as a robot loop would. Figures from one run on a shared machine: compare the ratios
+printed here, measured together, rather than absolute numbers across runs.
+
+Targets (issue 2, one core): <= 20 us per RKMK4 step of ``run``; <= 100 us per ``step`` call; compile < 10 s.
+
+    python benchmarks/bench_tse2.py [--duration 50] [--calls 2000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+# One core, before JAX starts its thread pools.
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                           " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1").strip()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import liemef  # noqa: E402
+from liemef.simulation import simulate  # noqa: E402
+from liemef.systems import PlanarRigidBody, tse2_state  # noqa: E402
+
+
+def tse2_input(t):
+    # Rigo et al. 2022, Sec. VI: u = (u_omega, u_v) = (sin t, 50 sin(t / 50))
+    return jnp.stack([jnp.sin(t), 50.0 * jnp.sin(t / 50.0)])
+
+
+def time_run(flt, state, log, repeats=3):
+    args = (state, np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys))
+    t0 = time.perf_counter()
+    jax.block_until_ready(flt.run(*args))  # compile + first run
+    first = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        traj = jax.block_until_ready(flt.run(*args))
+        runs.append(time.perf_counter() - t0)
+    assert bool(traj.finite), "the benchmark run diverged"
+    run_s = float(np.median(runs))
+    steps = len(log.ts) - 1
+    return {"compile_s": round(first - run_s, 3), "run_s": round(run_s, 4),
+            "us_per_step": round(run_s / steps * 1e6, 3), "steps": steps}
+
+
+def time_step(flt, state, log, calls):
+    ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
+    dt = float(ts[1] - ts[0])
+    st = jax.block_until_ready(flt.step(state, float(ts[0]), us[0], ys[0], dt))  # compile
+    lat = np.empty(calls)
+    for k in range(calls):
+        t0 = time.perf_counter()
+        st = flt.step(st, float(ts[k]), us[k], ys[k], dt)
+        jax.block_until_ready(st.K)
+        lat[k] = time.perf_counter() - t0
+    return {"median_us": round(float(np.median(lat)) * 1e6, 2), "p90_us": round(float(np.quantile(lat, 0.9)) * 1e6, 2),
+            "calls": calls}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=50.0)
+    ap.add_argument("--calls", type=int, default=2000)
+    args = ap.parse_args()
+
+    system = PlanarRigidBody()
+    ts = np.arange(int(round(args.duration / 1e-3)) + 1) * 1e-3
+    _, log = simulate(system, tse2_state(np.pi / 6, 1.0, 2.0, 0.0, 0.0, 0.0), tse2_input, ts, jax.random.PRNGKey(0))
+    g0 = tse2_state(np.pi / 8, 1.1, 2.1, 0.1, -0.1, -0.1)
+
+    results = {}
+    for name, kw in [("rkmk4", dict(integrator="rkmk4")), ("lie_euler", dict(integrator="lie-euler")),
+                     ("rkmk4_first_order", dict(integrator="rkmk4", order="first"))]:
+        flt = liemef.MinimumEnergyFilter(system, **kw)
+        results[f"run_{name}"] = time_run(flt, flt.init(g0, np.eye(6)), log)
+    flt = liemef.MinimumEnergyFilter(system)
+    results["step_rkmk4_numpy"] = time_step(flt, flt.init(g0, np.eye(6)), log, args.calls)
+
+    r = results
+    results["ratios"] = {
+        "rkmk4_over_lie_euler": round(r["run_rkmk4"]["us_per_step"] / r["run_lie_euler"]["us_per_step"], 2),
+        "second_over_first_order": round(r["run_rkmk4"]["us_per_step"] / r["run_rkmk4_first_order"]["us_per_step"], 2),
+        "step_call_over_run_step": round(r["step_rkmk4_numpy"]["median_us"] / r["run_rkmk4"]["us_per_step"], 2),
+    }
+    results["targets"] = {
+        "run_rkmk4_us_per_step<=20": r["run_rkmk4"]["us_per_step"] <= 20,
+        "step_call_us<=100": r["step_rkmk4_numpy"]["median_us"] <= 100,
+        "compile_s<10": r["run_rkmk4"]["compile_s"] < 10,
+    }
+    results["machine"] = {"python": platform.python_version(), "jax": jax.__version__, "liemef": liemef.__version__,
+                          "cores_used": 1, "loadavg_1min": round(os.getloadavg()[0], 2)}
+    print(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()
