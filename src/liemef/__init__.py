@@ -1,14 +1,16 @@
 """liemef: second-order-optimal minimum-energy filtering on matrix Lie groups.
 
 The public surface: :class:`MinimumEnergyFilter`, the groups (:mod:`liemef.groups`), connections
-(:mod:`liemef.connections`), ready systems (:mod:`liemef.systems`).
+(:mod:`liemef.connections`), ready systems (:mod:`liemef.systems`), :func:`simulate` and the metrics
+(:mod:`liemef.metrics`). Experiments, I/O, plots and the CLI sit on top (:mod:`liemef.experiments`).
 """
 
 from . import _config  # noqa: F401  (float64 before any array is created)
-from . import connections, groups, systems
+from . import connections, groups, metrics, simulation, systems
 from .connections import Connection, connection
 from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
+from .simulation import SensorLog, Truth, simulate
 
-__all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "groups",
-           "systems", "connections"]
+__all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
+           "SensorLog", "Truth", "groups", "systems", "connections", "simulation", "metrics"]
 __version__ = "0.1.0"

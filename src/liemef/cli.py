@@ -142,8 +142,7 @@ def run_log(system_name, log_path, out, x0, k0, k0_diag, connection, order, alph
     K = np.asarray(traj.K)
     innov = np.asarray(log.ys - jax.vmap(system.output)(traj.g_hat, log.ts))
     onames = system.output_names
-    ounits = spec.output_units or ("",) * len(onames)
-    table = error_table(log.ts, innov, onames, ounits, (FULL,))
+    table = error_table(log.ts, innov, onames, system.output_units, (FULL,))
     figures = [{"file": "estimate.png", "components": list(names),
                 "title": f"{spec.name}: measured (blue), filtered (green) from {log_path.name}"}]
     metrics = {

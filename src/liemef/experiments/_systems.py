@@ -15,14 +15,13 @@ class SystemSpec:
 
     ``make()`` builds the system; ``measured(ys)`` reads the state coordinates off measurements (N, p)
     (NaN where not measured); ``initial_guess(ys0)`` is the default initial estimate in coordinates from the
-    first measurement (unmeasured coordinates 0); ``output_units`` are the units of the outputs.
+    first measurement (unmeasured coordinates 0).
     """
 
     name: str
     description: str
     make: Callable[[], AbstractSystem] = field(repr=False)
     measured: Callable[[np.ndarray], np.ndarray] = field(repr=False)
-    output_units: tuple[str, ...] = ()
 
     def initial_guess(self, ys0) -> np.ndarray:
         q = self.measured(np.asarray(ys0, dtype=np.float64)[None, :])[0]
@@ -33,12 +32,10 @@ SYSTEMS: dict[str, SystemSpec] = {
     "tse2": SystemSpec(
         "tse2",
         "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)",
-        lambda: PlanarRigidBody(sensor="gps_imu"), lambda ys: measured_state("gps_imu", ys),
-        ("m", "m", "m", "m", "rad/s", "m/s", "m/s")),
+        lambda: PlanarRigidBody(sensor="gps_imu"), lambda ys: measured_state("gps_imu", ys)),
     "tse2-velocity": SystemSpec(
         "tse2-velocity", "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)",
-        lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys),
-        ("rad/s", "m/s", "m/s")),
+        lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys)),
 }
 """Systems available to ``liemef run``, by name."""
 

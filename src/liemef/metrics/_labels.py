@@ -1,30 +1,12 @@
 from __future__ import annotations
 
-from ..systems import AbstractSystem, PlanarRigidBody
-from ..systems import planar_rigid_body as _prb
-
-# Names and units of the coordinates of the ready systems, until systems carry them themselves.
-_KNOWN: dict[type, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    PlanarRigidBody: (_prb.STATE_NAMES, _prb.STATE_UNITS),
-}
+from ..systems import AbstractSystem
 
 
 def state_labels(system: AbstractSystem) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """Names and units of the system's state coordinates (``group.coords()``), e.g. for TSE(2)
-    ``("theta", "x", "y", "omega", "vx", "vy")`` in ``("rad", "m", "m", "rad/s", "m/s", "m/s")``.
-
-    Uses ``system.state_names`` / ``system.state_units`` when the system defines them; otherwise the ready
-    systems' tables; otherwise ``q1, q2, ...`` without units.
-    """
-    names = getattr(system, "state_names", None)
-    units = getattr(system, "state_units", None)
-    if names is not None and units is not None:
-        return tuple(names), tuple(units)
-    for cls, labels in _KNOWN.items():
-        if isinstance(system, cls):
-            return labels
-    c = system.group.coords_dim
-    return tuple(f"q{k + 1}" for k in range(c)), ("",) * c
+    ``("theta", "x", "y", "omega", "vx", "vy")`` in ``("rad", "m", "m", "rad/s", "m/s", "m/s")``."""
+    return tuple(system.state_names), tuple(system.state_units)
 
 
 def group_error_labels(system: AbstractSystem) -> tuple[tuple[str, ...], tuple[str, ...]]:

@@ -62,7 +62,23 @@ class AbstractSystem(eqx.Module):
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """Names of the output components (reports, CSV headers)."""
         return tuple(f"y{k + 1}" for k in range(self.output_dim))
+
+    @property
+    def output_units(self) -> tuple[str, ...]:
+        """Units of the output components ("" when unknown)."""
+        return ("",) * self.output_dim
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the state coordinates ``group.coords()`` (reports, CSV headers)."""
+        return tuple(f"q{k + 1}" for k in range(self.group.coords_dim))
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        """Units of the state coordinates ("" when unknown)."""
+        return ("",) * self.group.coords_dim
 
     def __check_init__(self):
         G = self.group

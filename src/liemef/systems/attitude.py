@@ -54,6 +54,19 @@ class RigidBodyAttitude(AbstractSystem):
     def output_names(self) -> tuple[str, ...]:
         return ("a1x", "a1y", "a1z", "a2x", "a2y", "a2z")
 
+    @property
+    def output_units(self) -> tuple[str, ...]:
+        return ("m",) * 6  # Saccon et al. 2016, Sec. V: sigma_eps = 0.5/3 m
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """The rotation vector (axis times angle) of R, then Omega."""
+        return ("rx", "ry", "rz", "wx", "wy", "wz")
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return ("rad", "rad", "rad", "rad/s", "rad/s", "rad/s")
+
     def dynamics(self, g, u, t):
         # Saccon et al. 2016, eqs. (55)-(56)
         Omega = g.factors[1].x

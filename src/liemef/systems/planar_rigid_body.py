@@ -24,12 +24,11 @@ from ..groups import SE2, TSE2, R3
 from ._base import AbstractSystem, matrix
 
 Sensor = Literal["gps_imu", "velocity"]
-SENSORS: dict[str, tuple[str, ...]] = {
-    "gps_imu": ("x1", "y1", "x2", "y2", "omega", "vx", "vy"),
-    "velocity": ("omega", "vx", "vy"),
+SENSORS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "gps_imu": (("x1", "y1", "x2", "y2", "omega", "vx", "vy"), ("m", "m", "m", "m", "rad/s", "m/s", "m/s")),
+    "velocity": (("omega", "vx", "vy"), ("rad/s", "m/s", "m/s")),
 }
-STATE_NAMES = ("theta", "x", "y", "omega", "vx", "vy")
-STATE_UNITS = ("rad", "m", "m", "rad/s", "m/s", "m/s")
+"""Output names and units of each sensor."""
 
 
 class PlanarRigidBody(AbstractSystem):
@@ -68,7 +67,19 @@ class PlanarRigidBody(AbstractSystem):
 
     @property
     def output_names(self) -> tuple[str, ...]:
-        return SENSORS[self.sensor]
+        return SENSORS[self.sensor][0]
+
+    @property
+    def output_units(self) -> tuple[str, ...]:
+        return SENSORS[self.sensor][1]
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return ("theta", "x", "y", "omega", "vx", "vy")
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return ("rad", "m", "m", "rad/s", "m/s", "m/s")
 
     def dynamics(self, g, u, t):
         # Rigo et al. 2022, eqs. (8), (11)
