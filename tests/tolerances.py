@@ -16,3 +16,7 @@ ODE_REFERENCE = 1e-8
 """Filter against an independent ODE solution (scipy solve_ivp at rtol 1e-12) at the step sizes used."""
 SLOPE = 0.15
 """Integrator convergence slope against the declared order."""
+STEADY_STATE = 1e-9
+"""Riccati gain after a long run (transient decayed below 1e-12) against scipy's solve_continuous_are."""
+SECOND_FINITE_DIFF = 1e-6
+"""Mixed second derivatives by central differences with step 1e-4 (truncation ~1e-8, cancellation ~1e-16/h^2)."""

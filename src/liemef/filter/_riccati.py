@@ -75,6 +75,7 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
 
 def riccati_rhs(tm: Terms, K, alpha) -> Float[Array, "n n"]:
     """Perturbed Riccati equation (Saccon et al. 2016, Theorem 4.1, eq. (11))."""
-    A, E, W = tm.A, tm.E, tm.W
-    AK, WK = mm(A, K), mm(W, K)
-    return -alpha * K + AK + AK.T - mm(K, mm(E, K)) + tm.BRB - WK - WK.T
+    # A K + K A^T - W K - K W^T = M K + K M^T with M = A - W. K is not symmetric in general (the
+    # (-)-connection E is not), so K M^T must not be formed as (M K)^T.
+    M = tm.A - tm.W
+    return -alpha * K + mm(M, K) + mm(K, M.T) - mm(K, mm(tm.E, K)) + tm.BRB
