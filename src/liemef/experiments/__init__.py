@@ -8,8 +8,19 @@ Registered: ``tse2`` (Rigo et al. 2022, Sec. VI, Figs. 3-4) and ``tse2-velocity`
 """
 
 from . import tse2
-from ._base import EXPERIMENTS, SCHEMA, Experiment, FigureSpec, Result, config_dict, get_experiment, register
+from ._base import (
+    EXPERIMENTS,
+    SCHEMA,
+    Experiment,
+    FigureSpec,
+    Result,
+    TrialSpec,
+    config_dict,
+    get_experiment,
+    register,
+)
+from ._evaluate import evaluate
 from ._systems import SYSTEMS, SystemSpec, get_system
 
-__all__ = ["EXPERIMENTS", "Experiment", "FigureSpec", "Result", "SCHEMA", "get_experiment", "register",
-           "config_dict", "SYSTEMS", "SystemSpec", "get_system", "tse2"]
+__all__ = ["EXPERIMENTS", "Experiment", "FigureSpec", "Result", "TrialSpec", "SCHEMA", "get_experiment", "register",
+           "config_dict", "evaluate", "SYSTEMS", "SystemSpec", "get_system", "tse2"]

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import ErrorTable
+from ..metrics import ErrorTable, Window
 
 SCHEMA = "liemef.metrics/1"
 """Version tag of the ``metrics.json`` layout (see :class:`Result`)."""
@@ -56,10 +56,27 @@ class Result:
 
 
 @dataclass(frozen=True)
+class TrialSpec:
+    """One Monte Carlo trial of an experiment config: ``errors(key)`` (N, c) for the sample times ``ts``.
+
+    ``errors`` is traceable in the ``jax.random`` key (simulation and filter for that key, truth minus
+    estimate in coordinates), so a Monte Carlo driver batches trials with ``jax.vmap`` over split keys and
+    reduces each trial to per-window statistics (:func:`liemef.metrics.error_stats`).
+    """
+
+    ts: np.ndarray
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    windows: tuple[Window, ...]
+    errors: Callable[[Any], Any] = field(repr=False)
+
+
+@dataclass(frozen=True)
 class Experiment:
     """A paper figure or table as a frozen default config plus ``run(config, key=None) -> Result``.
 
     ``key=None`` uses ``jax.random.key(config.seed)``; a Monte Carlo driver passes its own keys.
+    ``trial_fn(config) -> TrialSpec`` gives the traceable trial a Monte Carlo batches (None: no Monte Carlo).
     """
 
     name: str
@@ -67,6 +84,7 @@ class Experiment:
     paper: str
     default_config: Any
     run_fn: Callable[..., Result] = field(repr=False)
+    trial_fn: Callable[[Any], TrialSpec] | None = field(default=None, repr=False)
     figures: tuple[FigureSpec, ...] = ()
 
     def config(self, **overrides) -> Any:

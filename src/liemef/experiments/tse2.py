@@ -24,25 +24,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import __version__, _validate
+from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
 from ..filter import INTEGRATORS, MinimumEnergyFilter, Trajectory
-from ..metrics import (
-    FULL,
-    Window,
-    angle_mask,
-    continuous_angles,
-    error_table,
-    gain_stats,
-    group_error,
-    group_error_labels,
-    state_error,
-    state_labels,
-)
+from ..metrics import FULL, Window, state_error, state_labels
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import PlanarRigidBody, tse2_state
 from ..systems.planar_rigid_body import SENSORS
-from ._base import SCHEMA, Experiment, FigureSpec, Result, config_dict, register
+from ._base import Experiment, FigureSpec, Result, TrialSpec, register
+from ._evaluate import evaluate
 
 
 def paper_input(t):
@@ -204,46 +194,22 @@ def run(config: TSE2Config | None = None, key=None) -> Result:
     truth, log = simulate(s.system, s.g0, paper_input, s.ts, key, model_error_std=c.model_error_std,
                           substeps=c.substeps, integrator=c.integrator)
     traj = s.filter.run(s.state0, log.ts, log.us, log.ys)
+    return evaluate(EXPERIMENTS_BY_SENSOR[c.sensor], c, s.filter, truth, log, traj,
+                    measured_state(c.sensor, np.asarray(log.ys)), (FULL, Window(*map(float, c.steady))),
+                    _assumptions(c))
 
-    ts = np.asarray(truth.ts)
+
+def trial_spec(config: TSE2Config) -> TrialSpec:
+    """The Monte Carlo trial of ``config``: coordinate errors of one seeded run (traceable in the key)."""
+    s = setup(config)
+
+    def errors(key):
+        truth, _, traj = trial(s, key)
+        return state_error(truth.g, traj.g_hat)
+
     names, units = state_labels(s.system)
-    err = np.asarray(state_error(truth.g, traj.g_hat))
-    gerr = np.asarray(group_error(truth.g, traj.g_hat))
-    angles = angle_mask(s.system.group)
-    truth_c = continuous_angles(truth.coords(), angles)
-    filt_c = continuous_angles(traj.coords(), angles)
-    meas_c = continuous_angles(measured_state(c.sensor, np.asarray(log.ys)), angles, reference=filt_c)
-    K = np.asarray(traj.K)
-
-    windows = (FULL, Window(*map(float, c.steady)))
-    table = error_table(ts, err, names, units, windows)
-    gnames, gunits = group_error_labels(s.system)
-    gtable = error_table(ts, gerr, gnames, gunits, windows)
-    exp = EXPERIMENTS_BY_SENSOR[c.sensor]
-    metrics = {
-        "schema": SCHEMA,
-        "experiment": {"name": exp.name, "title": exp.title, "paper": exp.paper},
-        "config": config_dict(c),
-        "assumptions": _assumptions(c),
-        "windows": table.windows_dict(),
-        "errors": {"definition": "truth - estimate in coordinates, angles wrapped to (-pi, pi] "
-                                 "(Rigo et al. 2022, Sec. VI)", "components": table.to_dict()},
-        "group_errors": {"definition": "log(g_hat^-1 g), body frame", "components": gtable.to_dict()},
-        "gain": gain_stats(K),
-        "run": {"finite": bool(traj.finite), "samples": int(ts.shape[0]), "liemef_version": __version__,
-                "filter": repr(s.filter)},
-        "figures": [f.to_dict() for f in exp.figures],
-    }
-    arrays = {
-        "ts": ts, "names": np.array(names), "units": np.array(units),
-        "truth": truth_c, "measured": meas_c, "filtered": filt_c, "error": err,
-        "group_error": gerr, "group_error_names": np.array(gnames),
-        "K_diag": np.diagonal(K, axis1=1, axis2=2),
-        "u_nominal": np.asarray(truth.u), "us": np.asarray(log.us), "ys": np.asarray(log.ys),
-        "output_names": np.array(s.system.output_names),
-    }
-    return Result(experiment=exp.name, config=c, arrays=arrays, metrics=metrics, table=table,
-                  figures=exp.figures, raw={"truth": truth, "log": log, "trajectory": traj})
+    return TrialSpec(ts=s.ts, names=names, units=units, windows=(FULL, Window(*map(float, config.steady))),
+                     errors=errors)
 
 
 def _run_velocity(config: TSE2Config | None = None, key=None) -> Result:
@@ -262,6 +228,7 @@ TSE2 = register(Experiment(
     paper="Rigo, Segala, Sansonetto, Muradore 2022, Sec. VI, Figs. 3-4",
     default_config=TSE2Config(),
     run_fn=run,
+    trial_fn=trial_spec,
     figures=(
         FigureSpec("fig3_pose.png", _POSE,
                    "Pose: truth (black), measured (blue), filtered (green); errors (red)",
@@ -278,6 +245,7 @@ TSE2_VELOCITY = register(Experiment(
     paper="Segala, Sansonetto, Muradore, poster 'Tracking and filtering on SE(2)'; setup of Rigo et al. 2022",
     default_config=TSE2Config(sensor="velocity"),
     run_fn=_run_velocity,
+    trial_fn=trial_spec,
     figures=(
         FigureSpec("fig_pose.png", _POSE,
                    "Pose, not measured: truth (black), dead-reckoned estimate (green); errors (red)",
