@@ -1,10 +1,11 @@
 r"""Affine connections on a Lie group, given by a bilinear connection function on the algebra.
 
-A left-invariant connection is fixed by a bilinear map $\omega: \mathfrak g \times \mathfrak g \to \mathfrak g$,
-$\nabla_{gX} (gY) = g\,\omega(X, Y)$ for constant $X, Y$ (Saccon et al. 2016, Sec. II). The Cartan-Schouten family is
-$\omega(X, Y) = c\,\mathrm{ad}_X Y$: $c = 0$ the (-)-connection, $c = 1/2$ the torsion-free (0)-connection (the
-papers' default), $c = 1$ the (+)-connection. Its torsion is $T(X, Y) = \omega(X, Y) - \omega(Y, X) - [X, Y]$,
-for the family $T_X = (2c - 1)\,\mathrm{ad}_X$.
+A left-invariant connection is fixed by a bilinear map
+$\omega: \mathfrak g \times \mathfrak g \to \mathfrak g$, $\nabla_{gX} (gY) = g\,\omega(X, Y)$ for constant
+$X, Y$ (Saccon et al. 2016, Sec. II). The Cartan-Schouten family is $\omega(X, Y) = c\,\mathrm{ad}_X Y$:
+$c = 0$ the (-)-connection, $c = 1/2$ the torsion-free (0)-connection (the papers' default), $c = 1$ the
+(+)-connection. Its torsion is $T(X, Y) = \omega(X, Y) - \omega(Y, X) - [X, Y]$, for the family
+$T_X = (2c - 1)\,\mathrm{ad}_X$.
 
 Everything the filter needs from a connection is the constant tensor
 $\Gamma[m, j, i] = \omega(e_j, e_i)_m$, computed once per group.
@@ -58,8 +59,9 @@ class Connection(eqx.Module):
     def hessian_correction(self, r: Float[Array, " n"]) -> Float[Array, "n n"]:
         r"""$M[i, j] = r \cdot (\tfrac12 \mathrm{ad}_{e_j} e_i - \omega(e_j, e_i))$.
 
-        Added to the autodiff Hessian of $\xi \mapsto f(g \exp \xi)$ at 0 (the (0)-connection Hessian), it gives
-        the connection Hessian $\mathrm{Hess}_\omega f(e_j, e_i)$ of a function whose differential is $r$.
+        Added to the autodiff Hessian of $\xi \mapsto f(g \exp \xi)$ at 0 (the (0)-connection Hessian), it
+        gives the connection Hessian $\mathrm{Hess}_\omega f(e_j, e_i)$ of a function whose differential is
+        $r$.
         """
         return jnp.sum(r[:, None, None] * (0.5 * self.C - self.Gamma), axis=0).T
 
@@ -67,18 +69,16 @@ class Connection(eqx.Module):
 def connection(spec: str | float | ConnectionFunction | Connection, group: type[LieGroup]) -> Connection:
     """Build the :class:`Connection` of ``group`` from a name, a Cartan-Schouten coefficient or a function.
 
-    ``spec`` is ``"minus"`` (c = 0), ``"zero"`` (c = 1/2), ``"plus"`` (c = 1), a number c, or a bilinear function
-    ``omega(X, Y) -> Z`` on n-vectors (checked for bilinearity here, before any compiled code runs).
+    ``spec`` is ``"minus"`` (c = 0), ``"zero"`` (c = 1/2), ``"plus"`` (c = 1), a number c, or a bilinear
+    function ``omega(X, Y) -> Z`` on n-vectors (checked for bilinearity here, before any compiled code runs).
     """
     if isinstance(spec, Connection):
         return spec
-    n = group.tangent_dim
-    basis = jnp.eye(n)
-    C = jnp.moveaxis(jax.vmap(group.ad)(basis), 0, 1)  # C[m, j, i] = ad(e_j)[m, i]
+    C = group.structure_constants()  # C[m, j, i] = ad(e_j)[m, i]: the group's one definition
     if isinstance(spec, str):
         if spec not in CARTAN_SCHOUTEN:
-            raise ValueError(f"connection: expected one of {sorted(CARTAN_SCHOUTEN)}, a number c or a function, "
-                             f"got {spec!r}")
+            raise ValueError(f"connection: expected one of {sorted(CARTAN_SCHOUTEN)}, a number c or a "
+                             f"function, got {spec!r}")
         return Connection(name=spec, Gamma=CARTAN_SCHOUTEN[spec] * C, C=C)
     if isinstance(spec, int | float) and not isinstance(spec, bool):
         if not np.isfinite(spec):
@@ -86,16 +86,19 @@ def connection(spec: str | float | ConnectionFunction | Connection, group: type[
         return Connection(name=f"cartan-schouten(c={spec:g})", Gamma=float(spec) * C, C=C)
     if callable(spec):
         return _from_function(spec, group, C)
-    raise ValueError(f"connection: expected a name, a number or a function omega(X, Y), got {type(spec).__name__}")
+    raise ValueError("connection: expected a name, a number or a function omega(X, Y), "
+                     f"got {type(spec).__name__}")
 
 
 def _from_function(fn: ConnectionFunction, group: type[LieGroup], C: Array) -> Connection:
     n = group.tangent_dim
     basis = jnp.eye(n)
     try:
-        Gamma = jax.vmap(lambda ej: jax.vmap(lambda ei: jnp.asarray(fn(ej, ei), dtype=jnp.float64))(basis))(basis)
+        column = lambda ej: jax.vmap(lambda ei: jnp.asarray(fn(ej, ei), dtype=jnp.float64))(basis)  # noqa: E731
+        Gamma = jax.vmap(column)(basis)
     except Exception as err:  # noqa: BLE001  (a user function may fail in any way: say which argument)
-        raise ValueError(f"connection: the function omega(X, Y) failed on basis vectors of length {n}: {err}") from err
+        raise ValueError("connection: the function omega(X, Y) failed on basis vectors of length "
+                         f"{n}: {err}") from err
     if Gamma.shape != (n, n, n):
         raise ValueError(f"connection: expected omega(X, Y) to return a vector of shape ({n},), "
                          f"got shape {Gamma.shape[2:]}")
@@ -107,8 +110,8 @@ def _from_function(fn: ConnectionFunction, group: type[LieGroup], C: Array) -> C
         got = np.asarray(fn(jnp.asarray(X), jnp.asarray(Y)), dtype=float)
         want = np.einsum("mji,j,i->m", np.asarray(Gamma), X, Y)
         if not np.allclose(got, want, rtol=1e-9, atol=1e-9 * (1 + np.abs(want).max())):
-            raise ValueError("connection: expected a bilinear function omega(X, Y); it is not bilinear at random "
-                             f"arguments (max deviation {np.abs(got - want).max():.3g})")
+            raise ValueError("connection: expected a bilinear function omega(X, Y); it is not bilinear at "
+                             f"random arguments (max deviation {np.abs(got - want).max():.3g})")
     name = getattr(fn, "__name__", "user")
     return Connection(name=name, Gamma=Gamma, C=C)
 

@@ -2,14 +2,14 @@ r"""Matrix Lie groups, with one set of conventions for the whole library.
 
 Conventions (Saccon et al. 2016 and the papers that follow it; tested in ``tests/test_groups.py``):
 
-* A Lie algebra element is a vector $\xi \in \mathbb R^n$ through :meth:`~LieGroup.hat` / :meth:`~LieGroup.vee`,
-  in the papers' basis order: so(2) = $(\omega)$; so(3) = $(w_x, w_y, w_z)$; se(2) = $(\omega, v_x, v_y)$
-  (rotation rate first); $\mathbb R^n$ = $x$; products concatenate their factors, e.g. TSE(2) =
-  SE(2) x R^3 has $(\omega, v_x, v_y; \dot\omega, \dot v_x, \dot v_y)$.
+* A Lie algebra element is a vector $\xi \in \mathbb R^n$ through :meth:`~LieGroup.hat` /
+  :meth:`~LieGroup.vee`, in the papers' basis order: so(2) = $(\omega)$; so(3) = $(w_x, w_y, w_z)$;
+  se(2) = $(\omega, v_x, v_y)$ (rotation rate first); $\mathbb R^n$ = $x$; products concatenate their
+  factors, e.g. TSE(2) = SE(2) x R^3 has $(\omega, v_x, v_y; \dot\omega, \dot v_x, \dot v_y)$.
 * Perturbations are **left-trivialized** (body frame): the direction $\xi$ at $g$ is the curve $g \exp(s\xi)$
   (:meth:`~LieGroup.rplus`).
-* $\mathrm{ad}_X$ is the $n \times n$ matrix with $\mathrm{ad}_X Y = [\hat X, \hat Y]^\vee$; $\mathrm{Ad}_g$ the one
-  with $\mathrm{Ad}_g X = (g \hat X g^{-1})^\vee$.
+* $\mathrm{ad}_X$ is the $n \times n$ matrix with $\mathrm{ad}_X Y = [\hat X, \hat Y]^\vee$;
+  $\mathrm{Ad}_g$ the one with $\mathrm{Ad}_g X = (g \hat X g^{-1})^\vee$.
 * The dual $\mathfrak g^*$ is $\mathbb R^n$ through the standard pairing.
 * Elements are frozen pytrees with optional leading batch axes: they pass through ``jit``, ``vmap`` and
   ``lax.scan``. Every ``exp`` is smooth at 0 with finite first and second derivatives (Taylor branches).
@@ -31,4 +31,5 @@ SE2R2 = Product[SE2, R2]
 SO2R1 = Product[SO2, R1]
 """SO(2) x R: angle and gyro bias (Zamani et al.)."""
 
-__all__ = ["LieGroup", "SO2", "SO3", "SE2", "Rn", "R1", "R2", "R3", "Product", "TSE2", "TSO3", "SE2R2", "SO2R1"]
+__all__ = ["LieGroup", "SO2", "SO3", "SE2", "Rn", "R1", "R2", "R3", "Product", "TSE2", "TSO3", "SE2R2",
+           "SO2R1"]

@@ -46,29 +46,23 @@ class Product(LieGroup):
     def __init__(self, factors):
         factors = tuple(factors)
         types = self.factor_types
-        if len(factors) != len(types) or not all(isinstance(f, t) for f, t in zip(factors, types, strict=False)):
+        if len(factors) != len(types) or not all(map(isinstance, factors, types)):
             got = tuple(type(f).__name__ for f in factors)
             raise ValueError(f"{type(self).__name__}: expected factors of types "
                              f"{tuple(t.__name__ for t in types)}, got {got}")
         self.factors = factors
 
     @classmethod
-    @functools.cache
     def __class_getitem__(cls, factor_types) -> type[Product]:
+        # Validated before the cache, so that an unhashable argument also gets the ValueError.
         if not isinstance(factor_types, tuple):
             factor_types = (factor_types,)
-        if not all(isinstance(t, type) and issubclass(t, LieGroup) and hasattr(t, "tangent_dim")
-                   for t in factor_types):
-            raise ValueError(f"Product[...]: expected concrete LieGroup types, got {factor_types!r}")
-        name = "x".join(t.__name__ for t in factor_types)
-        return type(cls)(name, (cls,), {
-            "factor_types": factor_types,
-            "tangent_dim": sum(t.tangent_dim for t in factor_types),
-            "matrix_dim": sum(t.matrix_dim for t in factor_types),
-            "coords_dim": sum(t.coords_dim for t in factor_types),
-            "__module__": cls.__module__,
-            "__qualname__": name,
-        })
+        concrete = [isinstance(t, type) and issubclass(t, LieGroup) and hasattr(t, "tangent_dim")
+                    for t in factor_types]
+        if not factor_types or not all(concrete):
+            raise ValueError(f"Product[...]: expected one or more concrete LieGroup types, "
+                             f"got {factor_types!r}")
+        return _product_type(factor_types)
 
     @classmethod
     def _tangent_sizes(cls):
@@ -135,3 +129,15 @@ class Product(LieGroup):
         return _block_diag([t.ad(p) for t, p in zip(cls.factor_types, parts, strict=True)])
 
 
+@functools.cache
+def _product_type(factor_types: tuple[type[LieGroup], ...]) -> type[Product]:
+    # Always a direct subclass of Product, one class per tuple of factor types.
+    name = "x".join(t.__name__ for t in factor_types)
+    return type(Product)(name, (Product,), {
+        "factor_types": factor_types,
+        "tangent_dim": sum(t.tangent_dim for t in factor_types),
+        "matrix_dim": sum(t.matrix_dim for t in factor_types),
+        "coords_dim": sum(t.coords_dim for t in factor_types),
+        "__module__": Product.__module__,
+        "__qualname__": name,
+    })

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import functools
+import numbers
 from typing import ClassVar
 
 import jax.numpy as jnp
@@ -23,16 +24,17 @@ class Rn(LieGroup):
     def __init__(self, x):
         x = as_float_array(x)
         if x.shape[-1:] != (self.tangent_dim,):
-            raise ValueError(f"{type(self).__name__}: expected x of shape (..., {self.tangent_dim}), got {x.shape}")
+            raise ValueError(f"{type(self).__name__}: expected x of shape (..., {self.tangent_dim}), "
+                             f"got {x.shape}")
         self.x = x
 
     @classmethod
-    @functools.cache
     def __class_getitem__(cls, n: int) -> type[Rn]:
-        if not isinstance(n, int) or n < 1:
+        # Validated before the cache: True == 1 and 2.0 == 2 would otherwise hit the cached R1 and R2.
+        # bool is rejected (an int subclass); numpy integers are accepted as the ints they are.
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
             raise ValueError(f"Rn[n]: expected a positive integer dimension n, got {n!r}")
-        return type(cls)(f"R{n}", (cls,), {"tangent_dim": n, "matrix_dim": n + 1, "coords_dim": n,
-                                       "__module__": cls.__module__, "__qualname__": f"R{n}"})
+        return _rn_type(int(n))
 
     @classmethod
     def identity(cls, batch_shape=()):
@@ -66,7 +68,8 @@ class Rn(LieGroup):
         return self.hat(self.x) + jnp.eye(self.matrix_dim)
 
     def Ad(self):
-        return jnp.broadcast_to(jnp.eye(self.tangent_dim), (*self.batch_shape, self.tangent_dim, self.tangent_dim))
+        n = self.tangent_dim
+        return jnp.broadcast_to(jnp.eye(n), (*self.batch_shape, n, n))
 
     @classmethod
     def hat(cls, xi):
@@ -83,6 +86,13 @@ class Rn(LieGroup):
     def ad(cls, xi):
         n = cls.tangent_dim
         return jnp.zeros((*jnp.shape(xi)[:-1], n, n))
+
+
+@functools.cache
+def _rn_type(n: int) -> type[Rn]:
+    # Always a direct subclass of Rn (``R3[2]`` is R2, not a subclass of R3), one class per n.
+    return type(Rn)(f"R{n}", (Rn,), {"tangent_dim": n, "matrix_dim": n + 1, "coords_dim": n,
+                                     "__module__": Rn.__module__, "__qualname__": f"R{n}"})
 
 
 R1, R2, R3 = Rn[1], Rn[2], Rn[3]

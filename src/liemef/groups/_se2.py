@@ -49,8 +49,10 @@ class SE2(LieGroup):
         w_safe = jnp.where(small, 1.0, w)
         w2 = w * w
         a = jnp.where(small, 1.0 - w2 / 6.0 + w2**2 / 120.0 - w2**3 / 5040.0, jnp.sin(w_safe) / w_safe)
+        # 1 - cos(w) = 2 sin^2(w/2): the direct difference cancels (relative error ~1e-16 / w^2 just above the
+        # threshold, 2e-13 at w = 1e-2).
         b = jnp.where(small, w / 2.0 - w * w2 / 24.0 + w * w2**2 / 720.0 - w * w2**3 / 40320.0,
-                      (1.0 - jnp.cos(w_safe)) / w_safe)
+                      2.0 * jnp.sin(w_safe / 2.0) ** 2 / w_safe)
         p = jnp.stack([a * v[..., 0] - b * v[..., 1], b * v[..., 0] + a * v[..., 1]], -1)
         return cls.from_rotation_translation(SO2.from_angle(w), p)
 
@@ -67,7 +69,8 @@ class SE2(LieGroup):
 
     def compose(self, other):
         rot = self.rotation()
-        return SE2.from_rotation_translation(rot @ other.rotation(), rot.act(other.translation()) + self.translation())
+        p = rot.act(other.translation()) + self.translation()
+        return SE2.from_rotation_translation(rot @ other.rotation(), p)
 
     def inverse(self):
         rot_inv = self.rotation().inverse()
@@ -79,8 +82,9 @@ class SE2(LieGroup):
         t_safe = jnp.where(small, 1.0, theta)
         t2 = theta * theta
         # V(theta)^{-1} = [[A, B], [-B, A]] with A = (theta/2) cot(theta/2), B = theta/2
+        # Half-angle form: sin(t) / (1 - cos(t)) cancels (relative error ~1e-16 / t^2 above the threshold).
         A = jnp.where(small, 1.0 - t2 / 12.0 - t2**2 / 720.0 - t2**3 / 30240.0,
-                      0.5 * t_safe * jnp.sin(t_safe) / (1.0 - jnp.cos(t_safe)))
+                      0.5 * t_safe * jnp.cos(t_safe / 2.0) / jnp.sin(t_safe / 2.0))
         B = theta / 2.0
         p = self.translation()
         v = jnp.stack([A * p[..., 0] + B * p[..., 1], -B * p[..., 0] + A * p[..., 1]], -1)
@@ -104,14 +108,16 @@ class SE2(LieGroup):
     def Ad(self):
         c, s, x, y = (self.cos_sin_xy[..., i] for i in range(4))
         o, one = jnp.zeros_like(c), jnp.ones_like(c)
-        return jnp.stack([jnp.stack([one, o, o], -1), jnp.stack([y, c, -s], -1), jnp.stack([-x, s, c], -1)], -2)
+        rows = [jnp.stack([one, o, o], -1), jnp.stack([y, c, -s], -1), jnp.stack([-x, s, c], -1)]
+        return jnp.stack(rows, -2)
 
     @classmethod
     def hat(cls, xi):
         xi = as_float_array(xi)
         w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]
         o = jnp.zeros_like(w)
-        return jnp.stack([jnp.stack([o, -w, vx], -1), jnp.stack([w, o, vy], -1), jnp.stack([o, o, o], -1)], -2)
+        rows = [jnp.stack([o, -w, vx], -1), jnp.stack([w, o, vy], -1), jnp.stack([o, o, o], -1)]
+        return jnp.stack(rows, -2)
 
     @classmethod
     def vee(cls, X):
@@ -124,4 +130,5 @@ class SE2(LieGroup):
         xi = as_float_array(xi)
         w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]
         o = jnp.zeros_like(w)
-        return jnp.stack([jnp.stack([o, o, o], -1), jnp.stack([vy, o, -w], -1), jnp.stack([-vx, w, o], -1)], -2)
+        rows = [jnp.stack([o, o, o], -1), jnp.stack([vy, o, -w], -1), jnp.stack([-vx, w, o], -1)]
+        return jnp.stack(rows, -2)

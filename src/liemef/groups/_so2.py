@@ -4,6 +4,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
+from .._linalg import mv
 from ._base import LieGroup, as_float_array
 
 
@@ -65,7 +66,7 @@ class SO2(LieGroup):
 
     def act(self, p):
         """Rotate planar vectors ``p`` (``R @ p``)."""
-        return jnp.einsum("...ij,...j->...i", self.as_matrix(), as_float_array(p))
+        return mv(self.as_matrix(), as_float_array(p))
 
     def Ad(self):
         return jnp.ones((*self.batch_shape, 1, 1))
