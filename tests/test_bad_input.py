@@ -24,7 +24,7 @@ def raises(match):
     return pytest.raises(ValueError, match=match)
 
 
-# --- systems ------------------------------------------------------------------------------------------------
+# --- systems
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -50,7 +50,7 @@ def test_user_system_dynamics_shape():
                B=np.eye(3), D=np.eye(3), Q=np.eye(3), R=np.eye(3))
 
 
-# --- filter construction --------------------------------------------------------------------------------------
+# --- filter construction
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -71,7 +71,7 @@ def test_filter_rejects_non_system():
         liemef.MinimumEnergyFilter({"group": TSE2})
 
 
-# --- init -------------------------------------------------------------------------------------------------------
+# --- init
 @pytest.mark.parametrize(
     ("K0", "match"),
     [
@@ -114,7 +114,7 @@ def test_init_rejects_wrong_group_and_batches(flt):
         flt.init(tse2_state(np.nan, 0, 0, 0, 0, 0), np.eye(6))
 
 
-# --- step and run -----------------------------------------------------------------------------------------------
+# --- step and run
 def test_step_rejects(flt, state):
     u, y = np.zeros(2), np.zeros(7)
     with raises(r"y: expected shape \(7,\), got \(6,\)"):

@@ -2,7 +2,7 @@
 
 from ._derivatives import left_hessian, left_jacobian
 from ._filter import FilterState, MinimumEnergyFilter, Trajectory
-from ._integrators import INTEGRATORS, AbstractIntegrator, LieEuler, RKMK4, integrator
+from ._integrators import INTEGRATORS, RKMK4, AbstractIntegrator, LieEuler, integrator
 from ._riccati import Terms, Weights, riccati_rhs, terms
 
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Weights", "terms", "riccati_rhs",

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..groups import SE2, TSE2, R3
+from ..groups import R3, SE2, TSE2
 from ._base import AbstractSystem, matrix
 
 Sensor = Literal["gps_imu", "velocity"]
