@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from liemef.groups import SE2, SO2R1, SO3, TSE2, TSO3
+from liemef.groups import SE2, SO2R1, SO3, TSE2, TSO3, Rn
 from liemef.metrics import (
     FULL,
     Window,
@@ -140,11 +140,18 @@ def test_units_come_from_the_system():
     assert state_labels(RigidBodyAttitude())[1] == ("rad",) * 3 + ("rad/s",) * 3
 
 
-def test_so3_state_error_is_unwrapped_difference():
+def test_so3_state_error_is_the_rotation_error():
+    # same axis: the rotation error is the angle difference
     a = SO3.exp(np.array([0.0, 0.0, 0.3]))
     b = SO3.exp(np.array([0.0, 0.0, 0.1]))
     np.testing.assert_allclose(state_error(a, b), [0.0, 0.0, 0.2], atol=1e-12)
     np.testing.assert_allclose(group_error(a, b), [0.0, 0.0, 0.2], atol=1e-12)
+    # different axes: log(R_hat^T R), not the difference of rotation vectors (which would be (0.3, 0, -0.3))
+    a, b = SO3.exp(np.array([0.3, 0.0, 0.0])), SO3.exp(np.array([0.0, 0.0, 0.3]))
+    err = np.asarray(state_error(TSO3((a, Rn[3](np.zeros(3)))), TSO3((b, Rn[3](np.ones(3))))))
+    np.testing.assert_allclose(err[:3], np.asarray((b.inverse() @ a).log()), atol=1e-12)
+    assert abs(np.linalg.norm(err[:3]) - 0.42347) < 1e-5  # the angle between the two rotations
+    np.testing.assert_allclose(err[3:], -np.ones(3), atol=1e-15)
 
 
 def test_continuous_angles_unwrap_or_follow_a_reference():

@@ -5,8 +5,8 @@ The public surface: :class:`MinimumEnergyFilter`, the groups (:mod:`liemef.group
 (:mod:`liemef.metrics`). Experiments, I/O, plots and the CLI sit on top (:mod:`liemef.experiments`).
 """
 
-from . import _config  # noqa: F401  (float64 before any array is created)
-from . import connections, groups, metrics, simulation, systems
+# _config sorts first: float64 is switched on before any array is created.
+from . import _config, connections, groups, metrics, simulation, systems  # noqa: F401
 from .connections import Connection, connection
 from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
 from .simulation import SensorLog, Truth, simulate

@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ..groups import SE2, SO2, LieGroup, Product
+from ..groups import SE2, SO2, SO3, LieGroup, Product
 
 
 def wrap_angle(a: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
@@ -17,7 +17,7 @@ def angle_mask(G: type[LieGroup]) -> tuple[bool, ...]:
     """Which entries of ``G``'s coordinates (:meth:`~liemef.groups.LieGroup.coords`) are angles to wrap.
 
     SO(2) and the heading of SE(2) are angles; R^n entries are not. SO(3) coordinates are a rotation vector,
-    whose difference is not an angle: it is left unwrapped (use :func:`group_error` for attitude).
+    not wrapped entry by entry (:func:`state_error` uses the rotation error for them).
     """
     if issubclass(G, Product):
         return tuple(b for F in G.factor_types for b in angle_mask(F))
@@ -56,7 +56,16 @@ def coordinate_error(truth: Float[ArrayLike, "... c"], estimate: Float[ArrayLike
 
 def state_error(truth: LieGroup, estimate: LieGroup) -> Float[Array, "... c"]:
     r"""Truth minus estimate in the group's coordinates (Rigo et al. 2022, Sec. VI: $\delta\theta = \theta_n -
-    \hat\theta$, $\delta x = x_n - \hat x$, ...), angles wrapped. Broadcasts over batch axes."""
+    \hat\theta$, $\delta x = x_n - \hat x$, ...), angles wrapped. Broadcasts over batch axes.
+
+    An SO(3) factor has no meaningful coordinate difference (two rotation vectors); its entries are the
+    body-frame rotation error $\log(\hat R^\top R)$, whose norm is the attitude error angle.
+    """
+    if isinstance(truth, Product):
+        return jnp.concatenate([state_error(a, b) for a, b in zip(truth.factors, estimate.factors, strict=True)],
+                               axis=-1)
+    if isinstance(truth, SO3):
+        return truth.rminus(estimate)
     return coordinate_error(truth.coords(), estimate.coords(), angle_mask(type(truth)))
 
 
