@@ -544,3 +544,207 @@ def zamani_circle_bias_rhs(
         P12_dot = -Q_w * P12 * P1 - Q_b * P2 * P1 + P1  # eqs. (37)/(39)/(40), as printed
     P_dot = np.array([[P1_dot, P12_dot], [P12_dot, P2_dot]])
     return float(theta_dot), float(b_dot), P_dot
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Rigo, Sansonetto, Muradore 2023: Chaplygin sleigh on SE(2) x R^2, Proposition 1 and Section 5
+# ------------------------------------------------------------------------------------------------------------
+
+
+def chaplygin_output(state, l, sensor="gps_ins"):
+    """Output map of the Chaplygin sleigh, Rigo et al. 2023, eq. (10) (GPS only: its first four lines, Remark 2).
+
+    Parameters
+    ----------
+    state : array_like, shape (5,)
+        ``(theta, x, y, omega, v)``: blade angle, position of the blade's contact point, angular velocity and
+        forward velocity along the blade (eq. (6)).
+    l : float
+        Distance of each antenna from the contact point along the blade (Fig. 2).
+    sensor : {"gps_ins", "gps"}
+
+    Returns
+    -------
+    numpy.ndarray, shape (6,) or (4,)
+        ``(x + l cos, y + l sin, x - l cos, y - l sin[, omega, v])``.
+    """
+    th, x, y, om, v = (float(c) for c in np.asarray(state, dtype=float))
+    c, s = np.cos(th), np.sin(th)
+    gps = [x + l * c, y + l * s, x - l * c, y - l * s]  # eq. (10), lines 1-4
+    if sensor == "gps":
+        return np.array(gps)
+    if sensor != "gps_ins":
+        raise ValueError(f"sensor must be 'gps_ins' or 'gps', got {sensor!r}")
+    return np.array(gps + [om, v])  # eq. (10), lines 5-6
+
+
+def rigo2023_chaplygin_lambda(state, u, *, J, m, a):
+    """Left-trivialized dynamics of the Chaplygin sleigh, Rigo et al. 2023, eqs. (20)-(21):
+    ``(lambda_g; lambda_v) = ((omega, v, 0); (-m a/(J + m a^2) omega v + u_omega/(J + m a^2),
+    a omega^2 + u_v/m))``."""
+    _th, _x, _y, om, v = (float(c) for c in np.asarray(state, dtype=float))
+    Ja = J + m * a**2
+    return np.array([om, v, 0.0, -m * a / Ja * om * v + u[0] / Ja, a * om**2 + u[1] / m])  # eq. (21)
+
+
+def rigo2023_chaplygin_terms(state, y, K, u, *, J, m, a, l, D, Q, B, R, sensor="gps_ins", connection="zero",
+                             correct_misprint=False, weighted_constants=False):
+    """Printed filter terms of Rigo et al. 2023: Proposition 1 ((0)-connection), Remark 2 (GPS only) and
+    Section 5 ((-)-connection).
+
+    Paper: D. Rigo, N. Sansonetto, R. Muradore, "Second-order-optimal filtering on SE(2) x R^2 for the
+    Chaplygin sleigh", 2023 (``rigo2023_mef_chaplygin_sleigh.md``).
+
+    - ``connection="zero"``: residual eq. (30) (GPS only: eq. (57)) with the weighted innovation eq. (27); A
+      eq. (32); E eq. (33) (GPS only: eq. (58)); W eq. (34).
+    - ``connection="minus"``: r as above; A eq. (60); W = 0 eq. (61); E eq. (62). The paper prints (62) for
+      GPS + INS only; for GPS only the velocity block of (62) is replaced by the zero block of (58), as Remark 2
+      does for the (0)-connection.
+    - ``B R^-1 B^T = blockdiag(0_3, B2 R^-1 B2^T)`` (Sec. 5: nonzero only on the last 2 x 2 block).
+
+    Group and coordinates: SE(2) x R^2 (eqs. (14)-(15)); algebra coordinates
+    ``(eta_theta, eta_x, eta_y; eta_omega, eta_v)``, ad as in eq. (16); perturbation
+    ``(g exp(eta_g^), V + eta_V)``.
+
+    Parameters
+    ----------
+    state : array_like, shape (5,)
+        Estimate ``(theta, x, y, omega, v)``.
+    y : array_like, shape (6,) (``"gps_ins"``) or (4,) (``"gps"``)
+        Measurement (eq. (9)-(10)).
+    K : array_like, shape (5, 5)
+        Gain (used only in W).
+    u : array_like, shape (2,)
+        ``(u_omega, u_v)`` (eq. (21)); none of the returned terms depends on it.
+    J, m, a : float
+        Inertia about the centre of mass, mass, distance of the centre of mass from the blade (A, eqs. (32),
+        (60)).
+    l : float
+        Antenna lever arm (eq. (10)).
+    D, Q : array_like, shape (p, p)
+        Diagonal (eq. (22), Sec. 4: ``D = diag(d1..d6)``, ``Q = diag(q1..q6)``), with equal antenna weights
+        ``q_i/d_i^2``, i = 1..4 (the printed E presupposes it; a ValueError is raised otherwise).
+    B : array_like, shape (5, 2)
+        ``B = [0_{3x2}; B2]`` (eq. (19)); the zero top block is checked.
+    R : array_like, shape (2, 2)
+        Symmetric positive definite weight of the model error.
+    sensor : {"gps_ins", "gps"}
+    connection : {"zero", "minus"}
+    correct_misprint : bool
+        False (default): E as printed. True: the theorem's E (DESIGN.md section 3):
+        for ``"zero"``, eq. (33)/(58)'s a_{2,1}, a_{3,1} are printed with the opposite sign of a_{1,2},
+        a_{1,3}; corrected, a_{2,1} = a_{1,2} and a_{3,1} = a_{1,3} (E symmetric). For ``"minus"``, eq. (62)
+        prints zeros at (x, theta) and (y, theta); corrected, they are 2 a_{1,2} and 2 a_{1,3} (the a_{i,j} of
+        eq. (33)), and the theta row keeps its printed zeros.
+    weighted_constants : bool
+        False (default): the constant entries of E as printed, ``diag(2 l^2, 2, 2, 1, 1)`` (eqs. (33), (48),
+        (62); (58): ``diag(2 l^2, 2, 2, 0, 0)``), which hold only for Q = D^T D (eq. (38) states
+        ``D^-* Q D^-1 (y - h) = y - y_hat``) while the residual eq. (27) and the a_{i,j} carry the weights
+        q_i/d_i^2. True: eq. (48) computed with the stated weights,
+        ``diag(2 l^2 w_a, 2 w_a, 2 w_a, w_5, w_6)``, ``w_a = q_1/d_1^2`` (antennas), ``w_k = q_k/d_k^2``.
+
+    Returns
+    -------
+    dict with keys ``"r"`` (5,), ``"A"``, ``"E"``, ``"W"``, ``"BRB"`` (5, 5), in the module's matrix
+    convention (the printed arrays in their printed positions, ``E[i, j] = E(e_j)(e_i)``).
+    """
+    state = np.asarray(state, dtype=float)
+    y = np.asarray(y, dtype=float)
+    K = np.asarray(K, dtype=float)
+    B = np.asarray(B, dtype=float)
+    R = np.asarray(R, dtype=float)
+    th, _x, _y, om, v = state
+    c, s = np.cos(th), np.sin(th)
+    p = {"gps_ins": 6, "gps": 4}.get(sensor)
+    if p is None:
+        raise ValueError(f"sensor must be 'gps_ins' or 'gps', got {sensor!r}")
+    conn = {"zero": "zero", "0": "zero", "(0)": "zero", "minus": "minus", "-": "minus", "(-)": "minus"}.get(
+        connection
+    )
+    if conn is None:
+        raise ValueError(f"connection must be 'zero' or 'minus', got {connection!r}")
+
+    d = _check_diagonal(D, "D", p)
+    q = _check_diagonal(Q, "Q", p)
+    w = q / d**2  # eq. (27)
+    w_a = _check_equal(w[0:4], "q_i/d_i^2 of the antennas (i = 1..4)")
+
+    # eq. (27): ytilde = diag(q_i/d_i^2) (y - y_hat)
+    yt = w * (y - chaplygin_output(state, l, sensor))
+    yt1, yt2, yt3, yt4 = yt[0:4]
+
+    # eq. (30) (GPS + INS) / eq. (57) (GPS only: r^v = 0)
+    r = np.zeros(5)
+    r[0] = -(yt1 - yt3) * l * s + (yt2 - yt4) * l * c
+    r[1] = (yt1 + yt3) * c + (yt2 + yt4) * s
+    r[2] = -(yt1 + yt3) * s + (yt2 + yt4) * c
+    if p == 6:
+        r[3:5] = yt[4:6]
+
+    # eq. (32) ((0)-connection) / eq. (60) ((-)-connection)
+    k = m * a / (J + m * a**2)
+    A = np.zeros((5, 5))
+    A[0, 3] = A[1, 4] = 1.0
+    A[3, 3], A[3, 4] = -k * v, -k * om
+    A[4, 3] = 2.0 * a * om
+    if conn == "zero":
+        A[1, 2] = om  # eq. (32), second row
+        A[2, 0], A[2, 1] = v, -om  # eq. (32), third row
+
+    # eq. (33) entries (shared by (58) and (62))
+    a11 = (yt1 - yt3) * l * c + (yt2 - yt4) * l * s  # the ytilde part of a_{1,1}
+    a12 = -0.5 * (yt2 + yt4) * c + 0.5 * (yt1 + yt3) * s
+    a13 = +0.5 * (yt2 + yt4) * s + 0.5 * (yt1 + yt3) * c
+    if weighted_constants:  # eq. (48) with the stated weights
+        const = [2.0 * l**2 * w_a, 2.0 * w_a, 2.0 * w_a] + ([w[4], w[5]] if p == 6 else [0.0, 0.0])
+    else:  # eqs. (33), (48), (62) as printed; (58) for GPS only
+        const = [2.0 * l**2, 2.0, 2.0] + ([1.0, 1.0] if p == 6 else [0.0, 0.0])
+    E = np.diag(const)
+    E[0, 0] += a11
+    if conn == "zero":
+        if correct_misprint:
+            a21, a31 = a12, a13  # Theorem 4.1: E symmetric (DESIGN.md section 3)
+        else:
+            a21 = +0.5 * (yt2 + yt4) * c - 0.5 * (yt1 + yt3) * s  # eq. (33) a_{2,1}, as printed
+            a31 = -0.5 * (yt2 + yt4) * s - 0.5 * (yt1 + yt3) * c  # eq. (33) a_{3,1}, as printed
+        E[0, 1], E[0, 2] = a12, a13  # eq. (33), first row
+        E[1, 0], E[2, 0] = a21, a31  # eq. (33), first column
+    elif correct_misprint:
+        E[1, 0], E[2, 0] = 2.0 * a12, 2.0 * a13  # Theorem 4.1; eq. (62) prints 0 (DESIGN.md section 3)
+    # else: eq. (62) as printed, first row and column zero apart from a_{1,1}
+
+    # Sec. 5: B R^-1 B^T = blockdiag(0, B2 R^-1 B2^T), B = [0; B2] (eq. (19))
+    if not np.allclose(B[:3], 0.0, rtol=0.0, atol=0.0):
+        raise ValueError("B must have a zero top 3x2 block (B xi = (0, B2 xi)) for the printed form")
+    B2 = B[3:5]
+    BRB = np.zeros((5, 5))
+    BRB[3:, 3:] = B2 @ np.linalg.solve(R, B2.T)
+
+    W = np.zeros((5, 5))
+    if conn == "zero":
+        # eq. (34): W = blockdiag(1/2 ad_{(K11 r^g + K12 r^v)^}, 0_2)
+        W[:3, :3] = 0.5 * _se2_ad(K[:3, :3] @ r[:3] + K[:3, 3:] @ r[3:])
+    # else: eq. (61), W = 0
+
+    return {"r": r, "A": A, "E": E, "W": W, "BRB": BRB}
+
+
+def rigo2023_embedding(state):
+    """The 6 x 6 matrix of an element (g, V) of SE(2) x R^2, Rigo et al. 2023, eqs. (11) and (14)."""
+    th, x, y, om, v = (float(c) for c in np.asarray(state, dtype=float))
+    c, s = np.cos(th), np.sin(th)
+    M = np.eye(6)
+    M[:3, :3] = [[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]]  # eq. (11)
+    M[3:5, 5] = [om, v]  # eq. (14)
+    return M
+
+
+def rigo2023_m0(state_hat, state0):
+    """Initial cost of Rigo et al. 2023, eq. (26): ``m0(g_hat) = 1/2 |I - g_hat^-1 g0|_F^2`` with the matrices
+    of eq. (14). Eq. (56) then states that its left-trivialized Hessian at g_hat = g0 is the identity."""
+    G_hat, G0 = rigo2023_embedding(state_hat), rigo2023_embedding(state0)
+    return 0.5 * float(np.sum((np.eye(6) - np.linalg.solve(G_hat, G0)) ** 2))  # eq. (26)
+
+
+__all__ += ["chaplygin_output", "rigo2023_chaplygin_lambda", "rigo2023_chaplygin_terms", "rigo2023_embedding",
+            "rigo2023_m0"]

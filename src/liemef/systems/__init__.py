@@ -6,6 +6,9 @@ the filter differentiates them by autodiff.
 
 from ._base import AbstractSystem, System
 from .attitude import RigidBodyAttitude
+from .chaplygin import ChaplyginSleigh
 from .planar_rigid_body import PlanarRigidBody, tse2_state
+from .unit_circle import UnitCircleBias
 
-__all__ = ["AbstractSystem", "System", "PlanarRigidBody", "RigidBodyAttitude", "tse2_state"]
+__all__ = ["AbstractSystem", "System", "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
+           "tse2_state"]

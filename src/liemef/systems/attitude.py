@@ -1,7 +1,8 @@
 r"""Rigid-body attitude on TSO(3) = SO(3) x R^3 (Saccon et al. 2016, Section V).
 
-State $(R, \Omega)$, body angular velocity $\Omega$; input the torque $\tau$. Left-trivialized dynamics (eqs. (55)-(56)):
-$\lambda = (\Omega,\ \mathbb I^{-1}((\mathbb I\Omega) \times \Omega + \tau))$; model error $B\delta = (0, B_2\delta)$.
+State $(R, \Omega)$, body angular velocity $\Omega$; input the torque $\tau$. Left-trivialized dynamics
+(eqs. (55)-(56)): $\lambda = (\Omega,\ \mathbb I^{-1}((\mathbb I\Omega) \times \Omega + \tau))$; model error
+$B\delta = (0, B_2\delta)$.
 Output (eq. (57)): two known inertial directions seen in the body frame, $(R^\top a_1, R^\top a_2)$; p = 6.
 """
 
@@ -66,6 +67,12 @@ class RigidBodyAttitude(AbstractSystem):
     @property
     def state_units(self) -> tuple[str, ...]:
         return ("rad", "rad", "rad", "rad/s", "rad/s", "rad/s")
+
+    @property
+    def torque_noise(self) -> Float[Array, "3 3"]:
+        r"""$\mathbb I B_2$: the model error $B_2\delta$ of eq. (60) seen as an error of the measured torque,
+        $\tau + \mathbb I B_2 \delta$ (Saccon et al. 2016, eq. (81)); the ``input_noise`` of a simulation."""
+        return self.inertia @ self.B[3:]
 
     def dynamics(self, g, u, t):
         # Saccon et al. 2016, eqs. (55)-(56)
