@@ -1,6 +1,7 @@
-"""The command line: `liemef reproduce` and `liemef run` write every documented file; bad names and paths give
-clear click errors."""
+"""The command line: `liemef reproduce`, `reproduce all`, `montecarlo` and `run` write every documented file;
+bad names, options and paths give clear click errors."""
 
+import dataclasses
 import json
 
 import jax
@@ -10,7 +11,7 @@ from click.testing import CliRunner
 
 from liemef import io, plots
 from liemef.cli import cli, main
-from liemef.experiments import SCHEMA, tse2
+from liemef.experiments import EXPERIMENTS, SCHEMA, MonteCarloResult, Output, Reproduction, tse2
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -22,7 +23,7 @@ def invoke(*args):
 @pytest.fixture(scope="module")
 def reproduced(tmp_path_factory):
     out = tmp_path_factory.mktemp("repro") / "new" / "dir"  # created if missing
-    res = invoke("reproduce", "tse2", "--out", out, "--duration", 12, "--seed", 3)
+    res = invoke("reproduce", "tse2", "--out", out, "--duration", 12, "--seed", 3, "--runs", 0)
     return out, res
 
 
@@ -67,7 +68,7 @@ def test_reproduce_prints_the_error_table(reproduced):
 
 def test_reproduce_options_reach_the_config(tmp_path):
     res = invoke("reproduce", "tse2-velocity", "--out", tmp_path, "--duration", 0.5, "--connection", "minus",
-                 "--order", "first", "--seed", 9)
+                 "--order", "first", "--seed", 9, "--runs", 0)
     assert res.exit_code == 0, res.output
     m = io.read_metrics(tmp_path / "metrics.json")
     assert (m["config"]["connection"], m["config"]["order"], m["config"]["seed"]) == ("minus", "first", 9)
@@ -175,3 +176,116 @@ def test_main_is_the_console_entry_point(capsys):
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert "reproduce" in out and "run" in out
+
+
+# --- liemef montecarlo, reproduce --list, reproduce all
+def test_montecarlo_prints_the_table_and_writes_results(tmp_path):
+    # duration 12 s: the configuration of the `reproduced` fixture and of test_montecarlo.py (one compilation)
+    res = invoke("montecarlo", "tse2", "--duration", 12, "--runs", 4, "--batch-size", 2, "--seed", 1,
+                 "--out", tmp_path / "mc", "--no-progress")
+    assert res.exit_code == 0, res.output
+    text = res.output
+    for word in ("Monte Carlo of tse2: 4 trials (seed 1), all finite", "window full (12001 samples)",
+                 "window 10-50s (2001 samples)", "spread", "p95", "trials/s", "Wrote montecarlo.npz"):
+        assert word in text, word
+    for name in ("montecarlo.npz", "montecarlo.json", "montecarlo.md", "montecarlo.csv"):
+        assert (tmp_path / "mc" / name).is_file(), name
+    mc = MonteCarloResult.load(tmp_path / "mc")
+    assert (mc.runs, mc.seed, mc.config["duration"], mc.batch_size) == (4, 1, 12.0, 2)
+    assert len((tmp_path / "mc" / "montecarlo.csv").read_text().splitlines()) == 1 + 2 * 6 * 3
+    assert "| x | m | rms |" in (tmp_path / "mc" / "montecarlo.md").read_text()
+
+
+def test_montecarlo_option_errors_are_click_errors(tmp_path):
+    res = CliRunner().invoke(cli, ["montecarlo", "tse2", "--runs", "2", "--set", "dtt=0.1"])
+    assert res.exit_code == 2 and "unknown config option 'dtt'" in res.output and "'dt'" in res.output
+    res = CliRunner().invoke(cli, ["montecarlo", "tse2", "--runs", "2", "--set", "dt=fast"])
+    assert res.exit_code == 2 and "dt: expected a value like 0.001, got 'fast'" in res.output
+    res = CliRunner().invoke(cli, ["montecarlo", "tse2", "--runs", "2", "--set", "connection"])
+    assert res.exit_code == 2 and "expected KEY=VALUE" in res.output
+    res = CliRunner().invoke(cli, ["montecarlo", "tse2", "--runs", "0"])
+    assert res.exit_code == 2 and "--runs" in res.output
+    res = CliRunner().invoke(cli, ["montecarlo", "tse2", "--set", "connection=zerro"])
+    assert res.exit_code == 2 and "connection: expected one of" in res.output
+
+
+def test_set_values_take_the_type_of_the_config_field():
+    from liemef.cli import _settings
+
+    base = tse2.TSE2Config()
+    got = _settings(("dt=0.01", "seed=4", "connection=minus", "K0_diag=1, 1, 1, 2,2,2", "steady=5 20"), base)
+    assert got == {"dt": 0.01, "seed": 4, "connection": "minus", "K0_diag": (1.0, 1.0, 1.0, 2.0, 2.0, 2.0),
+                   "steady": (5.0, 20.0)}
+    assert tse2.TSE2Config(**got).K0_diag == (1.0, 1.0, 1.0, 2.0, 2.0, 2.0)
+
+
+def test_reproduce_list_names_every_experiment_with_its_paper_and_figures():
+    res = invoke("reproduce", "--list")
+    assert res.exit_code == 0, res.output
+    for name, exp in EXPERIMENTS.items():
+        assert f"{name}: {exp.title}" in res.output and exp.paper in res.output
+        for f in exp.figures:
+            assert f.filename in res.output and f.paper_figure in res.output
+    assert "tse2:" in res.output and "tse2-velocity:" in res.output and "Fig. 3" in res.output
+
+
+def test_reproduce_needs_an_experiment_and_out(tmp_path):
+    res = CliRunner().invoke(cli, ["reproduce"])
+    assert res.exit_code == 2 and "Missing argument" in res.output
+    res = CliRunner().invoke(cli, ["reproduce", "tse2"])
+    assert res.exit_code == 2 and "Missing option '--out'" in res.output
+    res = CliRunner().invoke(cli, ["reproduce", "all", "--out", str(tmp_path), "--duration", "1"])
+    assert res.exit_code == 2 and "--duration: config options apply to one experiment" in res.output
+
+
+@pytest.fixture
+def tiny_registry():
+    """Only tse2 and tse2-velocity, with quick configs that reuse the compilations of the tests above."""
+    saved = dict(EXPERIMENTS)
+    EXPERIMENTS.clear()
+    EXPERIMENTS["tse2"] = dataclasses.replace(saved["tse2"], quick_config=saved["tse2"].config(duration=12.0),
+                                              quick_runs=2)
+    velocity = saved["tse2-velocity"]
+    EXPERIMENTS["tse2-velocity"] = dataclasses.replace(
+        velocity, quick_config=velocity.config(duration=0.5, connection="minus", order="first"), quick_runs=0)
+    yield EXPERIMENTS
+    EXPERIMENTS.clear()
+    EXPERIMENTS.update(saved)
+
+
+def test_reproduce_all_writes_one_folder_per_experiment_and_an_index(tiny_registry, tmp_path):
+    out = tmp_path / "all"
+    res = invoke("reproduce", "all", "--out", out, "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "Wrote 2 of 2 experiments and index.md" in res.output
+    for name in ("metrics.json", "arrays.npz", "fig3_pose.png", "fig4_velocity.png", "errors.md", "errors.csv",
+                 "montecarlo.md", "montecarlo.csv", "montecarlo.json", "montecarlo.npz"):
+        assert (out / "tse2" / name).is_file(), name
+    assert (out / "tse2-velocity" / "fig_pose.png").is_file()
+    assert not (out / "tse2-velocity" / "montecarlo.md").exists()  # quick_runs = 0: the seeded run only
+    assert io.read_metrics(out / "tse2-velocity" / "metrics.json")["config"]["duration"] == 0.5
+    assert MonteCarloResult.load(out / "tse2").runs == 2
+    index = (out / "index.md").read_text()
+    for link in ("](tse2/fig3_pose.png)", "](tse2/fig4_velocity.png)", "](tse2/montecarlo.md)",
+                 "](tse2/errors.md)", "](tse2-velocity/fig_velocity.png)", "](tse2-velocity/errors.md)"):
+        assert link in index, link
+    assert "Rigo et al. 2022, Fig. 3" in index and "duration = 12.0 (default: 50.0)" in index
+    assert "2 Monte Carlo trials" in index and "| ok |" in index
+    assert "--quick" in index
+
+
+def test_reproduce_all_reports_a_failing_experiment_and_keeps_going(tiny_registry, tmp_path):
+    def broken(config, key=None):
+        raise RuntimeError("boom")
+
+    EXPERIMENTS["tse2-velocity"] = dataclasses.replace(EXPERIMENTS["tse2-velocity"], run_fn=broken)
+    del EXPERIMENTS["tse2"]
+    EXPERIMENTS["custom"] = dataclasses.replace(
+        tiny_registry["tse2-velocity"], name="custom", run_fn=broken,
+        reproduce_fn=lambda config, out, runs, progress: Reproduction(
+            "custom", out, tables=(Output(io.write_text(out / "t.md", "x"), "Table 1"),), text="custom done"))
+    res = CliRunner().invoke(cli, ["reproduce", "all", "--out", str(tmp_path)])
+    assert res.exit_code == 1 and "1 experiment(s) failed: tse2-velocity" in res.output
+    assert "custom done" in res.output
+    index = (tmp_path / "index.md").read_text()
+    assert "**Failed**: `RuntimeError: boom`" in index and "[t.md](custom/t.md): Table 1" in index

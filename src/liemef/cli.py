@@ -1,16 +1,24 @@
 """The ``liemef`` command line.
 
 * ``liemef reproduce EXPERIMENT --out DIR [--seed N] [--duration T] [--connection zero|minus|plus]
-  [--order second|first]``: run a paper experiment, write ``metrics.json``, ``arrays.npz`` and its figures to
-  DIR and print the error table (mean, std, rms of each component over the whole run and the steady window).
+  [--order second|first] [--set KEY=VALUE ...] [--runs N] [--quick/--full]``: run a paper experiment, write
+  ``metrics.json``, ``arrays.npz``, its figures and ``errors.md``/``errors.csv`` to DIR and print the error
+  table (mean, std, rms of each component over the whole run and the steady window); with ``--runs N`` also a
+  Monte Carlo of N trials. An experiment may define its own reproduction (``Experiment.reproduce_fn``).
+* ``liemef reproduce all --out DIR [--quick/--full]``: every experiment, one folder each, and ``index.md``;
+  ``liemef reproduce --list``: the experiments with their papers, figures and tables.
+* ``liemef montecarlo EXPERIMENT --runs N [--seed S] [--batch-size B] [--out DIR] [--duration T]
+  [--set KEY=VALUE ...]``: N seeded trials batched with ``vmap``; prints the statistics table and, with
+  ``--out``, writes ``montecarlo.{npz,json,md,csv}``.
 * ``liemef run --system NAME --log FILE --out DIR``: filter a recorded log (CSV or NPZ, see
   :mod:`liemef.io`) and write the estimates (``estimates.csv``, ``arrays.npz``, ``metrics.json``, a figure).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
-import time
 from pathlib import Path
 
 import click
@@ -19,7 +27,18 @@ import numpy as np
 
 from . import __version__, io, plots
 from .connections import CARTAN_SCHOUTEN
-from .experiments import EXPERIMENTS, SCHEMA, SYSTEMS, get_experiment, get_system
+from .experiments import (
+    DEFAULT_BATCH_SIZE,
+    EXPERIMENTS,
+    SCHEMA,
+    SYSTEMS,
+    Failure,
+    get_experiment,
+    get_system,
+    montecarlo,
+    reproduce_all,
+)
+from .experiments._reproduce import INDEX_FILE
 from .filter import MinimumEnergyFilter
 from .metrics import FULL, angle_mask, continuous_angles, error_table, gain_stats, state_labels
 
@@ -56,47 +75,179 @@ def cli():
 
 def _experiments_help() -> str:
     lines = "\n".join(f"  {e.name:<14} {e.paper}" for e in EXPERIMENTS.values())
-    return ("Run a paper EXPERIMENT and write metrics.json, arrays.npz and its figures to --out, then print "
-            "the error table.\n\n\b\nExperiments:\n" + lines)
+    return ("Run a paper EXPERIMENT and write metrics.json, arrays.npz, its figures and error tables to --out, "
+            "then print the error table; with --runs N (or the experiment's default) also a Monte Carlo of N "
+            "seeded trials (montecarlo.md/.csv/.json/.npz).\n\n"
+            "`reproduce all --out DIR` runs every experiment at a reduced size (--quick, the default) or at the "
+            "papers' size (--full), one folder each, and writes DIR/index.md. `reproduce --list` lists the "
+            "experiments with their papers, figures and tables.\n\n\b\nExperiments:\n" + lines)
+
+
+def _parse_value(text: str, current, key: str):
+    """``text`` as a value of the type of the config field's current value."""
+    try:
+        if isinstance(current, bool):
+            low = text.lower()
+            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError("expected true or false")
+            return low in ("true", "1", "yes", "on")
+        if isinstance(current, int):
+            return int(text)
+        if isinstance(current, float):
+            return float(text)
+        if isinstance(current, str):
+            return text
+        if isinstance(current, tuple | list):
+            item = current[0] if len(current) else 0.0
+            return tuple(_parse_value(part, item, key) for part in text.replace(",", " ").split())
+        try:
+            return json.loads(text)
+        except ValueError:
+            return text
+    except ValueError as err:
+        raise click.BadParameter(f"{key}: expected a value like {current!r}, got {text!r} ({err})",
+                                 param_hint="'--set'") from err
+
+
+def _settings(settings: tuple[str, ...], base) -> dict:
+    """``--set KEY=VALUE`` options as config overrides, each parsed as the type of the field in ``base``."""
+    fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+    out = {}
+    for item in settings:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise click.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="'--set'")
+        if key not in fields:
+            raise click.BadParameter(f"unknown config option {key!r}; expected one of {sorted(fields)}",
+                                     param_hint="'--set'")
+        out[key] = _parse_value(text.strip(), fields[key], key)
+    return out
+
+
+def _config(exp, quick: bool, options: dict, settings: tuple[str, ...]):
+    base = exp.quick() if quick else exp.default_config
+    overrides = {k: v for k, v in options.items() if v is not None}
+    overrides.update(_settings(settings, base))
+    try:
+        return exp.quick(**overrides) if quick else exp.config(**overrides)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from err
+
+
+def _list_experiments() -> str:
+    lines = []
+    for e in EXPERIMENTS.values():
+        lines += [f"{e.name}: {e.title}", f"    paper:   {e.paper}"]
+        if e.figures:
+            lines.append("    figures: " + "; ".join(f"{f.filename}" + (f" ({f.paper_figure})" if f.paper_figure
+                                                                          else "") for f in e.figures))
+        if e.tables:
+            lines.append("    tables:  " + "; ".join(e.tables))
+        mc = f"yes (liemef montecarlo {e.name} --runs N)" if e.trial_fn is not None else "no"
+        lines.append(f"    Monte Carlo: {mc}; reproduce runs {e.runs} trial(s) by default, {e.quick_runs} with "
+                     "--quick")
+    return "\n".join(lines)
+
+
+def _echo_reproduction(rep) -> None:
+    click.echo(rep.text)
+    for w in rep.warnings:
+        click.echo(w, err=True)
 
 
 @cli.command(help=_experiments_help())
-@click.argument("experiment", type=click.Choice(sorted(EXPERIMENTS)), metavar="EXPERIMENT")
-@click.option("--out", required=True, type=click.Path(path_type=Path),
-              help="Output folder (created if missing).")
+@click.argument("experiment", required=False, type=click.Choice([*sorted(EXPERIMENTS), "all"]),
+                metavar="EXPERIMENT|all")
+@click.option("--list", "list_", is_flag=True, help="List the experiments (paper, figures, tables) and exit.")
+@click.option("--out", type=click.Path(path_type=Path), help="Output folder (created if missing).")
+@click.option("--quick/--full", default=None,
+              help="The experiment's reduced laptop size, or the paper's (default: --full for one experiment, "
+                   "--quick for all).")
+@click.option("--runs", type=click.IntRange(min=0),
+              help="Monte Carlo trials (default: the experiment's; 0: the seeded run only).")
 @click.option("--seed", type=int, help="Random seed (default: the experiment's, 0).")
 @click.option("--duration", type=float, help="Final time T in seconds (default: the paper's).")
 @click.option("--connection", type=click.Choice(CONNECTIONS),
               help="Cartan-Schouten connection (default: zero).")
 @click.option("--order", type=click.Choice(ORDERS),
               help="second: the paper filter; first: the left-invariant EKF.")
-def reproduce(experiment, out, seed, duration, connection, order):
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="Override any config field (repeatable), e.g. --set dt=0.01 --set alpha=0.1.")
+@click.option("--progress/--no-progress", default=True, show_default=True,
+              help="Monte Carlo progress on stderr.")
+def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, order, settings, progress):
+    if list_:
+        click.echo(_list_experiments())
+        return
+    if experiment is None:
+        raise click.UsageError("Missing argument 'EXPERIMENT|all' (or --list).")
+    if out is None:
+        raise click.UsageError("Missing option '--out'.")
+    options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
+    if experiment == "all":
+        given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
+        if given:
+            raise click.UsageError(f"{', '.join(given)}: config options apply to one experiment, not to "
+                                   "'all' (each runs its own reduced or full config)")
+        d = _out_dir(out)
+        reps = reproduce_all(d, quick=quick is not False, progress=progress, runs=runs,
+                             echo=lambda text: click.echo(text + "\n"))
+        failed = [r for r in reps if isinstance(r, Failure)]
+        click.echo(f"Wrote {len(reps) - len(failed)} of {len(reps)} experiments and {INDEX_FILE} to {d}")
+        for r in failed:
+            click.echo(f"FAILED {r.experiment}: {r.error}", err=True)
+        if failed:
+            raise click.ClickException(f"{len(failed)} experiment(s) failed: {', '.join(r.experiment for r in failed)}")
+        return
     exp = get_experiment(experiment)
-    overrides = {k: v for k, v in {"seed": seed, "duration": duration, "connection": connection,
-                                   "order": order}.items() if v is not None}
+    config = _config(exp, bool(quick), options, settings)
+    d = _out_dir(out)
+    if runs is None:
+        runs = exp.quick_runs if quick else exp.runs
+    _echo_reproduction(exp.reproduce(d, config, runs=runs, progress=progress))
+
+
+@cli.command("montecarlo")
+@click.argument("experiment", type=click.Choice(sorted(EXPERIMENTS)), metavar="EXPERIMENT")
+@click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Number of trials.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Trial i uses jax.random.split(jax.random.key(seed), runs)[i].")
+@click.option("--batch-size", type=click.IntRange(min=1), default=DEFAULT_BATCH_SIZE, show_default=True,
+              help="Trials per compiled vmap batch (the results do not depend on it).")
+@click.option("--out", type=click.Path(path_type=Path),
+              help="Write montecarlo.npz/.json/.md/.csv to this folder (created if missing).")
+@click.option("--duration", type=float, help="Final time T in seconds (default: the paper's).")
+@click.option("--quick", is_flag=True, help="Start from the experiment's reduced config.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="Override any config field (repeatable), e.g. --set connection=minus --set dt=0.01.")
+@click.option("--progress/--no-progress", default=True, show_default=True,
+              help="Trials done, elapsed time and ETA on stderr.")
+def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, settings, progress):
+    """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
+    and rms over time of each error component, then across trials their mean, spread and percentiles."""
+    exp = get_experiment(experiment)
+    if exp.trial_fn is None:
+        with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
+        raise click.UsageError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
+    config = _config(exp, quick, {"duration": duration}, settings)
+    d = _out_dir(out) if out is not None else None
     try:
-        config = exp.config(**overrides)
+        result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size, progress=progress)
     except ValueError as err:
         raise click.UsageError(str(err)) from err
-    d = _out_dir(out)
-    t0 = time.perf_counter()
-    result = exp.run(config)
-    elapsed = time.perf_counter() - t0
-    io.write_result(d, result.metrics, result.arrays)
-    figs = plots.write_figures(d)
     click.echo(f"{exp.name}: {exp.title}")
-    click.echo(f"  {exp.paper}; seed {config.seed}, T = {config.duration:g} s, dt = {config.dt:g} s, "
-               f"connection {config.connection}, order {config.order} ({elapsed:.1f} s)")
-    click.echo("Errors truth - estimate (angles wrapped):")
-    click.echo(result.table.format())
-    gain = result.metrics.get("gain", {})
-    if gain:
-        click.echo(f"Gain K: max |K - K'|/|K| = {gain['max_rel_asymmetry']:.2e}, "
-                   f"min eigenvalue = {gain['min_eigenvalue']:.3e}")
-    if not result.metrics["run"]["finite"]:
-        click.echo("WARNING: the filter produced non-finite values (diverged)", err=True)
-    names = [io.METRICS_FILE, io.ARRAYS_FILE] + [p.name for p in figs]
-    click.echo(f"Wrote {', '.join(names)} to {d}")
+    click.echo(f"  {exp.paper}")
+    click.echo(result.format())
+    click.echo(f"{result.runs} trials in {result.elapsed:.1f} s ({result.runs / result.elapsed:.1f} trials/s "
+               f"including compilation), {result.batch_size} per batch")
+    if result.n_nonfinite:
+        click.echo(f"WARNING: {result.n_nonfinite} of {result.runs} trials produced non-finite errors (diverged; "
+                   f"trials {', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the "
+                   "statistics", err=True)
+    if d is not None:
+        written = result.save(d)
+        click.echo(f"Wrote {', '.join(p.name for p in written)} to {d}")
 
 
 @cli.command("run")

@@ -5,7 +5,10 @@ is flushed, synced and then renamed over the target with :func:`os.replace` (ato
 an error mid-write leaves the previous file untouched and no partial file behind.
 
 Output folder of an experiment (``liemef reproduce``): ``metrics.json`` (see
-:class:`liemef.experiments.Result`), ``arrays.npz`` and the figures (:mod:`liemef.plots`).
+:class:`liemef.experiments.Result`), ``arrays.npz``, the figures (:mod:`liemef.plots`) and the error table
+(``errors.md``, ``errors.csv``); with Monte Carlo trials also ``montecarlo.{npz,json,md,csv}`` (see
+:class:`liemef.experiments.MonteCarloResult`). ``liemef reproduce all`` writes one such folder per experiment
+and an ``index.md``.
 
 Recorded logs (``liemef run``, :func:`read_log`):
 
@@ -106,6 +109,29 @@ def write_csv(path: str | os.PathLike, header: Sequence[str], columns: Sequence[
     return Path(path)
 
 
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """``text`` (UTF-8) to a file, written atomically (Markdown tables, the index of ``reproduce all``)."""
+    with atomic_open(path, "w") as f:
+        f.write(text)
+    return Path(path)
+
+
+def write_rows(path: str | os.PathLike, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> Path:
+    """Rows of mixed text and numbers under ``header`` to a CSV file, written atomically. Floats keep full
+    float64 precision (``repr``); NaN is written ``nan``."""
+    rows = [list(r) for r in rows]
+    bad = [i for i, r in enumerate(rows) if len(r) != len(header)]
+    if bad:
+        raise ValueError(f"rows: expected {len(header)} values per row (the header), got {len(rows[bad[0]])} "
+                         f"in row {bad[0]}")
+    cell = lambda v: repr(float(v)) if isinstance(v, float | np.floating) else str(v)  # noqa: E731
+    with atomic_open(path, "w") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([cell(v) for v in r] for r in rows)
+    return Path(path)
+
+
 def write_result(out: str | os.PathLike, metrics: Mapping[str, Any], arrays: Mapping[str, Any]) -> list[Path]:
     """``metrics.json`` and ``arrays.npz`` into the folder ``out`` (created if missing)."""
     d = ensure_dir(out)
@@ -132,12 +158,17 @@ def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise ValueError(f"arrays: cannot read {str(p)!r} as .npz ({err})") from err
 
 
-def read_metrics(path: str | os.PathLike) -> dict:
-    p = _existing_file(path, "metrics")
+def read_json(path: str | os.PathLike, name: str = "json") -> Any:
+    """A JSON file; a ValueError naming ``name`` if it is missing or not JSON."""
+    p = _existing_file(path, name)
     try:
         return json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError) as err:
-        raise ValueError(f"metrics: cannot read {str(p)!r} as JSON ({err})") from err
+        raise ValueError(f"{name}: cannot read {str(p)!r} as JSON ({err})") from err
+
+
+def read_metrics(path: str | os.PathLike) -> dict:
+    return read_json(path, "metrics")
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,13 @@
 :func:`get_experiment` looks one up with an error listing the valid names. ``SYSTEMS[name]`` are the ready
 systems that ``liemef run`` filters recorded logs with.
 
-Registered: ``tse2`` (Rigo et al. 2022, Sec. VI, Figs. 3-4) and ``tse2-velocity`` (Segala poster).
+Registered: ``tse2`` (Rigo et al. 2022, Sec. VI, Figs. 3-4) and ``tse2-velocity`` (Segala poster);
+``liemef reproduce --list`` lists them.
+
+Monte Carlo: :func:`montecarlo` runs N seeded trials of any experiment with a ``trial_fn`` (``vmap`` over
+split keys) into a :class:`MonteCarloResult` (statistics per trial, then across trials; tables; npz + json).
+Reproduction: :meth:`Experiment.reproduce` writes an experiment's folder (:func:`default_reproduce` unless the
+experiment has its own ``reproduce_fn``), :func:`reproduce_all` every experiment plus ``index.md``.
 """
 
 from . import tse2
@@ -13,6 +19,8 @@ from ._base import (
     SCHEMA,
     Experiment,
     FigureSpec,
+    Output,
+    Reproduction,
     Result,
     TrialSpec,
     config_dict,
@@ -20,7 +28,21 @@ from ._base import (
     register,
 )
 from ._evaluate import evaluate
+from ._montecarlo import (
+    DEFAULT_BATCH_SIZE,
+    PERCENTILES,
+    STATS,
+    MonteCarloResult,
+    ProgressLine,
+    montecarlo,
+    trial_keys,
+    trial_statistics,
+)
+from ._reproduce import Failure, default_reproduce, reproduce_all, write_index
 from ._systems import SYSTEMS, SystemSpec, get_system
 
 __all__ = ["EXPERIMENTS", "Experiment", "FigureSpec", "Result", "TrialSpec", "SCHEMA", "get_experiment", "register",
-           "config_dict", "evaluate", "SYSTEMS", "SystemSpec", "get_system", "tse2"]
+           "config_dict", "evaluate", "SYSTEMS", "SystemSpec", "get_system", "tse2",
+           "montecarlo", "MonteCarloResult", "trial_keys", "trial_statistics", "ProgressLine", "STATS",
+           "PERCENTILES", "DEFAULT_BATCH_SIZE", "Output", "Reproduction", "default_reproduce", "reproduce_all",
+           "write_index", "Failure"]

@@ -1,9 +1,11 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -71,12 +73,53 @@ class TrialSpec:
     errors: Callable[[Any], Any] = field(repr=False)
 
 
+class Output(NamedTuple):
+    """A file an experiment's reproduction wrote, with the caption the index shows (e.g. the paper figure)."""
+
+    path: Path
+    caption: str = ""
+
+
+@dataclass(frozen=True)
+class Reproduction:
+    """What :meth:`Experiment.reproduce` wrote to its folder ``out``: read by the CLI (which prints ``text``
+    and writes ``warnings`` to stderr) and by ``liemef reproduce all`` (whose ``index.md`` links ``figures``
+    and ``tables``). ``files`` is every file written; ``summary`` is a short JSON-ready digest for the index
+    (e.g. runs, non-finite trials)."""
+
+    experiment: str
+    out: Path
+    figures: tuple[Output, ...] = ()
+    tables: tuple[Output, ...] = ()
+    files: tuple[Path, ...] = ()
+    text: str = ""
+    warnings: tuple[str, ...] = ()
+    summary: dict = field(default_factory=dict)
+
+
 @dataclass(frozen=True)
 class Experiment:
     """A paper figure or table as a frozen default config plus ``run(config, key=None) -> Result``.
 
     ``key=None`` uses ``jax.random.key(config.seed)``; a Monte Carlo driver passes its own keys.
-    ``trial_fn(config) -> TrialSpec`` gives the traceable trial a Monte Carlo batches (None: no Monte Carlo).
+    ``trial_fn(config) -> TrialSpec`` gives the traceable trial a Monte Carlo batches (None: no Monte Carlo;
+    see :func:`liemef.experiments.montecarlo`).
+
+    Reproduction (``liemef reproduce NAME`` and ``liemef reproduce all``) is :meth:`reproduce`, shaped by:
+
+    * ``runs``: Monte Carlo trials ``reproduce`` runs by default (``--runs`` overrides; 0: the single seeded
+      run only). ``quick_config`` and ``quick_runs``: the reduced size of ``reproduce --quick`` and of
+      ``reproduce all`` (default ``--quick``), a few seconds to a minute on a laptop: e.g. a shorter
+      ``duration`` and fewer trials (``quick_config=None``: the default config).
+    * ``tables``: the paper tables the experiment reproduces, for ``reproduce --list`` (figures are listed
+      from ``figures``).
+    * ``reproduce_fn(config, out, runs, progress) -> Reproduction``: the experiment's own reproduction, for
+      experiments whose output is more than one run (e.g. a grid of configurations, each a Monte Carlo of
+      ``runs`` trials, written as the paper's tables with :class:`~liemef.experiments.MonteCarloResult`).
+      ``out`` is a :class:`~pathlib.Path` to an existing folder; write every file atomically through
+      :mod:`liemef.io` and return what was written. None: :func:`default_reproduce` (one seeded run:
+      ``metrics.json``, ``arrays.npz``, the ``figures``, ``errors.md``/``errors.csv``; plus a Monte Carlo of
+      ``runs`` trials, ``montecarlo.*``, when ``runs > 0``), which a custom hook may call for its parts.
     """
 
     name: str
@@ -86,22 +129,58 @@ class Experiment:
     run_fn: Callable[..., Result] = field(repr=False)
     trial_fn: Callable[[Any], TrialSpec] | None = field(default=None, repr=False)
     figures: tuple[FigureSpec, ...] = ()
+    tables: tuple[str, ...] = ()
+    runs: int = 0
+    quick_config: Any | None = None
+    quick_runs: int = 0
+    reproduce_fn: Callable[..., Reproduction] | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        for name in ("runs", "quick_runs"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"{name}: expected an integer >= 0, got {v!r}")
 
     def config(self, **overrides) -> Any:
         """The default config with ``overrides`` (field names of the config dataclass) replaced."""
-        valid = {f.name for f in dataclasses.fields(self.default_config)}
+        return self._replace(self.default_config, overrides)
+
+    def quick(self, **overrides) -> Any:
+        """The reduced config of ``reproduce --quick`` (``quick_config``, else the default) with ``overrides``."""
+        return self._replace(self.default_config if self.quick_config is None else self.quick_config, overrides)
+
+    def _replace(self, config: Any, overrides: dict) -> Any:
+        valid = {f.name for f in dataclasses.fields(config)}
         unknown = sorted(set(overrides) - valid)
         if unknown:
             raise ValueError(f"{self.name}: unknown config option(s) {unknown}; "
                              f"expected some of {sorted(valid)}")
-        return dataclasses.replace(self.default_config, **overrides)
+        return dataclasses.replace(config, **overrides)
 
     def run(self, config: Any | None = None, key=None) -> Result:
         return self.run_fn(self.default_config if config is None else config, key)
 
+    def reproduce(self, out: str | os.PathLike, config: Any | None = None, runs: int | None = None,
+                  progress: bool = True) -> Reproduction:
+        """Write the experiment's reproduction into the folder ``out`` (created if missing): its
+        ``reproduce_fn`` or :func:`default_reproduce`. ``config=None``: the default config; ``runs=None``:
+        ``self.runs`` Monte Carlo trials."""
+        from ..io import ensure_dir
+        from ._reproduce import default_reproduce
+
+        runs = self.runs if runs is None else runs
+        if not isinstance(runs, int) or isinstance(runs, bool) or runs < 0:
+            raise ValueError(f"runs: expected an integer >= 0, got {runs!r}")
+        config = self.default_config if config is None else config
+        d = ensure_dir(out)
+        if self.reproduce_fn is not None:
+            return self.reproduce_fn(config, d, runs, progress)
+        return default_reproduce(self, config, d, runs, progress)
+
     def describe(self) -> dict:
         return {"name": self.name, "title": self.title, "paper": self.paper,
-                "figures": [f.to_dict() for f in self.figures]}
+                "figures": [f.to_dict() for f in self.figures], "tables": list(self.tables),
+                "montecarlo": self.trial_fn is not None}
 
 
 EXPERIMENTS: dict[str, Experiment] = {}

@@ -1,0 +1,537 @@
+r"""Monte Carlo over seeds: N trials of an experiment, batched with ``jax.vmap``, reduced to statistics.
+
+The papers report single noisy runs; a reproduction reports the distribution over seeds and where each
+published number falls in it (DESIGN.md §3). :func:`montecarlo` runs ``runs`` trials of an experiment's
+:class:`~liemef.experiments.TrialSpec`:
+
+* trial ``i`` uses the key ``jax.random.split(jax.random.key(seed), runs)[i]``, whatever the batch size
+  (:func:`trial_keys`; the keys do depend on ``runs``);
+* trials are evaluated ``batch_size`` at a time by one compiled ``jit(vmap(trial))``, the last batch padded
+  to the same size so nothing recompiles; each trial is reduced inside the compiled function to its
+  statistics over time in each window (:func:`liemef.metrics.error_stats`: mean, std, rms per component), so
+  memory grows with ``runs`` x windows x components, not with the number of samples;
+* a trial whose errors are not all finite (a diverged filter) is flagged in ``finite`` and left out of every
+  statistic across trials; the count is reported.
+
+Across the finite trials, :class:`MonteCarloResult` gives for every (window, component, per-trial statistic)
+the mean, the spread (sample std across trials, ddof = 1) and the percentiles 5, 25, 50, 75, 95 (linear
+interpolation, as :func:`numpy.percentile`), and :meth:`MonteCarloResult.percentile_of` the percentile of a
+published value. Results print as a table and save as ``<stem>.npz`` + ``<stem>.json`` (reloadable with
+:meth:`MonteCarloResult.load`) + ``<stem>.md`` + ``<stem>.csv``.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .. import __version__, io
+from ..metrics import Window, error_stats, window_mask
+from ._base import Experiment, TrialSpec, config_dict, get_experiment
+
+STATS = ("mean", "std", "rms")
+"""The per-trial statistics over time, in the order of the last axis of :attr:`MonteCarloResult.stats`."""
+PERCENTILES = (5, 25, 50, 75, 95)
+"""The percentiles across trials that tables report."""
+DEFAULT_BATCH_SIZE = 8
+"""Trials per compiled batch. On a 2-core CPU, TSE(2) at 1 ms ran 8, 13, 21, 14 and 8 trials/s with batches
+of 1, 4, 8, 16 and 32 (larger batches also compile longer)."""
+SCHEMA = "liemef.montecarlo/1"
+"""Version tag of the ``<stem>.json`` layout."""
+
+ProgressFn = Callable[[int, int, float, "float | None"], None]
+"""``progress(done, total, elapsed_s, eta_s)``; ``eta_s`` is None until it can be estimated."""
+
+
+def trial_keys(seed: int, runs: int) -> jax.Array:
+    """The key of every trial: ``jax.random.split(jax.random.key(seed), runs)``."""
+    return jax.random.split(jax.random.key(seed), runs)
+
+
+# --- progress ----------------------------------------------------------------------------------------------
+def _seconds(s: float) -> str:
+    if s < 60:
+        return f"{s:.1f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+def format_progress(label: str, done: int, total: int, elapsed: float, eta: float | None) -> str:
+    """``"<label>: 40/100 trials (40%), 12.3 s elapsed, ETA 18.0 s"``."""
+    pct = 100.0 * done / total if total else 100.0
+    eta_text = "--" if eta is None else _seconds(eta)
+    return f"{label}: {done}/{total} trials ({pct:.0f}%), {_seconds(elapsed)} elapsed, ETA {eta_text}"
+
+
+class ProgressLine:
+    """A progress display on a text stream (default stderr): on a terminal one line rewritten in place, else
+    (logs, pipes) one line at the first report, then at most every ``interval`` seconds, and at the end."""
+
+    def __init__(self, label: str, stream: TextIO | None = None, interval: float = 5.0):
+        self.label = label
+        self.stream = sys.stderr if stream is None else stream
+        self.interval = interval
+        isatty = getattr(self.stream, "isatty", None)
+        self.tty = bool(isatty()) if callable(isatty) else False
+        self._last: float | None = None
+        self._width = 0
+
+    def __call__(self, done: int, total: int, elapsed: float, eta: float | None) -> None:
+        line = format_progress(self.label, done, total, elapsed, eta)
+        if self.tty:
+            self.stream.write("\r" + line.ljust(self._width) + ("\n" if done >= total else ""))
+            self._width = len(line)
+        elif done >= total or self._last is None or elapsed - self._last >= self.interval:
+            self.stream.write(line + "\n")
+            self._last = elapsed
+        self.stream.flush()
+
+
+def _reporter(progress: bool | ProgressFn, label: str) -> ProgressFn | None:
+    if progress is True:
+        return ProgressLine(label)
+    if progress is False or progress is None:
+        return None
+    if callable(progress):
+        return progress
+    raise ValueError(f"progress: expected True, False or a function (done, total, elapsed, eta), got {progress!r}")
+
+
+# --- the compiled batch ------------------------------------------------------------------------------------
+def _check_spec(name: str, spec: TrialSpec) -> np.ndarray:
+    if not isinstance(spec, TrialSpec):
+        raise ValueError(f"trial_fn of {name!r}: expected a TrialSpec, got {type(spec).__name__}")
+    ts = np.asarray(spec.ts, dtype=np.float64)
+    if ts.ndim != 1 or ts.shape[0] < 1:
+        raise ValueError(f"trial_fn of {name!r}: expected ts of shape (N,), got {ts.shape}")
+    c = len(spec.names)
+    if len(spec.units) != c:
+        raise ValueError(f"trial_fn of {name!r}: expected one unit per name ({c}), got {len(spec.units)}")
+    if not spec.windows:
+        raise ValueError(f"trial_fn of {name!r}: expected at least one window, got none")
+    out = jax.eval_shape(spec.errors, jax.random.key(0))
+    if tuple(out.shape) != (ts.shape[0], c):
+        raise ValueError(f"trial_fn of {name!r}: expected errors(key) of shape ({ts.shape[0]}, {c}) "
+                         f"(samples, components {list(spec.names)}), got {tuple(out.shape)}")
+    return ts
+
+
+def trial_statistics(spec: TrialSpec) -> Callable[[Any], tuple[Float[Array, "w c 3"], Bool[Array, ""]]]:
+    """``one(key) -> (stats, finite)``: the trial's per-window statistics ``stats[w, c, k]`` (``k`` in
+    :data:`STATS`) and whether all its errors are finite. Traceable; :func:`montecarlo` vmaps it."""
+    ts = jnp.asarray(spec.ts, dtype=jnp.float64)
+    windows = tuple(spec.windows)
+
+    def one(key):
+        e = spec.errors(key)
+        per_window = [error_stats(ts, e, w) for w in windows]
+        stats = jnp.stack([jnp.stack([s[k] for k in STATS], axis=-1) for s in per_window])
+        return stats, jnp.all(jnp.isfinite(e))
+
+    return one
+
+
+_CACHE: collections.OrderedDict = collections.OrderedDict()
+_CACHE_SIZE = 8
+
+
+def _compiled(experiment: Experiment, config: Any) -> tuple[TrialSpec, np.ndarray, Callable]:
+    """The trial spec, its time grid and ``jit(vmap(trial_statistics))``, cached per (trial_fn, config) so
+    repeated Monte Carlos of one config (other seeds, runs or batch sizes) reuse the compiled function."""
+    try:
+        cache_key = (experiment.trial_fn, config)
+        hash(cache_key)
+    except TypeError:
+        cache_key = None
+    if cache_key is not None and cache_key in _CACHE:
+        _CACHE.move_to_end(cache_key)
+        return _CACHE[cache_key]
+    spec = experiment.trial_fn(config)
+    ts = _check_spec(experiment.name, spec)
+    entry = (spec, ts, jax.jit(jax.vmap(trial_statistics(spec))))
+    if cache_key is not None:
+        _CACHE[cache_key] = entry
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return entry
+
+
+def _count(name: str, value, minimum: int) -> int:
+    if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < minimum:
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: int = 100, seed: int = 0,
+               batch_size: int = DEFAULT_BATCH_SIZE, progress: bool | ProgressFn = True) -> MonteCarloResult:
+    """``runs`` seeded trials of ``experiment`` (an :class:`~liemef.experiments.Experiment` with a
+    ``trial_fn``, or its registered name) at ``config`` (None: its default config), batched with ``vmap``.
+
+    Trial ``i`` uses ``trial_keys(seed, runs)[i]`` (the config's own ``seed`` field is not used). Trials run
+    ``batch_size`` at a time through one compiled function; the result does not depend on ``batch_size``.
+    ``progress``: True shows trials done, elapsed time and ETA on stderr (:class:`ProgressLine`), False
+    nothing, a function ``progress(done, total, elapsed, eta)`` is called after every batch.
+    """
+    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
+    if not isinstance(exp, Experiment):
+        raise ValueError(f"experiment: expected an Experiment or a registered name, got {type(exp).__name__}")
+    if exp.trial_fn is None:
+        raise ValueError(f"experiment: {exp.name!r} has no trial_fn, so no Monte Carlo; expected one of "
+                         f"{sorted(e.name for e in _registered() if e.trial_fn is not None)}")
+    runs = _count("runs", runs, 1)
+    seed = _count("seed", seed, -(2**63))
+    batch = min(_count("batch_size", batch_size, 1), runs)
+    config = exp.default_config if config is None else config
+    report = _reporter(progress, f"montecarlo {exp.name}")
+
+    spec, ts, batched = _compiled(exp, config)
+    keys = trial_keys(seed, runs)
+    stats = np.empty((runs, len(spec.windows), len(spec.names), len(STATS)))
+    finite = np.empty(runs, dtype=bool)
+    t0 = time.perf_counter()
+    first: tuple[int, float] | None = None
+    for start in range(0, runs, batch):
+        n = min(batch, runs - start)
+        # Pad the last batch with copies of the last key: one shape, one compilation.
+        idx = np.minimum(np.arange(start, start + batch), runs - 1)
+        s, f = batched(keys[idx])
+        stats[start:start + n] = np.asarray(s)[:n]
+        finite[start:start + n] = np.asarray(f)[:n]
+        done, elapsed = start + n, time.perf_counter() - t0
+        if first is None:
+            first = (done, elapsed)  # includes compilation: no rate from it
+            eta = 0.0 if done == runs else None
+        else:
+            eta = (runs - done) * (elapsed - first[1]) / (done - first[0])
+        if report is not None:
+            report(done, runs, elapsed, eta)
+    elapsed = time.perf_counter() - t0
+    counts = tuple(int(np.sum(np.asarray(window_mask(ts, w)))) for w in spec.windows)
+    return MonteCarloResult(
+        experiment=exp.name, title=exp.title, paper=exp.paper, config=_config_data(config), seed=seed,
+        names=tuple(spec.names), units=tuple(spec.units), windows=tuple(spec.windows), counts=counts,
+        stats=stats, finite=finite, keys=np.asarray(jax.random.key_data(keys)), elapsed=elapsed,
+        batch_size=batch)
+
+
+def _registered() -> list[Experiment]:
+    from ._base import EXPERIMENTS
+
+    return list(EXPERIMENTS.values())
+
+
+def _config_data(config: Any) -> dict:
+    if isinstance(config, dict):
+        return dict(config)
+    try:
+        return config_dict(config)
+    except TypeError:
+        return {"repr": repr(config)}
+
+
+# --- the result --------------------------------------------------------------------------------------------
+def _json_number(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _fmt(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.3e}"
+
+
+@dataclass(frozen=True, eq=False)
+class MonteCarloResult:
+    """The statistics of ``runs`` seeded trials of one experiment config.
+
+    ``stats[i, w, c, k]`` is trial ``i``'s statistic ``STATS[k]`` (mean, std, rms over time) of error
+    component ``names[c]`` over window ``windows[w]`` (``counts[w]`` samples); ``finite[i]`` says whether all
+    of trial ``i``'s errors were finite (non-finite trials are left out of :attr:`mean`, :attr:`spread`,
+    :attr:`percentiles` and :meth:`percentile_of`). ``keys[i]`` is the key data of trial ``i``
+    (:meth:`trial_key`), ``config`` the experiment config as JSON-ready data, ``elapsed`` the wall time in s
+    (with compilation) and ``batch_size`` the trials per compiled batch.
+    """
+
+    experiment: str
+    config: dict
+    seed: int
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    windows: tuple[Window, ...]
+    counts: tuple[int, ...]
+    stats: np.ndarray
+    finite: np.ndarray
+    keys: np.ndarray | None = None
+    elapsed: float = math.nan
+    batch_size: int = 0
+    title: str = ""
+    paper: str = ""
+
+    def __post_init__(self):
+        stats = np.asarray(self.stats, dtype=np.float64)
+        shape = (len(self.windows), len(self.names), len(STATS))
+        if stats.ndim != 4 or stats.shape[1:] != shape:
+            raise ValueError(f"stats: expected shape (runs, {shape[0]}, {shape[1]}, {shape[2]}) (runs, windows, "
+                             f"components, {'/'.join(STATS)}), got {stats.shape}")
+        finite = np.asarray(self.finite, dtype=bool)
+        if finite.shape != stats.shape[:1]:
+            raise ValueError(f"finite: expected shape ({stats.shape[0]},) (one flag per trial), got {finite.shape}")
+        if len(self.units) != len(self.names) or len(self.counts) != len(self.windows):
+            raise ValueError(f"units/counts: expected one unit per component ({len(self.names)}) and one count "
+                             f"per window ({len(self.windows)}), got {len(self.units)} and {len(self.counts)}")
+        set_ = object.__setattr__
+        set_(self, "stats", stats)
+        set_(self, "finite", finite)
+        set_(self, "names", tuple(str(s) for s in self.names))
+        set_(self, "units", tuple(str(s) for s in self.units))
+        set_(self, "windows", tuple(Window(*w) for w in self.windows))
+        set_(self, "counts", tuple(int(n) for n in self.counts))
+        if self.keys is not None:
+            set_(self, "keys", np.asarray(self.keys))
+
+    # --- sizes and selection
+    @property
+    def runs(self) -> int:
+        return int(self.stats.shape[0])
+
+    @property
+    def n_finite(self) -> int:
+        return int(self.finite.sum())
+
+    @property
+    def n_nonfinite(self) -> int:
+        """The number of trials with non-finite errors (diverged), left out of the statistics."""
+        return self.runs - self.n_finite
+
+    @property
+    def nonfinite_trials(self) -> np.ndarray:
+        """Indices of the trials with non-finite errors."""
+        return np.flatnonzero(~self.finite)
+
+    @property
+    def window_labels(self) -> tuple[str, ...]:
+        return tuple(w.label for w in self.windows)
+
+    def trial_key(self, i: int) -> jax.Array:
+        """The ``jax.random`` key of trial ``i`` (to rerun one trial, e.g. an outlier, with ``run``)."""
+        if self.keys is None:
+            raise ValueError("keys: this result has no trial keys")
+        return jax.random.wrap_key_data(jnp.asarray(self.keys[i]))
+
+    def index(self, component: str | int, window: str | int | Window, stat: str | int) -> tuple[int, int, int]:
+        """``(w, c, k)`` of a component (name or index), window (label, :class:`Window` or index) and
+        statistic (``"mean"``, ``"std"``, ``"rms"`` or index)."""
+        def pick(what, value, options):
+            if isinstance(value, int | np.integer) and not isinstance(value, bool):
+                if not 0 <= value < len(options):
+                    raise ValueError(f"{what}: expected an index in [0, {len(options)}), got {value}")
+                return int(value)
+            if value not in options:
+                raise ValueError(f"{what}: expected one of {list(options)}, got {value!r}")
+            return options.index(value)
+
+        w = window.label if isinstance(window, Window) else window
+        return (pick("window", w, self.window_labels), pick("component", component, self.names),
+                pick("stat", stat, STATS))
+
+    def values(self, component: str | int, window: str | int | Window, stat: str | int) -> np.ndarray:
+        """The per-trial values of one statistic over the finite trials, in trial order."""
+        w, c, k = self.index(component, window, stat)
+        return self.stats[self.finite, w, c, k]
+
+    # --- across trials
+    @property
+    def mean(self) -> np.ndarray:
+        """(windows, components, 3): the mean across finite trials of each per-trial statistic."""
+        x = self.stats[self.finite]
+        return np.full(self.stats.shape[1:], np.nan) if x.shape[0] == 0 else x.mean(axis=0)
+
+    @property
+    def spread(self) -> np.ndarray:
+        """(windows, components, 3): the seed-to-seed spread, std across finite trials (ddof = 1)."""
+        x = self.stats[self.finite]
+        return np.full(self.stats.shape[1:], np.nan) if x.shape[0] < 2 else x.std(axis=0, ddof=1)
+
+    @property
+    def percentiles(self) -> np.ndarray:
+        """(len(PERCENTILES), windows, components, 3): percentiles 5, 25, 50, 75, 95 across finite trials."""
+        x = self.stats[self.finite]
+        if x.shape[0] == 0:
+            return np.full((len(PERCENTILES), *self.stats.shape[1:]), np.nan)
+        return np.percentile(x, PERCENTILES, axis=0)
+
+    def percentile_of(self, value: float, component: str | int, window: str | int | Window,
+                      stat: str | int) -> float:
+        """Where ``value`` (e.g. a published number) falls in the Monte Carlo distribution of one statistic:
+        the percentage of finite trials whose statistic is at most ``value`` (0-100; NaN without trials)."""
+        x = self.values(component, window, stat)
+        x = x[~np.isnan(x)]
+        if x.size == 0:
+            return math.nan
+        return 100.0 * float(np.count_nonzero(x <= float(value))) / x.size
+
+    # --- tables
+    TABLE_HEADER = ("window", "component", "unit", "stat", "mean", "spread",
+                    *(f"p{p}" for p in PERCENTILES))
+
+    def table_rows(self) -> list[tuple]:
+        """One row per (window, component, statistic): the names, then mean, spread and percentiles across
+        trials (:attr:`TABLE_HEADER`)."""
+        mean, spread, pct = self.mean, self.spread, self.percentiles
+        rows = []
+        for w, label in enumerate(self.window_labels):
+            for c, (name, unit) in enumerate(zip(self.names, self.units, strict=True)):
+                for k, stat in enumerate(STATS):
+                    rows.append((label, name, unit, stat, float(mean[w, c, k]), float(spread[w, c, k]),
+                                 *(float(v) for v in pct[:, w, c, k])))
+        return rows
+
+    def _heading(self) -> str:
+        bad = f", {self.n_nonfinite} non-finite (left out: trials {_list(self.nonfinite_trials)})" \
+            if self.n_nonfinite else ", all finite"
+        return f"Monte Carlo of {self.experiment}: {self.runs} trials (seed {self.seed}){bad}"
+
+    def _window_heading(self, w: int) -> str:
+        return f"window {self.window_labels[w]} ({self.counts[w]} samples)"
+
+    def format(self) -> str:
+        """A plain-text table, one block per window: per component and statistic over time, its mean and
+        spread across trials and its percentiles."""
+        head = ["component", "unit", "stat", "mean", "spread", *(f"p{p}" for p in PERCENTILES)]
+        lines = [self._heading(),
+                 "Per trial over time: mean, std, rms of each error; across trials: mean, spread (std), "
+                 "percentiles."]
+        by_window = collections.defaultdict(list)
+        for r in self.table_rows():
+            by_window[r[0]].append(r)
+        for w, label in enumerate(self.window_labels):
+            if self.counts[w] == 0:
+                lines += ["", f"{self._window_heading(w)}: no statistics"]
+                continue
+            rows = [head]
+            for i, r in enumerate(by_window[label]):
+                first = i % len(STATS) == 0
+                rows.append([r[1] if first else "", r[2] if first else "", r[3], *map(_fmt, r[4:])])
+            widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+            table = ["  ".join(s.ljust(wd) if i < 3 else s.rjust(wd)
+                               for i, (s, wd) in enumerate(zip(r, widths, strict=True))) for r in rows]
+            table.insert(1, "-" * len(table[0]))
+            lines += ["", self._window_heading(w), *table]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.format()
+
+    def to_markdown(self) -> str:
+        """The table as Markdown: a heading, the config, one table per window."""
+        title = f"# Monte Carlo: {self.experiment}" + (f" ({self.title})" if self.title else "")
+        cfg = ", ".join(f"{k} = {v}" for k, v in self.config.items() if k != "seed")  # trials: self.seed
+        out = [title, ""]
+        if self.paper:
+            out += [f"Paper: {self.paper}.", ""]
+        out += [f"{self._heading()}; {self.batch_size} trials per compiled batch, {self.elapsed:.1f} s.", "",
+                f"Config: {cfg}.", "",
+                "Per trial, over time: mean, std and rms of each error component; across trials: their mean, "
+                "spread (std, ddof = 1) and percentiles.", ""]
+        head = ["component", "unit", "stat", "mean", "spread", *(f"p{p}" for p in PERCENTILES)]
+        for w, label in enumerate(self.window_labels):
+            if self.counts[w] == 0:
+                out += [f"## {self._window_heading(w).capitalize()}", "", "No statistics.", ""]
+                continue
+            out += [f"## {self._window_heading(w).capitalize()}", "",
+                    "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 3 + ["---:"] * (len(head) - 3)) + "|"]
+            out += ["| " + " | ".join([*r[1:4], *map(_fmt, r[4:])]) + " |"
+                    for r in self.table_rows() if r[0] == label]
+            out.append("")
+        return "\n".join(out)
+
+    def write_tables(self, out: str | os.PathLike, stem: str = "montecarlo") -> list[Path]:
+        """``<stem>.md`` and ``<stem>.csv`` (full precision, one row per window, component and statistic) into
+        the folder ``out``."""
+        d = io.ensure_dir(out)
+        return [io.write_text(d / f"{stem}.md", self.to_markdown()),
+                io.write_rows(d / f"{stem}.csv", self.TABLE_HEADER, self.table_rows())]
+
+    # --- saving
+    def to_dict(self) -> dict:
+        """Metadata and the statistics across trials, JSON-ready (NaN -> None): the ``<stem>.json`` layout."""
+        mean, spread, pct = self.mean, self.spread, self.percentiles
+        summary: dict = {}
+        for w, label in enumerate(self.window_labels):
+            comps = {}
+            for c, (name, unit) in enumerate(zip(self.names, self.units, strict=True)):
+                entry: dict = {"unit": unit}
+                for k, stat in enumerate(STATS):
+                    entry[stat] = {"mean": _json_number(mean[w, c, k]), "spread": _json_number(spread[w, c, k]),
+                                   **{f"p{p}": _json_number(pct[i, w, c, k]) for i, p in enumerate(PERCENTILES)}}
+                comps[name] = entry
+            summary[label] = comps
+        return {
+            "schema": SCHEMA,
+            "experiment": {"name": self.experiment, "title": self.title, "paper": self.paper},
+            "config": self.config,
+            "seed": self.seed,
+            "runs": self.runs,
+            "keys": f"trial i uses jax.random.split(jax.random.key({self.seed}), {self.runs})[i]",
+            "nonfinite": {"count": self.n_nonfinite, "trials": [int(i) for i in self.nonfinite_trials]},
+            "windows": {w.label: {"start": w.start, "stop": w.stop, "samples": n}
+                        for w, n in zip(self.windows, self.counts, strict=True)},
+            "definition": {"per_trial": "mean, std (population) and rms over the samples of the window of each "
+                                        "error component (liemef.metrics.error_stats)",
+                           "across_trials": "over the finite trials: mean, spread = std with ddof = 1, "
+                                            "percentiles with linear interpolation (numpy.percentile)"},
+            "statistics": summary,
+            "run": {"elapsed_s": _json_number(self.elapsed), "batch_size": self.batch_size,
+                    "liemef_version": __version__},
+        }
+
+    def save(self, out: str | os.PathLike, stem: str = "montecarlo") -> list[Path]:
+        """``<stem>.npz`` (per-trial arrays), ``<stem>.json`` (:meth:`to_dict`) and the tables
+        (:meth:`write_tables`) into the folder ``out`` (created if missing); each written atomically."""
+        d = io.ensure_dir(out)
+        nan = lambda v: np.nan if v is None else v  # noqa: E731
+        arrays = {"stats": self.stats, "finite": self.finite, "names": np.array(self.names, dtype=str),
+                  "units": np.array(self.units, dtype=str), "stat_names": np.array(STATS),
+                  "window_start": np.array([nan(w.start) for w in self.windows], dtype=np.float64),
+                  "window_stop": np.array([nan(w.stop) for w in self.windows], dtype=np.float64),
+                  "counts": np.array(self.counts, dtype=np.int64)}
+        if self.keys is not None:
+            arrays["keys"] = self.keys
+        return [io.write_npz(d / f"{stem}.npz", arrays), io.write_json(d / f"{stem}.json", self.to_dict()),
+                *self.write_tables(d, stem)]
+
+    @classmethod
+    def load(cls, out: str | os.PathLike, stem: str = "montecarlo") -> MonteCarloResult:
+        """A result saved by :meth:`save` in the folder ``out``."""
+        d = Path(out)
+        a = io.read_arrays(d / f"{stem}.npz")
+        meta = io.read_json(d / f"{stem}.json", "montecarlo")
+        if meta.get("schema") != SCHEMA:
+            raise ValueError(f"montecarlo: expected schema {SCHEMA!r} in {str(d / f'{stem}.json')!r}, "
+                             f"got {meta.get('schema')!r}")
+        opt = lambda v: None if math.isnan(v) else float(v)  # noqa: E731
+        windows = tuple(Window(opt(s), opt(e)) for s, e in zip(a["window_start"], a["window_stop"], strict=True))
+        run = meta.get("run", {})
+        return cls(experiment=meta["experiment"]["name"], title=meta["experiment"].get("title", ""),
+                   paper=meta["experiment"].get("paper", ""), config=meta["config"], seed=int(meta["seed"]),
+                   names=tuple(a["names"]), units=tuple(a["units"]), windows=windows, counts=tuple(a["counts"]),
+                   stats=a["stats"], finite=a["finite"], keys=a.get("keys"),
+                   elapsed=math.nan if run.get("elapsed_s") is None else run["elapsed_s"],
+                   batch_size=int(run.get("batch_size", 0)))
+
+
+def _list(idx: np.ndarray, limit: int = 10) -> str:
+    items = [str(int(i)) for i in idx[:limit]]
+    return ", ".join(items) + (f", ... ({len(idx)} in all)" if len(idx) > limit else "")
