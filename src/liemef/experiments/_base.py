@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -9,10 +11,54 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .. import _validate
+from ..filter import INTEGRATORS
 from ..metrics import ErrorTable, Window
 
 SCHEMA = "liemef.metrics/1"
 """Version tag of the ``metrics.json`` layout (see :class:`Result`)."""
+
+
+class RunConfig:
+    """What the experiments' frozen config dataclasses share: an integer ``seed`` and a run of ``duration`` s
+    sampled every ``dt`` s, the checks of those (and of ``order`` and ``integrator`` where a config has them)
+    and their canonical values. A config calls :meth:`_check_run` first and :meth:`_freeze` last in its
+    ``__post_init__``."""
+
+    seed: int
+    duration: float
+    dt: float
+
+    def _check_run(self, positive: tuple[str, ...] = ()) -> None:
+        """ValueErrors for a non-integer seed, ``duration``, ``dt`` and the ``positive`` fields not finite
+        numbers > 0, a run shorter than one step, an unknown ``order`` or ``integrator``."""
+        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
+            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
+        for name in ("duration", "dt", *positive):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
+        if self.duration < self.dt:
+            raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
+        if hasattr(self, "order"):
+            _validate.choice("order", self.order, {"second", "first"})
+        if hasattr(self, "integrator"):
+            _validate.choice("integrator", self.integrator, set(INTEGRATORS))
+
+    def _freeze(self, floats: tuple[str, ...] = (), tuples: tuple[str, ...] = ()) -> None:
+        """Canonical plain-Python values (int seed, float ``duration``, ``dt`` and ``floats``, tuples of floats
+        ``tuples``): the config is hashable (setups are cached by config) and JSON-ready."""
+        set_ = functools.partial(object.__setattr__, self)
+        set_("seed", int(self.seed))
+        for name in ("duration", "dt", *floats):
+            set_(name, float(getattr(self, name)))
+        for name in tuples:
+            set_(name, tuple(float(v) for v in getattr(self, name)))
+
+    @property
+    def ts(self) -> np.ndarray:
+        """The sample grid 0, dt, ..., T (T rounded to a whole number of steps)."""
+        return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
 
 
 @dataclass(frozen=True)

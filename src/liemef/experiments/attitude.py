@@ -43,7 +43,7 @@ from ..groups import R3, SO3, TSO3
 from ..metrics import FULL, Window, error_table, gain_stats, group_error
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import RigidBodyAttitude
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, TrialSpec, register
+from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, montecarlo
 from ._reproduce import default_reproduce
@@ -62,7 +62,7 @@ def paper_torque(t):
 
 
 @dataclass(frozen=True)
-class AttitudeConfig:
+class AttitudeConfig(RunConfig):
     r"""The attitude experiment (Saccon et al. 2016, Sec. V-B; DESIGN.md §2).
 
     Fields:
@@ -102,18 +102,9 @@ class AttitudeConfig:
     steady: tuple[float, float] = (10.0, 50.0)
 
     def __post_init__(self):
-        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
-            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
-        for name in ("duration", "dt", "sigma_eps", "sigma_delta"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
-        if self.duration < self.dt:
-            raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
+        self._check_run(positive=("sigma_eps", "sigma_delta"))
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))
         _validate.choice("compare_with", self.compare_with, set(CARTAN_SCHOUTEN) - {self.connection})
-        _validate.choice("order", self.order, {"second", "first"})
-        _validate.choice("integrator", self.integrator, set(INTEGRATORS))
         _validate.choice("truth_integrator", self.truth_integrator, set(INTEGRATORS))
         _validate.nonnegative("alpha", self.alpha)
         if _validate.array("K0_diag", self.K0_diag, (6,)).min() < 0:
@@ -128,18 +119,8 @@ class AttitudeConfig:
         lo, hi = _validate.array("steady", self.steady, (2,))
         if not lo < hi:
             raise ValueError(f"steady: expected a window (start, stop) with start < stop, got {self.steady}")
-        # Canonical plain-Python values: the config is hashable (setups are cached) and JSON-ready.
-        set_ = functools.partial(object.__setattr__, self)
-        set_("seed", int(self.seed))
-        for name in ("duration", "dt", "alpha", "sigma_eps", "sigma_delta", "initial_error_deg"):
-            set_(name, float(getattr(self, name)))
-        for name in ("K0_diag", "inertia_diag", "omega0", "initial_axis", "filter_omega0", "steady"):
-            set_(name, tuple(float(v) for v in getattr(self, name)))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """The sample grid 0, dt, ..., T (T rounded to a whole number of steps)."""
-        return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
+        self._freeze(floats=("alpha", "sigma_eps", "sigma_delta", "initial_error_deg"),
+                     tuples=("K0_diag", "inertia_diag", "omega0", "initial_axis", "filter_omega0", "steady"))
 
     @property
     def connections(self) -> tuple[str, str]:

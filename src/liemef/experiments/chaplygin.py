@@ -39,12 +39,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate, io
-from ..filter import INTEGRATORS, MinimumEnergyFilter, Trajectory
+from ..filter import MinimumEnergyFilter, Trajectory
 from ..metrics import FULL, state_error, state_labels
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import ChaplyginSleigh
 from ..systems.chaplygin import SENSORS, constraint_K0, se2r2_state
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, TrialSpec, register
+from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, ProgressLine, montecarlo
 from ._reproduce import default_reproduce
@@ -121,7 +121,7 @@ def paper_value(dt: float, sensor: str, connection: str, component: str, stat: s
 
 
 @dataclass(frozen=True)
-class ChaplyginConfig:
+class ChaplyginConfig(RunConfig):
     r"""The Chaplygin sleigh experiment (Rigo et al. 2023, Sec. 6; DESIGN.md §2-§3).
 
     Fields:
@@ -161,18 +161,9 @@ class ChaplyginConfig:
     alternatives: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
-            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
-        for name in ("duration", "dt"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
-        if self.duration < self.dt:
-            raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
+        self._check_run()
         _validate.choice("sensor", self.sensor, set(SENSORS))
         _validate.choice("connection", self.connection, set(CONNECTIONS))
-        _validate.choice("order", self.order, {"second", "first"})
-        _validate.choice("integrator", self.integrator, set(INTEGRATORS))
         _validate.choice("weights", self.weights, set(WEIGHTS))
         _validate.choice("K0", self.K0, set(K0_CHOICES))
         _validate.nonnegative("alpha", self.alpha)
@@ -184,18 +175,8 @@ class ChaplyginConfig:
             raise ValueError(f"table_dts: expected one or more steps > 0, got {self.table_dts}")
         if not isinstance(self.alternatives, bool):
             raise ValueError(f"alternatives: expected True or False, got {self.alternatives!r}")
-        # Canonical plain-Python values: the config is hashable (setups are cached) and JSON-ready.
-        set_ = functools.partial(object.__setattr__, self)
-        set_("seed", int(self.seed))
-        for name in ("duration", "dt", "alpha", "model_error_std"):
-            set_(name, float(getattr(self, name)))
-        for name in ("truth0", "filter0", "table_dts"):
-            set_(name, tuple(float(v) for v in getattr(self, name)))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """The sample grid 0, dt, ..., T (T rounded to a whole number of steps)."""
-        return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
+        self._freeze(floats=("alpha", "model_error_std"),
+                     tuples=("truth0", "filter0", "table_dts"))
 
     @property
     def K0_matrix(self) -> np.ndarray:

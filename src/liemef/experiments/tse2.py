@@ -26,12 +26,12 @@ import numpy as np
 
 from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
-from ..filter import INTEGRATORS, MinimumEnergyFilter, Trajectory, terms
+from ..filter import MinimumEnergyFilter, Trajectory, terms
 from ..metrics import FULL, Window, state_error, state_labels
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import PlanarRigidBody, tse2_state
 from ..systems.planar_rigid_body import SENSORS
-from ._base import Experiment, FigureSpec, Result, TrialSpec, register
+from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 
 
@@ -41,7 +41,7 @@ def paper_input(t):
 
 
 @dataclass(frozen=True)
-class TSE2Config:
+class TSE2Config(RunConfig):
     r"""The planar rigid body experiment (Rigo et al. 2022, Sec. VI; DESIGN.md §2).
 
     Printed in the paper: J = 6.125, m = 125, l = 0.2, T = 50 s, RK4 with h = 1 ms, truth from
@@ -80,17 +80,8 @@ class TSE2Config:
     steady: tuple[float, float] = (10.0, 50.0)
 
     def __post_init__(self):
-        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
-            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
-        for name in ("duration", "dt"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
-        if self.duration < self.dt:
-            raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
+        self._check_run()
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))
-        _validate.choice("order", self.order, {"second", "first"})
-        _validate.choice("integrator", self.integrator, set(INTEGRATORS))
         _validate.choice("sensor", self.sensor, set(SENSORS))
         _validate.nonnegative("alpha", self.alpha)
         _validate.nonnegative("model_error_std", self.model_error_std)
@@ -104,18 +95,8 @@ class TSE2Config:
         lo, hi = _validate.array("steady", self.steady, (2,))
         if not lo < hi:
             raise ValueError(f"steady: expected a window (start, stop) with start < stop, got {self.steady}")
-        # Canonical plain-Python values: the config is hashable (setups are cached) and JSON-ready.
-        set_ = functools.partial(object.__setattr__, self)
-        set_("seed", int(self.seed))
-        for name in ("duration", "dt", "alpha", "model_error_std"):
-            set_(name, float(getattr(self, name)))
-        for name in ("K0_diag", "truth0", "filter0", "steady"):
-            set_(name, tuple(float(v) for v in getattr(self, name)))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """The sample grid 0, dt, ..., T (T rounded to a whole number of steps)."""
-        return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
+        self._freeze(floats=("alpha", "model_error_std"),
+                     tuples=("K0_diag", "truth0", "filter0", "steady"))
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from dataclasses import dataclass
 
 import jax
@@ -32,12 +31,12 @@ import numpy as np
 
 from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
-from ..filter import INTEGRATORS, MinimumEnergyFilter, Trajectory
+from ..filter import MinimumEnergyFilter, Trajectory
 from ..groups import R1, SO2, SO2R1
 from ..metrics import FULL, Window, state_error, state_labels
 from ..simulation import SensorLog, Truth
 from ..systems.unit_circle import DEG, MEASUREMENTS, UnitCircleBias
-from ._base import Experiment, FigureSpec, Result, TrialSpec, register
+from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 
 OMEGA_RATE = 0.25
@@ -50,7 +49,7 @@ def angular_velocity(t):
 
 
 @dataclass(frozen=True)
-class UnitCircleConfig:
+class UnitCircleConfig(RunConfig):
     r"""The unit circle experiment (Zamani et al., Sec. IV; DESIGN.md §2). Angles and rates in degrees here.
 
     Fields:
@@ -89,18 +88,9 @@ class UnitCircleConfig:
     integrator: str = "rkmk4"
 
     def __post_init__(self):
-        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
-            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
-        for name in ("duration", "dt", "B_omega_deg", "B_b_deg", "noise_std", "K1", "K2"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
-        if self.duration < self.dt:
-            raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
+        self._check_run(positive=("B_omega_deg", "B_b_deg", "noise_std", "K1", "K2"))
         _validate.choice("measurement", self.measurement, set(MEASUREMENTS))
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))
-        _validate.choice("order", self.order, {"second", "first"})
-        _validate.choice("integrator", self.integrator, set(INTEGRATORS))
         _validate.nonnegative("settle", self.settle)
         _validate.array("theta0_deg", self.theta0_deg, ())
         _validate.array("bias0_deg", self.bias0_deg, ())
@@ -108,18 +98,8 @@ class UnitCircleConfig:
         _validate.array("jumps_deg", self.jumps_deg, (times.shape[0],))
         if times.size > 1 and not np.all(np.diff(times) > 0):
             raise ValueError(f"jump_times: expected increasing times, got {self.jump_times}")
-        set_ = functools.partial(object.__setattr__, self)
-        set_("seed", int(self.seed))
-        for name in ("duration", "dt", "theta0_deg", "bias0_deg", "B_omega_deg", "B_b_deg", "noise_std", "K1",
-                     "K2", "settle"):
-            set_(name, float(getattr(self, name)))
-        for name in ("jump_times", "jumps_deg"):
-            set_(name, tuple(float(v) for v in getattr(self, name)))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """The sample grid 0, dt, ..., T (T rounded to a whole number of steps)."""
-        return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
+        self._freeze(floats=("theta0_deg", "bias0_deg", "B_omega_deg", "B_b_deg", "noise_std", "K1", "K2", "settle"),
+                     tuples=("jump_times", "jumps_deg"))
 
     @property
     def windows(self) -> tuple[Window, ...]:
