@@ -139,6 +139,35 @@ def test_run_accepts_an_experiments_arrays_npz_and_initial_state(reproduced, tmp
     assert m["log"]["samples"] == 12001
 
 
+@pytest.mark.parametrize(("system", "experiment", "config"), [
+    ("attitude", "attitude", {"duration": 0.3}),
+    ("chaplygin", "chaplygin", {"duration": 2.0}),
+    ("chaplygin-gps", "chaplygin", {"duration": 2.0, "sensor": "gps"}),
+    ("unit-circle", "unit-circle", {"duration": 2.0}),
+])
+def test_run_with_a_ready_system_repeats_its_experiments_filter(system, experiment, config, tmp_path):
+    """``liemef run --system S`` on an experiment's saved arrays, started where the experiment's filter starts
+    (x0, diagonal K0, connection, alpha): the same estimates, so the ready system is the paper's model with the
+    experiment's weights."""
+    exp = EXPERIMENTS[experiment]
+    res = exp.run(exp.config(**config))
+    io.write_result(tmp_path / "exp", res.metrics, res.arrays)
+    a = res.arrays
+    x0 = ",".join(repr(float(v)) for v in a["filtered"][0])
+    k0 = ",".join(repr(float(v)) for v in a["K_diag"][0])
+    alpha = res.metrics["config"].get("alpha", 0.0)
+    out = invoke("run", "--system", system, "--log", tmp_path / "exp" / "arrays.npz", "--out", tmp_path / "run",
+                 "--x0", x0, "--k0-diag", k0, "--alpha", alpha, "--connection", res.metrics["config"]["connection"])
+    assert out.exit_code == 0, out.output
+    est = np.loadtxt(tmp_path / "run" / "estimates.csv", delimiter=",", skiprows=1)
+    assert est.shape == (a["ts"].shape[0], 1 + a["filtered"].shape[1])
+    diff = est[:, 1:] - a["filtered"]
+    angles = [n in ("theta",) for n in a["names"]]
+    diff[:, angles] = (diff[:, angles] + np.pi) % (2 * np.pi) - np.pi  # filtered angles are unwrapped
+    assert np.abs(diff).max() < 1e-9, np.abs(diff).max(axis=0)
+    assert np.abs(a["filtered"][-1] - a["filtered"][0]).max() > 1e-3  # the estimate moved: the check can fail
+
+
 def test_run_errors_are_click_errors(recorded_csv, tmp_path):
     log, _ = recorded_csv
     res = CliRunner().invoke(cli, ["run", "--system", "car", "--log", str(log), "--out", str(tmp_path)])

@@ -1,3 +1,6 @@
+"""The ready systems ``liemef run --system NAME`` filters recorded logs with, each built with the weights of its
+paper's experiment, and how to read a first state estimate off a measurement."""
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -5,7 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..systems import AbstractSystem, PlanarRigidBody
+from ..systems import AbstractSystem, PlanarRigidBody, UnitCircleBias
+from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
 
 
@@ -36,8 +40,35 @@ SYSTEMS: dict[str, SystemSpec] = {
     "tse2-velocity": SystemSpec(
         "tse2-velocity", "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)",
         lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys)),
+    "attitude": SystemSpec(
+        "attitude",
+        "rigid-body attitude on TSO(3) (Saccon et al. 2016), two body-frame directions of e3 and e2; input the "
+        "torque (3); the weights of the paper's experiment",
+        lambda: attitude.setup(attitude.AttitudeConfig()).system, attitude.measured_state),
+    "chaplygin": SystemSpec(
+        "chaplygin",
+        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS (omega, v); input "
+        "(u_omega, u_v); the weights of the paper's experiment",
+        lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps_ins")),
+        lambda ys: chaplygin.measured_state("gps_ins", ys)),
+    "chaplygin-gps": SystemSpec(
+        "chaplygin-gps",
+        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS only (x1, y1, x2, y2); input (u_omega, u_v)",
+        lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps")),
+        lambda ys: chaplygin.measured_state("gps", ys)),
+    "unit-circle": SystemSpec(
+        "unit-circle",
+        "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, -sin theta) "
+        "with D = 0.4 I; input the gyro reading (1)",
+        lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, lambda ys: _unit_circle_measured(ys)),
 }
-"""Systems available to ``liemef run``, by name."""
+"""Systems available to ``liemef run``, by name: each built as in its paper's experiment."""
+
+
+def _unit_circle_measured(ys: np.ndarray) -> np.ndarray:
+    """(theta, b) read off vector measurements: the angle ``atan2(-y2, y1)``; the bias is not measured (NaN)."""
+    ys = np.asarray(ys, dtype=np.float64)
+    return np.stack([np.asarray(UnitCircleBias.vector_to_angle(ys)), np.full(ys.shape[0], np.nan)], axis=1)
 
 
 def get_system(name: str) -> SystemSpec:
