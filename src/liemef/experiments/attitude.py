@@ -61,6 +61,16 @@ def paper_torque(t):
     return jnp.stack([jnp.sin(2.0 * jnp.pi * t / 3.0), jnp.cos(2.0 * jnp.pi * t), jnp.sin(2.0 * jnp.pi * t / 5.0)])
 
 
+WEIGHTS = {
+    "printed": "Q = sigma_eps^2 I6 = D'D, R = sigma_delta^2 I3 = B2'B2 as printed (eqs. (84)-(85)): "
+               "D^-T Q D^-1 = I and B R^-1 B' = I on the velocity block, the filter is not weighted by the noise "
+               "levels",
+    "consistent": "Q = I6, R = I3 (our alternative): the residual weighted by D^-T D^-1 = I6 / sigma_eps^2, the "
+                  "model error by B B' = sigma_delta^2 on the velocity block",
+}
+"""The experiment's weight choices (``AttitudeConfig.weights``) and what they mean."""
+
+
 @dataclass(frozen=True)
 class AttitudeConfig(RunConfig):
     r"""The attitude experiment (Saccon et al. 2016, Sec. V-B; DESIGN.md §2).
@@ -74,8 +84,11 @@ class AttitudeConfig(RunConfig):
         integrator: the filter's integrator; truth_integrator: the truth's (``"lie-euler"``, the paper's
             geometric Euler).
         alpha, K0_diag: forgetting factor and initial gain (the paper's 0.01 and I6).
-        sigma_eps, sigma_delta: noise levels (eq. (84)); D = sigma_eps I6, Q = sigma_eps^2 I6,
-            B2 = sigma_delta I3, R = sigma_delta^2 I3, simulated torque noise I B2 delta per sample.
+        sigma_eps, sigma_delta: noise levels (eq. (84)); D = sigma_eps I6, B2 = sigma_delta I3, simulated
+            torque noise I B2 delta per sample.
+        weights: ``"printed"`` (Q = sigma_eps^2 I6 = D'D, R = sigma_delta^2 I3 = B2'B2, eqs. (84)-(85), so the
+            filter is not weighted by the noise levels) or ``"consistent"`` (Q = I6, R = I3: the residual
+            weighted by 1/sigma_eps^2, the model error by sigma_delta^2); see :data:`WEIGHTS`.
         inertia_diag, omega0: the body and its initial angular velocity (R(0) = I).
         initial_error_deg, initial_axis: R_hat(0) = R(0) exp(initial_error_deg * axis/|axis|).
         filter_omega0: Omega_hat(0).
@@ -94,6 +107,7 @@ class AttitudeConfig(RunConfig):
     K0_diag: tuple[float, ...] = (1.0,) * 6
     sigma_eps: float = 0.5 / 3.0
     sigma_delta: float = 1.0
+    weights: str = "printed"
     inertia_diag: tuple[float, ...] = (2.0, 5.0, 3.0)
     omega0: tuple[float, ...] = (0.5, 0.6, 0.4)
     initial_error_deg: float = 60.0
@@ -106,6 +120,7 @@ class AttitudeConfig(RunConfig):
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))
         _validate.choice("compare_with", self.compare_with, set(CARTAN_SCHOUTEN) - {self.connection})
         _validate.choice("truth_integrator", self.truth_integrator, set(INTEGRATORS))
+        _validate.choice("weights", self.weights, set(WEIGHTS))
         _validate.nonnegative("alpha", self.alpha)
         if _validate.array("K0_diag", self.K0_diag, (6,)).min() < 0:
             raise ValueError(f"K0_diag: expected entries >= 0, got {self.K0_diag}")
@@ -162,9 +177,11 @@ def initial_estimate(config: AttitudeConfig) -> TSO3:
 @functools.lru_cache(maxsize=8)
 def _setup(config: AttitudeConfig) -> Setup:
     se, sd = config.sigma_eps, config.sigma_delta
+    printed = config.weights == "printed"
     system = RigidBodyAttitude(inertia=np.diag(config.inertia_diag),
                                B=np.vstack([np.zeros((3, 3)), sd * np.eye(3)]), D=se * np.eye(6),
-                               Q=se**2 * np.eye(6), R=sd**2 * np.eye(3))  # eqs. (84)-(85)
+                               Q=(se**2 if printed else 1.0) * np.eye(6),
+                               R=(sd**2 if printed else 1.0) * np.eye(3))  # eqs. (84)-(85)
     filters = tuple(MinimumEnergyFilter(system, connection=conn, order=config.order, integrator=config.integrator,
                                         alpha=config.alpha) for conn in config.connections)
     state0 = filters[0].init(initial_estimate(config), np.diag(config.K0_diag))
@@ -214,6 +231,7 @@ def _assumptions(c: AttitudeConfig) -> dict:
         "filter": f"{c.integrator} with one step per sample (not printed); alpha = {c.alpha:g}, K(0) = "
                   f"diag({', '.join(f'{v:g}' for v in c.K0_diag)})",
         "connections": f"{c.connection} (main results) and {c.compare_with}, on the same simulated data",
+        "weights": WEIGHTS[c.weights],
     }
 
 
