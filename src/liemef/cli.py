@@ -39,11 +39,10 @@ from .experiments import (
     reproduce_all,
 )
 from .experiments._reproduce import INDEX_FILE
-from .filter import MinimumEnergyFilter
+from .filter import ORDERS, MinimumEnergyFilter
 from .metrics import FULL, angle_mask, continuous_angles, error_table, gain_stats, state_labels
 
 CONNECTIONS = tuple(CARTAN_SCHOUTEN)
-ORDERS = ("second", "first")
 
 
 def _out_dir(out: Path) -> Path:

@@ -102,11 +102,7 @@ def write_csv(path: str | os.PathLike, header: Sequence[str], columns: Sequence[
     if len(cols) != len(header) or len({c.shape[0] for c in cols}) > 1:
         raise ValueError(f"columns: expected {len(header)} columns of one length, got lengths "
                          f"{[c.shape[0] for c in cols]}")
-    with atomic_open(path, "w") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(zip(*(map(repr, map(float, c)) for c in cols), strict=True))
-    return Path(path)
+    return write_rows(path, header, list(zip(*cols, strict=True)))
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:

@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .. import _validate
-from ..filter import INTEGRATORS
+from ..filter import INTEGRATORS, ORDERS
 from ..metrics import ErrorTable, Window
 
 SCHEMA = "liemef.metrics/1"
@@ -41,7 +41,7 @@ class RunConfig:
         if self.duration < self.dt:
             raise ValueError(f"duration: expected at least one step dt = {self.dt}, got {self.duration}")
         if hasattr(self, "order"):
-            _validate.choice("order", self.order, {"second", "first"})
+            _validate.choice("order", self.order, set(ORDERS))
         if hasattr(self, "integrator"):
             _validate.choice("integrator", self.integrator, set(INTEGRATORS))
 

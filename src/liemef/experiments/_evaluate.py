@@ -22,7 +22,7 @@ from ..metrics import (
     state_labels,
 )
 from ..simulation import SensorLog, Truth
-from ._base import SCHEMA, Experiment, Result, config_dict
+from ._base import SCHEMA, Experiment, Result, TrialSpec, config_dict
 
 ERROR_DEFINITION = "truth - estimate in coordinates, angles wrapped to (-pi, pi] (Rigo et al. 2022, Sec. VI)"
 
@@ -74,3 +74,16 @@ def evaluate(experiment: Experiment, config, flt: MinimumEnergyFilter, truth: Tr
     }
     return Result(experiment=experiment.name, config=config, arrays=arrays, metrics=metrics, table=table,
                   figures=experiment.figures, raw={"truth": truth, "log": log, "trajectory": traj})
+
+
+def state_error_trial(setup, trial, windows: tuple[Window, ...]) -> TrialSpec:
+    """The Monte Carlo trial of an experiment whose errors are the state errors truth - estimate
+    (:func:`~liemef.metrics.state_error`, the columns of its tables): ``trial(setup, key) -> (truth, log,
+    trajectory)`` is its traceable run, ``setup`` has the ``system`` and the time grid ``ts``."""
+
+    def errors(key):
+        truth, _, traj = trial(setup, key)
+        return state_error(truth.g, traj.g_hat)
+
+    names, units = state_labels(setup.system)
+    return TrialSpec(ts=setup.ts, names=names, units=units, windows=tuple(windows), errors=errors)

@@ -39,7 +39,8 @@ from jaxtyping import Array, Bool, Float
 
 from .. import __version__, io
 from ..metrics import Window, error_stats, window_mask
-from ._base import Experiment, TrialSpec, config_dict, get_experiment
+from ..metrics._stats import format_number, json_number
+from ._base import EXPERIMENTS, Experiment, TrialSpec, config_dict, get_experiment
 
 STATS = ("mean", "std", "rms")
 """The per-trial statistics over time, in the order of the last axis of :attr:`MonteCarloResult.stats`."""
@@ -190,7 +191,7 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
         raise ValueError(f"experiment: expected an Experiment or a registered name, got {type(exp).__name__}")
     if exp.trial_fn is None:
         raise ValueError(f"experiment: {exp.name!r} has no trial_fn, so no Monte Carlo; expected one of "
-                         f"{sorted(e.name for e in _registered() if e.trial_fn is not None)}")
+                         f"{sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)}")
     runs = _count("runs", runs, 1)
     seed = _count("seed", seed, -(2**63))
     batch = min(_count("batch_size", batch_size, 1), runs)
@@ -227,12 +228,6 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
         batch_size=batch)
 
 
-def _registered() -> list[Experiment]:
-    from ._base import EXPERIMENTS
-
-    return list(EXPERIMENTS.values())
-
-
 def _config_data(config: Any) -> dict:
     if isinstance(config, dict):
         return dict(config)
@@ -243,15 +238,6 @@ def _config_data(config: Any) -> dict:
 
 
 # --- the result --------------------------------------------------------------------------------------------
-def _json_number(x) -> float | None:
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _fmt(x: float) -> str:
-    return "-" if not math.isfinite(x) else f"{x:.3e}"
-
-
 @dataclass(frozen=True, eq=False)
 class MonteCarloResult:
     """The statistics of ``runs`` seeded trials of one experiment config.
@@ -423,7 +409,7 @@ class MonteCarloResult:
             rows = [head]
             for i, r in enumerate(by_window[label]):
                 first = i % len(STATS) == 0
-                rows.append([r[1] if first else "", r[2] if first else "", r[3], *map(_fmt, r[4:])])
+                rows.append([r[1] if first else "", r[2] if first else "", r[3], *map(format_number, r[4:])])
             widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
             table = ["  ".join(s.ljust(wd) if i < 3 else s.rjust(wd)
                                for i, (s, wd) in enumerate(zip(r, widths, strict=True))) for r in rows]
@@ -452,7 +438,7 @@ class MonteCarloResult:
                 continue
             out += [f"## {self._window_heading(w).capitalize()}", "",
                     "| " + " | ".join(head) + " |", "|" + "|".join(["---"] * 3 + ["---:"] * (len(head) - 3)) + "|"]
-            out += ["| " + " | ".join([*r[1:4], *map(_fmt, r[4:])]) + " |"
+            out += ["| " + " | ".join([*r[1:4], *map(format_number, r[4:])]) + " |"
                     for r in self.table_rows() if r[0] == label]
             out.append("")
         return "\n".join(out)
@@ -474,8 +460,8 @@ class MonteCarloResult:
             for c, (name, unit) in enumerate(zip(self.names, self.units, strict=True)):
                 entry: dict = {"unit": unit}
                 for k, stat in enumerate(STATS):
-                    entry[stat] = {"mean": _json_number(mean[w, c, k]), "spread": _json_number(spread[w, c, k]),
-                                   **{f"p{p}": _json_number(pct[i, w, c, k]) for i, p in enumerate(PERCENTILES)}}
+                    entry[stat] = {"mean": json_number(mean[w, c, k]), "spread": json_number(spread[w, c, k]),
+                                   **{f"p{p}": json_number(pct[i, w, c, k]) for i, p in enumerate(PERCENTILES)}}
                 comps[name] = entry
             summary[label] = comps
         return {
@@ -493,7 +479,7 @@ class MonteCarloResult:
                            "across_trials": "over the finite trials: mean, spread = std with ddof = 1, "
                                             "percentiles with linear interpolation (numpy.percentile)"},
             "statistics": summary,
-            "run": {"elapsed_s": _json_number(self.elapsed), "batch_size": self.batch_size,
+            "run": {"elapsed_s": json_number(self.elapsed), "batch_size": self.batch_size,
                     "liemef_version": __version__},
         }
 

@@ -9,7 +9,6 @@ by :mod:`liemef.plots`, imported only when a reproduction is written.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import time
 import traceback
@@ -19,6 +18,7 @@ from typing import Any
 
 from .. import __version__, io
 from ..metrics import ErrorTable
+from ..metrics._stats import format_number
 from ._base import EXPERIMENTS, Experiment, Output, Reproduction
 from ._montecarlo import montecarlo
 
@@ -29,12 +29,11 @@ MONTECARLO_STEM = "montecarlo"
 
 def error_table_markdown(table: ErrorTable) -> str:
     """An :class:`~liemef.metrics.ErrorTable` as Markdown: one row per component, mean/std/rms per window."""
-    fmt = lambda v: "-" if not math.isfinite(v) else f"{v:.3e}"  # noqa: E731
     head = ["component", "unit"] + [f"{k} ({w.label})" for w in table.windows for k in ("mean", "std", "rms")]
     lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
     for c, (name, unit) in enumerate(zip(table.names, table.units, strict=True)):
         vals = [getattr(table, k)[w, c] for w in range(len(table.windows)) for k in ("mean", "std", "rms")]
-        lines.append("| " + " | ".join([name, unit, *map(fmt, vals)]) + " |")
+        lines.append("| " + " | ".join([name, unit, *map(format_number, vals)]) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..systems import AbstractSystem, PlanarRigidBody, UnitCircleBias
+from ..systems import AbstractSystem, PlanarRigidBody
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
 
@@ -60,15 +60,9 @@ SYSTEMS: dict[str, SystemSpec] = {
         "unit-circle",
         "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, -sin theta) "
         "with D = 0.4 I; input the gyro reading (1)",
-        lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, lambda ys: _unit_circle_measured(ys)),
+        lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, unit_circle.measured_state),
 }
 """Systems available to ``liemef run``, by name: each built as in its paper's experiment."""
-
-
-def _unit_circle_measured(ys: np.ndarray) -> np.ndarray:
-    """(theta, b) read off vector measurements: the angle ``atan2(-y2, y1)``; the bias is not measured (NaN)."""
-    ys = np.asarray(ys, dtype=np.float64)
-    return np.stack([np.asarray(UnitCircleBias.vector_to_angle(ys)), np.full(ys.shape[0], np.nan)], axis=1)
 
 
 def get_system(name: str) -> SystemSpec:

@@ -274,12 +274,18 @@ def run(config: AttitudeConfig | None = None, key=None) -> Result:
     }
     result = evaluate(ATTITUDE, c, s.filters[0], truth, log, trajs[0], measured_state(np.asarray(log.ys)),
                       c.windows, _assumptions(c), extra_metrics=extra, extra_arrays=extra_arrays)
-    names = tuple(f"{n}_{conn}" for conn in c.connections for n in ERROR_NAMES[:2])
-    units = tuple(u for _ in c.connections for u in ERROR_UNITS[:2])
+    names, units = _comparison_labels(c)
     summary = error_table(ts, np.concatenate([errs[conn][:, :2] for conn in c.connections], axis=1), names, units,
                           c.windows)
     raw = {**result.raw, "trajectories": dict(zip(c.connections, trajs, strict=True))}
     return dataclasses.replace(result, table=summary, raw=raw)
+
+
+def _comparison_labels(config: AttitudeConfig) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Names and units of the columns ``e_R_<connection>, e_Omega_<connection>`` of both connections."""
+    names = tuple(f"{n}_{conn}" for conn in config.connections for n in ERROR_NAMES[:2])
+    units = tuple(u for _ in config.connections for u in ERROR_UNITS[:2])
+    return names, units
 
 
 def trial_spec(config: AttitudeConfig) -> TrialSpec:
@@ -291,8 +297,7 @@ def trial_spec(config: AttitudeConfig) -> TrialSpec:
         truth, _, trajs = trial(s, key)
         return jnp.concatenate([attitude_errors(truth.g, tr.g_hat)[:, :2] for tr in trajs], axis=1)
 
-    names = tuple(f"{n}_{conn}" for conn in config.connections for n in ERROR_NAMES[:2])
-    units = tuple(u for _ in config.connections for u in ERROR_UNITS[:2])
+    names, units = _comparison_labels(config)
     return TrialSpec(ts=s.ts, names=names, units=units, windows=config.windows, errors=errors)
 
 

@@ -40,12 +40,12 @@ import numpy as np
 
 from .. import _validate, io
 from ..filter import MinimumEnergyFilter, Trajectory
-from ..metrics import FULL, state_error, state_labels
+from ..metrics import FULL
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import ChaplyginSleigh
 from ..systems.chaplygin import SENSORS, constraint_K0, se2r2_state
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
-from ._evaluate import evaluate
+from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, config_dict, register
+from ._evaluate import evaluate, state_error_trial
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, ProgressLine, montecarlo
 from ._reproduce import default_reproduce
 
@@ -330,14 +330,7 @@ def run(config: ChaplyginConfig | None = None, key=None) -> Result:
 def trial_spec(config: ChaplyginConfig) -> TrialSpec:
     """The Monte Carlo trial of ``config``: coordinate errors (theta, x, y, omega, v) of one seeded run over the
     whole run, as the paper's tables (traceable in the key)."""
-    s = setup(config)
-
-    def errors(key):
-        truth, _, traj = trial(s, key)
-        return state_error(truth.g, traj.g_hat)
-
-    names, units = state_labels(s.system)
-    return TrialSpec(ts=s.ts, names=names, units=units, windows=(FULL,), errors=errors)
+    return state_error_trial(setup(config), trial, (FULL,))
 
 
 # --- the reproduction of Tables 1-2 and Figs. 3-6 ---------------------------------------------------------------
@@ -700,8 +693,7 @@ def reproduce(config: ChaplyginConfig, out: Path, runs: int = 100, progress: boo
     tables.append(Output(out / "tables.csv", "Tables 1-2 and alternatives (CSV)"))
     elapsed = time.perf_counter() - t0
     files.append(io.write_json(out / "reproduction.json", {
-        "experiment": CHAPLYGIN.name, "paper": CHAPLYGIN.paper, "config": dataclasses.asdict(config) | {
-            "truth0": list(config.truth0), "filter0": list(config.filter0), "table_dts": list(config.table_dts)},
+        "experiment": CHAPLYGIN.name, "paper": CHAPLYGIN.paper, "config": config_dict(config),
         "runs": runs, "elapsed_s": elapsed, "summary": summary,
         "figures": [{"file": f.path.name, "caption": f.caption} for f in figures]}))
     warnings = []

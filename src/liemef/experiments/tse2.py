@@ -27,12 +27,12 @@ import numpy as np
 from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
 from ..filter import MinimumEnergyFilter, Trajectory, terms
-from ..metrics import FULL, Window, state_error, state_labels
+from ..metrics import FULL, Window
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import PlanarRigidBody, tse2_state
 from ..systems.planar_rigid_body import SENSORS
 from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
-from ._evaluate import evaluate
+from ._evaluate import evaluate, state_error_trial
 
 
 def paper_input(t):
@@ -220,15 +220,7 @@ def pose_residual(flt: MinimumEnergyFilter, traj: Trajectory, log: SensorLog) ->
 
 def trial_spec(config: TSE2Config) -> TrialSpec:
     """The Monte Carlo trial of ``config``: coordinate errors of one seeded run (traceable in the key)."""
-    s = setup(config)
-
-    def errors(key):
-        truth, _, traj = trial(s, key)
-        return state_error(truth.g, traj.g_hat)
-
-    names, units = state_labels(s.system)
-    return TrialSpec(ts=s.ts, names=names, units=units, windows=(FULL, Window(*map(float, config.steady))),
-                     errors=errors)
+    return state_error_trial(setup(config), trial, (FULL, Window(*map(float, config.steady))))
 
 
 def _run_velocity(config: TSE2Config | None = None, key=None) -> Result:

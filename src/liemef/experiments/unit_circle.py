@@ -33,11 +33,11 @@ from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
 from ..filter import MinimumEnergyFilter, Trajectory
 from ..groups import R1, SO2, SO2R1
-from ..metrics import FULL, Window, state_error, state_labels
+from ..metrics import FULL, Window, state_error
 from ..simulation import SensorLog, Truth
 from ..systems.unit_circle import DEG, MEASUREMENTS, UnitCircleBias
 from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
-from ._evaluate import evaluate
+from ._evaluate import evaluate, state_error_trial
 
 OMEGA_RATE = 0.25
 """omega(t) = sin(0.25 t) (Zamani et al., Sec. IV)."""
@@ -227,6 +227,15 @@ def _assumptions(c: UnitCircleConfig) -> dict:
     }
 
 
+def measured_state(ys: np.ndarray) -> np.ndarray:
+    """The state coordinates (theta, b) read off vector measurements (N, 2): the angle ``atan2(-y2, y1)``; the
+    bias is not measured (NaN)."""
+    ys = np.asarray(ys, dtype=np.float64)
+    out = np.full((ys.shape[0], 2), np.nan)
+    out[:, 0] = np.asarray(UnitCircleBias.vector_to_angle(ys))
+    return out
+
+
 def run(config: UnitCircleConfig | None = None, key=None) -> Result:
     """Simulate, filter and evaluate one run (key ``jax.random.key(config.seed)`` unless given)."""
     c = UnitCircleConfig() if config is None else config
@@ -235,8 +244,7 @@ def run(config: UnitCircleConfig | None = None, key=None) -> Result:
     truth, log = _simulate_compiled(s.config)(key)
     traj = s.filter.run(s.state0, log.ts, log.us, log.ys)
     ts = np.asarray(s.ts)
-    measured = np.full((ts.size, 2), np.nan)
-    measured[:, 0] = np.asarray(UnitCircleBias.vector_to_angle(log.ys))
+    measured = measured_state(np.asarray(log.ys))
     err = np.asarray(state_error(truth.g, traj.g_hat))
     extra = {"bias_tracking": {
         "definition": "per segment (start, then each jump): the bias error b - b_hat right after it and the time "
@@ -249,14 +257,7 @@ def run(config: UnitCircleConfig | None = None, key=None) -> Result:
 
 def trial_spec(config: UnitCircleConfig) -> TrialSpec:
     """The Monte Carlo trial of ``config``: (theta, b) errors of one seeded run (traceable in the key)."""
-    s = setup(config)
-
-    def errors(key):
-        truth, _, traj = trial(s, key)
-        return state_error(truth.g, traj.g_hat)
-
-    names, units = state_labels(s.system)
-    return TrialSpec(ts=s.ts, names=names, units=units, windows=config.windows, errors=errors)
+    return state_error_trial(setup(config), trial, config.windows)
 
 
 QUICK = UnitCircleConfig(dt=0.02)

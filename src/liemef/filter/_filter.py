@@ -43,6 +43,11 @@ class Trajectory(eqx.Module):
         return self.g_hat.coords()
 
 
+ORDERS = ("second", "first")
+"""The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (without the Hessian
+term of E and W: the continuous-time left-invariant EKF)."""
+
+
 class MinimumEnergyFilter:
     r"""Second-order-optimal minimum-energy filter on a matrix Lie group (Saccon et al. 2016, Theorem 4.1).
 
@@ -66,7 +71,7 @@ class MinimumEnergyFilter:
                  integrator: str | AbstractIntegrator = "rkmk4", alpha: float = 0.0):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
-        _validate.choice("order", order, {"second", "first"})
+        _validate.choice("order", order, set(ORDERS))
         set_ = object.__setattr__
         set_(self, "system", system)
         set_(self, "connection", make_connection(connection, system.group))

@@ -5,9 +5,7 @@ import math
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
+from ._stats import json_number
 
 
 def gain_stats(K: Float[ArrayLike, "N n n"]) -> dict:
@@ -29,6 +27,6 @@ def gain_stats(K: Float[ArrayLike, "N n n"]) -> dict:
         max_asym, min_eig = float(asym.max()), float(eig.min())
     else:
         max_asym = min_eig = math.nan
-    return {"max_rel_asymmetry": _finite_or_none(max_asym), "min_eigenvalue": _finite_or_none(min_eig),
-            "final_diagonal": [_finite_or_none(v) for v in np.diagonal(K[-1])],
+    return {"max_rel_asymmetry": json_number(max_asym), "min_eigenvalue": json_number(min_eig),
+            "final_diagonal": [json_number(v) for v in np.diagonal(K[-1])],
             "non_finite_steps": int((~ok).sum())}

@@ -61,8 +61,15 @@ def error_stats(ts: Float[ArrayLike, " N"], errors: Float[ArrayLike, "N c"],
     return {"mean": mean, "std": jnp.sqrt(var), "rms": jnp.sqrt(ms), "count": n}
 
 
-def _json_number(x: float) -> float | None:
-    return None if not math.isfinite(x) else float(x)
+def json_number(x: float) -> float | None:
+    """``x`` as a JSON number: a float, or None (JSON null) if it is NaN or infinite."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def format_number(x: float) -> str:
+    """``x`` for a printed or Markdown table: ``1.234e-02``, or ``-`` if it is NaN or infinite."""
+    return f"{x:.3e}" if math.isfinite(x) else "-"
 
 
 @dataclass(frozen=True)
@@ -88,7 +95,7 @@ class ErrorTable:
         for c, (name, unit) in enumerate(zip(self.names, self.units, strict=True)):
             entry: dict = {"unit": unit}
             for w, win in enumerate(self.windows):
-                entry[win.label] = {k: _json_number(getattr(self, k)[w, c]) for k in ("mean", "std", "rms")}
+                entry[win.label] = {k: json_number(getattr(self, k)[w, c]) for k in ("mean", "std", "rms")}
             out[name] = entry
         return out
 
@@ -104,7 +111,7 @@ class ErrorTable:
         rows = [head]
         for c, (name, unit) in enumerate(zip(self.names, self.units, strict=True)):
             vals = [getattr(self, k)[w, c] for w in range(len(self.windows)) for k in ("mean", "std", "rms")]
-            rows.append([name, unit] + [("-" if not math.isfinite(v) else f"{v:.3e}") for v in vals])
+            rows.append([name, unit] + [format_number(v) for v in vals])
         widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
         lines = ["  ".join(s.ljust(wd) if i < 2 else s.rjust(wd)
                            for i, (s, wd) in enumerate(zip(r, widths, strict=True)))
