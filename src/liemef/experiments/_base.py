@@ -72,6 +72,7 @@ class FigureSpec:
     paper_figure: str = ""
 
     def to_dict(self) -> dict:
+        """JSON-ready description, as listed in ``metrics.json`` and by ``reproduce --list``."""
         return {"file": self.filename, "components": list(self.components), "title": self.title,
                 "paper_figure": self.paper_figure}
 
@@ -204,6 +205,7 @@ class Experiment:
         return dataclasses.replace(config, **overrides)
 
     def run(self, config: Any | None = None, key=None) -> Result:
+        """One run: ``run_fn(config, key)``; ``config=None``: the default config, ``key=None``: from its seed."""
         return self.run_fn(self.default_config if config is None else config, key)
 
     def reproduce(self, out: str | os.PathLike, config: Any | None = None, runs: int | None = None,
@@ -224,6 +226,7 @@ class Experiment:
         return default_reproduce(self, config, d, runs, progress)
 
     def describe(self) -> dict:
+        """Name, title, paper, figures, tables and whether it has a Monte Carlo (``reproduce --list``)."""
         return {"name": self.name, "title": self.title, "paper": self.paper,
                 "figures": [f.to_dict() for f in self.figures], "tables": list(self.tables),
                 "montecarlo": self.trial_fn is not None}
@@ -234,6 +237,7 @@ EXPERIMENTS: dict[str, Experiment] = {}
 
 
 def register(experiment: Experiment) -> Experiment:
+    """Add ``experiment`` to :data:`EXPERIMENTS` under its name and return it; a ValueError if the name is taken."""
     if experiment.name in EXPERIMENTS:
         raise ValueError(f"experiment {experiment.name!r} is already registered")
     EXPERIMENTS[experiment.name] = experiment

@@ -290,10 +290,12 @@ class MonteCarloResult:
     # --- sizes and selection
     @property
     def runs(self) -> int:
+        """The number of trials, finite or not."""
         return int(self.stats.shape[0])
 
     @property
     def n_finite(self) -> int:
+        """The number of trials with finite errors, those the statistics are taken over."""
         return int(self.finite.sum())
 
     @property
@@ -308,6 +310,7 @@ class MonteCarloResult:
 
     @property
     def window_labels(self) -> tuple[str, ...]:
+        """The labels of the time windows, in the order of the window axis of the statistics."""
         return tuple(w.label for w in self.windows)
 
     def trial_key(self, i: int) -> jax.Array:

@@ -28,6 +28,7 @@ class SystemSpec:
     measured: Callable[[np.ndarray], np.ndarray] = field(repr=False)
 
     def initial_guess(self, ys0) -> np.ndarray:
+        """State coordinates read off the first measurement ``ys0`` (p,), 0 where not measured."""
         q = self.measured(np.asarray(ys0, dtype=np.float64)[None, :])[0]
         return np.where(np.isfinite(q), q, 0.0)
 

@@ -139,6 +139,7 @@ class AttitudeConfig(RunConfig):
 
     @property
     def connections(self) -> tuple[str, str]:
+        """``(connection, compare_with)``: the two filters run on the same data."""
         return (self.connection, self.compare_with)
 
     @property

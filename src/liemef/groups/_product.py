@@ -70,15 +70,18 @@ class Product(LieGroup):
 
     @classmethod
     def identity(cls, batch_shape=()):
+        """The tuple of the factors' identities."""
         return cls(tuple(t.identity(batch_shape) for t in cls.factor_types))
 
     @classmethod
     def exp(cls, xi):
+        """Factor by factor, on consecutive slices of ``xi``."""
         parts = _split(as_float_array(xi), cls._tangent_sizes())
         return cls(tuple(t.exp(p) for t, p in zip(cls.factor_types, parts, strict=True)))
 
     @classmethod
     def from_matrix(cls, M):
+        """From the diagonal blocks of a block-diagonal matrix, factor by factor."""
         M = as_float_array(M)
         out, k = [], 0
         for t in cls.factor_types:
@@ -88,34 +91,43 @@ class Product(LieGroup):
 
     @classmethod
     def from_coords(cls, q):
+        """Factor by factor, on consecutive slices of ``q``."""
         parts = _split(as_float_array(q), [t.coords_dim for t in cls.factor_types])
         return cls(tuple(t.from_coords(p) for t, p in zip(cls.factor_types, parts, strict=True)))
 
     def compose(self, other):
+        """Factor by factor."""
         return type(self)(tuple(a @ b for a, b in zip(self.factors, other.factors, strict=True)))
 
     def inverse(self):
+        """Factor by factor."""
         return type(self)(tuple(a.inverse() for a in self.factors))
 
     def log(self):
+        """The factors' logarithms, concatenated."""
         return jnp.concatenate([f.log() for f in self.factors], axis=-1)
 
     def coords(self):
+        """The factors' coordinates, concatenated."""
         return jnp.concatenate([f.coords() for f in self.factors], axis=-1)
 
     def as_matrix(self):
+        """Block-diagonal matrix of the factors' matrices."""
         return _block_diag([f.as_matrix() for f in self.factors])
 
     def Ad(self):
+        """Block-diagonal matrix of the factors' adjoints."""
         return _block_diag([f.Ad() for f in self.factors])
 
     @classmethod
     def hat(cls, xi):
+        """Block-diagonal matrix of the factors' :meth:`hat` on consecutive slices of ``xi``."""
         parts = _split(as_float_array(xi), cls._tangent_sizes())
         return _block_diag([t.hat(p) for t, p in zip(cls.factor_types, parts, strict=True)])
 
     @classmethod
     def vee(cls, X):
+        """The factors' :meth:`vee` of the diagonal blocks, concatenated."""
         X = as_float_array(X)
         out, k = [], 0
         for t in cls.factor_types:
@@ -125,6 +137,7 @@ class Product(LieGroup):
 
     @classmethod
     def ad(cls, xi):
+        """Block-diagonal matrix of the factors' :meth:`ad` (the factors commute)."""
         parts = _split(as_float_array(xi), cls._tangent_sizes())
         return _block_diag([t.ad(p) for t, p in zip(cls.factor_types, parts, strict=True)])
 

@@ -38,41 +38,52 @@ class Rn(LieGroup):
 
     @classmethod
     def identity(cls, batch_shape=()):
+        """The zero vector."""
         return cls(jnp.zeros((*batch_shape, cls.tangent_dim)))
 
     @classmethod
     def exp(cls, xi):
+        """The vector itself: the exponential of an additive group is the identity map."""
         return cls(xi)
 
     @classmethod
     def from_matrix(cls, M):
+        """From the translation column of ``[[I, x], [0, 1]]``."""
         return cls(as_float_array(M)[..., :-1, -1])
 
     @classmethod
     def from_coords(cls, q):
+        """From the vector ``x``."""
         return cls(q)
 
     def compose(self, other):
+        """Vector sum."""
         return type(self)(self.x + other.x)
 
     def inverse(self):
+        """Negated vector."""
         return type(self)(-self.x)
 
     def log(self):
+        """The vector ``x``."""
         return self.x
 
     def coords(self):
+        """The vector ``x``."""
         return self.x
 
     def as_matrix(self):
+        """The translation matrix ``[[I, x], [0, 1]]``."""
         return self.hat(self.x) + jnp.eye(self.matrix_dim)
 
     def Ad(self):
+        """The n x n identity: R^n is abelian."""
         n = self.tangent_dim
         return jnp.broadcast_to(jnp.eye(n), (*self.batch_shape, n, n))
 
     @classmethod
     def hat(cls, xi):
+        """``x`` to the matrix ``[[0, x], [0, 0]]``."""
         xi = as_float_array(xi)
         n = cls.tangent_dim
         M = jnp.zeros((*xi.shape[:-1], n + 1, n + 1))
@@ -80,10 +91,12 @@ class Rn(LieGroup):
 
     @classmethod
     def vee(cls, X):
+        """The translation column of ``[[0, x], [0, 0]]``."""
         return as_float_array(X)[..., :-1, -1]
 
     @classmethod
     def ad(cls, xi):
+        """The n x n zero matrix: the algebra is abelian."""
         n = cls.tangent_dim
         return jnp.zeros((*jnp.shape(xi)[:-1], n, n))
 

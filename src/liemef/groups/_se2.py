@@ -27,10 +27,12 @@ class SE2(LieGroup):
 
     @classmethod
     def identity(cls, batch_shape=()):
+        """The pose at the origin with heading 0."""
         return cls(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 0.0]), (*batch_shape, 4)))
 
     @classmethod
     def from_rotation_translation(cls, rotation: SO2, p):
+        """From a rotation ``R`` and a translation ``p`` (world frame), broadcast together."""
         rot, p = rotation.cos_sin, as_float_array(p)
         rot, p = jnp.broadcast_arrays(rot, p)
         return cls(jnp.concatenate([rot, p], axis=-1))
@@ -43,6 +45,7 @@ class SE2(LieGroup):
 
     @classmethod
     def exp(cls, xi):
+        r"""$\exp$ of $(\omega, v_x, v_y)$: rotation by $\omega$, translation $V(\omega) v$ (Taylor branch near 0)."""
         xi = as_float_array(xi)
         w, v = xi[..., 0], xi[..., 1:3]
         small = jnp.abs(w) < _TAYLOR
@@ -58,25 +61,31 @@ class SE2(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
+        """From the homogeneous 3 x 3 matrix ``[[R, p], [0, 1]]``."""
         M = as_float_array(M)
         return cls.from_rotation_translation(SO2.from_matrix(M[..., :2, :2]), M[..., :2, 2])
 
     def rotation(self) -> SO2:
+        """The rotation part R, an :class:`SO2`."""
         return SO2(self.cos_sin_xy[..., :2])
 
     def translation(self):
+        """The translation part ``(x, y)`` (world frame)."""
         return self.cos_sin_xy[..., 2:4]
 
     def compose(self, other):
+        """``(R1 R2, R1 p2 + p1)``."""
         rot = self.rotation()
         p = rot.act(other.translation()) + self.translation()
         return SE2.from_rotation_translation(rot @ other.rotation(), p)
 
     def inverse(self):
+        """``(R^T, -R^T p)``."""
         rot_inv = self.rotation().inverse()
         return SE2.from_rotation_translation(rot_inv, -rot_inv.act(self.translation()))
 
     def log(self):
+        r"""$(\theta, V(\theta)^{-1} p)$ with $\theta$ in (-pi, pi] (Taylor branch near 0)."""
         theta = self.rotation().angle()
         small = jnp.abs(theta) < _TAYLOR
         t_safe = jnp.where(small, 1.0, theta)
@@ -95,6 +104,7 @@ class SE2(LieGroup):
         return jnp.concatenate([self.rotation().log(), self.translation()], axis=-1)
 
     def as_matrix(self):
+        """The homogeneous 3 x 3 matrix ``[[R, p], [0, 1]]``."""
         Rm = self.rotation().as_matrix()
         p = self.translation()
         top = jnp.concatenate([Rm, p[..., :, None]], axis=-1)
@@ -106,6 +116,7 @@ class SE2(LieGroup):
         return self.rotation().act(p) + self.translation()
 
     def Ad(self):
+        """``[[1, 0], [(y, -x), R]]`` in the order (omega, v_x, v_y)."""
         c, s, x, y = (self.cos_sin_xy[..., i] for i in range(4))
         o, one = jnp.zeros_like(c), jnp.ones_like(c)
         rows = [jnp.stack([one, o, o], -1), jnp.stack([y, c, -s], -1), jnp.stack([-x, s, c], -1)]
@@ -113,6 +124,7 @@ class SE2(LieGroup):
 
     @classmethod
     def hat(cls, xi):
+        """``(omega, v_x, v_y)`` to ``[[0, -omega, v_x], [omega, 0, v_y], [0, 0, 0]]``."""
         xi = as_float_array(xi)
         w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]
         o = jnp.zeros_like(w)
@@ -121,11 +133,13 @@ class SE2(LieGroup):
 
     @classmethod
     def vee(cls, X):
+        """Inverse of :meth:`hat`: ``(X[1, 0], X[0, 2], X[1, 2])``."""
         X = as_float_array(X)
         return jnp.stack([X[..., 1, 0], X[..., 0, 2], X[..., 1, 2]], -1)
 
     @classmethod
     def ad(cls, xi):
+        """``[[0, 0, 0], [v_y, 0, -omega], [-v_x, omega, 0]]`` (Rigo et al. 2022, eq. 33)."""
         # Rigo et al. 2022, eq. (33)
         xi = as_float_array(xi)
         w, vx, vy = xi[..., 0], xi[..., 1], xi[..., 2]

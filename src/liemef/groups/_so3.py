@@ -36,10 +36,12 @@ class SO3(LieGroup):
 
     @classmethod
     def identity(cls, batch_shape=()):
+        """The quaternion ``(1, 0, 0, 0)``."""
         return cls(jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0, 0.0]), (*batch_shape, 4)))
 
     @classmethod
     def exp(cls, xi):
+        """Rodrigues' formula as a quaternion, with a Taylor branch for small angles."""
         w = as_float_array(xi)
         theta_sq = jnp.sum(w**2, axis=-1)
         small = theta_sq < _TAYLOR_SQ
@@ -52,6 +54,7 @@ class SO3(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
+        """From a 3 x 3 rotation matrix (Shepperd's method)."""
         # Shepperd's method: pick the numerically largest of the four candidate quaternion components.
         M = as_float_array(M)
         m00, m01, m02 = M[..., 0, 0], M[..., 0, 1], M[..., 0, 2]
@@ -72,9 +75,11 @@ class SO3(LieGroup):
 
     @classmethod
     def from_coords(cls, q):
+        """From a rotation vector (axis times angle), the same as :meth:`exp`."""
         return cls.exp(q)
 
     def compose(self, other):
+        """Quaternion product (rotation matrices multiply)."""
         w1, v1 = self.wxyz[..., :1], self.wxyz[..., 1:]
         w2, v2 = other.wxyz[..., :1], other.wxyz[..., 1:]
         w = w1 * w2 - jnp.sum(v1 * v2, axis=-1, keepdims=True)
@@ -82,9 +87,11 @@ class SO3(LieGroup):
         return SO3(jnp.concatenate([w, v], axis=-1))
 
     def inverse(self):
+        """Conjugate quaternion (the transposed rotation matrix)."""
         return SO3(self.wxyz * jnp.array([1.0, -1.0, -1.0, -1.0]))
 
     def log(self):
+        """Rotation vector of angle in [0, pi], finite with finite derivatives at 0 and at pi."""
         # jaxlie's formulation: the shorter of the two rotations the quaternion pair represents, finite
         # derivatives at 0 (Taylor) and at pi (w -> 0).
         w, v = self.wxyz[..., 0], self.wxyz[..., 1:]
@@ -109,6 +116,7 @@ class SO3(LieGroup):
         return self.log()
 
     def as_matrix(self):
+        """The 3 x 3 rotation matrix R (body to world)."""
         w, x, y, z = (self.wxyz[..., i] for i in range(4))
         return jnp.stack([
             jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
@@ -121,17 +129,21 @@ class SO3(LieGroup):
         return mv(self.as_matrix(), as_float_array(p))
 
     def Ad(self):
+        """The rotation matrix R itself."""
         return self.as_matrix()
 
     @classmethod
     def hat(cls, xi):
+        """The skew matrix ``[w]_x`` with ``[w]_x p = w x p``."""
         return _skew(as_float_array(xi))
 
     @classmethod
     def vee(cls, X):
+        """Inverse of :meth:`hat`: ``(X[2, 1], X[0, 2], X[1, 0])``."""
         X = as_float_array(X)
         return jnp.stack([X[..., 2, 1], X[..., 0, 2], X[..., 1, 0]], -1)
 
     @classmethod
     def ad(cls, xi):
+        """The skew matrix ``[w]_x`` (so(3) is the cross product)."""
         return _skew(as_float_array(xi))
