@@ -28,7 +28,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_tse2.py
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff check src tests benchmarks tools
 
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict -d site
