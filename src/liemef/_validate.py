@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def array(name: str, value, shape: tuple[int | None, ...] | None = None) -> np.ndarray:
-    """``value`` as a finite float64 numpy array of the given shape (None is any length)."""
+def array(name: str, value, shape: tuple[int | None, ...] | None = None, *, missing: bool = False) -> np.ndarray:
+    """``value`` as a finite float64 numpy array of the given shape (None is any length); with ``missing``,
+    NaN is allowed (a missing sample) but infinities are not."""
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as err:
@@ -16,9 +17,11 @@ def array(name: str, value, shape: tuple[int | None, ...] | None = None) -> np.n
                                                                                                    strict=False))):
         want = str(tuple("N" if s is None else s for s in shape)).replace("'", "")
         raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        bad = np.argwhere(~np.isfinite(a))[0]
-        raise ValueError(f"{name}: expected finite values, got {a[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
+    ok = ~np.isinf(a) if missing else np.isfinite(a)
+    if not np.all(ok):
+        bad = np.argwhere(~ok)[0]
+        what = "finite values or NaN (missing)" if missing else "finite values"
+        raise ValueError(f"{name}: expected {what}, got {a[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
     return a
 
 

@@ -199,9 +199,9 @@ class PrintedWeightsFilter(MinimumEnergyFilter):
     def __repr__(self) -> str:
         return "PrintedWeightsFilter" + super().__repr__().removeprefix("MinimumEnergyFilter")
 
-    def _terms(self, g_hat, K, u, y, t):
-        tm = super()._terms(g_hat, K, u, y, t)
-        Wy = self.weights.Wy
+    def _terms(self, weights, g_hat, K, u, y, t):
+        tm = super()._terms(weights, g_hat, K, u, y, t)
+        Wy = weights.Wy
         extra = tm.Dh.T @ (Wy - jnp.eye(Wy.shape[0])) @ tm.Dh
         return eqx.tree_at(lambda x: x.E, tm, tm.E - extra)
 

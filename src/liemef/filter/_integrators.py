@@ -31,8 +31,8 @@ class AbstractIntegrator(eqx.Module):
     name: eqx.AbstractClassVar[str]
 
     @abc.abstractmethod
-    def step(self, f: VectorField, g: LieGroup, v: Any, t, dt) -> tuple[LieGroup, Any]:
-        """Advance one step."""
+    def step(self, f: VectorField, g: LieGroup, v: Any, t, dt, first=None) -> tuple[LieGroup, Any]:
+        """Advance one step; ``first`` is ``f(g, v, t)`` when the caller has it already."""
 
 
 class LieEuler(AbstractIntegrator):
@@ -41,8 +41,8 @@ class LieEuler(AbstractIntegrator):
     order: ClassVar[int] = 1
     name: ClassVar[str] = "lie-euler"
 
-    def step(self, f, g, v, t, dt):
-        xi, L = f(g, v, t)
+    def step(self, f, g, v, t, dt, first=None):
+        xi, L = f(g, v, t) if first is None else first
         return g.rplus(dt * xi), _axpy(dt, L, v)
 
 
@@ -57,7 +57,7 @@ class RKMK4(AbstractIntegrator):
     order: ClassVar[int] = 4
     name: ClassVar[str] = "rkmk4"
 
-    def step(self, f, g, v, t, dt):
+    def step(self, f, g, v, t, dt, first=None):
         G = type(g)
 
         def dexpinv(theta, xi):
@@ -65,7 +65,7 @@ class RKMK4(AbstractIntegrator):
             a1 = mv(ad, xi)
             return xi + 0.5 * a1 + mv(ad, a1) / 12.0
 
-        xi1, L1 = f(g, v, t)
+        xi1, L1 = f(g, v, t) if first is None else first
         k1 = dt * xi1
         xi2, L2 = f(g.rplus(0.5 * k1), _axpy(0.5 * dt, L1, v), t + 0.5 * dt)
         k2 = dt * dexpinv(0.5 * k1, xi2)

@@ -43,15 +43,37 @@ class Terms(eqx.Module):
 
 
 class Weights(eqx.Module):
-    """Constant matrices of the cost: $D^{-\\top} Q D^{-1}$ and $B R^{-1} B^\\top$."""
+    """The cost's weights over one interval: $D^{-\\top} Q D^{-1}$ (``Wy``, the information in force) and
+    $B R^{-1} B^\\top$ (``BRB``). :meth:`of` gives a system's nominal weights (every sample present, density
+    meaning); the engine forms the weights in force with :func:`information_in_force`."""
 
     Wy: Float[Array, "p p"]
     BRB: Float[Array, "n n"]
 
     @staticmethod
     def of(system: AbstractSystem) -> Weights:
-        Dinv = jnp.linalg.inv(system.D)
-        return Weights(Wy=Dinv.T @ system.Q @ Dinv, BRB=system.B @ jnp.linalg.solve(system.R, system.B.T))
+        return Weights(Wy=system.information(), BRB=system.B @ jnp.linalg.solve(system.R, system.B.T))
+
+
+def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Float[Array, "p p"]:
+    r"""The measurement information over an interval of length ``dt`` in which the components ``mask`` have a
+    sample (DESIGN.md §6).
+
+    A missing component carries no information: the information of the present ones is that of their marginal,
+    $(\Sigma_{SS})^{-1}$ with $\Sigma = W_y^{-1}$, padded with zeros (for a block-diagonal $W_y$ this is
+    zeroing the missing rows and columns; in general it is the filter built without those components). A
+    ``sample`` component carries its per-sample information once, spread over the interval: divided by ``dt``.
+    ``diagonal`` (static) says that ``Wy`` is diagonal, where zeroing is the marginal (no inverse needed).
+    """
+    M = mask.astype(Wy.dtype)
+    if diagonal:
+        W = Wy * M[:, None] * M[None, :]
+    else:
+        Sigma = jnp.linalg.inv(Wy)
+        S = Sigma * M[:, None] * M[None, :] + jnp.diag(1.0 - M)
+        W = jnp.linalg.inv(S) * M[:, None] * M[None, :]
+    s = jnp.sqrt(jnp.where(sample, 1.0 / dt, 1.0))
+    return W * s[:, None] * s[None, :]
 
 
 def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,

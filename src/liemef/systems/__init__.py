@@ -4,11 +4,14 @@ A system is data (parameters, B, D, Q, R) plus pure functions ``dynamics(g, u, t
 the filter differentiates them by autodiff.
 """
 
-from ._base import AbstractSystem, System
+from ._base import AbstractSystem, Block, System
+from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
 from .chaplygin import ChaplyginSleigh
+from .localization import planar_localization
 from .planar_rigid_body import PlanarRigidBody, tse2_state
 from .unit_circle import UnitCircleBias
 
-__all__ = ["AbstractSystem", "System", "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
+__all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
+           "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state"]

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -15,6 +16,25 @@ from ..groups import LieGroup
 def matrix(x) -> Array:
     """Field converter: a float64 JAX array."""
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+@dataclass(frozen=True)
+class Block:
+    """The static layout of one sensor in the output vector, as the filter engine uses it."""
+
+    name: str
+    start: int
+    stop: int
+    sample: bool
+    gate_threshold: float | None = None
+    robust: str | None = None
+    robust_scale: float = 2.0
+    max_rejections: int | None = None
+    weight_fn: Callable | None = None
+
+    @property
+    def dim(self) -> int:
+        return self.stop - self.start
 
 
 class AbstractSystem(eqx.Module):
@@ -59,6 +79,21 @@ class AbstractSystem(eqx.Module):
     @property
     def noise_dim(self) -> int:
         return self.B.shape[1]
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the input components (log columns)."""
+        return tuple(f"u{k + 1}" for k in range(self.input_dim))
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The output's sensor blocks as the filter engine sees them: one density block ``y`` by default."""
+        return (Block("y", 0, self.output_dim, sample=False),)
+
+    def information(self) -> Float[Array, "p p"]:
+        r"""Measurement information $D^{-\top} Q D^{-1}$: per unit time for density blocks, per sample for
+        sample blocks (:mod:`liemef.systems._sensors`)."""
+        Dinv = jnp.linalg.inv(self.D)
+        return Dinv.T @ self.Q @ Dinv
 
     @property
     def output_names(self) -> tuple[str, ...]:

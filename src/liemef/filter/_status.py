@@ -1,0 +1,95 @@
+"""A filter run's status, carried through the compiled loop: failures are values, never raised inside ``jit``.
+
+A run (or an online step) is healthy until one sample interval produces a state that is non-finite, a gain K
+that is no longer symmetric (where the connection makes it symmetric) or no longer positive definite, beyond a
+tolerance, or a sensor whose samples a gate has rejected too many times in a row. The first such interval is
+recorded (its index, its start time and the cause); the state is then frozen at the last good one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+CAUSES = ("ok", "non-finite", "K not symmetric", "K not positive definite", "gate")
+"""The cause codes: ``CAUSES[status.code]``."""
+OK, NONFINITE, ASYMMETRIC, INDEFINITE, GATE = range(len(CAUSES))
+
+SYMMETRY_TOL = 1e-8
+"""Largest relative asymmetry ``max|K - K^T| / max(1, max|K|)`` of a gain that should be symmetric."""
+DEFINITE_TOL = 1e-9
+"""K counts as positive definite while ``sym(K) + DEFINITE_TOL * max|K| I`` has a Cholesky factor."""
+
+
+class Status(eqx.Module):
+    """Health and counters of a run, all array leaves (batched under ``vmap``).
+
+    ``code`` is 0 while healthy, else the index of the cause in :data:`CAUSES`; ``index`` and ``time`` are
+    the first bad sample interval ``[ts[index], ts[index + 1]]`` and its start (-1 and NaN while healthy).
+    ``rejected[b]`` counts the samples of sensor block ``b`` rejected by its gate, ``consecutive[b]`` the
+    current run of rejections. ``substeps_max``/``substeps_total`` count the integration sub-steps,
+    ``substeps_capped`` the intervals that needed more than ``max_substeps``. ``gaps`` counts the intervals
+    longer than the gap threshold (predicted through, density sensors not held), ``longest_gap`` the longest
+    interval, ``inputs_held`` the input samples that were missing (the last input was held).
+    """
+
+    code: Int[Array, ""]
+    index: Int[Array, ""]
+    time: Float[Array, ""]
+    steps: Int[Array, ""]
+    rejected: Int[Array, " b"]
+    consecutive: Int[Array, " b"]
+    substeps_max: Int[Array, ""]
+    substeps_total: Int[Array, ""]
+    substeps_capped: Int[Array, ""]
+    gaps: Int[Array, ""]
+    longest_gap: Float[Array, ""]
+    inputs_held: Int[Array, ""]
+
+    @staticmethod
+    def initial(n_blocks: int) -> Status:
+        """A healthy status before the first interval."""
+        i = lambda: jnp.zeros((), jnp.int32)  # noqa: E731
+        return Status(code=i(), index=jnp.asarray(-1, jnp.int32), time=jnp.asarray(jnp.nan, jnp.float64), steps=i(),
+                      rejected=jnp.zeros((n_blocks,), jnp.int32), consecutive=jnp.zeros((n_blocks,), jnp.int32),
+                      substeps_max=i(), substeps_total=i(), substeps_capped=i(), gaps=i(),
+                      longest_gap=jnp.asarray(0.0, jnp.float64), inputs_held=i())
+
+    @property
+    def ok(self) -> bool:
+        """True if no interval failed (a Python bool; use ``status.code == 0`` under ``vmap``)."""
+        return bool(np.all(np.asarray(self.code) == OK))
+
+    @property
+    def cause(self) -> str:
+        """The cause, in words (a single run)."""
+        return CAUSES[int(self.code)]
+
+    def as_dict(self, block_names=None) -> dict:
+        """The status of a single run as plain Python values (JSON)."""
+        names = block_names or [f"block{b}" for b in range(np.asarray(self.rejected).shape[0])]
+        t = float(self.time)
+        return {"ok": self.ok, "cause": self.cause, "index": int(self.index) if not self.ok else None,
+                "time": t if math.isfinite(t) else None, "steps": int(self.steps),
+                "rejected": {n: int(r) for n, r in zip(names, np.asarray(self.rejected), strict=True)},
+                "substeps_max": int(self.substeps_max), "substeps_total": int(self.substeps_total),
+                "substeps_capped": int(self.substeps_capped), "gaps": int(self.gaps),
+                "longest_gap": float(self.longest_gap), "inputs_held": int(self.inputs_held)}
+
+    def message(self, ts=None) -> str:
+        """One line saying where, when and why a single run failed ("ok" if it did not)."""
+        if self.ok:
+            return "ok"
+        k = int(self.index)
+        span = f"[{float(ts[k]):.6g}, {float(ts[k + 1]):.6g}] s" if ts is not None and k + 1 < len(ts) else \
+            f"t = {float(self.time):.6g} s"
+        why = {NONFINITE: "the state or the gain K became non-finite (NaN or inf)",
+               ASYMMETRIC: f"the gain K lost its symmetry (beyond {SYMMETRY_TOL:g} relative)",
+               INDEFINITE: "the gain K lost positive definiteness",
+               GATE: "a sensor's gate rejected more consecutive samples than its max_rejections"}[int(self.code)]
+        return (f"filter failed over the sample interval {k} ({span}): {why}; the last good state is the one at "
+                f"sample {k}")

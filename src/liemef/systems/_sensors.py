@@ -1,0 +1,323 @@
+r"""Sensors as named blocks with noise levels in their own units, and the theorem's weights derived from them.
+
+A noise level is a standard deviation in the sensor's units together with its meaning (DESIGN.md §6):
+
+* ``Noise.density(s)``: a continuous white noise of density ``s`` (units·sqrt(s), e.g. rad/s/sqrt(Hz) for a
+  gyro). A measurement of density ``s`` weighs ``1/s^2`` per unit time while it is present (held between
+  samples, the papers' zero-order hold). A process noise of density ``s`` adds ``s^2`` per unit time to K.
+* ``Noise.sample(sigma, rate=f)``: one discrete sample of std ``sigma``.
+
+  - A **measurement** sample carries its information ``1/sigma^2`` once, as a discrete Kalman update: over the
+    interval ``Delta`` that follows its time stamp it is a continuous measurement of weight ``1/(sigma^2 Delta)``.
+    For a sensor sampled at the filter's rate this is the zero-order hold of density ``sigma^2 / f``.
+  - An **input** (process noise) sample of std ``sigma`` at rate ``f`` is held over ``1/f``: its density is
+    ``sigma^2 / f`` (``rate`` is then required).
+
+Mapping to Theorem 4.1 (tested in ``tests/test_sensors.py``): with the measurement noise ``y = h + D eps``,
+``Q = I`` and ``D = diag(std)``, the information ``D^-T Q D^-1 = diag(1/std^2)``, per unit time for density
+components and per sample for sample components; with the process noise ``g^-1 g_dot = lambda + B delta``,
+``R = I`` and ``B = noise_map diag(density std)``, so ``B R^-1 B^T`` is the process-noise density on the algebra.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .. import _validate
+from ..groups import LieGroup
+from ._base import AbstractSystem, Block, matrix
+
+Meaning = Literal["density", "sample"]
+MEANINGS = ("density", "sample")
+ROBUST = ("huber", "cauchy")
+
+
+def _positive_vector(name: str, value) -> Array:
+    a = _validate.array(name, np.atleast_1d(np.asarray(value, dtype=np.float64)), (None,))
+    if a.size == 0 or np.any(a <= 0):
+        raise ValueError(f"{name}: expected standard deviations > 0, got {a.tolist()}")
+    return jnp.asarray(a)
+
+
+class Noise(eqx.Module):
+    """A noise level: ``std`` (one per component, in the sensor's units) and its ``meaning``.
+
+    Build it with :meth:`density` or :meth:`sample`. ``std`` is an array leaf: changing it never recompiles.
+    """
+
+    std: Float[Array, " k"]
+    meaning: str = eqx.field(static=True)
+    rate: float | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        _validate.choice("meaning", self.meaning, set(MEANINGS))
+        if self.rate is not None and not (math.isfinite(self.rate) and self.rate > 0):
+            raise ValueError(f"rate: expected a sample rate > 0 in Hz, got {self.rate}")
+
+    @classmethod
+    def density(cls, std) -> Noise:
+        """Continuous white noise of density ``std`` (units·sqrt(s))."""
+        return cls(_positive_vector("std", std), "density")
+
+    @classmethod
+    def sample(cls, std, rate: float | None = None) -> Noise:
+        """Discrete samples of std ``std`` (the sensor's units); ``rate`` in Hz (required for inputs)."""
+        return cls(_positive_vector("std", std), "sample", None if rate is None else float(rate))
+
+    @property
+    def dim(self) -> int:
+        return int(self.std.shape[0])
+
+    def density_std(self, what: str = "noise") -> Float[Array, " k"]:
+        """The density std: ``std`` itself, or ``std / sqrt(rate)`` for a sample held over ``1/rate``."""
+        if self.meaning == "density":
+            return self.std
+        if self.rate is None:
+            raise ValueError(f"{what}: a sample std held as an input needs its rate; expected "
+                             "Noise.sample(std, rate=HZ), got rate=None")
+        return self.std / math.sqrt(self.rate)
+
+
+class Sensor(eqx.Module):
+    r"""One sensor: a named block of the output with its own sample times, noise and (optional) gate.
+
+    Args:
+        name: the sensor's name (log columns are ``{name}_{component}``).
+        fn: the output map ``h(g, t)`` of this sensor, a pure JAX function returning shape (k,).
+        noise: its :class:`Noise` (k stds, or one for all components).
+        components: k component names (default ``0..k-1``); ``units`` k units.
+        gate: a chi-square probability (e.g. 0.999): a sample whose innovation
+            $\nu^\top S^{-1}\nu$ with $S = Dh\,K\,Dh^\top + \Sigma$ exceeds the quantile is rejected and counted.
+        robust: ``"huber"`` or ``"cauchy"``: the sample's weight is scaled by $\min(1, c/d)$ or
+            $1/(1 + d^2/c^2)$ with $d$ the Mahalanobis distance of the innovation, ``c = robust_scale``.
+        max_rejections: a failure (cause ``gate``) once this many consecutive samples are rejected.
+        weight_fn: optional time-varying weight ``w(t) >= 0`` that multiplies the sensor's information.
+    """
+
+    name: str = eqx.field(static=True)
+    fn: Callable = eqx.field(static=True)
+    noise: Noise
+    components: tuple[str, ...] = eqx.field(static=True)
+    units: tuple[str, ...] = eqx.field(static=True)
+    gate: float | None = eqx.field(static=True, default=None)
+    robust: str | None = eqx.field(static=True, default=None)
+    robust_scale: float = eqx.field(static=True, default=2.0)
+    max_rejections: int | None = eqx.field(static=True, default=None)
+    weight_fn: Callable | None = eqx.field(static=True, default=None)
+
+    def __init__(self, name: str, fn: Callable, noise: Noise, components=None, units=None, *, dim: int | None = None,
+                 gate: float | None = None, robust: str | None = None, robust_scale: float = 2.0,
+                 max_rejections: int | None = None, weight_fn: Callable | None = None):
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ValueError(f"name: expected a sensor name usable as a column prefix (letters, digits, _), "
+                             f"got {name!r}")
+        if not callable(fn):
+            raise ValueError(f"sensor {name!r}: fn: expected a function h(g, t), got {type(fn).__name__}")
+        if not isinstance(noise, Noise):
+            raise ValueError(f"sensor {name!r}: noise: expected Noise.density(std) or Noise.sample(std), got "
+                             f"{type(noise).__name__}")
+        k = dim if dim is not None else (len(components) if components is not None else noise.dim)
+        if noise.dim not in (1, k):
+            raise ValueError(f"sensor {name!r}: noise: expected 1 or {k} stds, got {noise.dim}")
+        if noise.dim == 1 and k > 1:
+            noise = Noise(jnp.full((k,), noise.std[0]), noise.meaning, noise.rate)
+        components = tuple(str(c) for c in (components if components is not None else range(k)))
+        units = tuple(units) if units is not None else ("",) * k
+        if len(components) != k or len(units) != k:
+            raise ValueError(f"sensor {name!r}: expected {k} component names and units, got {len(components)} "
+                             f"and {len(units)}")
+        if gate is not None and not (0.0 < float(gate) < 1.0):
+            raise ValueError(f"sensor {name!r}: gate: expected a chi-square probability in (0, 1), got {gate}")
+        if robust is not None:
+            _validate.choice(f"sensor {name!r}: robust", robust, set(ROBUST))
+        if not (math.isfinite(robust_scale) and robust_scale > 0):
+            raise ValueError(f"sensor {name!r}: robust_scale: expected a number > 0, got {robust_scale}")
+        if max_rejections is not None and (int(max_rejections) != max_rejections or max_rejections < 1):
+            raise ValueError(f"sensor {name!r}: max_rejections: expected an integer >= 1, got {max_rejections}")
+        self.name, self.fn, self.noise, self.components, self.units = name, fn, noise, components, units
+        self.gate = None if gate is None else float(gate)
+        self.robust, self.robust_scale = robust, float(robust_scale)
+        self.max_rejections = None if max_rejections is None else int(max_rejections)
+        self.weight_fn = weight_fn
+
+    @property
+    def dim(self) -> int:
+        return len(self.components)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Log column names ``{name}_{component}``."""
+        return tuple(f"{self.name}_{c}" for c in self.components)
+
+
+def blocks_of(sensors) -> tuple[Block, ...]:
+    """The engine's static layout of ``sensors`` (chi-square thresholds from scipy)."""
+    from scipy.stats import chi2
+
+    out, start = [], 0
+    for s in sensors:
+        thr = None if s.gate is None else float(chi2.ppf(s.gate, s.dim))
+        out.append(Block(s.name, start, start + s.dim, s.noise.meaning == "sample", thr, s.robust, s.robust_scale,
+                         s.max_rejections, s.weight_fn))
+        start += s.dim
+    return tuple(out)
+
+
+class SensorSystem(AbstractSystem):
+    r"""A system whose output is a set of :class:`Sensor` blocks and whose weights come from noise levels.
+
+    Args:
+        group: the Lie group of the state.
+        dynamics: ``lambda(g, u, t)``, a pure JAX function returning an n-vector.
+        sensors: the sensors, in log-column order.
+        process_noise: :class:`Noise` with d stds (algebra units per second, e.g. rad/s, m/s) of the model error
+            $B\delta$; a sample std needs its ``rate``.
+        noise_map: n x d matrix that places the d noise components in the algebra (default: the identity,
+            d = n). Zero columns are allowed (e.g. a constant parameter).
+        inputs: names of the m input components (log columns); ``input_units`` their units.
+        state_names: names of ``group.coords()`` (reports, CSV headers).
+        state_units: their units.
+
+    The theorem's matrices are derived (module docstring): ``D = diag(std)``, ``Q = I``,
+    ``B = noise_map diag(density std)``, ``R = I``.
+    """
+
+    group_type: type[LieGroup] = eqx.field(static=True)
+    dynamics_fn: Callable = eqx.field(static=True)
+    sensors: tuple[Sensor, ...]
+    process_noise: Noise
+    noise_map: Float[Array, "n d"] = eqx.field(converter=matrix)
+    inputs: tuple[str, ...] = eqx.field(static=True)
+    input_units: tuple[str, ...] = eqx.field(static=True)
+    coord_names: tuple[str, ...] | None = eqx.field(static=True, default=None)
+    coord_units: tuple[str, ...] | None = eqx.field(static=True, default=None)
+
+    def __init__(self, group: type[LieGroup], dynamics: Callable, sensors, process_noise: Noise, noise_map=None,
+                 inputs=(), input_units=None, state_names=None, state_units=None):
+        if not (isinstance(group, type) and issubclass(group, LieGroup)):
+            raise ValueError(f"group: expected a liemef Lie group class, got {group!r}")
+        sensors = tuple(sensors)
+        if not sensors or not all(isinstance(s, Sensor) for s in sensors):
+            raise ValueError(f"sensors: expected one or more Sensor objects, got {sensors!r}")
+        if not isinstance(process_noise, Noise):
+            raise ValueError(f"process_noise: expected a Noise, got {type(process_noise).__name__}")
+        n = group.tangent_dim
+        d = process_noise.dim
+        noise_map = np.eye(n) if noise_map is None else noise_map
+        _validate.array("noise_map", noise_map, (n, d))
+        inputs = tuple(str(i) for i in inputs)
+        input_units = tuple(input_units) if input_units is not None else ("",) * len(inputs)
+        if len(input_units) != len(inputs):
+            raise ValueError(f"input_units: expected {len(inputs)} units, got {len(input_units)}")
+        names = ["t", *inputs, *(c for s in sensors for c in s.columns)]
+        dup = sorted({c for c in names if names.count(c) > 1})
+        if dup:
+            raise ValueError(f"sensors: expected unique log column names, got duplicates {dup}")
+        for what, v in (("state_names", state_names), ("state_units", state_units)):
+            if v is not None and len(v) != group.coords_dim:
+                raise ValueError(f"{what}: expected {group.coords_dim} entries, got {len(v)}")
+        self.group_type, self.dynamics_fn, self.sensors = group, dynamics, sensors
+        self.process_noise, self.noise_map = process_noise, noise_map
+        self.process_noise.density_std("process_noise")
+        self.inputs, self.input_units = inputs, input_units
+        self.coord_names = None if state_names is None else tuple(state_names)
+        self.coord_units = None if state_units is None else tuple(state_units)
+
+    # --- the theorem's matrices, derived from the noise levels ------------------------------------------------
+    @property
+    def B(self) -> Float[Array, "n d"]:
+        return self.noise_map * self.process_noise.density_std("process_noise")[None, :]
+
+    @property
+    def R(self) -> Float[Array, "d d"]:
+        return jnp.eye(self.process_noise.dim)
+
+    @property
+    def D(self) -> Float[Array, "p p"]:
+        return jnp.diag(jnp.concatenate([s.noise.std for s in self.sensors]))
+
+    @property
+    def Q(self) -> Float[Array, "p p"]:
+        return jnp.eye(self.output_dim)
+
+    @property
+    def output_dim(self) -> int:
+        return sum(s.dim for s in self.sensors)
+
+    def blocks(self) -> tuple[Block, ...]:
+        return blocks_of(self.sensors)
+
+    # --- the model --------------------------------------------------------------------------------------------
+    @property
+    def group(self) -> type[LieGroup]:
+        return self.group_type
+
+    @property
+    def input_dim(self) -> int:
+        return len(self.inputs)
+
+    def dynamics(self, g, u, t):
+        return jnp.asarray(self.dynamics_fn(g, u, t), dtype=jnp.float64)
+
+    def output(self, g, t):
+        return jnp.concatenate([jnp.atleast_1d(jnp.asarray(s.fn(g, t), dtype=jnp.float64)) for s in self.sensors])
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return self.inputs
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(c for s in self.sensors for c in s.columns)
+
+    @property
+    def output_units(self) -> tuple[str, ...]:
+        return tuple(u for s in self.sensors for u in s.units)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.coord_names if self.coord_names is not None else super().state_names
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return self.coord_units if self.coord_units is not None else super().state_units
+
+    def __check_init__(self):
+        for s in self.sensors:
+            out = jax.eval_shape(s.fn, self.group.identity(), jnp.zeros(()))
+            if out.shape not in ((s.dim,), () if s.dim == 1 else (s.dim,)):
+                raise ValueError(f"sensor {s.name!r}: expected h(g, t) of shape ({s.dim},), got {out.shape}")
+
+    def with_noise(self, **levels) -> SensorSystem:
+        """A copy with new noise levels, by sensor name (or ``process_noise=``): same structure, so a filter of
+        the copy reuses the compiled code."""
+        out = self
+        for name, noise in levels.items():
+            if name == "process_noise":
+                if not isinstance(noise, Noise) or noise.dim != self.process_noise.dim:
+                    raise ValueError(f"process_noise: expected a Noise with {self.process_noise.dim} stds, got "
+                                     f"{noise!r}")
+                out = eqx.tree_at(lambda s: s.process_noise, out, noise)
+                continue
+            idx = [i for i, s in enumerate(self.sensors) if s.name == name]
+            if not idx:
+                raise ValueError(f"with_noise: unknown sensor {name!r}; expected one of "
+                                 f"{[s.name for s in self.sensors]} or process_noise")
+            i = idx[0]
+            old = self.sensors[i].noise
+            if not isinstance(noise, Noise) or noise.dim not in (1, old.dim):
+                raise ValueError(f"{name}: expected a Noise with 1 or {old.dim} stds, got {noise!r}")
+            std = jnp.broadcast_to(noise.std, old.std.shape)
+            if (noise.meaning, noise.rate) != (old.meaning, old.rate):
+                raise ValueError(f"{name}: a new noise level must keep the meaning {old.meaning!r} and rate "
+                                 f"{old.rate} (they are structure); got {noise.meaning!r}, {noise.rate}")
+            out = eqx.tree_at(lambda s, i=i: s.sensors[i].noise.std, out, std)
+        return out
