@@ -45,18 +45,22 @@ class RigidBodyAttitude(AbstractSystem):
 
     @property
     def group(self):
+        """TSO(3) = SO(3) x R^3, algebra coordinates (eta_R; eta_Omega)."""
         return TSO3
 
     @property
     def input_dim(self) -> int:
+        """3: the torque tau (body frame)."""
         return 3
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """The body-frame components of R^T a1, then of R^T a2."""
         return ("a1x", "a1y", "a1z", "a2x", "a2y", "a2z")
 
     @property
     def output_units(self) -> tuple[str, ...]:
+        """Metres, as the paper states sigma_eps (0.5/3 m), for all six components."""
         return ("m",) * 6  # Saccon et al. 2016, Sec. V: sigma_eps = 0.5/3 m
 
     @property
@@ -66,6 +70,7 @@ class RigidBodyAttitude(AbstractSystem):
 
     @property
     def state_units(self) -> tuple[str, ...]:
+        """rad for the rotation vector, rad/s for Omega."""
         return ("rad", "rad", "rad", "rad/s", "rad/s", "rad/s")
 
     @property
@@ -75,6 +80,7 @@ class RigidBodyAttitude(AbstractSystem):
         return self.inertia @ self.B[3:]
 
     def dynamics(self, g, u, t):
+        r"""$\lambda = (\Omega,\ \mathbb I^{-1}((\mathbb I\Omega) \times \Omega + \tau))$ with $u = \tau$."""
         # Saccon et al. 2016, eqs. (55)-(56)
         Omega = g.factors[1].x
         I = self.inertia
@@ -82,6 +88,7 @@ class RigidBodyAttitude(AbstractSystem):
         return jnp.concatenate([Omega, Omega_dot])
 
     def output(self, g, t):
+        r"""$(R^\top a_1, R^\top a_2)$: the two known inertial directions in the body frame."""
         # Saccon et al. 2016, eq. (57): R^T a_i
         Rt = g.factors[0].as_matrix().T
         return jnp.concatenate([Rt @ self.a1, Rt @ self.a2])

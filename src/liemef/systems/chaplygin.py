@@ -73,29 +73,36 @@ class ChaplyginSleigh(AbstractSystem):
 
     @property
     def group(self):
+        """SE(2) x R^2, algebra coordinates (theta, x, y; omega, v)."""
         return SE2R2
 
     @property
     def input_dim(self) -> int:
+        """2: the torque u_omega and the forward force u_v."""
         return 2
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """The antennas' (x1, y1, x2, y2), then (omega, v) with the INS."""
         return SENSORS[self.sensor][0]
 
     @property
     def output_units(self) -> tuple[str, ...]:
+        """m for the antennas, rad/s and m/s for the INS."""
         return SENSORS[self.sensor][1]
 
     @property
     def state_names(self) -> tuple[str, ...]:
+        """The pose (theta, x, y), then the velocities (omega, v)."""
         return ("theta", "x", "y", "omega", "v")
 
     @property
     def state_units(self) -> tuple[str, ...]:
+        """rad, m, m, rad/s, m/s."""
         return ("rad", "m", "m", "rad/s", "m/s")
 
     def dynamics(self, g, u, t):
+        """The left-trivialized sleigh dynamics of eq. (21) (module docstring); lateral velocity zero."""
         # Rigo et al. 2023, eq. (21)
         V = g.factors[1].x
         w, v = V[0], V[1]
@@ -105,6 +112,7 @@ class ChaplyginSleigh(AbstractSystem):
                           self.a * w**2 + u[1] / self.m])
 
     def output(self, g, t):
+        r"""The antennas $(x \pm \ell\cos\theta, y \pm \ell\sin\theta)$, then $(\omega, v)$ with the INS (eq. (10))."""
         # Rigo et al. 2023, eq. (10)
         pose, V = g.factors[0], g.factors[1].x
         c, s = pose.cos_sin_xy[0], pose.cos_sin_xy[1]

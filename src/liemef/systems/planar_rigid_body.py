@@ -59,29 +59,36 @@ class PlanarRigidBody(AbstractSystem):
 
     @property
     def group(self):
+        """TSE(2) = SE(2) x R^3; algebra coordinates: se(2) (omega, vx, vy), then the velocities (R^3)."""
         return TSE2
 
     @property
     def input_dim(self) -> int:
+        """2: the torque u_omega and the forward force u_v."""
         return 2
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """The antennas' (x1, y1, x2, y2) with ``"gps_imu"``, then the IMU's (omega, vx, vy)."""
         return SENSORS[self.sensor][0]
 
     @property
     def output_units(self) -> tuple[str, ...]:
+        """m for the antennas, rad/s and m/s for the IMU."""
         return SENSORS[self.sensor][1]
 
     @property
     def state_names(self) -> tuple[str, ...]:
+        """The pose (theta, x, y), then the body velocities (omega, vx, vy)."""
         return ("theta", "x", "y", "omega", "vx", "vy")
 
     @property
     def state_units(self) -> tuple[str, ...]:
+        """rad, m, m, rad/s, m/s, m/s."""
         return ("rad", "m", "m", "rad/s", "m/s", "m/s")
 
     def dynamics(self, g, u, t):
+        r"""$\lambda = (\Omega,\ (u_\omega / J,\ \omega v_y + u_v/m,\ -\omega v_x))$ (eqs. (8), (11))."""
         # Rigo et al. 2022, eqs. (8), (11)
         Omega = g.factors[1].x
         w, vx, vy = Omega[0], Omega[1], Omega[2]
@@ -89,6 +96,8 @@ class PlanarRigidBody(AbstractSystem):
         return jnp.concatenate([Omega, jnp.stack([u_w / self.J, w * vy + u_v / self.m, -w * vx])])
 
     def output(self, g, t):
+        r"""The antennas $(x \pm \ell\cos\theta, y \pm \ell\sin\theta)$ and the IMU $\Omega$ (eq. (13));
+        $\Omega$ alone with ``"velocity"``."""
         # Rigo et al. 2022, eq. (13)
         pose, Omega = g.factors[0], g.factors[1].x
         if self.sensor == "velocity":

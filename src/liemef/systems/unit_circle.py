@@ -74,29 +74,36 @@ class UnitCircleBias(AbstractSystem):
 
     @property
     def group(self):
+        """SO(2) x R, algebra coordinates (theta; b)."""
         return SO2R1
 
     @property
     def input_dim(self) -> int:
+        """1: the gyro reading u (rad/s)."""
         return 1
 
     @property
     def state_names(self) -> tuple[str, ...]:
+        """The angle theta and the gyro bias b."""
         return ("theta", "b")
 
     @property
     def state_units(self) -> tuple[str, ...]:
+        """rad and rad/s."""
         return ("rad", "rad/s")
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """The components of X^T (1, 0): cos(theta) and -sin(theta)."""
         return ("cos_theta", "minus_sin_theta")
 
     def dynamics(self, g, u, t):
+        r"""$\lambda = (u - b,\ 0)$: the bias-corrected gyro rate; the bias is constant up to noise."""
         # Zamani et al., eqs. (1), (7), (8) without the unknown errors: theta_dot = u - b, b_dot = 0
         return jnp.stack([u[0] - g.factors[1].x[0], jnp.zeros(())])
 
     def output(self, g, t):
+        r"""$X^\top (1, 0)^\top = (\cos\theta, -\sin\theta)$ (eq. (9))."""
         # Zamani et al., eq. (9): X^T (1, 0)^T
         return g.factors[0].as_matrix().T @ jnp.array([1.0, 0.0])
 
