@@ -147,16 +147,21 @@ def test_log_errors_name_what_was_expected(tmp_path, log_arrays):
     with pytest.raises(ValueError, match=r"unexpected column\(s\) \['y8'\]"):
         io.read_log(p, 2, 7)
     bad = ys.copy()
-    bad[3, 4] = np.nan
+    bad[3, 4] = np.inf
     p = write_log_csv(tmp_path / "c.csv", ts, us, bad)
-    with pytest.raises(ValueError, match=r"got nan in column y5 at sample 3 \(t = 0\.3\)"):
+    with pytest.raises(ValueError, match=r"got inf in column y5 at sample 3 \(t = 0\.3\)"):
+        io.read_log(p, 2, 7)
+    bad_t = ts.copy()
+    bad_t[2] = np.nan
+    p = write_log_csv(tmp_path / "c2.csv", bad_t, us, ys)
+    with pytest.raises(ValueError, match=r"expected finite time stamps, got nan in column t at sample 2"):
         io.read_log(p, 2, 7)
     p = write_log_csv(tmp_path / "d.csv", ts[[0, 1, 3, 2, 4, 5]], us, ys)
     with pytest.raises(ValueError, match="expected strictly increasing time stamps, got t = 0.3 at sample 2"):
         io.read_log(p, 2, 7)
     p = tmp_path / "e.csv"
     p.write_text(",".join(io.log_header(2, 7)) + "\n" + ",".join(["0"] * 9 + ["abc"]) + "\n")
-    with pytest.raises(ValueError, match="expected numbers on line 2"):
+    with pytest.raises(ValueError, match="expected numbers or empty fields \(missing samples\) on line 2"):
         io.read_log(p, 2, 7)
     (tmp_path / "f.csv").write_text("")
     with pytest.raises(ValueError, match="the file is empty"):
@@ -170,3 +175,58 @@ def test_log_errors_name_what_was_expected(tmp_path, log_arrays):
     io.write_npz(tmp_path / "i.npz", {"ts": ts[:1], "us": us[:1], "ys": ys[:1]})
     with pytest.raises(ValueError, match="expected at least 2 samples"):
         io.read_log(tmp_path / "i.npz", 2, 7)
+
+
+# --- missing samples, system column names, per-sensor time vectors
+def test_empty_fields_and_nan_are_missing_samples(tmp_path, log_arrays):
+    ts, us, ys = log_arrays
+    p = tmp_path / "gaps.csv"
+    lines = [",".join(io.log_header(2, 7))]
+    for k in range(6):
+        y = ["" if (k % 2 and j < 4) else repr(float(ys[k, j])) for j in range(7)]
+        u = ["nan" if k == 4 else repr(float(us[k, 0])), repr(float(us[k, 1]))]
+        lines.append(",".join([repr(float(ts[k])), *u, *y]))
+    p.write_text("\n".join(lines) + "\n")
+    log = io.read_log(p, 2, 7)
+    assert np.isnan(log.ys[1, :4]).all() and np.isnan(log.ys[3, :4]).all() and np.isfinite(log.ys[:, 4:]).all()
+    np.testing.assert_array_equal(log.ys[0], ys[0])
+    assert np.isnan(log.us[4, 0]) and log.us[4, 1] == us[4, 1]
+
+
+def test_system_column_names_and_write_log_round_trip(tmp_path):
+    from liemef.systems import planar_localization
+
+    system = planar_localization()
+    ts = np.arange(5) * 0.01
+    us = np.column_stack([np.full(5, 0.7), np.zeros(5), np.full(5, 0.1)])
+    ys = np.full((5, 2), np.nan)
+    ys[3] = [1.5, -2.0]
+    p = io.write_log(tmp_path / "loc.csv", system, ts, us, ys)
+    assert p.read_text().splitlines()[0] == "t,v_x,v_y,omega,gps_x,gps_y"
+    assert p.read_text().splitlines()[1].endswith(",,")  # missing GPS written as empty fields
+    log = io.read_log(p, system)
+    np.testing.assert_array_equal(log.us, us)
+    np.testing.assert_array_equal(log.ys, ys)  # NaN == NaN for assert_array_equal
+    with pytest.raises(ValueError, match=r"missing column\(s\) \['gps_y'\].*expected the header t,v_x,v_y,omega"):
+        (tmp_path / "bad.csv").write_text("t,v_x,v_y,omega,gps_x\n0,1,0,0,\n0.1,1,0,0,\n")
+        io.read_log(tmp_path / "bad.csv", system)
+
+
+def test_npz_with_a_time_vector_per_sensor_is_merged_on_the_union_of_times(tmp_path):
+    from liemef.systems import planar_localization
+
+    system = planar_localization()
+    ts_u = np.arange(0, 31) * 0.1
+    us = np.column_stack([np.ones(31), np.zeros(31), np.zeros(31)])
+    t_gps = np.array([0.05, 1.0, 2.0, 2.95])  # 0.05 and 2.95 fall between odometry samples
+    gps = np.arange(8.0).reshape(4, 2)
+    io.write_npz(tmp_path / "s.npz", {"ts": ts_u, "us": us, "gps": gps, "t_gps": t_gps})
+    log = io.read_log(tmp_path / "s.npz", system)
+    assert log.ts.shape == (33,)  # 31 odometry times + 2 GPS-only times
+    rows = np.flatnonzero(np.isfinite(log.ys[:, 0]))
+    np.testing.assert_allclose(log.ts[rows], t_gps)
+    np.testing.assert_array_equal(log.ys[rows], gps)
+    assert np.isnan(log.us[np.searchsorted(log.ts, 0.05)]).all()  # no odometry then: held by the filter
+    io.write_npz(tmp_path / "s2.npz", {"ts": ts_u, "us": us, "gps": gps})
+    with pytest.raises(ValueError, match="sensor 'gps' has no time vector; expected an array t_gps"):
+        io.read_log(tmp_path / "s2.npz", system)

@@ -12,9 +12,14 @@ and an ``index.md``.
 
 Recorded logs (``liemef run``, :func:`read_log`):
 
-* CSV with a header row ``t,u1,...,um,y1,...,yp`` (any column order, blanks around names ignored), one row
-  per sample, times strictly increasing;
-* NPZ with arrays ``ts`` (N,), ``us`` (N, m) and ``ys`` (N, p) (an experiment's ``arrays.npz`` is one).
+* CSV with a header row ``t,<inputs>,<outputs>``: the system's input names and its sensors' columns
+  ``{sensor}_{component}`` (``liemef schema SYSTEM`` prints them), or the generic ``t,u1,...,um,y1,...,yp``;
+  any column order, blanks around names ignored; one row per sample time, times strictly increasing. An empty
+  field (or ``nan``) is a missing sample: a sensor at 1 Hz in a 100 Hz log has values in one row of 100.
+* NPZ with arrays ``ts`` (N,), ``us`` (N, m) and ``ys`` (N, p) (NaN = missing; an experiment's ``arrays.npz``
+  is one), or, with a time vector per sensor, ``ts``/``us`` for the inputs and ``NAME`` (N_s, k) with
+  ``t_NAME`` (N_s,) for each sensor block NAME, merged onto the union of the times
+  (:func:`merge_sensor_times`).
 """
 
 from __future__ import annotations
@@ -169,27 +174,59 @@ def read_metrics(path: str | os.PathLike) -> dict:
 
 @dataclass(frozen=True)
 class RecordedLog:
-    """A recorded log: sample times ``ts`` (N,), measured inputs ``us`` (N, m), measurements ``ys`` (N, p)."""
+    """A recorded log: sample times ``ts`` (N,), measured inputs ``us`` (N, m), measurements ``ys`` (N, p).
+
+    NaN in ``ys`` marks a missing sample of that component; NaN in ``us`` a missing input sample (the filter
+    holds the last one)."""
 
     ts: np.ndarray
     us: np.ndarray
     ys: np.ndarray
 
 
+@dataclass(frozen=True)
+class LogLayout:
+    """The columns a log must have: input and output names and the output's sensor blocks
+    ``(name, start, stop)`` (for per-sensor time vectors in NPZ)."""
+
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    blocks: tuple[tuple[str, int, int], ...]
+
+    @staticmethod
+    def of(system=None, input_dim: int | None = None, output_dim: int | None = None) -> LogLayout:
+        """The layout of a liemef system, or the generic ``u1..um``, ``y1..yp`` of the given sizes."""
+        if system is not None:
+            return LogLayout(tuple(system.input_names), tuple(system.output_names),
+                             tuple((b.name, b.start, b.stop) for b in system.blocks()))
+        m, p = int(input_dim), int(output_dim)
+        return LogLayout(tuple(f"u{i + 1}" for i in range(m)), tuple(f"y{j + 1}" for j in range(p)), (("y", 0, p),))
+
+    @property
+    def header(self) -> list[str]:
+        return ["t", *self.inputs, *self.outputs]
+
+    @property
+    def generic(self) -> LogLayout:
+        return LogLayout.of(None, len(self.inputs), len(self.outputs))
+
+
 def log_header(input_dim: int, output_dim: int) -> list[str]:
-    """The CSV header of a log: ``t, u1..um, y1..yp``."""
-    return ["t"] + [f"u{i + 1}" for i in range(input_dim)] + [f"y{j + 1}" for j in range(output_dim)]
+    """The generic CSV header of a log: ``t, u1..um, y1..yp``."""
+    return LogLayout.of(None, input_dim, output_dim).header
 
 
-def _check_log(ts, us, ys, where: str) -> RecordedLog:
-    for name, a in (("t", ts), ("u", us), ("y", ys)):
-        bad = ~np.isfinite(a)
+def _check_log(ts, us, ys, where: str, layout: LogLayout) -> RecordedLog:
+    bad_t = ~np.isfinite(ts)
+    if bad_t.any():
+        row = int(np.argmax(bad_t))
+        raise ValueError(f"log {where}: expected finite time stamps, got {ts[row]} in column t at sample {row}")
+    for a, names in ((us, layout.inputs), (ys, layout.outputs)):
+        bad = np.isinf(a)
         if bad.any():
-            idx = np.argwhere(bad)[0]
-            row = int(idx[0])
-            col = name if a.ndim == 1 else f"{name}{int(idx[1]) + 1}"
-            raise ValueError(f"log {where}: expected finite values, got {a[tuple(idx)]} in column {col} "
-                             f"at sample {row}" + (f" (t = {ts[row]})" if name != "t" else ""))
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"log {where}: expected finite values or an empty field/NaN (missing sample), got "
+                             f"{a[row, col]} in column {names[col]} at sample {row} (t = {ts[row]})")
     if ts.shape[0] < 2:
         raise ValueError(f"log {where}: expected at least 2 samples, got {ts.shape[0]}")
     dt = np.diff(ts)
@@ -200,14 +237,21 @@ def _check_log(ts, us, ys, where: str) -> RecordedLog:
     return RecordedLog(ts=ts, us=us, ys=ys)
 
 
-def _read_csv(p: Path, m: int, pdim: int) -> RecordedLog:
-    want = log_header(m, pdim)
+def _cell(c: str) -> float:
+    c = c.strip()
+    return np.nan if c == "" else float(c)
+
+
+def _read_csv(p: Path, layout: LogLayout) -> RecordedLog:
     with p.open(newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
     rows = [r for r in rows if any(c.strip() for c in r)]
     if not rows:
-        raise ValueError(f"log {str(p)!r}: the file is empty; expected a header row {','.join(want)}")
+        raise ValueError(f"log {str(p)!r}: the file is empty; expected a header row {','.join(layout.header)}")
     header = [c.strip() for c in rows[0]]
+    if layout.generic.header != layout.header and set(header) == set(layout.generic.header):
+        layout = layout.generic  # the generic names t,u1..,y1.. are always accepted
+    want = layout.header
     missing = [c for c in want if c not in header]
     extra = [c for c in header if c not in want]
     if missing or extra or len(set(header)) != len(header):
@@ -218,6 +262,7 @@ def _read_csv(p: Path, m: int, pdim: int) -> RecordedLog:
             what.append(f"unexpected column(s) {extra}")
         if len(set(header)) != len(header):
             what.append("duplicate columns")
+        m, pdim = len(layout.inputs), len(layout.outputs)
         raise ValueError(f"log {str(p)!r}: {', '.join(what)}; expected the header {','.join(want)} "
                          f"(m = {m} inputs, p = {pdim} outputs), got {','.join(header)}")
     data = np.empty((len(rows) - 1, len(header)))
@@ -225,43 +270,114 @@ def _read_csv(p: Path, m: int, pdim: int) -> RecordedLog:
         if len(r) != len(header):
             raise ValueError(f"log {str(p)!r}: expected {len(header)} values on line {i + 2}, got {len(r)}")
         try:
-            data[i] = [float(c) for c in r]
+            data[i] = [_cell(c) for c in r]
         except ValueError as err:
-            raise ValueError(f"log {str(p)!r}: expected numbers on line {i + 2}, got {r} ({err})") from err
+            raise ValueError(f"log {str(p)!r}: expected numbers or empty fields (missing samples) on line {i + 2}, "
+                             f"got {r} ({err})") from err
     col = {name: data[:, k] for k, name in enumerate(header)}
     ts = col["t"]
-    us = np.stack([col[f"u{i + 1}"] for i in range(m)], axis=1) if m else np.zeros((ts.shape[0], 0))
-    ys = np.stack([col[f"y{j + 1}"] for j in range(pdim)], axis=1)
-    return _check_log(ts, us, ys, repr(str(p)))
+    N = ts.shape[0]
+    us = np.stack([col[c] for c in layout.inputs], axis=1) if layout.inputs else np.zeros((N, 0))
+    ys = np.stack([col[c] for c in layout.outputs], axis=1)
+    return _check_log(ts, us, ys, repr(str(p)), layout)
 
 
-def _read_npz(p: Path, m: int, pdim: int) -> RecordedLog:
+def merge_sensor_times(ts_u, us, streams: Mapping[str, tuple[Any, Any]], layout: LogLayout) -> RecordedLog:
+    """One log on the union of the sample times of the inputs (``ts_u``, ``us``) and of each sensor block
+    (``streams[name] = (t, values)``, values (N_s, k)): NaN where a stream has no sample at a time (missing
+    measurement; a missing input is held). Times present in several streams become one row."""
+    ts_u = np.asarray(ts_u, dtype=np.float64)
+    us = np.asarray(us, dtype=np.float64).reshape(ts_u.shape[0], len(layout.inputs))
+    times = [ts_u] + [np.asarray(t, dtype=np.float64).reshape(-1) for t, _ in streams.values()]
+    for t in times:
+        if not np.all(np.isfinite(t)):
+            raise ValueError("log: expected finite sensor time stamps, got NaN or inf")
+    ts = np.unique(np.concatenate(times))
+    N = ts.shape[0]
+    U = np.full((N, len(layout.inputs)), np.nan)
+    U[np.searchsorted(ts, ts_u)] = us
+    Y = np.full((N, len(layout.outputs)), np.nan)
+    blocks = {name: (a, b) for name, a, b in layout.blocks}
+    for name, (t, v) in streams.items():
+        if name not in blocks:
+            raise ValueError(f"log: unknown sensor {name!r}; expected one of {sorted(blocks)}")
+        a, b = blocks[name]
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        v = np.asarray(v, dtype=np.float64).reshape(t.shape[0], b - a)
+        if np.unique(t).shape[0] != t.shape[0]:
+            raise ValueError(f"log: sensor {name!r} has repeated time stamps")
+        Y[np.searchsorted(ts, t), a:b] = v
+    return RecordedLog(ts=ts, us=U, ys=Y)
+
+
+def _read_npz(p: Path, layout: LogLayout) -> RecordedLog:
     z = read_arrays(p)
-    missing = [k for k in ("ts", "us", "ys") if k not in z and not (k == "us" and m == 0)]
+    m, pdim = len(layout.inputs), len(layout.outputs)
+    per_sensor = "ys" not in z and any(name in z for name, _, _ in layout.blocks)
+    need = ["ts"] + (["us"] if m else []) + ([] if per_sensor else ["ys"])
+    missing = [k for k in need if k not in z]
     if missing:
         raise ValueError(f"log {str(p)!r}: missing array(s) {missing}; expected ts (N,), us (N, {m}), "
-                         f"ys (N, {pdim}), got {sorted(z)}")
+                         f"ys (N, {pdim}) (or, per sensor, arrays NAME and t_NAME for the sensors "
+                         f"{[b[0] for b in layout.blocks]}), got {sorted(z)}")
     ts = np.asarray(z["ts"], dtype=np.float64)
     if ts.ndim != 1:
         raise ValueError(f"log {str(p)!r}: expected ts of shape (N,), got {ts.shape}")
     N = ts.shape[0]
     us = np.asarray(z["us"], dtype=np.float64) if "us" in z else np.zeros((N, 0))
+    if us.shape != (N, m):
+        raise ValueError(f"log {str(p)!r}: expected us of shape {(N, m)} (N = {N} samples), got {us.shape}")
+    if per_sensor:
+        streams = {}
+        for name, a, b in layout.blocks:
+            if name not in z:
+                continue
+            if f"t_{name}" not in z:
+                raise ValueError(f"log {str(p)!r}: sensor {name!r} has no time vector; expected an array "
+                                 f"t_{name} beside {name}")
+            t, v = np.asarray(z[f"t_{name}"], dtype=np.float64), np.asarray(z[name], dtype=np.float64)
+            if t.ndim != 1 or v.shape not in ((t.shape[0], b - a), (t.shape[0],) if b - a == 1 else None):
+                raise ValueError(f"log {str(p)!r}: expected t_{name} (N_s,) and {name} (N_s, {b - a}), got "
+                                 f"{t.shape} and {v.shape}")
+            streams[name] = (t, v)
+        log = merge_sensor_times(ts, us, streams, layout)
+        return _check_log(log.ts, log.us, log.ys, repr(str(p)), layout)
     ys = np.asarray(z["ys"], dtype=np.float64)
-    for name, a, shape in (("us", us, (N, m)), ("ys", ys, (N, pdim))):
-        if a.shape != shape:
-            raise ValueError(f"log {str(p)!r}: expected {name} of shape {shape} (N = {N} samples), "
-                             f"got {a.shape}")
-    return _check_log(ts, us, ys, repr(str(p)))
+    if ys.shape != (N, pdim):
+        raise ValueError(f"log {str(p)!r}: expected ys of shape {(N, pdim)} (N = {N} samples), got {ys.shape}")
+    return _check_log(ts, us, ys, repr(str(p)), layout)
 
 
-def read_log(path: str | os.PathLike, input_dim: int, output_dim: int) -> RecordedLog:
-    """A recorded log (CSV or NPZ, see the module docstring) for a system with ``input_dim`` inputs and
-    ``output_dim`` outputs. ValueError on a missing file, missing columns, non-numbers, NaN/inf or unsorted
-    time stamps, naming what was expected and what came."""
+def read_log(path: str | os.PathLike, system_or_input_dim, output_dim: int | None = None) -> RecordedLog:
+    """A recorded log (CSV or NPZ, see the module docstring) for ``system`` (its input and output names are
+    the columns) or for ``input_dim`` inputs and ``output_dim`` outputs (columns ``u1..um``, ``y1..yp``).
+
+    Empty fields and NaN are missing samples. ValueError on a missing file, missing columns, non-numbers,
+    infinities or unsorted time stamps, naming what was expected and what came."""
+    if isinstance(system_or_input_dim, int | np.integer):
+        layout = LogLayout.of(None, system_or_input_dim, output_dim)
+    else:
+        layout = LogLayout.of(system_or_input_dim)
     p = _existing_file(path, "log")
     suffix = p.suffix.lower()
     if suffix == ".csv":
-        return _read_csv(p, input_dim, output_dim)
+        return _read_csv(p, layout)
     if suffix == ".npz":
-        return _read_npz(p, input_dim, output_dim)
+        return _read_npz(p, layout)
     raise ValueError(f"log: expected a .csv or .npz file, got {str(p)!r}")
+
+
+def write_log(path: str | os.PathLike, system, ts, us, ys) -> Path:
+    """A log in ``system``'s columns (CSV: NaN written as an empty field; NPZ: ts, us, ys), atomically."""
+    layout = LogLayout.of(system)
+    ts = np.asarray(ts, dtype=np.float64)
+    us = np.asarray(us, dtype=np.float64).reshape(ts.shape[0], len(layout.inputs))
+    ys = np.asarray(ys, dtype=np.float64).reshape(ts.shape[0], len(layout.outputs))
+    if Path(path).suffix.lower() == ".npz":
+        return write_npz(path, {"ts": ts, "us": us, "ys": ys})
+    cell = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731
+    with atomic_open(path, "w") as f:
+        w = csv.writer(f)
+        w.writerow(layout.header)
+        w.writerows([cell(v) for v in row] for row in np.column_stack([ts, us, ys]))
+    return Path(path)
