@@ -161,7 +161,7 @@ def test_log_errors_name_what_was_expected(tmp_path, log_arrays):
         io.read_log(p, 2, 7)
     p = tmp_path / "e.csv"
     p.write_text(",".join(io.log_header(2, 7)) + "\n" + ",".join(["0"] * 9 + ["abc"]) + "\n")
-    with pytest.raises(ValueError, match="expected numbers or empty fields \(missing samples\) on line 2"):
+    with pytest.raises(ValueError, match=r"expected numbers or empty fields \(missing samples\) on line 2"):
         io.read_log(p, 2, 7)
     (tmp_path / "f.csv").write_text("")
     with pytest.raises(ValueError, match="the file is empty"):
