@@ -3,6 +3,8 @@
 import pathlib
 import re
 
+import numpy as np
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
 
@@ -19,3 +21,10 @@ def test_readme_examples_run():
     assert float(abs(err[-1, 1:3]).max()) < 0.1
     assert namespace["terms"].E.shape == (6, 6)
     assert namespace["flt"].system.group.__name__ == "SO2xR1"
+    # the real-logs example: sparse GPS corrects a 0.5 rad initial heading error
+    loc = namespace["loc_traj"]
+    assert loc.status.ok and int(loc.status.substeps_total) > 3999  # the GPS intervals were sub-stepped
+    theta, x, y = (float(v) for v in loc.coords()[-1])
+    true_theta = 0.157 * 39.99
+    assert abs((theta - true_theta + 3.14159) % 6.28318 - 3.14159) < 0.1
+    assert abs(x - 5 * np.sin(true_theta)) < 1.0 and abs(y - (5 - 5 * np.cos(true_theta))) < 1.0
