@@ -210,7 +210,12 @@ class SensorSystem(AbstractSystem):
         if not isinstance(process_noise, Noise):
             raise ValueError(f"process_noise: expected a Noise, got {type(process_noise).__name__}")
         n = group.tangent_dim
+        if noise_map is None and process_noise.dim == 1 and n > 1:  # one std for every algebra direction
+            process_noise = Noise(jnp.full((n,), process_noise.std[0]), process_noise.meaning, process_noise.rate)
         d = process_noise.dim
+        if noise_map is None and d != n:
+            raise ValueError(f"process_noise: expected 1 or {n} stds (one per algebra direction of "
+                             f"{group.__name__}), or a noise_map of shape ({n}, {d}), got {d} stds")
         noise_map = np.eye(n) if noise_map is None else noise_map
         _validate.array("noise_map", noise_map, (n, d))
         inputs = tuple(str(i) for i in inputs)

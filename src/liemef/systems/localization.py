@@ -52,7 +52,9 @@ def planar_localization(odometry_std=ODOMETRY_STD, odometry_rate: float | None =
         odometry_std: (yaw rate rad/s, forward m/s, lateral m/s) stds of one odometry sample at
             ``odometry_rate`` Hz, or densities if ``odometry_rate`` is None.
         gps_std: std of one GPS fix (m), one value or (x, y).
-        gate, robust, max_rejections: the GPS sensor's outlier handling (:class:`~liemef.systems.Sensor`).
+        gate: the GPS sensor's chi-square gate probability (:class:`~liemef.systems.Sensor`).
+        robust: ``"huber"`` or ``"cauchy"`` down-weighting of GPS outliers.
+        max_rejections: consecutive rejected fixes that make the run fail (cause ``gate``).
     """
     process = Noise.density(odometry_std) if odometry_rate is None else Noise.sample(odometry_std, odometry_rate)
     gps = Sensor("gps", gps_position, Noise.sample(gps_std), ("x", "y"), ("m", "m"), gate=gate, robust=robust,
