@@ -3,14 +3,86 @@
 The public surface: :class:`MinimumEnergyFilter`, the groups (:mod:`liemef.groups`), connections
 (:mod:`liemef.connections`), ready systems (:mod:`liemef.systems`), :func:`simulate` and the metrics
 (:mod:`liemef.metrics`). Experiments, I/O, plots and the CLI sit on top (:mod:`liemef.experiments`).
+
+Importing the package is cheap: JAX and the submodules load on first use (``liemef.MinimumEnergyFilter``,
+``from liemef import simulate``, ``import liemef.groups``, ...), so ``liemef --help`` answers without JAX.
+Whatever path loads them, :mod:`liemef._config` runs first and switches JAX to float64 before liemef creates an
+array (if JAX is already imported when ``liemef`` is, it runs at once).
 """
 
-# _config sorts first: float64 is switched on before any array is created.
-from . import _config, connections, groups, metrics, simulation, systems  # noqa: F401
-from .connections import Connection, connection
-from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
-from .simulation import SensorLog, Truth, simulate
+from __future__ import annotations
+
+import contextlib
+import importlib
+import sys
+from typing import TYPE_CHECKING
 
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
            "SensorLog", "Truth", "groups", "systems", "connections", "simulation", "metrics"]
 __version__ = "0.1.0"
+
+# Public names and the submodule each comes from (None: the name is itself a submodule).
+_ATTRS = {
+    "MinimumEnergyFilter": "filter", "FilterState": "filter", "Trajectory": "filter", "Terms": "filter",
+    "Connection": "connections", "connection": "connections",
+    "simulate": "simulation", "SensorLog": "simulation", "Truth": "simulation",
+}
+# Submodules reachable as attributes of the package without an explicit import.
+_SUBMODULES = frozenset({"groups", "systems", "connections", "simulation", "metrics", "filter", "experiments",
+                         "io", "plots"})
+# Submodules that load without JAX: importing them does not run _config.
+_JAX_FREE = frozenset({"cli", "_config"})
+
+if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
+    from . import connections, experiments, filter, groups, io, metrics, plots, simulation, systems  # noqa: F401
+    from .connections import Connection, connection
+    from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
+    from .simulation import SensorLog, Truth, simulate
+
+
+def _enable_float64() -> None:
+    """Import :mod:`liemef._config` (JAX in float64) once; after that the import hook is not needed."""
+    with contextlib.suppress(ValueError):
+        sys.meta_path.remove(_FLOAT64_FIRST)
+    importlib.import_module("._config", __name__)
+
+
+class _Float64First:
+    """Import hook: before the first liemef submodule that may use JAX loads, run :mod:`liemef._config`.
+
+    It finds nothing itself (``find_spec`` returns None, the usual finders load the module); it only makes
+    ``import liemef.groups`` (or any other submodule, directly or through :func:`__getattr__`) switch float64 on
+    first, as importing every submodule eagerly in this file did.
+    """
+
+    @staticmethod
+    def find_spec(fullname, path=None, target=None):
+        package, _, rest = fullname.partition(".")
+        if package == __name__ and rest and rest.partition(".")[0] not in _JAX_FREE:
+            _enable_float64()
+        return None
+
+
+_FLOAT64_FIRST = _Float64First()
+if "jax" in sys.modules:  # JAX is loaded already: nothing to save, configure it now
+    _enable_float64()
+elif f"{__name__}._config" not in sys.modules:
+    sys.meta_path.insert(0, _FLOAT64_FIRST)
+
+
+def __getattr__(name: str):
+    """PEP 562: load a public name's submodule on first access (after :mod:`liemef._config`)."""
+    if name in _ATTRS or name in _SUBMODULES:
+        _enable_float64()  # the import hook would too; explicit here
+    if name in _ATTRS:
+        value = getattr(importlib.import_module(f".{_ATTRS[name]}", __name__), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__, *_SUBMODULES})

@@ -20,32 +20,41 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
-import jax
-import numpy as np
 
-from . import __version__, io, plots
-from .connections import CARTAN_SCHOUTEN
-from .experiments import (
-    DEFAULT_BATCH_SIZE,
-    EXPERIMENTS,
-    SCHEMA,
-    SYSTEMS,
-    Failure,
-    get_experiment,
-    get_system,
-    montecarlo,
-    reproduce_all,
-)
-from .experiments._reproduce import INDEX_FILE
-from .filter import ORDERS, MinimumEnergyFilter
-from .metrics import FULL, angle_mask, continuous_angles, error_table, gain_stats, state_labels
+from . import __version__
 
-CONNECTIONS = tuple(CARTAN_SCHOUTEN)
+if TYPE_CHECKING:
+    import numpy as np
+
+# JAX, numpy, the experiments and the plots load inside the commands, so that `liemef --help` and `--version`
+# answer at once. The names the help texts and choices need are kept here instead; tests/test_cli_startup.py
+# pins them to their sources (EXPERIMENTS, SYSTEMS, CARTAN_SCHOUTEN, ORDERS, DEFAULT_BATCH_SIZE).
+EXPERIMENT_PAPERS = {
+    "attitude": "Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3",
+    "chaplygin": "Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6",
+    "tse2": "Rigo, Segala, Sansonetto, Muradore 2022, Sec. VI, Figs. 3-4",
+    "tse2-velocity": "Segala, Sansonetto, Muradore, poster 'Tracking and filtering on SE(2)'; setup of Rigo et al. "
+                     "2022",
+    "unit-circle": "Zamani, Hua, Trumpf, Mahony, 'Minimum-Energy Filtering on the Unit Circle Using Velocity "
+                   "Measurements with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3",
+}
+"""``liemef.experiments.EXPERIMENTS``: each experiment's name and paper, in the registry's order."""
+SYSTEM_NAMES = ("attitude", "chaplygin", "chaplygin-gps", "tse2", "tse2-velocity", "unit-circle")
+"""``sorted(liemef.experiments.SYSTEMS)``."""
+CONNECTIONS = ("minus", "zero", "plus")
+"""``tuple(liemef.connections.CARTAN_SCHOUTEN)``."""
+ORDERS = ("second", "first")
+"""``liemef.filter.ORDERS``."""
+DEFAULT_BATCH_SIZE = 8
+"""``liemef.experiments.DEFAULT_BATCH_SIZE``."""
 
 
 def _out_dir(out: Path) -> Path:
+    from . import io
+
     try:
         return io.ensure_dir(out)
     except ValueError as err:
@@ -55,6 +64,8 @@ def _out_dir(out: Path) -> Path:
 def _floats(text: str | None, n: int, option: str) -> np.ndarray | None:
     if text is None:
         return None
+    import numpy as np
+
     try:
         v = np.array([float(s) for s in text.replace(",", " ").split()])
     except ValueError as err:
@@ -73,7 +84,7 @@ def cli():
 
 
 def _experiments_help() -> str:
-    lines = "\n".join(f"  {e.name:<14} {e.paper}" for e in EXPERIMENTS.values())
+    lines = "\n".join(f"  {name:<14} {paper}" for name, paper in EXPERIMENT_PAPERS.items())
     return ("Run a paper EXPERIMENT and write metrics.json, arrays.npz, its figures and error tables to --out, "
             "then print the error table; with --runs N (or the experiment's default) also a Monte Carlo of N "
             "seeded trials (montecarlo.md/.csv/.json/.npz).\n\n"
@@ -135,6 +146,8 @@ def _config(exp, quick: bool, options: dict, settings: tuple[str, ...]):
 
 
 def _list_experiments() -> str:
+    from .experiments import EXPERIMENTS
+
     lines = []
     for e in EXPERIMENTS.values():
         lines += [f"{e.name}: {e.title}", f"    paper:   {e.paper}"]
@@ -156,7 +169,7 @@ def _echo_reproduction(rep) -> None:
 
 
 @cli.command(help=_experiments_help())
-@click.argument("experiment", required=False, type=click.Choice([*sorted(EXPERIMENTS), "all"]),
+@click.argument("experiment", required=False, type=click.Choice([*sorted(EXPERIMENT_PAPERS), "all"]),
                 metavar="EXPERIMENT|all")
 @click.option("--list", "list_", is_flag=True, help="List the experiments (paper, figures, tables) and exit.")
 @click.option("--out", type=click.Path(path_type=Path), help="Output folder (created if missing).")
@@ -183,6 +196,9 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
         raise click.UsageError("Missing argument 'EXPERIMENT|all' (or --list).")
     if out is None:
         raise click.UsageError("Missing option '--out'.")
+    from .experiments import Failure, get_experiment, reproduce_all
+    from .experiments._reproduce import INDEX_FILE
+
     options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
     if experiment == "all":
         given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
@@ -208,7 +224,7 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
 
 
 @cli.command("montecarlo")
-@click.argument("experiment", type=click.Choice(sorted(EXPERIMENTS)), metavar="EXPERIMENT")
+@click.argument("experiment", type=click.Choice(sorted(EXPERIMENT_PAPERS)), metavar="EXPERIMENT")
 @click.option("--runs", type=click.IntRange(min=1), default=100, show_default=True, help="Number of trials.")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Trial i uses jax.random.split(jax.random.key(seed), runs)[i].")
@@ -225,6 +241,8 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
 def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, settings, progress):
     """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
     and rms over time of each error component, then across trials their mean, spread and percentiles."""
+    from .experiments import EXPERIMENTS, get_experiment, montecarlo
+
     exp = get_experiment(experiment)
     if exp.trial_fn is None:
         with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
@@ -250,7 +268,7 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 
 @cli.command("run")
-@click.option("--system", "system_name", required=True, type=click.Choice(sorted(SYSTEMS)),
+@click.option("--system", "system_name", required=True, type=click.Choice(SYSTEM_NAMES),
               help="The model the log was recorded with.")
 @click.option("--log", "log_path", required=True, type=click.Path(path_type=Path),
               help="Recorded log: CSV with header t,u1..um,y1..yp or NPZ with ts, us, ys.")
@@ -265,6 +283,14 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 def run_log(system_name, log_path, out, x0, k0, k0_diag, connection, order, alpha):
     """Filter a recorded log with a ready system and write the estimates to --out."""
+    import jax
+    import numpy as np
+
+    from . import io, plots
+    from .experiments import SCHEMA, get_system
+    from .filter import MinimumEnergyFilter
+    from .metrics import FULL, angle_mask, continuous_angles, error_table, gain_stats, state_labels
+
     spec = get_system(system_name)
     system = spec.make()
     n, c = system.group.tangent_dim, system.group.coords_dim

@@ -1,0 +1,131 @@
+"""`liemef --help` starts without JAX, the lazy package keeps its public surface, and float64 is on in every path.
+
+The startup time itself is measured (``time liemef --help``), not asserted; these tests check its cause: which
+modules the help and version paths import.
+"""
+
+import subprocess
+import sys
+import sysconfig
+import textwrap
+from pathlib import Path
+
+import pytest
+
+import liemef
+from liemef import cli
+from liemef.connections import CARTAN_SCHOUTEN
+from liemef.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
+from liemef.filter import ORDERS
+
+HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.experiments", "liemef.plots", "liemef._config")
+COMMANDS = ("reproduce", "montecarlo", "run")
+HELP_ARGS = (["--help"], ["-h"], ["--version"], ["reproduce", "--help"], ["run", "--help"],
+             ["montecarlo", "--help"])
+
+
+def python(code: str) -> subprocess.CompletedProcess:
+    """``code`` in a fresh interpreter (no module of this process leaks into it)."""
+    res = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    return res
+
+
+def test_importing_the_cli_imports_no_jax():
+    res = python(f"""
+        import sys
+        import liemef.cli
+        print(sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib') or m in {HEAVY!r}))
+    """)
+    assert res.stdout.strip() == "[]"
+
+
+def test_help_and_version_answer_without_jax():
+    res = python(f"""
+        import sys
+        from liemef.cli import main
+        for argv in {HELP_ARGS!r}:
+            try:
+                main(argv)
+            except SystemExit as exit:
+                assert exit.code in (0, None), (argv, exit.code)
+            else:
+                raise AssertionError(f"{{argv}}: no SystemExit")
+        print("loaded:", sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib') or m in {HEAVY!r}))
+    """)
+    out = res.stdout
+    assert out.rstrip().endswith("loaded: []"), out
+    assert "liemef, version " + liemef.__version__ in out
+    for command in COMMANDS:
+        assert f"  {command} " in out
+    for name, paper in cli.EXPERIMENT_PAPERS.items():  # the reproduce help lists every experiment with its paper
+        assert f"  {name:<14} {paper.split(',')[0]}" in out
+    assert "[" + "|".join(cli.SYSTEM_NAMES) + "]" in out  # run --system's choices
+
+
+def _console_script() -> list[str]:
+    script = Path(sysconfig.get_path("scripts")) / "liemef"
+    return [str(script)] if script.is_file() else ["-c", "from liemef.cli import main; main()"]
+
+
+def test_the_console_script_lists_the_commands_without_importing_jax():
+    res = subprocess.run([sys.executable, "-X", "importtime", *_console_script(), "--help"], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "Usage: liemef [OPTIONS] COMMAND [ARGS]..." in res.stdout
+    for command in COMMANDS:
+        assert f"  {command} " in res.stdout
+    imported = [line.rpartition("|")[2].strip() for line in res.stderr.splitlines() if line.startswith("import time:")]
+    assert "liemef.cli" in imported
+    assert not [m for m in imported if m.split(".")[0] in ("jax", "jaxlib") or m in HEAVY]
+
+
+def test_the_static_names_of_the_cli_match_the_registries():
+    """The help texts and choices come from tables in cli.py, so that they need no JAX: they are the registries'.
+
+    A new experiment or system needs its row in ``liemef.cli.EXPERIMENT_PAPERS`` / ``SYSTEM_NAMES``; the message
+    prints the tables to paste.
+    """
+    papers = {e.name: e.paper for e in EXPERIMENTS.values()}
+    assert list(cli.EXPERIMENT_PAPERS.items()) == list(papers.items()), f"update cli.EXPERIMENT_PAPERS = {papers!r}"
+    assert cli.SYSTEM_NAMES == tuple(sorted(SYSTEMS)), f"update cli.SYSTEM_NAMES = {tuple(sorted(SYSTEMS))!r}"
+    assert cli.CONNECTIONS == tuple(CARTAN_SCHOUTEN)
+    assert cli.ORDERS == tuple(ORDERS)
+    assert cli.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
+    params = {cmd: {p.name: p for p in cli.cli.commands[cmd].params} for cmd in COMMANDS}
+    assert list(params["reproduce"]["experiment"].type.choices) == [*sorted(EXPERIMENTS), "all"]
+    assert list(params["montecarlo"]["experiment"].type.choices) == sorted(EXPERIMENTS)
+    assert list(params["run"]["system_name"].type.choices) == sorted(SYSTEMS)
+    assert params["montecarlo"]["batch_size"].default == DEFAULT_BATCH_SIZE
+
+
+def test_the_lazy_package_keeps_its_public_surface():
+    assert liemef.__all__ == ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection",
+                              "connection", "simulate", "SensorLog", "Truth", "groups", "systems", "connections",
+                              "simulation", "metrics"]
+    assert liemef.__version__ == "0.1.0"
+    namespace: dict = {}
+    exec("from liemef import *", namespace)  # noqa: S102
+    assert set(liemef.__all__) <= set(namespace) and set(liemef.__all__) <= set(dir(liemef))
+    assert namespace["MinimumEnergyFilter"].__module__ == "liemef.filter._filter"
+    assert namespace["groups"] is sys.modules["liemef.groups"]
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        liemef.nope  # noqa: B018
+
+
+@pytest.mark.parametrize("load", [
+    "import liemef.groups",  # a submodule alone: liemef/__init__.py runs first but imports nothing
+    "from liemef.groups import SO2",
+    "from liemef import MinimumEnergyFilter",  # through the package's __getattr__
+    "import liemef.experiments._systems",
+    "import jax; import liemef",  # JAX loaded first: float64 at once, as before
+])
+def test_float64_is_on_in_every_import_path(load):
+    res = python(f"""
+        {load}
+        import jax
+        import jax.numpy as jnp
+        from liemef.groups import SO2
+        print(jnp.ones(2).dtype, *{{leaf.dtype for leaf in jax.tree_util.tree_leaves(SO2.from_coords([0.3]))}})
+    """)
+    assert res.stdout.split() == ["float64", "float64"], res.stdout
