@@ -116,9 +116,9 @@ def test_run_filters_a_recorded_csv_log(recorded_csv, tmp_path):
     for name in ("estimates.csv", "metrics.json", "arrays.npz", "estimate.png"):
         assert (out / name).is_file(), name
     header = (out / "estimates.csv").read_text().splitlines()[0]
-    assert header == "t,theta,x,y,omega,vx,vy"
+    assert header == "t,theta,x,y,omega,vx,vy," + ",".join(f"K_e{k}e{k}" for k in range(6))
     est = np.loadtxt(out / "estimates.csv", delimiter=",", skiprows=1)
-    assert est.shape == (201, 7)
+    assert est.shape == (201, 13) and np.all(est[:, 7:] > 0)  # coordinates, then K's diagonal
     # the default initial estimate comes from the first sample (antennas' midpoint, heading, IMU)
     m = io.read_metrics(out / "metrics.json")
     assert m["config"]["K0_diag"] == [2.0] * 6
@@ -160,8 +160,10 @@ def test_run_with_a_ready_system_repeats_its_experiments_filter(system, experime
                  "--x0", x0, "--k0-diag", k0, "--alpha", alpha, "--connection", res.metrics["config"]["connection"])
     assert out.exit_code == 0, out.output
     est = np.loadtxt(tmp_path / "run" / "estimates.csv", delimiter=",", skiprows=1)
-    assert est.shape == (a["ts"].shape[0], 1 + a["filtered"].shape[1])
-    diff = est[:, 1:] - a["filtered"]
+    c = a["filtered"].shape[1]
+    assert est.shape == (a["ts"].shape[0], 1 + c + a["K_diag"].shape[1])  # t, coordinates, K's diagonal
+    np.testing.assert_allclose(est[:, 1 + c:], a["K_diag"], rtol=1e-9, atol=1e-12)
+    diff = est[:, 1:1 + c] - a["filtered"]
     angles = [n in ("theta",) for n in a["names"]]
     diff[:, angles] = (diff[:, angles] + np.pi) % (2 * np.pi) - np.pi  # filtered angles are unwrapped
     assert np.abs(diff).max() < 1e-9, np.abs(diff).max(axis=0)

@@ -10,8 +10,11 @@
 * ``liemef montecarlo EXPERIMENT --runs N [--seed S] [--batch-size B] [--out DIR] [--duration T]
   [--set KEY=VALUE ...]``: N seeded trials batched with ``vmap``; prints the statistics table and, with
   ``--out``, writes ``montecarlo.{npz,json,md,csv}``.
-* ``liemef run --system NAME --log FILE --out DIR``: filter a recorded log (CSV or NPZ, see
-  :mod:`liemef.io`) and write the estimates (``estimates.csv``, ``arrays.npz``, ``metrics.json``, a figure).
+* ``liemef run --system NAME|--system-file FILE.py --log FILE --out DIR``: filter a recorded log (CSV or
+  NPZ, see :mod:`liemef.io`) and write the estimates with K's diagonal (``estimates.csv``), the innovations
+  (``innovations.csv``), ``arrays.npz``, ``metrics.json`` and a figure; a failed run writes only
+  ``failure.json`` and exits with status 1.
+* ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 """
 
 from __future__ import annotations
@@ -267,86 +270,256 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
         click.echo(f"Wrote {', '.join(p.name for p in written)} to {d}")
 
 
+def _resolve_system(system_name, system_file):
+    """The system and what the command needs to start it: (system, label, description, measured_fn or None,
+    user file or None)."""
+    from . import _system_file
+    from .experiments import get_system
+
+    if (system_name is None) == (system_file is None):
+        raise click.UsageError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py "
+                               f"(your own), got {'both' if system_name else 'neither'}")
+    if system_name is not None:
+        spec = get_system(system_name)
+        return spec.make(), spec.name, spec.description, spec.measured, None
+    try:
+        user = _system_file.load_system_file(system_file)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'--system-file'") from err
+    return user.system, system_file.stem, f"user system from {system_file}", None, user
+
+
+def _first_present(ys) -> np.ndarray:
+    """Each measurement component's first present (finite) value, NaN where a component never has one."""
+    import numpy as np
+
+    ok = np.isfinite(ys)
+    first = np.argmax(ok, axis=0)
+    return np.where(ok.any(axis=0), ys[first, np.arange(ys.shape[1])], np.nan)
+
+
+def _run_chunked(flt, state, log, gap, chunk, progress):
+    """``flt.run`` over the log in chunks of ``chunk`` intervals (one compilation per chunk length), each
+    continuing from the previous chunk's final state, with a progress line; stops at the first failure."""
+    import time
+    import warnings
+
+    import jax
+    import jax.numpy as jnp
+
+    from .experiments import ProgressLine
+    from .filter import LogGapWarning, Trajectory
+
+    N = log.ts.shape[0]
+    show = ProgressLine("filtering (samples)") if progress and N - 1 > chunk else None
+    pieces, start, t0 = [], 0, time.perf_counter()
+    while start < N - 1:
+        stop = min(start + chunk, N - 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LogGapWarning)  # said once, from the final status
+            traj = flt.run(state, log.ts[start:stop + 1], log.us[start:stop + 1], log.ys[start:stop + 1], gap=gap)
+        pieces.append(traj if start == 0 else jax.tree_util.tree_map(lambda a: a[1:], (traj.g_hat, traj.K)))
+        state, start = traj.final, stop
+        if show is not None:
+            elapsed = time.perf_counter() - t0
+            show(stop + 1, N, elapsed, elapsed / (stop + 1) * (N - stop - 1))
+        if not traj.status.code == 0:
+            break
+    if len(pieces) == 1:
+        return pieces[0]
+    first = pieces[0]
+    parts = [(first.g_hat, first.K)] + pieces[1:]
+    g_hat, K = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
+    n = K.shape[0]
+    if n < N:  # stopped at a failure: the rest of the log has no estimate
+        g_hat = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.full((N - n,) + a.shape[1:], jnp.nan)]),
+                                       g_hat)
+        K = jnp.concatenate([K, jnp.full((N - n,) + K.shape[1:], jnp.nan)])
+    return Trajectory(ts=jnp.asarray(log.ts), g_hat=g_hat, K=K, status=traj.status, final=traj.final)
+
+
+def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
+    """Mean, std and rms of each innovation component over its present samples (NaN = no sample)."""
+    import numpy as np
+
+    from .metrics._stats import format_number, json_number
+
+    rows, out = [], {}
+    for j, name in enumerate(names):
+        v = innov[:, j][np.isfinite(innov[:, j])]
+        stats = {"count": int(v.size), "mean": float(v.mean()) if v.size else math.nan,
+                 "std": float(v.std(ddof=1)) if v.size > 1 else math.nan,
+                 "rms": float(np.sqrt(np.mean(v ** 2))) if v.size else math.nan}
+        out[name] = {"unit": units[j], **{k: json_number(x) for k, x in stats.items()}}
+        rows.append(f"  {name:<12} {units[j]:<7} {stats['count']:>8d} " + " ".join(
+            f"{format_number(stats[k]):>12}" for k in ("mean", "std", "rms")))
+    head = f"  {'component':<12} {'unit':<7} {'samples':>8} {'mean':>12} {'std':>12} {'rms':>12}"
+    return "\n".join([head, *rows]), out
+
+
 @cli.command("run")
-@click.option("--system", "system_name", required=True, type=click.Choice(SYSTEM_NAMES),
-              help="The model the log was recorded with.")
+@click.option("--system", "system_name", type=click.Choice(SYSTEM_NAMES),
+              help="A ready system the log was recorded with (or --system-file).")
+@click.option("--system-file", type=click.Path(path_type=Path),
+              help="A Python file that defines `system` (your own liemef system) and optionally K0, x0, "
+                   "initial_guess(y0).")
 @click.option("--log", "log_path", required=True, type=click.Path(path_type=Path),
-              help="Recorded log: CSV with header t,u1..um,y1..yp or NPZ with ts, us, ys.")
+              help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
+                   "missing sample) or NPZ with ts, us, ys (or one time vector per sensor).")
 @click.option("--out", required=True, type=click.Path(path_type=Path),
               help="Output folder (created if missing).")
-@click.option("--x0", help="Initial estimate in coordinates, comma separated (default: from the first "
-              "sample).")
-@click.option("--k0", type=float, default=1.0, show_default=True, help="Initial gain K(0) = k0 * I.")
+@click.option("--x0", help="Initial estimate in coordinates, comma separated (default: the system file's x0, "
+              "else read off the first present measurements).")
+@click.option("--k0", type=float, help="Initial gain K(0) = k0 * I (default: the system file's K0, else 1).")
 @click.option("--k0-diag", help="Initial gain K(0) = diag(...), comma separated (overrides --k0).")
 @click.option("--connection", type=click.Choice(CONNECTIONS), default="zero", show_default=True)
 @click.option("--order", type=click.Choice(ORDERS), default="second", show_default=True)
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
-def run_log(system_name, log_path, out, x0, k0, k0_diag, connection, order, alpha):
-    """Filter a recorded log with a ready system and write the estimates to --out."""
+@click.option("--interpolation", type=click.Choice(("hold", "linear")), default="hold", show_default=True,
+              help="Inputs and dense measurements held over each interval, or linear between samples.")
+@click.option("--substeps", default="auto", show_default=True,
+              help="Integrator steps per sample interval: auto (by stiffness) or a number.")
+@click.option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
+              "measurements not held (default: 10 x the median interval).")
+@click.option("--chunk", type=click.IntRange(min=16), default=65536, show_default=True,
+              help="Samples per compiled chunk (progress is shown between chunks).")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Progress on stderr.")
+def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection, order, alpha, interpolation,
+            substeps, gap, chunk, progress):
+    """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
+    innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
+    only failure.json, says where, when and why, and exits with status 1."""
     import jax
     import numpy as np
 
     from . import io, plots
-    from .experiments import SCHEMA, get_system
-    from .filter import MinimumEnergyFilter
-    from .metrics import FULL, angle_mask, continuous_angles, error_table, gain_stats, state_labels
+    from .experiments import SCHEMA
+    from .filter import CAUSES, MinimumEnergyFilter
+    from .metrics import angle_mask, continuous_angles, gain_stats, state_labels
 
-    spec = get_system(system_name)
-    system = spec.make()
+    system, label, description, measured, user = _resolve_system(system_name, system_file)
     n, c = system.group.tangent_dim, system.group.coords_dim
     try:
-        log = io.read_log(log_path, system.input_dim, system.output_dim)
+        log = io.read_log(log_path, system)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="'--log'") from err
+    if substeps != "auto":
+        try:
+            substeps = int(substeps)
+        except ValueError as err:
+            raise click.BadParameter(f"expected 'auto' or an integer >= 1, got {substeps!r}",
+                                     param_hint="'--substeps'") from err
+    y_first = _first_present(log.ys)
     q0 = _floats(x0, c, "'--x0'")
-    q0 = spec.initial_guess(log.ys[0]) if q0 is None else q0
-    K0 = np.diag(_floats(k0_diag, n, "'--k0-diag'")) if k0_diag is not None else k0 * np.eye(n)
-    if not (math.isfinite(k0) and k0 >= 0):
+    if q0 is None and user is not None:
+        q0 = user.x0 if user.x0 is not None else (
+            np.asarray(user.initial_guess(y_first), dtype=np.float64) if user.initial_guess else np.zeros(c))
+    if q0 is None:
+        q = measured(y_first[None, :])[0]
+        q0 = np.where(np.isfinite(q), q, 0.0)
+    if k0 is not None and not (math.isfinite(k0) and k0 >= 0):
         raise click.BadParameter(f"expected a number >= 0, got {k0}", param_hint="'--k0'")
+    if k0_diag is not None:
+        K0 = np.diag(_floats(k0_diag, n, "'--k0-diag'"))
+    elif k0 is not None:
+        K0 = k0 * np.eye(n)
+    else:
+        K0 = user.K0 if user is not None and user.K0 is not None else np.eye(n)
     d = _out_dir(out)
     try:
-        flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha)
+        flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha,
+                                  interpolation=interpolation, substeps=substeps)
         state = flt.init(system.group.from_coords(q0), K0)
-        traj = flt.run(state, log.ts, log.us, log.ys)
+        if gap is None:
+            gap = 10.0 * float(np.median(np.diff(log.ts)))
+        traj = _run_chunked(flt, state, log, gap, chunk, progress)
     except ValueError as err:
         raise click.UsageError(str(err)) from err
 
+    status = traj.status
+    blocks = [b.name for b in system.blocks()]
+    report = status.as_dict(blocks)
+    click.echo(f"Filtered {log.ts.shape[0]} samples of {log_path} with {label} ({repr(flt)})")
+    rejected = {k: v for k, v in report["rejected"].items() if v}
+    if rejected:
+        click.echo("Gate rejected samples: " + ", ".join(f"{k} {v}" for k, v in rejected.items()))
+    if report["gaps"]:
+        click.echo(f"WARNING: {report['gaps']} interval(s) longer than the gap threshold {gap:.4g} s (longest "
+                   f"{report['longest_gap']:.4g} s) were predicted through", err=True)
+    if report["inputs_held"]:
+        click.echo(f"WARNING: {report['inputs_held']} input sample(s) were missing; the previous input was held",
+                   err=True)
+    if not status.ok:
+        k = int(status.index)
+        last = np.asarray(traj.final.g_hat.coords())
+        names, _ = state_labels(system)
+        failure = {"schema": SCHEMA, "status": report, "message": status.message(log.ts),
+                   "last_good_state": {"sample": k, "t": float(log.ts[k]),
+                                       "coords": dict(zip(names, map(float, last), strict=True)),
+                                       "K_diag": [float(v) for v in np.diagonal(np.asarray(traj.final.K))]},
+                   "log": str(log_path), "filter": repr(flt), "liemef_version": __version__}
+        io.write_json(d / "failure.json", failure)
+        raise click.ClickException(f"{status.message(log.ts)} (cause: {CAUSES[int(status.code)]}). No estimates "
+                                   f"were written; see {d / 'failure.json'}")
+
     names, units = state_labels(system)
     angles = angle_mask(system.group)
-    filt = continuous_angles(traj.coords(), angles)
-    meas = continuous_angles(spec.measured(log.ys), angles, reference=filt)
+    coords = np.asarray(traj.coords())
+    filt = continuous_angles(coords, angles)
     K = np.asarray(traj.K)
+    K_diag = np.diagonal(K, axis1=1, axis2=2)
     innov = np.asarray(log.ys - jax.vmap(system.output)(traj.g_hat, log.ts))
-    onames = system.output_names
-    table = error_table(log.ts, innov, onames, system.output_units, (FULL,))
+    onames, ounits = system.output_names, system.output_units
+    table_text, table = _innovation_table(log.ts, innov, onames, ounits)
+    comps = [f"e{k}" for k in range(n)]
     figures = [{"file": "estimate.png", "components": list(names),
-                "title": f"{spec.name}: measured (blue), filtered (green) from {log_path.name}"}]
+                "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) from "
+                         f"{log_path.name}"}]
     metrics = {
         "schema": SCHEMA,
-        "system": {"name": spec.name, "description": spec.description, "filter": repr(flt)},
+        "system": {"name": label, "description": description, "filter": repr(flt)},
         "log": {"file": str(log_path), "samples": int(log.ts.shape[0]), "t0": float(log.ts[0]),
                 "t1": float(log.ts[-1])},
         "config": {"x0": [float(v) for v in q0], "K0_diag": [float(v) for v in np.diagonal(K0)],
-                   "connection": connection, "order": order, "alpha": alpha},
-        "innovation": {"definition": "y - h(g_hat) at each sample (before the update of that sample)",
-                       "components": table.to_dict()},
+                   "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
+                   "substeps": substeps, "gap": gap},
+        "innovation": {"definition": "y - h(g_hat) at each present sample (before the update of that sample)",
+                       "components": table},
         "gain": gain_stats(K),
-        "run": {"finite": bool(traj.finite), "liemef_version": __version__},
+        "status": report,
+        "run": {"finite": True, "liemef_version": __version__},
         "figures": figures,
     }
     arrays = {"ts": log.ts, "names": np.array(names), "units": np.array(units), "filtered": filt,
-              "measured": meas, "K_diag": np.diagonal(K, axis1=1, axis2=2), "us": log.us, "ys": log.ys,
-              "innovation": innov, "output_names": np.array(onames)}
-    io.write_csv(d / "estimates.csv", ["t", *names], [log.ts, *np.asarray(traj.coords()).T])
+              "K_diag": K_diag, "us": log.us, "ys": log.ys, "innovation": innov, "output_names": np.array(onames)}
+    if measured is not None:
+        arrays["measured"] = continuous_angles(measured(log.ys), angles, reference=filt)
+    io.write_csv(d / "estimates.csv", ["t", *names, *(f"K_{e}{e}" for e in comps)],
+                 [log.ts, *coords.T, *K_diag.T])
+    io.write_rows(d / "innovations.csv", ["t", *onames],  # an empty field: no sample, hence no innovation
+                  [[float(t), *("" if math.isnan(v) else float(v) for v in row)] for t, row in zip(log.ts, innov,
+                                                                                                    strict=True)])
     io.write_result(d, metrics, arrays)
     figs = plots.write_figures(d)
-    click.echo(f"Filtered {log.ts.shape[0]} samples of {log_path} with {spec.name} ({repr(flt)})")
-    click.echo("Innovation y - h(g_hat):")
-    click.echo(table.format())
-    if not traj.finite:
-        click.echo("WARNING: the filter produced non-finite values (diverged)", err=True)
-    click.echo(f"Wrote estimates.csv, {io.METRICS_FILE}, {io.ARRAYS_FILE}, "
-               f"{', '.join(p.name for p in figs)} to {d}")
+    click.echo("Innovation y - h(g_hat) over the present samples:")
+    click.echo(table_text)
+    click.echo(f"Sub-steps: {report['substeps_total']} over {report['steps']} intervals (at most "
+               f"{report['substeps_max']} in one)")
+    click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
+               f"{io.ARRAYS_FILE}, {', '.join(p.name for p in figs)} to {d}")
+
+
+@cli.command("schema")
+@click.argument("system_name", required=False, type=click.Choice(SYSTEM_NAMES), metavar="SYSTEM")
+@click.option("--system-file", type=click.Path(path_type=Path), help="A Python file that defines `system`.")
+def schema(system_name, system_file):
+    """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
+    sensors' noise levels, and the CSV header that `liemef run` expects."""
+    from ._system_file import format_schema
+
+    system, label, description, _, _ = _resolve_system(system_name, system_file)
+    click.echo(f"{label}: {description}")
+    click.echo(format_schema(system))
 
 
 def main(argv: list[str] | None = None) -> None:

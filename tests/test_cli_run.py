@@ -1,0 +1,91 @@
+"""`liemef run` on real-log shapes: missing samples, a user's system file, gates, failures as a non-zero exit
+with nothing written as if it had worked, and `liemef schema`."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from liemef import io
+from liemef.cli import cli
+from liemef.systems import planar_localization
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def localization_log(path, outlier=False, N=1000):
+    """A circle at 0.785 m/s with 100 Hz odometry and 1 Hz GPS (empty fields elsewhere)."""
+    rng = np.random.RandomState(0)
+    dt, v, w = 0.01, 2 * np.pi * 5 / 40, 2 * np.pi / 40
+    th = np.arange(N) * w * dt
+    p = np.concatenate([[[0.0, 0.0]], np.cumsum(v * dt * np.column_stack([np.cos(th), np.sin(th)]), axis=0)[:-1]])
+    us = np.column_stack([v + 0.01 * rng.randn(N), 0.01 * rng.randn(N), w + np.pi / 180 * rng.randn(N)])
+    ys = np.full((N, 2), np.nan)
+    idx = np.arange(100, N, 100)
+    ys[idx] = p[idx] + rng.randn(len(idx), 2)
+    if outlier:
+        ys[500] = [1e4, 0.0]
+    io.write_log(path, planar_localization(), np.arange(N) * dt, us, ys)
+    return np.arange(N) * dt, p, th
+
+
+@pytest.fixture(scope="module")
+def user_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("run")
+    ts, p, th = localization_log(d / "log.csv", outlier=True)
+    (d / "my_system.py").write_text("from liemef.systems import planar_localization\n"
+                                    "system = planar_localization(gate=0.999)\nK0 = [0.01, 0.0, 0.0]\n")
+    res = invoke("run", "--system-file", d / "my_system.py", "--log", d / "log.csv", "--out", d / "out",
+                 "--no-progress")
+    return d, res, ts, p, th
+
+
+def test_run_with_a_system_file_a_sparse_sensor_and_a_gate(user_run):
+    d, res, ts, p, th = user_run
+    assert res.exit_code == 0, res.output
+    assert "Gate rejected samples: gps 1" in res.output
+    rows = io.read_arrays(d / "out" / "arrays.npz")
+    est = np.loadtxt(d / "out" / "estimates.csv", delimiter=",", skiprows=1)
+    header = (d / "out" / "estimates.csv").read_text().splitlines()[0]
+    assert header == "t,theta,x,y,K_e0e0,K_e1e1,K_e2e2"
+    assert np.isfinite(est).all()
+    assert np.max(np.linalg.norm(est[:, 2:4] - p, axis=1)) < 1.0  # the 1e4 m outlier was rejected
+    innov = (d / "out" / "innovations.csv").read_text().splitlines()
+    assert innov[1] == "0.0,," and innov[0] == "t,gps_x,gps_y"  # no GPS at t = 0: no innovation
+    assert np.isfinite(rows["innovation"][100]).all()
+    metrics = json.loads((d / "out" / "metrics.json").read_text())
+    assert metrics["status"]["ok"] and metrics["status"]["rejected"] == {"gps": 1}
+    assert metrics["innovation"]["components"]["gps_x"]["count"] == 9
+
+
+def test_a_failed_run_exits_non_zero_and_writes_only_the_failure(tmp_path):
+    localization_log(tmp_path / "log.csv", N=300)
+    res = invoke("run", "--system-file", tmp_path / "none.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o")
+    assert res.exit_code != 0 and "--system-file" in res.output and "not found" in res.output
+    (tmp_path / "s.py").write_text("from liemef.systems import planar_localization\nsystem = planar_localization()\n")
+    # K0 = 1e4 with one explicit step per interval: the first GPS fix makes K indefinite
+    res = invoke("run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--k0", 1e4, "--substeps", 1, "--no-progress")
+    assert res.exit_code == 1
+    assert "filter failed over the sample interval 100 ([1, 1.01] s)" in res.output
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["failure.json"]
+    failure = json.loads((tmp_path / "o" / "failure.json").read_text())
+    assert failure["status"]["index"] == 100 and failure["last_good_state"]["sample"] == 100
+    assert all(np.isfinite(list(failure["last_good_state"]["coords"].values())))
+    # the same run with automatic sub-steps copes
+    res = invoke("run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o2",
+                 "--k0", 1e4, "--no-progress")
+    assert res.exit_code == 0, res.output
+
+
+def test_schema_and_system_choice_errors(tmp_path):
+    res = invoke("schema", "tse2")
+    assert res.exit_code == 0 and "CSV header: t,u1,u2,x1,y1,x2,y2,omega,vx,vy" in res.output
+    (tmp_path / "s.py").write_text("from liemef.systems import planar_localization\nsystem = planar_localization()\n")
+    res = invoke("schema", "--system-file", tmp_path / "s.py")
+    assert "gps_x   m      sensor gps  std 1 m per sample" in res.output
+    res = invoke("run", "--system", "tse2", "--system-file", tmp_path / "s.py", "--log", "x.csv", "--out", tmp_path)
+    assert res.exit_code != 0 and "expected exactly one of --system NAME" in res.output
