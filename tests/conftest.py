@@ -1,1 +1,1 @@
-import liemef  # noqa: F401  (enables float64 before any test creates an array)
+import liemef._config  # noqa: F401  (switches JAX to float64 before any test creates an array)
