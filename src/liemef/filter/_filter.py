@@ -305,18 +305,19 @@ class MinimumEnergyFilter(eqx.Module):
                                            (g1, K1))
 
         code = self._health(g1, K1, consecutive)
-        failed_before = st.code != OK
-        keep = failed_before | (code != OK)
-        new_fail = ~failed_before & (code != OK)
-        g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), g, g1)
-        K_out = jnp.where(keep, K, K1)
+        new_fail = code != OK
+        g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), g, g1)
+        K_out = jnp.where(new_fail, K, K1)
         status = Status(
-            code=jnp.where(failed_before, st.code, code), index=jnp.where(new_fail, st.steps, st.index),
-            time=jnp.where(new_fail, t, st.time), steps=st.steps + 1, rejected=rejected, consecutive=consecutive,
+            code=code, index=jnp.where(new_fail, st.steps, st.index), time=jnp.where(new_fail, t, st.time),
+            steps=st.steps + 1, rejected=rejected, consecutive=consecutive,
             substeps_max=jnp.maximum(st.substeps_max, n_sub), substeps_total=st.substeps_total + n_sub,
             substeps_capped=st.substeps_capped + capped, gaps=st.gaps + is_gap,
             longest_gap=jnp.maximum(st.longest_gap, dt), inputs_held=st.inputs_held + jnp.any(~u_ok))
-        return FilterState(g_hat=g_out, K=K_out, u_last=u0, status=status)
+        out = FilterState(g_hat=g_out, K=K_out, u_last=jnp.where(new_fail, state.u_last, u0), status=status)
+        # A failed state is final: later intervals leave all of it unchanged (estimate, gain, held input and the
+        # status with its counters, which describe the run up to and including the failing interval).
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != OK, a, b), state, out)
 
     def _sensor_scale(self, g, K, t, dt, y0, mask, Wy, st):
         """Per-component weight factors from the sensors' gates, robust losses and time-varying weights, and
