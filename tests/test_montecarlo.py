@@ -6,6 +6,7 @@ import json
 import math
 from dataclasses import dataclass
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -20,9 +21,11 @@ from liemef.experiments import (
     TrialSpec,
     get_experiment,
     montecarlo,
+    trial_cause,
     trial_keys,
     tse2,
 )
+from liemef.filter import Status
 from liemef.metrics import FULL, Window, error_stats
 from tolerances import ROUNDOFF
 
@@ -315,3 +318,115 @@ def test_experiment_reduced_size_fields():
         exp.quick(duration=1.0)
     with pytest.raises(ValueError, match="quick_runs: expected an integer >= 0, got -1"):
         Experiment(name="x", title="", paper="", default_config=ToyConfig(), run_fn=_no_run, quick_runs=-1)
+
+
+# --- diverged trials by cause (the filter status beside the errors) -----------------------------------------
+@dataclass(frozen=True)
+class StatusConfig:
+    seed: int = 0
+    samples: int = 11
+
+
+def status_errors(config: StatusConfig, key):
+    """Finite errors; a status code per trial: 0 (ok), 3 (K not positive definite, errors still finite) or 1
+    with a NaN in the errors (non-finite)."""
+    k1, k2 = jax.random.split(key)
+    e = 1.0 + jax.random.normal(k1, (config.samples, 2))
+    u = jax.random.uniform(k2)
+    code = jnp.where(u < 0.2, 3, jnp.where(u < 0.3, 1, 0)).astype(jnp.int32)
+    return e.at[-1, 1].set(jnp.where(code == 1, jnp.nan, e[-1, 1])), code
+
+
+def status_trial(config: StatusConfig) -> TrialSpec:
+    return TrialSpec(ts=np.linspace(0.0, 1.0, config.samples), names=("a", "b"), units=("m", "m"), windows=(FULL,),
+                     errors=lambda key: status_errors(config, key))
+
+
+STATUS = Experiment(name="status-toy", title="Toy with a status", paper="none", default_config=StatusConfig(),
+                    run_fn=_no_run, trial_fn=status_trial)
+
+
+def test_a_failed_status_counts_as_diverged_even_with_finite_errors():
+    runs = 40
+    mc = montecarlo(STATUS, runs=runs, seed=2, batch_size=16, progress=False)
+    codes = np.array([int(status_errors(StatusConfig(), k)[1]) for k in trial_keys(2, runs)])
+    assert {0, 1, 3} <= set(codes.tolist())
+    np.testing.assert_array_equal(mc.causes, codes)
+    np.testing.assert_array_equal(mc.finite, codes == 0)
+    assert np.isfinite(mc.stats[codes == 3]).all()  # finite errors, yet left out
+    good = codes == 0
+    np.testing.assert_allclose(mc.mean, mc.stats[good].mean(axis=0), rtol=ROUNDOFF)
+    n1, n3 = int(np.sum(codes == 1)), int(np.sum(codes == 3))
+    assert mc.diverged() == {"non-finite": n1, "K not positive definite": n3}
+    summary = f"{n1 + n3} of {runs} diverged: non-finite {n1}, K not positive definite {n3}"
+    assert mc.divergence_summary() == summary
+    text = mc.format()
+    assert summary in text and f"{n1 + n3} diverged (left out: trials" in text
+    assert f"{summary.capitalize()}." in mc.to_markdown()
+
+
+def test_trial_cause_prefers_the_status_and_falls_back_to_the_errors():
+    ok, nan = jnp.ones((3, 2)), jnp.ones((3, 2)).at[1, 0].set(jnp.nan)
+    assert int(trial_cause(ok)) == 0 and int(trial_cause(nan)) == 1
+    assert int(trial_cause(ok, jnp.asarray(4))) == 4 and int(trial_cause(nan, jnp.asarray(3))) == 3
+    assert int(trial_cause(nan, jnp.asarray(0))) == 1
+    st = Status.initial(1)
+    assert int(trial_cause(ok, st)) == 0
+    assert int(trial_cause(ok, eqx.tree_at(lambda s: s.code, st, jnp.asarray(2, jnp.int32)))) == 2
+
+
+def test_causes_survive_save_and_load_and_older_files_derive_them(tmp_path):
+    mc = montecarlo(STATUS, runs=30, seed=2, batch_size=30, progress=False)
+    mc.save(tmp_path)
+    back = MonteCarloResult.load(tmp_path)
+    np.testing.assert_array_equal(back.causes, mc.causes)
+    assert back.divergence_summary() == mc.divergence_summary()
+    meta = json.loads((tmp_path / "montecarlo.json").read_text())
+    assert meta["diverged"]["count"] == mc.n_nonfinite and meta["diverged"]["by_cause"] == mc.diverged()
+    assert meta["diverged"]["trials"]["K not positive definite"] == [int(i) for i in np.flatnonzero(mc.causes == 3)]
+    assert meta["nonfinite"]["count"] == mc.n_nonfinite  # the older key, kept
+    # a result without causes (an older file): every trial not finite is "non-finite"
+    old = known_result(np.arange(50) % 7 != 0)
+    assert old.diverged() == {"non-finite": 8} and old.divergence_summary() == "8 of 50 diverged: non-finite 8"
+    assert "8 non-finite (left out: trials 0, 7" in old.format()
+    with pytest.raises(ValueError, match="causes: expected code 0 \\(ok\\) exactly for the finite trials"):
+        MonteCarloResult(experiment="x", config={}, seed=0, names=("a",), units=("m",), windows=(FULL,), counts=(1,),
+                         stats=np.zeros((2, 1, 1, 3)), finite=np.array([True, False]), causes=np.array([0, 0]))
+
+
+def test_bad_status_shape_is_a_value_error():
+    def with_float_status(config):
+        spec = toy_trial(config)
+        return TrialSpec(spec.ts, spec.names, spec.units, spec.windows, lambda key: (spec.errors(key), 0.5))
+
+    bad = Experiment(name="bad-status", title="", paper="", default_config=ToyConfig(), run_fn=_no_run,
+                     trial_fn=with_float_status)
+    with pytest.raises(ValueError, match="expected the status of errors\\(key\\) to be a Status or its integer code"):
+        montecarlo(bad, runs=2)
+
+
+def test_series_and_bands_across_trials_over_time(tmp_path):
+    c = ToyConfig(samples=21, nan_fraction=0.3)
+    mc = montecarlo(TOY, c, runs=12, seed=5, batch_size=5, progress=False, keep_every=4)
+    keys = trial_keys(5, 12)
+    full = np.stack([np.asarray(toy_errors(c, k)) for k in keys])
+    np.testing.assert_allclose(mc.series, full[:, ::4], rtol=ROUNDOFF, atol=ROUNDOFF)
+    np.testing.assert_array_equal(mc.series_ts, np.linspace(0.0, 1.0, 21)[::4])
+    b = mc.bands((5, 50, 95), absolute=True)
+    np.testing.assert_allclose(b, np.percentile(np.abs(full[mc.finite][:, ::4]), [5, 50, 95], axis=0), rtol=ROUNDOFF)
+    # the same statistics as without the series
+    np.testing.assert_array_equal(mc.stats, montecarlo(TOY, c, runs=12, seed=5, batch_size=5, progress=False).stats)
+    mc.save(tmp_path)
+    back = MonteCarloResult.load(tmp_path)
+    np.testing.assert_array_equal(back.series, mc.series)
+    with pytest.raises(ValueError, match="series: this result kept no errors over time"):
+        known_result().bands()
+
+
+def test_tse2_trials_return_their_filter_status():
+    exp = get_experiment("tse2")
+    config = exp.config(duration=12.0)  # as in the first test: the compiled function is reused
+    mc = montecarlo(exp, config, runs=4, seed=0, batch_size=2, progress=False)
+    assert np.all(mc.causes == 0) and mc.divergence_summary() == "none of 4 diverged"
+    out = jax.eval_shape(tse2.trial_spec(config).errors, jax.random.key(0))
+    assert isinstance(out, tuple) and out[0].shape == (12001, 6) and isinstance(out[1], Status)

@@ -5,8 +5,9 @@
 systems that ``liemef run`` filters recorded logs with.
 
 Registered: ``tse2`` (Rigo et al. 2022, Sec. VI, Figs. 3-4), ``tse2-velocity`` (Segala poster),
-``attitude`` (Saccon et al. 2016, Fig. 3), ``chaplygin`` (Rigo et al. 2023, Tables 1-2, Figs. 3-6) and
-``unit-circle`` (Zamani et al., Figs. 2-3); ``liemef reproduce --list`` lists them.
+``attitude`` (Saccon et al. 2016, Fig. 3), ``chaplygin`` (Rigo et al. 2023, Tables 1-2, Figs. 3-6),
+``localization`` (the ukfm 2D localization benchmark) and ``unit-circle`` (Zamani et al., Figs. 2-3);
+``liemef reproduce --list`` lists them.
 
 Monte Carlo: :func:`montecarlo` runs N seeded trials of any experiment with a ``trial_fn`` (``vmap`` over
 split keys) into a :class:`MonteCarloResult` (statistics per trial, then across trials; tables; npz + json).
@@ -14,7 +15,7 @@ Reproduction: :meth:`Experiment.reproduce` writes an experiment's folder (:func:
 experiment has its own ``reproduce_fn``), :func:`reproduce_all` every experiment plus ``index.md``.
 """
 
-from . import attitude, chaplygin, tse2, unit_circle
+from . import attitude, chaplygin, localization, tse2, unit_circle
 from ._base import (
     EXPERIMENTS,
     SCHEMA,
@@ -36,6 +37,7 @@ from ._montecarlo import (
     MonteCarloResult,
     ProgressLine,
     montecarlo,
+    trial_cause,
     trial_keys,
     trial_statistics,
 )
@@ -44,6 +46,6 @@ from ._systems import SYSTEMS, SystemSpec, get_system
 
 __all__ = ["EXPERIMENTS", "Experiment", "FigureSpec", "Result", "TrialSpec", "SCHEMA", "get_experiment", "register",
            "config_dict", "evaluate", "SYSTEMS", "SystemSpec", "get_system", "tse2", "attitude", "unit_circle",
-           "chaplygin", "montecarlo", "MonteCarloResult", "trial_keys", "trial_statistics", "ProgressLine", "STATS",
-           "PERCENTILES", "DEFAULT_BATCH_SIZE", "Output", "Reproduction", "default_reproduce", "reproduce_all",
-           "write_index", "Failure"]
+           "chaplygin", "localization", "montecarlo", "MonteCarloResult", "trial_keys", "trial_statistics",
+           "trial_cause", "ProgressLine", "STATS", "PERCENTILES", "DEFAULT_BATCH_SIZE", "Output", "Reproduction",
+           "default_reproduce", "reproduce_all", "write_index", "Failure"]

@@ -10,8 +10,12 @@ published number falls in it (DESIGN.md §3). :func:`montecarlo` runs ``runs`` t
   to the same size so nothing recompiles; each trial is reduced inside the compiled function to its
   statistics over time in each window (:func:`liemef.metrics.error_stats`: mean, std, rms per component), so
   memory grows with ``runs`` x windows x components, not with the number of samples;
-* a trial whose errors are not all finite (a diverged filter) is flagged in ``finite`` and left out of every
-  statistic across trials; the count is reported.
+* a trial may return, besides its errors, its filter's status (``errors(key) -> (errors, status)``, a
+  :class:`~liemef.filter.Status` or its ``code``); a trial diverged when its status failed or, without a
+  status or beside it, when its errors are not all finite. A diverged trial is flagged in ``finite``, its
+  cause recorded in ``causes`` (an index in :data:`~liemef.filter.CAUSES`: ``"non-finite"``, ``"K not
+  positive definite"``, ...), and it is left out of every statistic across trials; the counts by cause are
+  reported (:meth:`MonteCarloResult.divergence_summary`).
 
 Across the finite trials, :class:`MonteCarloResult` gives for every (window, component, per-trial statistic)
 the mean, the spread (sample std across trials, ddof = 1) and the percentiles 5, 25, 50, 75, 95 (linear
@@ -35,9 +39,11 @@ from typing import Any, TextIO
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Float, Int
 
 from .. import __version__, io
+from ..filter import CAUSES, Status
+from ..filter._status import NONFINITE, OK
 from ..metrics import Window, error_stats, window_mask
 from ..metrics._stats import format_number, json_number
 from ._base import EXPERIMENTS, Experiment, TrialSpec, config_dict, get_experiment
@@ -124,23 +130,50 @@ def _check_spec(name: str, spec: TrialSpec) -> np.ndarray:
     if not spec.windows:
         raise ValueError(f"trial_fn of {name!r}: expected at least one window, got none")
     out = jax.eval_shape(spec.errors, jax.random.key(0))
+    if isinstance(out, tuple):
+        if len(out) != 2:
+            raise ValueError(f"trial_fn of {name!r}: expected errors(key) to return the errors or (errors, "
+                             f"status), got a tuple of {len(out)}")
+        out, status = out
+        code = status.code if isinstance(status, Status) else status
+        if getattr(code, "shape", None) != () or not jnp.issubdtype(code.dtype, jnp.integer):
+            raise ValueError(f"trial_fn of {name!r}: expected the status of errors(key) to be a Status or its "
+                             f"integer code (shape ()), got {getattr(code, 'shape', None)} "
+                             f"{getattr(code, 'dtype', type(code).__name__)}")
     if tuple(out.shape) != (ts.shape[0], c):
         raise ValueError(f"trial_fn of {name!r}: expected errors(key) of shape ({ts.shape[0]}, {c}) "
                          f"(samples, components {list(spec.names)}), got {tuple(out.shape)}")
     return ts
 
 
-def trial_statistics(spec: TrialSpec) -> Callable[[Any], tuple[Float[Array, "w c 3"], Bool[Array, ""]]]:
-    """``one(key) -> (stats, finite)``: the trial's per-window statistics ``stats[w, c, k]`` (``k`` in
-    :data:`STATS`) and whether all its errors are finite. Traceable; :func:`montecarlo` vmaps it."""
+def trial_cause(errors: Float[Array, "N c"], status: Status | Int[Array, ""] | None = None) -> Int[Array, ""]:
+    """The cause code of a trial (an index in :data:`~liemef.filter.CAUSES`): its status code when the status
+    failed, else ``"non-finite"`` when its errors are not all finite, else 0 (``"ok"``). Traceable."""
+    finite = jnp.all(jnp.isfinite(errors))
+    cause = jnp.where(finite, OK, NONFINITE).astype(jnp.int32)
+    if status is None:
+        return cause
+    code = jnp.asarray(status.code if isinstance(status, Status) else status).astype(jnp.int32)
+    return jnp.where(code != OK, code, cause)
+
+
+def trial_statistics(spec: TrialSpec, keep_every: int | None = None) -> Callable[[Any], tuple]:
+    """``one(key) -> (stats, finite, cause)``: the trial's per-window statistics ``stats[w, c, k]`` (``k`` in
+    :data:`STATS`), whether it is healthy (errors all finite and, if ``spec.errors`` returns a status too,
+    the status ok) and its cause code (:func:`trial_cause`). With ``keep_every = M`` also the errors at every
+    M-th sample, ``errors[::M]``. Traceable; :func:`montecarlo` vmaps it."""
     ts = jnp.asarray(spec.ts, dtype=jnp.float64)
     windows = tuple(spec.windows)
 
     def one(key):
-        e = spec.errors(key)
+        out = spec.errors(key)
+        e, status = out if isinstance(out, tuple) else (out, None)
         per_window = [error_stats(ts, e, w) for w in windows]
         stats = jnp.stack([jnp.stack([s[k] for k in STATS], axis=-1) for s in per_window])
-        return stats, jnp.all(jnp.isfinite(e))
+        cause = trial_cause(e, status)
+        if keep_every is None:
+            return stats, cause == OK, cause
+        return stats, cause == OK, cause, e[::keep_every]
 
     return one
 
@@ -149,11 +182,13 @@ _CACHE: collections.OrderedDict = collections.OrderedDict()
 _CACHE_SIZE = 8
 
 
-def _compiled(experiment: Experiment, config: Any) -> tuple[TrialSpec, np.ndarray, Callable]:
-    """The trial spec, its time grid and ``jit(vmap(trial_statistics))``, cached per (trial_fn, config) so
-    repeated Monte Carlos of one config (other seeds, runs or batch sizes) reuse the compiled function."""
+def _compiled(experiment: Experiment, config: Any, keep_every: int | None = None
+              ) -> tuple[TrialSpec, np.ndarray, Callable]:
+    """The trial spec, its time grid and ``jit(vmap(trial_statistics))``, cached per (trial_fn, config,
+    keep_every) so repeated Monte Carlos of one config (other seeds, runs or batch sizes) reuse the compiled
+    function."""
     try:
-        cache_key = (experiment.trial_fn, config)
+        cache_key = (experiment.trial_fn, config, keep_every)
         hash(cache_key)
     except TypeError:
         cache_key = None
@@ -162,7 +197,7 @@ def _compiled(experiment: Experiment, config: Any) -> tuple[TrialSpec, np.ndarra
         return _CACHE[cache_key]
     spec = experiment.trial_fn(config)
     ts = _check_spec(experiment.name, spec)
-    entry = (spec, ts, jax.jit(jax.vmap(trial_statistics(spec))))
+    entry = (spec, ts, jax.jit(jax.vmap(trial_statistics(spec, keep_every))))
     if cache_key is not None:
         _CACHE[cache_key] = entry
         while len(_CACHE) > _CACHE_SIZE:
@@ -177,7 +212,8 @@ def _count(name: str, value, minimum: int) -> int:
 
 
 def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: int = 100, seed: int = 0,
-               batch_size: int = DEFAULT_BATCH_SIZE, progress: bool | ProgressFn = True) -> MonteCarloResult:
+               batch_size: int = DEFAULT_BATCH_SIZE, progress: bool | ProgressFn = True,
+               keep_every: int | None = None) -> MonteCarloResult:
     """``runs`` seeded trials of ``experiment`` (an :class:`~liemef.experiments.Experiment` with a
     ``trial_fn``, or its registered name) at ``config`` (None: its default config), batched with ``vmap``.
 
@@ -185,6 +221,8 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
     ``batch_size`` at a time through one compiled function; the result does not depend on ``batch_size``.
     ``progress``: True shows trials done, elapsed time and ETA on stderr (:class:`ProgressLine`), False
     nothing, a function ``progress(done, total, elapsed, eta)`` is called after every batch.
+    ``keep_every = M`` also keeps every trial's errors at every M-th sample (:attr:`MonteCarloResult.series`,
+    memory runs x N/M x components), e.g. for bands across trials over time (:meth:`MonteCarloResult.bands`).
     """
     exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
     if not isinstance(exp, Experiment):
@@ -195,22 +233,28 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
     runs = _count("runs", runs, 1)
     seed = _count("seed", seed, -(2**63))
     batch = min(_count("batch_size", batch_size, 1), runs)
+    keep_every = None if keep_every is None else _count("keep_every", keep_every, 1)
     config = exp.default_config if config is None else config
     report = _reporter(progress, f"montecarlo {exp.name}")
 
-    spec, ts, batched = _compiled(exp, config)
+    spec, ts, batched = _compiled(exp, config, keep_every)
     keys = trial_keys(seed, runs)
+    series = None if keep_every is None else np.empty((runs, ts[::keep_every].shape[0], len(spec.names)))
     stats = np.empty((runs, len(spec.windows), len(spec.names), len(STATS)))
     finite = np.empty(runs, dtype=bool)
+    causes = np.empty(runs, dtype=np.int32)
     t0 = time.perf_counter()
     first: tuple[int, float] | None = None
     for start in range(0, runs, batch):
         n = min(batch, runs - start)
         # Pad the last batch with copies of the last key: one shape, one compilation.
         idx = np.minimum(np.arange(start, start + batch), runs - 1)
-        s, f = batched(keys[idx])
+        s, f, c, *e = batched(keys[idx])
+        if series is not None:
+            series[start:start + n] = np.asarray(e[0])[:n]
         stats[start:start + n] = np.asarray(s)[:n]
         finite[start:start + n] = np.asarray(f)[:n]
+        causes[start:start + n] = np.asarray(c)[:n]
         done, elapsed = start + n, time.perf_counter() - t0
         if first is None:
             first = (done, elapsed)  # includes compilation: no rate from it
@@ -225,7 +269,8 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
         experiment=exp.name, title=exp.title, paper=exp.paper, config=_config_data(config), seed=seed,
         names=tuple(spec.names), units=tuple(spec.units), windows=tuple(spec.windows), counts=counts,
         stats=stats, finite=finite, keys=np.asarray(jax.random.key_data(keys)), elapsed=elapsed,
-        batch_size=batch)
+        batch_size=batch, causes=causes, series=series,
+        series_ts=None if keep_every is None else ts[::keep_every])
 
 
 def _config_data(config: Any) -> dict:
@@ -243,11 +288,15 @@ class MonteCarloResult:
     """The statistics of ``runs`` seeded trials of one experiment config.
 
     ``stats[i, w, c, k]`` is trial ``i``'s statistic ``STATS[k]`` (mean, std, rms over time) of error
-    component ``names[c]`` over window ``windows[w]`` (``counts[w]`` samples); ``finite[i]`` says whether all
-    of trial ``i``'s errors were finite (non-finite trials are left out of :attr:`mean`, :attr:`spread`,
-    :attr:`percentiles` and :meth:`percentile_of`). ``keys[i]`` is the key data of trial ``i``
+    component ``names[c]`` over window ``windows[w]`` (``counts[w]`` samples); ``finite[i]`` says whether
+    trial ``i`` is healthy: all its errors finite and its filter status (if the trial returns one) ok.
+    Diverged trials are left out of :attr:`mean`, :attr:`spread`, :attr:`percentiles` and
+    :meth:`percentile_of`; ``causes[i]`` is the cause code of trial ``i`` (an index in
+    :data:`~liemef.filter.CAUSES`, 0 for a healthy trial; default: ``"non-finite"`` for every trial not
+    ``finite``). ``keys[i]`` is the key data of trial ``i``
     (:meth:`trial_key`), ``config`` the experiment config as JSON-ready data, ``elapsed`` the wall time in s
-    (with compilation) and ``batch_size`` the trials per compiled batch.
+    (with compilation) and ``batch_size`` the trials per compiled batch. ``series[i]`` (optional,
+    ``montecarlo(..., keep_every=M)``) are trial ``i``'s errors at the times ``series_ts``.
     """
 
     experiment: str
@@ -264,6 +313,9 @@ class MonteCarloResult:
     batch_size: int = 0
     title: str = ""
     paper: str = ""
+    causes: np.ndarray | None = None
+    series: np.ndarray | None = None
+    series_ts: np.ndarray | None = None
 
     def __post_init__(self):
         stats = np.asarray(self.stats, dtype=np.float64)
@@ -277,15 +329,36 @@ class MonteCarloResult:
         if len(self.units) != len(self.names) or len(self.counts) != len(self.windows):
             raise ValueError(f"units/counts: expected one unit per component ({len(self.names)}) and one count "
                              f"per window ({len(self.windows)}), got {len(self.units)} and {len(self.counts)}")
+        if self.causes is None:
+            causes = np.where(finite, OK, NONFINITE).astype(np.int32)
+        else:
+            causes = np.asarray(self.causes)
+            if causes.shape != finite.shape or not np.issubdtype(causes.dtype, np.integer) \
+                    or np.any((causes < 0) | (causes >= len(CAUSES))):
+                raise ValueError(f"causes: expected shape ({finite.shape[0]},) of integer cause codes in "
+                                 f"[0, {len(CAUSES)}) (liemef.filter.CAUSES), got {causes.shape} {causes.dtype}")
+            if np.any((causes == OK) != finite):
+                raise ValueError("causes: expected code 0 (ok) exactly for the finite trials, got "
+                                 f"{_list(np.flatnonzero((causes == OK) != finite))} inconsistent")
         set_ = object.__setattr__
         set_(self, "stats", stats)
         set_(self, "finite", finite)
+        set_(self, "causes", causes.astype(np.int32))
         set_(self, "names", tuple(str(s) for s in self.names))
         set_(self, "units", tuple(str(s) for s in self.units))
         set_(self, "windows", tuple(Window(*w) for w in self.windows))
         set_(self, "counts", tuple(int(n) for n in self.counts))
         if self.keys is not None:
             set_(self, "keys", np.asarray(self.keys))
+        if (self.series is None) != (self.series_ts is None):
+            raise ValueError("series, series_ts: expected both or neither, got one")
+        if self.series is not None:
+            series, series_ts = np.asarray(self.series, np.float64), np.asarray(self.series_ts, np.float64)
+            if series.shape != (stats.shape[0], series_ts.shape[0], len(self.names)):
+                raise ValueError(f"series: expected shape ({stats.shape[0]}, {series_ts.shape[0]}, "
+                                 f"{len(self.names)}) (runs, times, components), got {series.shape}")
+            set_(self, "series", series)
+            set_(self, "series_ts", series_ts)
 
     # --- sizes and selection
     @property
@@ -300,13 +373,27 @@ class MonteCarloResult:
 
     @property
     def n_nonfinite(self) -> int:
-        """The number of trials with non-finite errors (diverged), left out of the statistics."""
+        """The number of diverged trials (non-finite errors or a failed status), left out of the statistics."""
         return self.runs - self.n_finite
 
     @property
     def nonfinite_trials(self) -> np.ndarray:
-        """Indices of the trials with non-finite errors."""
+        """Indices of the diverged trials."""
         return np.flatnonzero(~self.finite)
+
+    def diverged(self) -> dict[str, int]:
+        """The number of diverged trials by cause, ``{cause: count}`` over the causes that occurred, in the
+        order of :data:`~liemef.filter.CAUSES` (e.g. ``{"non-finite": 1, "K not positive definite": 1}``)."""
+        counts = np.bincount(self.causes, minlength=len(CAUSES))
+        return {CAUSES[i]: int(n) for i, n in enumerate(counts) if i != OK and n}
+
+    def divergence_summary(self) -> str:
+        """One line: ``"2 of 100 diverged: non-finite 1, K not positive definite 1"`` or
+        ``"none of 100 diverged"`` (what the CLI prints beside the table)."""
+        if not self.n_nonfinite:
+            return f"none of {self.runs} diverged"
+        by = ", ".join(f"{cause} {n}" for cause, n in self.diverged().items())
+        return f"{self.n_nonfinite} of {self.runs} diverged: {by}"
 
     @property
     def window_labels(self) -> tuple[str, ...]:
@@ -371,6 +458,19 @@ class MonteCarloResult:
             return math.nan
         return 100.0 * float(np.count_nonzero(x <= float(value))) / x.size
 
+    def bands(self, percentiles=(5, 50, 95), absolute: bool = False) -> np.ndarray:
+        """``(len(percentiles), times, components)``: at each time of :attr:`series_ts`, the percentiles
+        across the healthy trials of each error (of its absolute value with ``absolute``); needs
+        ``montecarlo(..., keep_every=M)``."""
+        if self.series is None:
+            raise ValueError("series: this result kept no errors over time; expected montecarlo(..., "
+                             "keep_every=M)")
+        x = self.series[self.finite]
+        x = np.abs(x) if absolute else x
+        if x.shape[0] == 0:
+            return np.full((len(percentiles), *self.series.shape[1:]), np.nan)
+        return np.percentile(x, list(percentiles), axis=0)
+
     # --- tables
     TABLE_HEADER = ("window", "component", "unit", "stat", "mean", "spread",
                     *(f"p{p}" for p in PERCENTILES))
@@ -388,7 +488,8 @@ class MonteCarloResult:
         return rows
 
     def _heading(self) -> str:
-        bad = f", {self.n_nonfinite} non-finite (left out: trials {_list(self.nonfinite_trials)})" \
+        word = "non-finite" if set(self.diverged()) <= {CAUSES[NONFINITE]} else "diverged"
+        bad = f", {self.n_nonfinite} {word} (left out: trials {_list(self.nonfinite_trials)})" \
             if self.n_nonfinite else ", all finite"
         return f"Monte Carlo of {self.experiment}: {self.runs} trials (seed {self.seed}){bad}"
 
@@ -399,7 +500,7 @@ class MonteCarloResult:
         """A plain-text table, one block per window: per component and statistic over time, its mean and
         spread across trials and its percentiles."""
         head = ["component", "unit", "stat", "mean", "spread", *(f"p{p}" for p in PERCENTILES)]
-        lines = [self._heading(),
+        lines = [self._heading(), *([self.divergence_summary()] if self.n_nonfinite else []),
                  "Per trial over time: mean, std, rms of each error; across trials: mean, spread (std), "
                  "percentiles."]
         by_window = collections.defaultdict(list)
@@ -431,6 +532,7 @@ class MonteCarloResult:
         if self.paper:
             out += [f"Paper: {self.paper}.", ""]
         out += [f"{self._heading()}; {self.batch_size} trials per compiled batch, {self.elapsed:.1f} s.", "",
+                *([f"{self.divergence_summary().capitalize()}.", ""] if self.n_nonfinite else []),
                 f"Config: {cfg}.", "",
                 "Per trial, over time: mean, std and rms of each error component; across trials: their mean, "
                 "spread (std, ddof = 1) and percentiles.", ""]
@@ -475,6 +577,12 @@ class MonteCarloResult:
             "runs": self.runs,
             "keys": f"trial i uses jax.random.split(jax.random.key({self.seed}), {self.runs})[i]",
             "nonfinite": {"count": self.n_nonfinite, "trials": [int(i) for i in self.nonfinite_trials]},
+            "diverged": {"count": self.n_nonfinite, "by_cause": self.diverged(),
+                         "trials": {CAUSES[c]: [int(i) for i in np.flatnonzero(self.causes == c)]
+                                    for c in sorted(set(self.causes.tolist()) - {OK})},
+                         "definition": "a trial diverged when its filter status failed (its cause) or its "
+                                       "errors are not all finite (non-finite); diverged trials are left out "
+                                       "of the statistics"},
             "windows": {w.label: {"start": w.start, "stop": w.stop, "samples": n}
                         for w, n in zip(self.windows, self.counts, strict=True)},
             "definition": {"per_trial": "mean, std (population) and rms over the samples of the window of each "
@@ -491,13 +599,16 @@ class MonteCarloResult:
         (:meth:`write_tables`) into the folder ``out`` (created if missing); each written atomically."""
         d = io.ensure_dir(out)
         nan = lambda v: np.nan if v is None else v  # noqa: E731
-        arrays = {"stats": self.stats, "finite": self.finite, "names": np.array(self.names, dtype=str),
+        arrays = {"stats": self.stats, "finite": self.finite, "causes": self.causes,
+                  "names": np.array(self.names, dtype=str),
                   "units": np.array(self.units, dtype=str), "stat_names": np.array(STATS),
                   "window_start": np.array([nan(w.start) for w in self.windows], dtype=np.float64),
                   "window_stop": np.array([nan(w.stop) for w in self.windows], dtype=np.float64),
                   "counts": np.array(self.counts, dtype=np.int64)}
         if self.keys is not None:
             arrays["keys"] = self.keys
+        if self.series is not None:
+            arrays["series"], arrays["series_ts"] = self.series, self.series_ts
         return [io.write_npz(d / f"{stem}.npz", arrays), io.write_json(d / f"{stem}.json", self.to_dict()),
                 *self.write_tables(d, stem)]
 
@@ -516,7 +627,8 @@ class MonteCarloResult:
         return cls(experiment=meta["experiment"]["name"], title=meta["experiment"].get("title", ""),
                    paper=meta["experiment"].get("paper", ""), config=meta["config"], seed=int(meta["seed"]),
                    names=tuple(a["names"]), units=tuple(a["units"]), windows=windows, counts=tuple(a["counts"]),
-                   stats=a["stats"], finite=a["finite"], keys=a.get("keys"),
+                   stats=a["stats"], finite=a["finite"], keys=a.get("keys"), causes=a.get("causes"),
+                   series=a.get("series"), series_ts=a.get("series_ts"),
                    elapsed=math.nan if run.get("elapsed_s") is None else run["elapsed_s"],
                    batch_size=int(run.get("batch_size", 0)))
 

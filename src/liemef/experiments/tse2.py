@@ -27,7 +27,7 @@ import numpy as np
 from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
 from ..filter import MinimumEnergyFilter, Trajectory, terms
-from ..metrics import FULL, Window
+from ..metrics import FULL, Window, state_error
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import PlanarRigidBody, tse2_state
 from ..systems.planar_rigid_body import SENSORS
@@ -219,8 +219,16 @@ def pose_residual(flt: MinimumEnergyFilter, traj: Trajectory, log: SensorLog) ->
 
 
 def trial_spec(config: TSE2Config) -> TrialSpec:
-    """The Monte Carlo trial of ``config``: coordinate errors of one seeded run (traceable in the key)."""
-    return state_error_trial(setup(config), trial, (FULL, Window(*map(float, config.steady))))
+    """The Monte Carlo trial of ``config``: coordinate errors of one seeded run (traceable in the key) and the
+    filter's status, so that the Monte Carlo counts diverged trials by cause."""
+    s = setup(config)
+    spec = state_error_trial(s, trial, (FULL, Window(*map(float, config.steady))))
+
+    def errors(key):
+        truth, _, traj = trial(s, key)
+        return state_error(truth.g, traj.g_hat), traj.status
+
+    return dataclasses.replace(spec, errors=errors)
 
 
 def _run_velocity(config: TSE2Config | None = None, key=None) -> Result:
