@@ -8,7 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..systems import AbstractSystem, PlanarRigidBody
+from ..systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, planar_localization
+from ..systems import attitude_bias as _attitude_bias
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
 
@@ -31,6 +32,13 @@ class SystemSpec:
         """State coordinates read off the first measurement ``ys0`` (p,), 0 where not measured."""
         q = self.measured(np.asarray(ys0, dtype=np.float64)[None, :])[0]
         return np.where(np.isfinite(q), q, 0.0)
+
+
+def _gps_state(ys) -> np.ndarray:
+    """(theta, x, y) read off GPS fixes (N, 2): the position where a fix is present; the heading is not
+    measured (NaN, so the initial guess is 0)."""
+    ys = np.asarray(ys, dtype=np.float64)
+    return np.concatenate([np.full((ys.shape[0], 1), np.nan), ys[:, 0:2]], axis=1)
 
 
 SYSTEMS: dict[str, SystemSpec] = {
@@ -62,6 +70,17 @@ SYSTEMS: dict[str, SystemSpec] = {
         "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, -sin theta) "
         "with D = 0.4 I; input the gyro reading (1)",
         lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, unit_circle.measured_state),
+    "attitude-bias": SystemSpec(
+        "attitude-bias",
+        "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, rad/s), "
+        "normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default MEMS noise "
+        "levels and a dip of 68 deg (liemef.systems.attitude_bias)",
+        attitude_gyro_bias, _attitude_bias.measured_state),
+    "localization": SystemSpec(
+        "localization",
+        "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) with NaN "
+        "between fixes; the default noise levels (liemef.systems.localization)",
+        planar_localization, _gps_state),
 }
 """Systems available to ``liemef run``, by name: each built as in its paper's experiment."""
 

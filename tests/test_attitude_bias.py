@@ -1,0 +1,278 @@
+"""Attitude with gyro bias on TSO(3) from an IMU (liemef.systems.attitude_bias): the weights its noise levels
+give, its helpers (dip, TRIAD, logs), a synthetic fast-rotation log, and BROAD trial 01 (real data, skipped when
+absent)."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from liemef import datasets
+from liemef.filter import MinimumEnergyFilter
+from liemef.filter._status import OK
+from liemef.groups import R3, SO3, TSO3
+from liemef.systems import Noise, attitude_gyro_bias
+from liemef.systems import attitude_bias as ab
+from tolerances import ROUNDOFF
+
+RATE = ab.IMU_RATE
+K0 = np.diag([0.05**2] * 3 + [0.02**2] * 3)
+"""(0.05 rad)^2 on the rotation, (0.02 rad/s)^2 on the bias (the synthetic bias has norm 0.027 rad/s)."""
+
+
+# --- the model and its weights ---------------------------------------------------------------------------------
+def test_weights_follow_the_documented_noise_mapping():
+    s = attitude_gyro_bias(gyro_std=0.004, imu_rate=200.0, bias_walk=2e-4, acc_std=0.03, mag_std=0.07,
+                           dip=math.radians(60.0))
+    # B = diag(gyro sample std / sqrt(rate), bias walk density), R = I; D = diag(direction stds), Q = I
+    np.testing.assert_allclose(s.B, np.diag([0.004 / math.sqrt(200.0)] * 3 + [2e-4] * 3), rtol=ROUNDOFF)
+    np.testing.assert_allclose(s.R, np.eye(6), rtol=0, atol=0)
+    np.testing.assert_allclose(s.D, np.diag([0.03] * 3 + [0.07] * 3), rtol=ROUNDOFF)
+    np.testing.assert_allclose(s.Q, np.eye(6), rtol=0, atol=0)
+    assert [(b.name, b.start, b.stop, b.sample) for b in s.blocks()] == [("acc", 0, 3, True), ("mag", 3, 6, True)]
+    assert s.input_names == ("gyro_x", "gyro_y", "gyro_z")
+    assert s.output_names == ("acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z")
+    assert s.state_names == ("rx", "ry", "rz", "bx", "by", "bz")
+    # a gyro density (imu_rate=None) is used as given; "density" directions are held at the IMU rate
+    np.testing.assert_allclose(attitude_gyro_bias(gyro_std=3e-4, imu_rate=None).B[0, 0], 3e-4, rtol=ROUNDOFF)
+    held = attitude_gyro_bias(acc_std=0.02, mag_std=0.05, directions="density")
+    np.testing.assert_allclose(held.D, np.diag([0.02 / math.sqrt(RATE)] * 3 + [0.05 / math.sqrt(RATE)] * 3),
+                               rtol=ROUNDOFF)
+    assert [b.sample for b in held.blocks()] == [False, False]
+    # new noise levels keep the structure (no recompilation)
+    louder = s.with_noise(acc=Noise.sample(0.1))
+    np.testing.assert_allclose(louder.D[0, 0], 0.1, rtol=ROUNDOFF)
+
+
+def test_defaults_are_the_documented_ones():
+    s = attitude_gyro_bias()
+    np.testing.assert_allclose(np.diag(s.B), [0.005 / math.sqrt(285.714)] * 3 + [1e-4] * 3, rtol=ROUNDOFF)
+    np.testing.assert_allclose(np.diag(s.D), [0.02] * 3 + [0.05] * 3, rtol=ROUNDOFF)
+    # the mag sensor's reference direction carries the default dip
+    g = TSO3.identity()
+    np.testing.assert_allclose(s.output(g, 0.0), [0, 0, 1, 0, math.cos(ab.DIP), -math.sin(ab.DIP)], atol=ROUNDOFF)
+
+
+def test_dynamics_and_outputs():
+    s = attitude_gyro_bias(dip=0.3)
+    R = Rotation.from_rotvec([0.4, -1.1, 0.7]).as_matrix()
+    b = np.array([0.01, -0.02, 0.03])
+    g = TSO3((SO3.from_matrix(jnp.asarray(R)), R3(jnp.asarray(b))))
+    u = np.array([1.0, 2.0, -3.0])
+    np.testing.assert_allclose(s.dynamics(g, u, 0.0), np.concatenate([u - b, np.zeros(3)]), atol=ROUNDOFF)
+    m_ref = np.array([0.0, math.cos(0.3), -math.sin(0.3)])
+    np.testing.assert_allclose(s.output(g, 0.0), np.concatenate([R.T @ [0, 0, 1], R.T @ m_ref]), atol=ROUNDOFF)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    (dict(dip=2.0), "dip"), (dict(dip=float("nan")), "dip"), (dict(directions="held"), "directions"),
+    (dict(directions="density", imu_rate=None), "imu_rate"), (dict(acc_std=0.0), "std"),
+    (dict(gyro_std=(0.1, 0.2)), "gyro_std"), (dict(acc_gate=1.5), "gate"),
+])
+def test_bad_arguments_name_themselves(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        attitude_gyro_bias(**kwargs)
+
+
+# --- helpers ------------------------------------------------------------------------------------------------------
+def _directions(R, dip):
+    up = np.einsum("nji,j->ni", R, np.array(ab.E_UP))
+    mag = np.einsum("nji,j->ni", R, np.array(ab.magnetic_reference(dip)))
+    return up, mag
+
+
+def test_dip_triad_initial_estimate_and_measured_state():
+    rng = np.random.default_rng(3)
+    R = Rotation.random(50, random_state=4).as_matrix()
+    dip = math.radians(66.0)
+    up, mag = _directions(R, dip)
+    acc, field = 9.81 * up, 43.0 * mag  # any units
+    assert ab.magnetic_dip(acc, field) == pytest.approx(dip, abs=1e-12)
+    np.testing.assert_allclose(ab.triad(acc, field), R, atol=1e-12)
+    g = ab.initial_estimate(acc[:1], field[:1], bias=(0.1, 0.2, 0.3))
+    np.testing.assert_allclose(g.factors[0].as_matrix(), R[0], atol=1e-12)
+    np.testing.assert_allclose(g.factors[1].x, [0.1, 0.2, 0.3])
+    # measured state: the rotation vector where both directions are present, NaN elsewhere and for the bias
+    ys = np.concatenate([up, mag], axis=1)
+    ys[5, 4] = np.nan
+    q = ab.measured_state(ys)
+    np.testing.assert_allclose(Rotation.from_rotvec(q[:5, :3]).as_matrix(), R[:5], atol=1e-12)
+    assert np.isnan(q[5]).all() and np.isnan(q[:, 3:]).all() and np.isfinite(q[6:, :3]).all()
+    # a log from raw columns: uniform clock, normalized directions, a zero vector is missing
+    gyr = rng.standard_normal((50, 3))
+    acc[7] = 0.0
+    ts, us, ys2 = ab.imu_log(gyr, acc, field, 200.0, t0=1.0)
+    np.testing.assert_allclose(ts, 1.0 + np.arange(50) / 200.0, rtol=ROUNDOFF)
+    np.testing.assert_array_equal(us, gyr)
+    assert np.isnan(ys2[7, :3]).all() and np.isfinite(ys2[7, 3:]).all()
+    ok = np.arange(50) != 7
+    np.testing.assert_allclose(np.linalg.norm(ys2[ok, :3], axis=1), 1.0, rtol=ROUNDOFF)
+    with pytest.raises(ValueError, match="rate"):
+        ab.imu_log(gyr, acc, field, 0.0)
+    with pytest.raises(ValueError, match="mag"):
+        ab.imu_log(gyr, acc, field[:10], 200.0)
+    with pytest.raises(ValueError, match="acc, mag"):
+        ab.initial_estimate([0.0, 0.0, 1.0], [0.0, 0.0, 2.0])
+
+
+def test_attitude_error_is_the_rotation_angle():
+    A = Rotation.random(20, random_state=1)
+    small = Rotation.from_rotvec(np.outer(np.geomspace(1e-9, 3.0, 20), [0.6, 0.0, 0.8]))
+    e = ab.attitude_error(A.as_matrix(), (small * A).as_matrix())
+    np.testing.assert_allclose(e, small.magnitude(), rtol=1e-9, atol=1e-15)
+
+
+# --- a synthetic fast-rotation log -------------------------------------------------------------------------------
+def simulate(duration=30.0, w_max=17.0, seed=0, fine=16):
+    """A 286 Hz IMU log of a body turning at up to ``w_max`` rad/s (|omega|) with a constant gyro bias: the truth
+    integrated with ``fine`` exact exponential steps per sample; gyro samples = the rate at the sample time +
+    bias + noise; noisy unit directions; every noise level at the system's default."""
+    rng = np.random.default_rng(seed)
+    N = int(duration * RATE) + 1
+    ts = np.arange(N) / RATE
+    freq = np.array([0.31, 0.23, 0.17])
+
+    def omega(t):
+        return np.stack([np.sin(2 * np.pi * freq[0] * t), np.sin(2 * np.pi * freq[1] * t + 1.0),
+                         np.cos(2 * np.pi * freq[2] * t)], axis=-1)
+
+    h = 1.0 / RATE / fine
+    tf = ts[:-1, None] + (np.arange(fine) + 0.5) * h       # midpoints of the fine steps, (N - 1, fine)
+    scale = w_max / np.linalg.norm(omega(tf), axis=-1).max()
+    step = Rotation.identity(N - 1)
+    for j in range(fine):
+        step = step * Rotation.from_rotvec(scale * omega(tf[:, j]) * h)
+    step = step.as_matrix()
+    R = np.empty((N, 3, 3))
+    R[0] = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
+    for k in range(N - 1):
+        R[k + 1] = R[k] @ step[k]
+    b = np.array([0.02, -0.015, 0.01])
+    us = scale * omega(ts) + b + ab.GYRO_STD * rng.standard_normal((N, 3))
+    up, mag = _directions(R, ab.DIP)
+    a = up + ab.ACC_STD * rng.standard_normal((N, 3))
+    m = mag + ab.MAG_STD * rng.standard_normal((N, 3))
+    ys = np.concatenate([a / np.linalg.norm(a, axis=1, keepdims=True), m / np.linalg.norm(m, axis=1, keepdims=True)],
+                        axis=1)
+    return ts, us, ys, R, b
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    ts, us, ys, R, b = simulate()
+    assert np.linalg.norm(us - b, axis=1).max() == pytest.approx(17.0, abs=0.1)
+    xi0 = 0.05 * np.array([1.0, -1.0, 1.0]) / math.sqrt(3.0)                 # 2.9 deg off, bias unknown
+    g0 = TSO3((SO3.from_matrix(jnp.asarray(R[0] @ Rotation.from_rotvec(xi0).as_matrix())), R3(jnp.zeros(3))))
+    return ts, us, ys, R, b, g0
+
+
+def _errors(traj, R, b):
+    e = np.degrees(ab.attitude_error(R, np.asarray(traj.g_hat.factors[0].as_matrix())))
+    eb = np.linalg.norm(np.asarray(traj.g_hat.factors[1].x) - b, axis=1)
+    return e, eb
+
+
+def _check_converged(traj, R, b, ts):
+    assert traj.status.ok, traj.status.message(ts)
+    assert np.isfinite(np.asarray(traj.K)).all()
+    e, eb = _errors(traj, R, b)
+    last20 = ts >= ts[-1] - 20.0
+    # measured (RKMK4, auto sub-steps): final 1.30 deg, rms over the last 20 s 1.22 deg; bias error 0.027 rad/s
+    # at the start, 0.0005 at the end. The attitude error is mostly the lag of a held sample against a state that
+    # turns 3.4 deg per interval at 17 rad/s (with directions="density" and interpolation="linear": 0.10 deg).
+    assert e[-1] < 3.0
+    assert np.sqrt(np.mean(e[last20] ** 2)) < 2.0
+    assert eb[-1] < 0.1 * eb[0]
+    return e, eb
+
+
+def test_synthetic_fast_rotation_default_filter(synthetic):
+    ts, us, ys, R, b, g0 = synthetic
+    flt = MinimumEnergyFilter(attitude_gyro_bias())   # second order, (0)-connection, RKMK4, substeps="auto"
+    traj = flt.run(flt.init(g0, K0), ts, us, ys)
+    _check_converged(traj, R, b, ts)
+    assert int(traj.status.substeps_max) > 1          # the first samples needed sub-steps
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "engine: Lie-Euler loses positive definiteness of K at 17 rad/s although substeps='auto' keeps ||K E|| h and "
+    "||A|| h below 0.5 (the explicit step K + h (A K + K A') drops the PSD term h^2 A K A', larger than K's smallest "
+    "eigenvalue once K is strongly correlated); it passes with 64 fixed sub-steps (test below)"))
+def test_synthetic_fast_rotation_lie_euler(synthetic):
+    ts, us, ys, R, b, g0 = synthetic
+    flt = MinimumEnergyFilter(attitude_gyro_bias(), integrator="lie-euler")
+    _check_converged(flt.run(flt.init(g0, K0), ts, us, ys), R, b, ts)
+
+
+@pytest.mark.slow
+def test_synthetic_fast_rotation_lie_euler_with_small_steps(synthetic):
+    ts, us, ys, R, b, g0 = synthetic
+    flt = MinimumEnergyFilter(attitude_gyro_bias(), integrator="lie-euler", substeps=64)
+    _check_converged(flt.run(flt.init(g0, K0), ts, us, ys), R, b, ts)
+
+
+@pytest.mark.slow
+def test_interpolated_directions_remove_the_lag_of_held_samples(synthetic):
+    # measured: final 0.063 deg, rms over the last 20 s 0.096 deg (the default filter: 1.30 and 1.22 deg)
+    ts, us, ys, R, b, g0 = synthetic
+    flt = MinimumEnergyFilter(attitude_gyro_bias(directions="density"), interpolation="linear")
+    traj = flt.run(flt.init(g0, K0), ts, us, ys)
+    e, _ = _check_converged(traj, R, b, ts)
+    assert np.sqrt(np.mean(e[ts >= ts[-1] - 20.0] ** 2)) < 0.3
+
+
+def test_one_step_per_sample_fails_where_sub_steps_succeed(synthetic):
+    # With K0 = (0.05 rad)^2 and 1/0.02^2 of information per acc sample, ||K E|| dt is about 10 on the first
+    # interval: one explicit RKMK4 step per sample (the papers' scheme) is unstable there; measured: K loses
+    # positive definiteness over interval 0.
+    ts, us, ys, R, b, g0 = synthetic
+    flt = MinimumEnergyFilter(attitude_gyro_bias(), substeps=1)
+    traj = flt.run(flt.init(g0, K0), ts, us, ys)
+    assert int(traj.status.code) != OK
+    assert int(traj.status.index) == 0
+    assert np.isnan(np.asarray(traj.K)[1:]).all()
+
+
+# --- real data: BROAD trial 01 (Laidig et al. 2021, CC BY 4.0) -------------------------------------------------
+REALDATA = datasets.realdata_dir()
+
+
+def _broad_path(trial):
+    if REALDATA is None:
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    path = REALDATA / datasets.BROAD_TRIALS[trial]
+    if not path.is_file():
+        pytest.skip(f"real data absent: {path} not found")
+    return path
+
+
+def broad_errors(trial: datasets.BroadTrial, traj) -> tuple[float, float]:
+    """Total and inclination rms (deg) over BROAD's movement mask where the optical truth is present."""
+    ok = trial.movement & ~np.isnan(trial.quat_true).any(axis=1)
+    R_true = np.asarray(ab.quaternion_to_tso3(trial.quat_true[ok]).factors[0].as_matrix())
+    R_hat = np.asarray(traj.g_hat.factors[0].as_matrix())[ok]
+    total = ab.attitude_error(R_true, R_hat)
+    incl = np.arccos(np.clip(np.einsum("ni,ni->n", R_hat[:, 2, :], R_true[:, 2, :]), -1.0, 1.0))
+    rms = lambda x: float(np.degrees(np.sqrt(np.mean(x**2))))  # noqa: E731
+    return rms(total), rms(incl)
+
+
+def test_broad_trial_01_first_minute():
+    # Measured on the first 60 s (34 s of rest, then slow rotation): total rms 3.69 deg, inclination 0.43 deg
+    # (BROAD's Madgwick / Mahony baselines over the whole trial: 2.3 / 3.4 deg; this filter over the whole trial:
+    # 2.35 deg). Compilation takes most of this test's time.
+    trial = datasets.broad(_broad_path("01")).head(60.0)
+    dip = ab.magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
+    assert math.degrees(dip) == pytest.approx(71.3, abs=0.1)
+    log = datasets.broad_to_log(trial)
+    flt = MinimumEnergyFilter(attitude_gyro_bias(dip=dip))
+    g0 = ab.initial_estimate(trial.acc[:50], trial.mag[:50])
+    traj = flt.run(flt.init(g0, np.diag([0.05**2] * 3 + [0.01**2] * 3)), log.ts, log.us, log.ys, keep_every=1)
+    assert traj.status.ok, traj.status.message(log.ts)
+    total, incl = broad_errors(trial, traj)
+    assert total < 4.5
+    assert incl < 1.0
+    # the z gyro bias seen at rest (0.0082 rad/s) is found
+    assert float(traj.g_hat.factors[1].x[-1, 2]) == pytest.approx(trial.gyr[trial.rest, 2].mean(), abs=0.003)

@@ -1,0 +1,150 @@
+"""Real-data loaders (liemef.datasets): where the data are, bad paths, the logs they make, a log CSV in a
+system's column names, and the Wifibot run (Brossard et al., UKF-M, BSD-3-Clause) filtered with planar
+localization and synthetic GPS (skipped when the real data are absent)."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from liemef import datasets
+from liemef.filter import MinimumEnergyFilter
+from liemef.groups import SE2
+from liemef.metrics import wrap_angle
+from liemef.systems import attitude_gyro_bias, planar_localization
+
+REALDATA = datasets.realdata_dir()
+
+
+def _real(rel):
+    if REALDATA is None:
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    path = REALDATA / rel
+    if not path.is_file():
+        pytest.skip(f"real data absent: {path} not found")
+    return path
+
+
+# --- where the data are -----------------------------------------------------------------------------------------
+def test_realdata_dir_from_the_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv(datasets.ENV_VAR, str(tmp_path))
+    assert datasets.realdata_dir() == tmp_path.resolve()
+    monkeypatch.setenv(datasets.ENV_VAR, str(tmp_path / "absent"))
+    assert datasets.realdata_dir() is None           # a wrong setting is not replaced by another folder
+    monkeypatch.delenv(datasets.ENV_VAR)
+    found = datasets.realdata_dir()
+    assert found is None or found.is_dir()
+
+
+# --- bad paths --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("load", [datasets.broad, datasets.wifibot], ids=["broad", "wifibot"])
+def test_bad_paths_raise_value_errors_naming_the_argument(load, tmp_path):
+    with pytest.raises(ValueError, match=r"^path: file not found"):
+        load(tmp_path / "missing.mat")
+    with pytest.raises(ValueError, match=r"^path: expected a file, got a directory"):
+        load(tmp_path)
+    with pytest.raises(ValueError, match=r"^path: expected a file path"):
+        load(None)
+    junk = tmp_path / "junk.txt"
+    junk.write_text("not a log\n1 2\n")
+    with pytest.raises(ValueError, match=r"^path: "):
+        load(junk)
+
+
+def test_conversions_check_their_argument():
+    with pytest.raises(ValueError, match="^trial:"):
+        datasets.broad_to_log("01")
+    with pytest.raises(ValueError, match="^run:"):
+        datasets.wifibot_to_log(None)
+
+
+# --- a log as CSV in the system's column names ------------------------------------------------------------------
+def test_write_log_csv_names_columns_and_leaves_missing_samples_empty(tmp_path):
+    system = planar_localization()
+    ts = np.array([0.0, 0.02, 0.04])
+    us = np.array([[0.1, 0.0, 0.2], [0.1, 0.0, np.nan], [0.3, 0.0, 0.1]])
+    ys = np.array([[1.0, 2.0], [np.nan, np.nan], [1.0 / 3.0, -2.5]])
+    path = datasets.write_log_csv(tmp_path / "log.csv", system, ts, us, ys)
+    rows = list(csv.reader(path.open(newline="")))
+    assert rows[0] == ["t", "v_x", "v_y", "omega", "gps_x", "gps_y"]
+    assert rows[2][3:] == ["", "", ""]
+    back = np.array([[np.nan if c == "" else float(c) for c in r] for r in rows[1:]])
+    np.testing.assert_array_equal(back, np.concatenate([ts[:, None], us, ys], axis=1))   # full precision
+    assert not list(tmp_path.glob(".*tmp"))                                                 # atomic
+    with pytest.raises(ValueError, match="^ys:"):
+        datasets.write_log_csv(tmp_path / "bad.csv", system, ts, us, ys[:, :1])
+    with pytest.raises(ValueError, match="^ts:"):
+        datasets.write_log_csv(tmp_path / "bad.csv", system, ts[::-1], us, ys)
+    assert not (tmp_path / "bad.csv").exists()
+    datasets.write_log_csv(tmp_path / "a.csv", attitude_gyro_bias(), ts, np.zeros((3, 3)), np.zeros((3, 6)))
+    assert next(csv.reader((tmp_path / "a.csv").open(newline=""))) == [
+        "t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"]
+
+
+# --- BROAD ------------------------------------------------------------------------------------------------------
+def test_broad_loader_and_log():
+    trial = datasets.broad(_real(datasets.BROAD_TRIALS["01"]))
+    N = 56940
+    assert trial.rate == pytest.approx(2000.0 / 7.0)
+    assert trial.gyr.shape == trial.acc.shape == trial.mag.shape == (N, 3) and trial.quat_true.shape == (N, 4)
+    np.testing.assert_allclose(trial.ts[-1], (N - 1) / trial.rate)
+    missing = np.isnan(trial.quat_true).any(axis=1)
+    assert 0 < missing.mean() < 0.01                       # README: 0.3 % dropped
+    np.testing.assert_allclose(np.linalg.norm(trial.quat_true[~missing], axis=1), 1.0, atol=1e-6)
+    assert 0.6 < trial.movement.mean() < 0.66 and not trial.movement[0]
+    # quaternion convention (README): at rest the accelerometer reads R^T e_up
+    rest = trial.rest
+    q = trial.quat_true[rest & ~missing]
+    w, x, y, z = q.T
+    up_body = np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1)  # R^T e_z
+    a = trial.acc[rest & ~missing] / np.linalg.norm(trial.acc[rest & ~missing], axis=1, keepdims=True)
+    assert np.degrees(np.median(np.arccos(np.clip(np.sum(a * up_body, axis=1), -1, 1)))) < 1.0
+    log = datasets.broad_to_log(trial.head(10.0))
+    assert log.us.shape == (2857, 3) and log.ys.shape == (2857, 6)
+    np.testing.assert_allclose(np.linalg.norm(log.ys[:, :3], axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(log.ys[:, 3:], axis=1), 1.0, rtol=1e-12)
+
+
+# --- Wifibot with synthetic GPS -------------------------------------------------------------------------------------
+def test_wifibot_loader_and_log():
+    run = datasets.wifibot(_real(datasets.WIFIBOT_RUNS["1"]))
+    assert run.ts.shape == run.v.shape == run.omega.shape == (1745,) and run.truth.shape == (1745, 3)
+    np.testing.assert_array_equal(run.truth[0], [0.0, 0.0, 0.0])
+    log = datasets.wifibot_to_log(run)
+    fixes = np.isfinite(log.ys[:, 0])
+    assert fixes.sum() == math.ceil(run.ts[-1] - run.ts[0])          # 1 Hz over 32.4 s
+    np.testing.assert_array_equal(log.us[:, 1], 0.0)
+    np.testing.assert_array_equal(log.us[:, [0, 2]], np.stack([run.v, run.omega], axis=1))
+    noise = log.ys[fixes] - run.truth[fixes, 1:]
+    assert 0.05 < noise.std() < 0.15
+    np.testing.assert_array_equal(datasets.wifibot_to_log(run).ys, log.ys)            # fixed seed
+    assert not np.array_equal(datasets.wifibot_to_log(run, seed=1).ys[fixes], log.ys[fixes])
+
+
+def _dead_reckoning(run):
+    dt = np.diff(run.ts)
+    th = np.concatenate([[0.0], np.cumsum(run.omega[:-1] * dt)])
+    step = np.stack([np.cos(th[:-1]), np.sin(th[:-1])], axis=1) * (run.v[:-1] * dt)[:, None]
+    return th, np.concatenate([[[0.0, 0.0]], np.cumsum(step, axis=0)])
+
+
+def test_wifibot_localization_with_synthetic_gps():
+    # Odometry noise per sample at the run's 50 Hz: yaw rate 0.2 rad/s, forward 0.05 m/s, lateral 0.01 m/s (the
+    # odometry over-reads the truth by about 5 %, a systematic error that white noise has to cover); GPS 0.1 m
+    # at 1 Hz; the start pose is known (the truth is relative to it). Measured: heading rms 5.08 deg, position
+    # rms 0.088 m; odometry dead reckoning: 16.5 deg, 0.248 m.
+    run = datasets.wifibot(_real(datasets.WIFIBOT_RUNS["1"]))
+    log = datasets.wifibot_to_log(run, gps_rate=1.0, gps_std=0.1, seed=0)
+    system = planar_localization(odometry_std=(0.2, 0.05, 0.01), odometry_rate=50.0, gps_std=0.1)
+    flt = MinimumEnergyFilter(system)
+    traj = flt.run(flt.init(SE2.identity(), np.diag([0.01**2] * 3)), log.ts, log.us, log.ys)
+    assert traj.status.ok, traj.status.message(log.ts)
+    c = np.asarray(traj.coords())
+    heading = np.degrees(np.sqrt(np.mean(np.asarray(wrap_angle(run.truth[:, 0] - c[:, 0])) ** 2)))
+    position = np.sqrt(np.mean(np.sum((run.truth[:, 1:] - c[:, 1:]) ** 2, axis=1)))
+    assert heading < 7.0
+    assert position < 0.12
+    th, p = _dead_reckoning(run)
+    assert heading < 0.5 * np.degrees(np.sqrt(np.mean(np.asarray(wrap_angle(run.truth[:, 0] - th)) ** 2)))
+    assert position < 0.5 * np.sqrt(np.mean(np.sum((run.truth[:, 1:] - p) ** 2, axis=1)))
