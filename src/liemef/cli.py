@@ -38,6 +38,7 @@ if TYPE_CHECKING:
 EXPERIMENT_PAPERS = {
     "attitude": "Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3",
     "chaplygin": "Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6",
+    "localization": "ukfm 2D localization benchmark (Brossard, Barrau, Bonnabel); Barrau & Bonnabel 2017, Sec. IV",
     "tse2": "Rigo, Segala, Sansonetto, Muradore 2022, Sec. VI, Figs. 3-4",
     "tse2-velocity": "Segala, Sansonetto, Muradore, poster 'Tracking and filtering on SE(2)'; setup of Rigo et al. "
                      "2022",
