@@ -197,9 +197,10 @@ def test_synthetic_fast_rotation_default_filter(synthetic):
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "engine: Lie-Euler loses positive definiteness of K at 17 rad/s although substeps='auto' keeps ||K E|| h and "
-    "||A|| h below 0.5 (the explicit step K + h (A K + K A') drops the PSD term h^2 A K A', larger than K's smallest "
-    "eigenvalue once K is strongly correlated); it passes with 64 fixed sub-steps (test below)"))
+    "engine: Lie-Euler loses positive definiteness of K at 17 rad/s (interval 34) although substeps='auto' keeps "
+    "||K E|| h and ||A|| h below 0.5; presumably the explicit step K + h (A K + K A' + ...) misses the h^2 A K A' "
+    "of the exact flow, more than K's smallest eigenvalue once K is strongly correlated; it passes with 64 fixed "
+    "sub-steps (test below) and with RKMK4"))
 def test_synthetic_fast_rotation_lie_euler(synthetic):
     ts, us, ys, R, b, g0 = synthetic
     flt = MinimumEnergyFilter(attitude_gyro_bias(), integrator="lie-euler")
