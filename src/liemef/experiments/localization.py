@@ -234,10 +234,12 @@ class Setup:
 
     @property
     def system(self):
+        """The filter's :class:`~liemef.systems.SensorSystem`."""
         return self.filter.system
 
     @property
     def ts(self) -> np.ndarray:
+        """The sample times (``config.ts``)."""
         return self.config.ts
 
 
