@@ -89,3 +89,24 @@ def test_schema_and_system_choice_errors(tmp_path):
     assert "gps_x   m      sensor gps  std 1 m per sample" in res.output
     res = invoke("run", "--system", "tse2", "--system-file", tmp_path / "s.py", "--log", "x.csv", "--out", tmp_path)
     assert res.exit_code != 0 and "expected exactly one of --system NAME" in res.output
+
+
+def test_dataset_converts_a_real_recording_for_run(tmp_path):
+    from liemef import datasets
+
+    root = datasets.realdata_dir()
+    if root is None or not (root / "ukfm_wifibot" / "wifibot1.txt").is_file():
+        pytest.skip("real recordings absent (../shared/realdata or LIEMEF_REALDATA)")
+    res = invoke("dataset", "wifibot", root / "ukfm_wifibot" / "wifibot1.txt", "--out", tmp_path / "log.csv",
+                 "--truth", tmp_path / "truth.csv", "--seconds", 30)
+    assert res.exit_code == 0, res.output
+    log = io.read_log(tmp_path / "log.csv", planar_localization())
+    assert 25 <= np.isfinite(log.ys[:, 0]).sum() <= 31  # 1 Hz synthetic GPS, empty fields between fixes
+    truth = np.loadtxt(tmp_path / "truth.csv", delimiter=",", skiprows=1)
+    res = invoke("run", "--system", "localization", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--x0", ",".join(map(str, truth[0, 1:])), "--k0-diag", "0.01,0.01,0.01", "--no-progress")
+    assert res.exit_code == 0, res.output
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    assert np.sqrt(np.mean(np.sum((est[:, 2:4] - truth[:, 2:4]) ** 2, axis=1))) < 0.5
+    res = invoke("dataset", "broad", tmp_path / "missing.mat", "--out", tmp_path / "x.csv")
+    assert res.exit_code == 2 and "path:" in res.output

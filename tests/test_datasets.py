@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from liemef import datasets
+from liemef import datasets, io
 from liemef.filter import MinimumEnergyFilter
 from liemef.groups import SE2
 from liemef.metrics import wrap_angle
@@ -60,12 +60,12 @@ def test_conversions_check_their_argument():
 
 
 # --- a log as CSV in the system's column names ------------------------------------------------------------------
-def test_write_log_csv_names_columns_and_leaves_missing_samples_empty(tmp_path):
+def test_write_log_names_columns_and_leaves_missing_samples_empty(tmp_path):
     system = planar_localization()
     ts = np.array([0.0, 0.02, 0.04])
     us = np.array([[0.1, 0.0, 0.2], [0.1, 0.0, np.nan], [0.3, 0.0, 0.1]])
     ys = np.array([[1.0, 2.0], [np.nan, np.nan], [1.0 / 3.0, -2.5]])
-    path = datasets.write_log_csv(tmp_path / "log.csv", system, ts, us, ys)
+    path = io.write_log(tmp_path / "log.csv", system, ts, us, ys)
     rows = list(csv.reader(path.open(newline="")))
     assert rows[0] == ["t", "v_x", "v_y", "omega", "gps_x", "gps_y"]
     assert rows[2][3:] == ["", "", ""]
@@ -73,11 +73,11 @@ def test_write_log_csv_names_columns_and_leaves_missing_samples_empty(tmp_path):
     np.testing.assert_array_equal(back, np.concatenate([ts[:, None], us, ys], axis=1))   # full precision
     assert not list(tmp_path.glob(".*tmp"))                                                 # atomic
     with pytest.raises(ValueError, match="^ys:"):
-        datasets.write_log_csv(tmp_path / "bad.csv", system, ts, us, ys[:, :1])
+        io.write_log(tmp_path / "bad.csv", system, ts, us, ys[:, :1])
     with pytest.raises(ValueError, match="^ts:"):
-        datasets.write_log_csv(tmp_path / "bad.csv", system, ts[::-1], us, ys)
+        io.write_log(tmp_path / "bad.csv", system, ts[::-1], us, ys)
     assert not (tmp_path / "bad.csv").exists()
-    datasets.write_log_csv(tmp_path / "a.csv", attitude_gyro_bias(), ts, np.zeros((3, 3)), np.zeros((3, 6)))
+    io.write_log(tmp_path / "a.csv", attitude_gyro_bias(), ts, np.zeros((3, 3)), np.zeros((3, 6)))
     assert next(csv.reader((tmp_path / "a.csv").open(newline=""))) == [
         "t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"]
 

@@ -15,6 +15,7 @@
   (``innovations.csv``), ``arrays.npz``, ``metrics.json`` and a figure; a failed run writes only
   ``failure.json`` and exits with status 1.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
+* ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ EXPERIMENT_PAPERS = {
                    "Measurements with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3",
 }
 """``liemef.experiments.EXPERIMENTS``: each experiment's name and paper, in the registry's order."""
-SYSTEM_NAMES = ("attitude", "chaplygin", "chaplygin-gps", "tse2", "tse2-velocity", "unit-circle")
+SYSTEM_NAMES = ("attitude", "attitude-bias", "chaplygin", "chaplygin-gps", "localization", "tse2", "tse2-velocity",
+                "unit-circle")
 """``sorted(liemef.experiments.SYSTEMS)``."""
 CONNECTIONS = ("minus", "zero", "plus")
 """``tuple(liemef.connections.CARTAN_SCHOUTEN)``."""
@@ -521,6 +523,50 @@ def schema(system_name, system_file):
     system, label, description, _, _ = _resolve_system(system_name, system_file)
     click.echo(f"{label}: {description}")
     click.echo(format_schema(system))
+
+
+@cli.command("dataset")
+@click.argument("kind", type=click.Choice(("broad", "wifibot")))
+@click.argument("path", type=click.Path(path_type=Path))
+@click.option("--out", required=True, type=click.Path(path_type=Path),
+              help="The log to write (.csv, or .npz), in the columns of the matching ready system.")
+@click.option("--truth", type=click.Path(path_type=Path), help="Also write the ground truth here (CSV).")
+@click.option("--seconds", type=float, help="Only the first SECONDS of the recording.")
+@click.option("--gps-std", type=float, default=0.1, show_default=True,
+              help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0).")
+def dataset(kind, path, out, truth, seconds, gps_std):
+    """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
+    `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
+    magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
+    localization)."""
+    import numpy as np
+
+    from . import datasets, io
+    from .experiments import get_system
+
+    try:
+        if kind == "broad":
+            rec = datasets.broad(path)
+            rec = rec.head(seconds) if seconds else rec
+            log, system = datasets.broad_to_log(rec), get_system("attitude-bias").make()
+            header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]
+            columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
+        else:
+            rec = datasets.wifibot(path)
+            if seconds:
+                k = max(2, int(np.searchsorted(rec.ts, rec.ts[0] + seconds)))
+                rec = datasets.WifibotRun(rec.ts[:k], rec.v[:k], rec.omega[:k], rec.truth[:k], rec.name)
+            log, system = datasets.wifibot_to_log(rec, gps_std=gps_std), get_system("localization").make()
+            header, columns = ["t", "theta", "x", "y"], [rec.ts, *rec.truth.T]
+        written = [io.write_log(out, system, log.ts, log.us, log.ys)]
+        if truth is not None:
+            written.append(io.write_csv(truth, header, columns))
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'PATH'") from err
+    click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
+               f"{', '.join(str(p) for p in written)}")
+    click.echo(f"Filter it with: liemef run --system {'attitude-bias' if kind == 'broad' else 'localization'} "
+               f"--log {out} --out DIR")
 
 
 def main(argv: list[str] | None = None) -> None:

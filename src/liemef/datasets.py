@@ -224,33 +224,3 @@ def wifibot_to_log(run: WifibotRun, gps_rate: float = 1.0, gps_std: float = 0.1,
     ys[idx] = fixes
     us = np.stack([run.v, np.zeros(N), run.omega], axis=1)
     return io.RecordedLog(ts=run.ts.copy(), us=us, ys=ys)
-
-
-# --- writing a log in a system's column names --------------------------------------------------------------------
-def write_log_csv(path: str | os.PathLike, system, ts, us, ys) -> Path:
-    """A log as CSV with the header ``t,`` + ``system.input_names`` + ``system.output_names`` (full float64
-    precision; NaN, a missing sample, written as an empty field), written atomically
-    (:func:`liemef.io.atomic_open`)."""
-    import csv
-
-    names_in, names_out = tuple(system.input_names), tuple(system.output_names)
-    ts = np.asarray(ts, dtype=np.float64)
-    if ts.ndim != 1 or ts.shape[0] < 2:
-        raise ValueError(f"ts: expected shape (N,) with N >= 2, got {ts.shape}")
-    N = ts.shape[0]
-    us = np.zeros((N, 0)) if us is None and not names_in else np.asarray(us, dtype=np.float64)
-    ys = np.asarray(ys, dtype=np.float64)
-    for name, a, k in (("us", us, len(names_in)), ("ys", ys, len(names_out))):
-        if a.shape != (N, k):
-            raise ValueError(f"{name}: expected shape ({N}, {k}), got {a.shape}")
-        if np.isinf(a).any():
-            raise ValueError(f"{name}: expected finite values or NaN (missing), got an infinity")
-    if not (np.all(np.isfinite(ts)) and np.all(np.diff(ts) > 0)):
-        raise ValueError("ts: expected finite, strictly increasing time stamps")
-    cell = lambda v: "" if math.isnan(v) else repr(float(v))  # noqa: E731
-    data = np.concatenate([ts[:, None], us, ys], axis=1)
-    with io.atomic_open(path, "w") as f:
-        w = csv.writer(f)
-        w.writerow(["t", *names_in, *names_out])
-        w.writerows([cell(v) for v in row] for row in data)
-    return Path(path)

@@ -368,11 +368,23 @@ def read_log(path: str | os.PathLike, system_or_input_dim, output_dim: int | Non
 
 
 def write_log(path: str | os.PathLike, system, ts, us, ys) -> Path:
-    """A log in ``system``'s columns (CSV: NaN written as an empty field; NPZ: ts, us, ys), atomically."""
+    """A log in ``system``'s columns, written atomically: CSV with the header ``t,<inputs>,<outputs>`` (full
+    float64 precision; NaN, a missing sample, written as an empty field) or NPZ (ts, us, ys), by the suffix.
+    ValueError (naming the argument) on wrong shapes, infinities or time stamps not strictly increasing."""
     layout = LogLayout.of(system)
     ts = np.asarray(ts, dtype=np.float64)
-    us = np.asarray(us, dtype=np.float64).reshape(ts.shape[0], len(layout.inputs))
-    ys = np.asarray(ys, dtype=np.float64).reshape(ts.shape[0], len(layout.outputs))
+    if ts.ndim != 1 or ts.shape[0] < 2:
+        raise ValueError(f"ts: expected shape (N,) with N >= 2, got {ts.shape}")
+    N = ts.shape[0]
+    us = np.zeros((N, 0)) if us is None and not layout.inputs else np.asarray(us, dtype=np.float64)
+    ys = np.asarray(ys, dtype=np.float64)
+    for name, a, k in (("us", us, len(layout.inputs)), ("ys", ys, len(layout.outputs))):
+        if a.shape != (N, k):
+            raise ValueError(f"{name}: expected shape ({N}, {k}), got {a.shape}")
+        if np.isinf(a).any():
+            raise ValueError(f"{name}: expected finite values or NaN (missing), got an infinity")
+    if not (np.all(np.isfinite(ts)) and np.all(np.diff(ts) > 0)):
+        raise ValueError("ts: expected finite, strictly increasing time stamps")
     if Path(path).suffix.lower() == ".npz":
         return write_npz(path, {"ts": ts, "us": us, "ys": ys})
     cell = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731
