@@ -169,6 +169,7 @@ def read_json(path: str | os.PathLike, name: str = "json") -> Any:
 
 
 def read_metrics(path: str | os.PathLike) -> dict:
+    """A ``metrics.json`` file (:func:`read_json`)."""
     return read_json(path, "metrics")
 
 
@@ -204,10 +205,12 @@ class LogLayout:
 
     @property
     def header(self) -> list[str]:
+        """The CSV header ``t, inputs, outputs``."""
         return ["t", *self.inputs, *self.outputs]
 
     @property
     def generic(self) -> LogLayout:
+        """The generic layout of the same sizes (``u1..um``, ``y1..yp``)."""
         return LogLayout.of(None, len(self.inputs), len(self.outputs))
 
 

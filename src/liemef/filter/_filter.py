@@ -185,6 +185,7 @@ class MinimumEnergyFilter(eqx.Module):
 
     @property
     def n(self) -> int:
+        """The dimension n of the group's algebra (K is n x n)."""
         return self.system.group.tangent_dim
 
     # --- initialisation -----------------------------------------------------------------------------------

@@ -42,6 +42,7 @@ class LieEuler(AbstractIntegrator):
     name: ClassVar[str] = "lie-euler"
 
     def step(self, f, g, v, t, dt, first=None):
+        """One Lie-Euler step."""
         xi, L = f(g, v, t) if first is None else first
         return g.rplus(dt * xi), _axpy(dt, L, v)
 
@@ -58,6 +59,7 @@ class RKMK4(AbstractIntegrator):
     name: ClassVar[str] = "rkmk4"
 
     def step(self, f, g, v, t, dt, first=None):
+        """One RKMK4 step."""
         G = type(g)
 
         def dexpinv(theta, xi):

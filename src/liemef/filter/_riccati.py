@@ -52,6 +52,7 @@ class Weights(eqx.Module):
 
     @staticmethod
     def of(system: AbstractSystem) -> Weights:
+        """The system's nominal weights: every sample present, information per unit time or per sample."""
         return Weights(Wy=system.information(), BRB=system.B @ jnp.linalg.solve(system.R, system.B.T))
 
 

@@ -34,6 +34,7 @@ class Block:
 
     @property
     def dim(self) -> int:
+        """Number of output components of the block."""
         return self.stop - self.start
 
 
@@ -74,10 +75,12 @@ class AbstractSystem(eqx.Module):
 
     @property
     def output_dim(self) -> int:
+        """Length p of the output vector."""
         return self.D.shape[0]
 
     @property
     def noise_dim(self) -> int:
+        """Number d of model-error components (columns of B)."""
         return self.B.shape[1]
 
     @property
@@ -154,18 +157,23 @@ class System(AbstractSystem):
 
     @property
     def group(self) -> type[LieGroup]:
+        """The user's group."""
         return self.group_type
 
     def dynamics(self, g, u, t):
+        """The user's dynamics function."""
         return jnp.asarray(self.dynamics_fn(g, u, t), dtype=jnp.float64)
 
     def output(self, g, t):
+        """The user's output function."""
         return jnp.asarray(self.output_fn(g, t), dtype=jnp.float64)
 
     @property
     def input_dim(self) -> int:
+        """The declared number of inputs."""
         return self.n_inputs
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """The user's names, else ``y1..yp``."""
         return self.names if self.names is not None else super().output_names

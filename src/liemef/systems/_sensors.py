@@ -74,6 +74,7 @@ class Noise(eqx.Module):
 
     @property
     def dim(self) -> int:
+        """Number of stds (components)."""
         return int(self.std.shape[0])
 
     def density_std(self, what: str = "noise") -> Float[Array, " k"]:
@@ -150,6 +151,7 @@ class Sensor(eqx.Module):
 
     @property
     def dim(self) -> int:
+        """Number of components."""
         return len(self.components)
 
     @property
@@ -239,60 +241,75 @@ class SensorSystem(AbstractSystem):
     # --- the theorem's matrices, derived from the noise levels ------------------------------------------------
     @property
     def B(self) -> Float[Array, "n d"]:
+        """``noise_map diag(density std)`` of the process noise."""
         return self.noise_map * self.process_noise.density_std("process_noise")[None, :]
 
     @property
     def R(self) -> Float[Array, "d d"]:
+        """The identity: the stds are in B."""
         return jnp.eye(self.process_noise.dim)
 
     @property
     def D(self) -> Float[Array, "p p"]:
+        """``diag(std)`` of the sensors, in output order."""
         return jnp.diag(jnp.concatenate([s.noise.std for s in self.sensors]))
 
     @property
     def Q(self) -> Float[Array, "p p"]:
+        """The identity: the stds are in D."""
         return jnp.eye(self.output_dim)
 
     @property
     def output_dim(self) -> int:
+        """Sum of the sensors' dimensions."""
         return sum(s.dim for s in self.sensors)
 
     def blocks(self) -> tuple[Block, ...]:
+        """One block per sensor, with its sample meaning, gate and robust loss."""
         return blocks_of(self.sensors)
 
     # --- the model --------------------------------------------------------------------------------------------
     @property
     def group(self) -> type[LieGroup]:
+        """The state's group."""
         return self.group_type
 
     @property
     def input_dim(self) -> int:
+        """Number of named inputs."""
         return len(self.inputs)
 
     def dynamics(self, g, u, t):
+        """The dynamics function, as float64."""
         return jnp.asarray(self.dynamics_fn(g, u, t), dtype=jnp.float64)
 
     def output(self, g, t):
+        """The sensors' outputs, concatenated in order."""
         return jnp.concatenate([jnp.atleast_1d(jnp.asarray(s.fn(g, t), dtype=jnp.float64)) for s in self.sensors])
 
     @property
     def input_names(self) -> tuple[str, ...]:
+        """The inputs' names (log columns)."""
         return self.inputs
 
     @property
     def output_names(self) -> tuple[str, ...]:
+        """``{sensor}_{component}`` for every sensor component."""
         return tuple(c for s in self.sensors for c in s.columns)
 
     @property
     def output_units(self) -> tuple[str, ...]:
+        """The sensors' units, in output order."""
         return tuple(u for s in self.sensors for u in s.units)
 
     @property
     def state_names(self) -> tuple[str, ...]:
+        """The given state names, else ``q1..``."""
         return self.coord_names if self.coord_names is not None else super().state_names
 
     @property
     def state_units(self) -> tuple[str, ...]:
+        """The given state units, else empty."""
         return self.coord_units if self.coord_units is not None else super().state_units
 
     def __check_init__(self):

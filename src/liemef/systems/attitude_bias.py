@@ -127,10 +127,15 @@ def attitude_gyro_bias(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bia
             (rad/s/sqrt(Hz)) if ``imu_rate`` is None.
         imu_rate: the IMU rate (Hz) the gyro std refers to.
         bias_walk: gyro bias random walk density (rad/s/sqrt(s); one value or 3).
-        acc_std, mag_std: std of one normalized accelerometer / magnetometer sample (unitless; one value or 3).
+        acc_std: std of one normalized accelerometer sample (unitless; one value or 3).
+        mag_std: std of one normalized magnetometer sample (unitless; one value or 3).
         dip: magnetic dip (rad), positive when the field points down (:func:`magnetic_dip`).
-        acc_gate, acc_robust, acc_max_rejections, mag_gate, mag_robust, mag_max_rejections: each sensor's
-            outlier handling (:class:`~liemef.systems.Sensor`).
+        acc_gate: the accelerometer's chi-square gate probability (:class:`~liemef.systems.Sensor`).
+        acc_robust: ``"huber"`` or ``"cauchy"`` down-weighting of accelerometer outliers (fast translation).
+        acc_max_rejections: consecutive rejected accelerometer samples that make the run fail.
+        mag_gate: the magnetometer's gate probability.
+        mag_robust: its robust loss (magnetic disturbances).
+        mag_max_rejections: consecutive rejected magnetometer samples that make the run fail.
         directions: how the direction samples enter: ``"sample"`` (each sample carries its information once,
             ``Noise.sample(std)``: right for any sample times) or ``"density"`` (a measurement held at the IMU
             rate, ``Noise.density(std / sqrt(imu_rate))``: the same weight on a uniform IMU clock, and
