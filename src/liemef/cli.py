@@ -265,9 +265,9 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
     click.echo(f"{result.runs} trials in {result.elapsed:.1f} s ({result.runs / result.elapsed:.1f} trials/s "
                f"including compilation), {result.batch_size} per batch")
     if result.n_nonfinite:
-        click.echo(f"WARNING: {result.n_nonfinite} of {result.runs} trials produced non-finite errors (diverged; "
-                   f"trials {', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the "
-                   "statistics", err=True)
+        click.echo(f"WARNING: {result.divergence_summary()} (trials "
+                   f"{', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the statistics",
+                   err=True)
     if d is not None:
         written = result.save(d)
         click.echo(f"Wrote {', '.join(p.name for p in written)} to {d}")
