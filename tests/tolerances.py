@@ -20,3 +20,12 @@ STEADY_STATE = 1e-9
 """Riccati gain after a long run (transient decayed below 1e-12) against scipy's solve_continuous_are."""
 SECOND_FINITE_DIFF = 1e-6
 """Mixed second derivatives by central differences with step 1e-4 (truncation ~1e-8, cancellation ~1e-16/h^2)."""
+SUBSTEP_RK4 = 1e-9
+"""A Riccati solution integrated by RK4 sub-steps with |K E| h <= 0.02 (local error ~(|K E| h)^5), against its
+closed form (information added over an interval)."""
+MARGINAL = 1e-10
+"""A filter with a missing correlated component against the filter of the marginal: the two form the same
+information through different inverses (condition number of D ~10)."""
+DISCRETE_KALMAN = 1e-6
+"""Sparse samples on a linear system against the exact discrete Kalman filter, with 1000 RK4 sub-steps per
+interval and the sample's information spread over 2^-30 s (both errors ~1e-9)."""

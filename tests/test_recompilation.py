@@ -1,0 +1,77 @@
+"""Parameters are leaves, structure is static (STYLE.md 16): new weights or noise levels reuse the compiled run and
+step, and logs of different lengths compile once per length bucket (``liemef.filter.TRACES`` counts traces)."""
+
+import jax.numpy as jnp
+import numpy as np
+
+import liemef
+from liemef.filter import TRACES, bucket
+from liemef.groups import SE2, Rn
+from liemef.systems import Noise, PlanarRigidBody, Sensor, SensorSystem, planar_localization, tse2_state
+from localization_scenario import K0, localization_log
+
+
+def test_twenty_noise_levels_compile_once():
+    """20 noise settings of the localization system by with_noise (GPS std and odometry stds): at most one new
+    compilation of run, and the settings do change the estimates."""
+    base = planar_localization()
+    ts, _, us, ys, th0 = localization_log(0, t_end=5.0)
+    g0 = SE2.from_coords(jnp.array([th0, 0.0, 0.0]))
+    before = TRACES["run"]
+    finals = []
+    for i in range(20):
+        sys_ = base.with_noise(gps=Noise.sample(0.5 + 0.1 * i),
+                               process_noise=Noise.sample((np.radians(1.0 + 0.2 * i), 0.01, 0.01 + 0.002 * i),
+                                                          rate=100.0))
+        flt = liemef.MinimumEnergyFilter(sys_)
+        traj = flt.run(flt.init(g0, K0), ts, us, ys)
+        assert traj.status.ok
+        finals.append(np.asarray(traj.coords()[-1]))
+    print("run traces for 20 noise settings:", TRACES["run"] - before)
+    assert TRACES["run"] - before <= 1
+    assert np.abs(finals[0] - finals[-1]).max() > 1e-3
+
+
+def _drift(g, u, t):
+    return jnp.array([g.x[1], -0.1 * g.x[1] + u[0]])
+
+
+def _position(g, t):
+    return g.x[:1]
+
+
+def test_log_lengths_compile_once_per_bucket():
+    """Six logs of 20 to 300 samples: at most one compilation per distinct length bucket (here 3)."""
+    sys_ = SensorSystem(Rn[2], _drift, (Sensor("p", _position, Noise.sample(0.3)),), Noise.density([0.1, 0.2]),
+                        inputs=("a",))
+    flt = liemef.MinimumEnergyFilter(sys_)
+    lengths = (20, 64, 65, 100, 129, 300)
+    buckets = {bucket(n - 1) for n in lengths}
+    before = TRACES["run"]
+    for n in lengths:
+        ts = 0.05 * np.arange(n)
+        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, np.sin(ts)[:, None], np.cos(ts)[:, None])
+        assert traj.status.ok and traj.K.shape == (n, 2, 2)
+    print("run traces for 6 lengths:", TRACES["run"] - before, "buckets:", sorted(buckets))
+    assert len(buckets) == 3
+    assert TRACES["run"] - before <= len(buckets)
+
+
+def test_step_compiles_once_for_two_weight_sets():
+    """Two PlanarRigidBody filters with different D and Q: step compiles once for both (and not again on later
+    steps), and the two weight sets give different estimates."""
+    a = liemef.MinimumEnergyFilter(PlanarRigidBody(), substeps=1)
+    b = liemef.MinimumEnergyFilter(PlanarRigidBody(D=np.diag([0.4] * 4 + [0.2] * 3), Q=np.eye(7)), substeps=1)
+    g0 = tse2_state(0.1, 1.0, 2.0, 0.0, 0.0, 0.0)
+    y = np.asarray(a.system.output(tse2_state(0.15, 1.05, 2.0, 0.1, 0.2, 0.0), 0.0))
+    before = TRACES["step"]
+    states = []
+    for flt in (a, b):
+        st = flt.init(g0, np.eye(6))
+        for k in range(5):
+            st = flt.step(st, 0.01 * k, np.array([0.1, 1.0]), y, 0.01)
+        assert st.status.ok, st.status.message()
+        states.append(np.asarray(st.g_hat.coords()))
+    print("step traces for two weight sets:", TRACES["step"] - before)
+    assert TRACES["step"] - before <= 1
+    assert np.abs(states[0] - states[1]).max() > 1e-4
