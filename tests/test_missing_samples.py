@@ -6,11 +6,15 @@ their marginal). A NaN in ``u`` holds the last input. All on SO(2) x R (angle an
 outputs are nonlinear, so the second-order terms are exercised too.
 """
 
+import math
+import warnings
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import liemef
+from liemef.filter import LogGapWarning
 from liemef.groups import R1, SO2, SO2R1
 from liemef.systems import Noise, Sensor, SensorSystem, System
 from tolerances import MARGINAL, ROUNDOFF
@@ -105,6 +109,27 @@ def test_missing_window_equals_the_system_without_it_there(two_sensors, only_a):
     _close((_x(cut)[k1:k2 + 1], np.asarray(cut.K)[k1:k2 + 1]), (_x(part), np.asarray(part.K)), ROUNDOFF, "window")
     # the window is not a no-op: b's information changes the gain there
     assert np.abs(np.asarray(full.K)[k2] - np.asarray(cut.K)[k2]).max() > 1e-4
+
+
+def test_density_samples_are_not_held_across_a_gap(two_sensors):
+    """An interval of 2.05 s in a 0.05 s log is a gap (default threshold: 10 median intervals): density sensor b
+    is not held over it (the run equals the one with b missing at its start, and a LogGapWarning says so),
+    sample sensor a still counts once. gap=math.inf holds b over the gap, as step() does."""
+    ts, us, ya, yb = log(4)
+    ts = ts + np.where(np.arange(N) >= 30, 2.0, 0.0)
+    ys = np.column_stack([ya, yb])
+    ys_b_missing = ys.copy()
+    ys_b_missing[29, 2:] = np.nan
+    state = two_sensors.init(G0, K0)
+    with pytest.warns(LogGapWarning, match="1 sample interval"):
+        gapped = two_sensors.run(state, ts, us, ys)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LogGapWarning)
+        missing = two_sensors.run(state, ts, us, ys_b_missing, gap=math.inf)
+        held = two_sensors.run(state, ts, us, ys, gap=math.inf)
+    assert int(gapped.status.gaps) == 1 and int(held.status.gaps) == 0
+    _close((_x(gapped), np.asarray(gapped.K)), (_x(missing), np.asarray(missing.K)), ROUNDOFF, "gap")
+    assert np.abs(np.asarray(held.K)[30] - np.asarray(gapped.K)[30]).max() > 1e-3
 
 
 # --- correlated components: the marginal ----------------------------------------------------------------------

@@ -425,8 +425,9 @@ class MinimumEnergyFilter(eqx.Module):
         Sample k is used over ``[ts[k], ts[k+1])``; the result holds the state at every ``ts[k]`` (every
         ``keep_every``-th), the first being ``state``. NaN in ``ys`` marks a missing sample; NaN in ``us`` holds
         the last input. An interval longer than ``gap`` (default: 10 times the median interval) is predicted
-        through without holding density measurements, and a warning says so. Logs are padded to a length
-        bucket (:func:`bucket`): one compilation serves every log of a bucket and every weight set.
+        through without holding density measurements, and a warning says so (``gap=math.inf``: no interval is
+        a gap, as in :meth:`step`). Logs are padded to a length bucket (:func:`bucket`): one compilation serves
+        every log of a bucket and every weight set.
         """
         self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
@@ -441,7 +442,10 @@ class MinimumEnergyFilter(eqx.Module):
         if not (isinstance(keep_every, int) and keep_every >= 1):
             raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
         dts = np.diff(ts)
-        gap = 10.0 * float(np.median(dts)) if gap is None else float(_validate.nonnegative("gap", gap))
+        if gap is None:
+            gap = 10.0 * float(np.median(dts))
+        elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
+            gap = float(_validate.nonnegative("gap", gap))
         nb = bucket(N - 1)
         nb = -(-nb // keep_every) * keep_every
         pad = nb + 1 - N
