@@ -99,7 +99,8 @@ class Sensor(eqx.Module):
             $\nu^\top S^{-1}\nu$ with $S = Dh\,K\,Dh^\top + \Sigma$ exceeds the quantile is rejected and counted.
         robust: ``"huber"`` or ``"cauchy"``: the sample's weight is scaled by $\min(1, c/d)$ or
             $1/(1 + d^2/c^2)$ with $d$ the Mahalanobis distance of the innovation, ``c = robust_scale``.
-        max_rejections: a failure (cause ``gate``) once this many consecutive samples are rejected.
+        max_rejections: the most consecutive rejected samples allowed: the next rejection in a row is a failure
+            (cause ``gate``).
         weight_fn: optional time-varying weight ``w(t) >= 0`` that multiplies the sensor's information.
     """
 
