@@ -1,6 +1,8 @@
 """Parameters are leaves, structure is static (STYLE.md 16): new weights or noise levels reuse the compiled run and
-step, and logs of different lengths compile once per length bucket (``liemef.filter.TRACES`` counts traces)."""
+step, and logs of different lengths compile once per length bucket (``liemef.filter.TRACES`` counts traces);
+padding a log to its bucket and keeping every M-th state change nothing."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -40,21 +42,67 @@ def _position(g, t):
     return g.x[:1]
 
 
+DRIFT = SensorSystem(Rn[2], _drift, (Sensor("p", _position, Noise.sample(0.3)),), Noise.density([0.1, 0.2]),
+                     inputs=("a",))
+
+
+def _drift_log(n):
+    ts = 0.05 * np.arange(n)
+    ys = (np.cos(ts) + 0.3 * np.random.default_rng(n).standard_normal(n))[:, None]
+    ys[::7] = np.nan
+    return ts, np.sin(ts)[:, None], ys
+
+
 def test_log_lengths_compile_once_per_bucket():
     """Six logs of 20 to 300 samples: at most one compilation per distinct length bucket (here 3)."""
-    sys_ = SensorSystem(Rn[2], _drift, (Sensor("p", _position, Noise.sample(0.3)),), Noise.density([0.1, 0.2]),
-                        inputs=("a",))
-    flt = liemef.MinimumEnergyFilter(sys_)
+    flt = liemef.MinimumEnergyFilter(DRIFT)
     lengths = (20, 64, 65, 100, 129, 300)
     buckets = {bucket(n - 1) for n in lengths}
     before = TRACES["run"]
     for n in lengths:
-        ts = 0.05 * np.arange(n)
-        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, np.sin(ts)[:, None], np.cos(ts)[:, None])
+        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), *_drift_log(n))
         assert traj.status.ok and traj.K.shape == (n, 2, 2)
     print("run traces for 6 lengths:", TRACES["run"] - before, "buckets:", sorted(buckets))
     assert len(buckets) == 3
     assert TRACES["run"] - before <= len(buckets)
+
+
+def _leaves_equal(a, b) -> bool:
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+                                      for x, y in zip(la, lb, strict=True))
+
+
+def test_padding_has_no_effect():
+    """The first 50 samples of a 300-sample log run alone (bucket 64) equal the same samples inside the whole run
+    (bucket 512) and the unpadded scan, exactly; the final state of the short run is the long run's state at
+    sample 49."""
+    flt = liemef.MinimumEnergyFilter(DRIFT)
+    state = flt.init(Rn[2](jnp.array([1.0, -1.0])), np.eye(2))
+    ts, us, ys = _drift_log(300)
+    n = 50
+    short, long = flt.run(state, ts[:n], us[:n], ys[:n]), flt.run(state, ts, us, ys)
+    direct = jax.jit(flt.scan)(state, jnp.asarray(ts[:n]), jnp.asarray(us[:n]), jnp.asarray(ys[:n]))
+    assert short.status.ok and long.status.ok
+    for other in (long, direct):
+        np.testing.assert_array_equal(np.asarray(short.g_hat.x), np.asarray(other.g_hat.x)[:n])
+        np.testing.assert_array_equal(np.asarray(short.K), np.asarray(other.K)[:n])
+    np.testing.assert_array_equal(np.asarray(short.final.g_hat.x), np.asarray(long.g_hat.x)[n - 1])
+    assert int(short.final.status.steps) == n - 1 and _leaves_equal(short.final, direct.final)
+
+
+def test_keep_every_is_a_subsample_of_the_full_run():
+    """keep_every=M returns exactly the full run's states at ts[::M] and the same final state (M = 7: the
+    299 intervals are not a multiple of M, the last state kept is at ts[294])."""
+    flt = liemef.MinimumEnergyFilter(DRIFT)
+    state = flt.init(Rn[2](jnp.array([1.0, -1.0])), np.eye(2))
+    ts, us, ys = _drift_log(300)
+    every = 7
+    full, kept = flt.run(state, ts, us, ys), flt.run(state, ts, us, ys, keep_every=every)
+    np.testing.assert_array_equal(np.asarray(kept.ts), ts[::every])
+    np.testing.assert_array_equal(np.asarray(kept.g_hat.x), np.asarray(full.g_hat.x)[::every])
+    np.testing.assert_array_equal(np.asarray(kept.K), np.asarray(full.K)[::every])
+    assert _leaves_equal(kept.final, full.final)
 
 
 def test_step_compiles_once_for_two_weight_sets():

@@ -1,5 +1,5 @@
 """Failures are values (DESIGN.md §6, STYLE.md 15): a run returns the first bad interval, its cause and the last
-good state; padding a log to its length bucket and keeping every M-th state change nothing."""
+good state, and a failed state stays as it is. (Padding and keep_every: tests/test_recompilation.py.)"""
 
 import equinox as eqx
 import jax
@@ -160,52 +160,3 @@ def test_too_many_consecutive_rejections_fail_with_cause_gate():
     ys2[bad[2]] = np.nan
     ok = flt.run(state, ts, us, ys2)
     assert ok.status.ok and int(ok.status.rejected[0]) == 2
-
-
-# --- padding and keep_every ------------------------------------------------------------------------------------------
-def _stable(g, u, t):
-    return jnp.array([[0.0, 1.0], [-1.0, -0.3]]) @ g.x + jnp.array([0.0, 1.0]) * u[0]
-
-
-def _position(g, t):
-    return g.x[:1]
-
-
-@pytest.fixture(scope="module")
-def oscillator():
-    sys_ = System(group_type=Rn[2], dynamics_fn=_stable, output_fn=_position, B=np.eye(2), D=0.2 * np.eye(1),
-                  Q=np.eye(1), R=np.eye(2), n_inputs=1)
-    flt = liemef.MinimumEnergyFilter(sys_)
-    rng = np.random.default_rng(1)
-    ts = 0.02 * np.arange(200)
-    us = np.sin(ts)[:, None]
-    ys = (np.cos(ts) + 0.2 * rng.standard_normal(ts.size))[:, None]
-    ys[::7] = np.nan
-    return flt, flt.init(Rn[2](jnp.array([1.0, -1.0])), np.eye(2)), ts, us, ys
-
-
-def test_padding_has_no_effect(oscillator):
-    """The first 50 samples run alone (bucket 64) equal the same samples inside the 200-sample run (bucket 256)
-    and the unpadded scan, exactly; the final state of the short run is the long run's state at sample 49."""
-    flt, state, ts, us, ys = oscillator
-    n = 50
-    short, long = flt.run(state, ts[:n], us[:n], ys[:n]), flt.run(state, ts, us, ys)
-    direct = jax.jit(flt.scan)(state, jnp.asarray(ts[:n]), jnp.asarray(us[:n]), jnp.asarray(ys[:n]))
-    assert short.status.ok and long.status.ok
-    for other in (long, direct):
-        np.testing.assert_array_equal(np.asarray(short.g_hat.x), np.asarray(other.g_hat.x)[:n])
-        np.testing.assert_array_equal(np.asarray(short.K), np.asarray(other.K)[:n])
-    np.testing.assert_array_equal(np.asarray(short.final.g_hat.x), np.asarray(long.g_hat.x)[n - 1])
-    assert int(short.final.status.steps) == n - 1 and _leaves_equal(short.final, direct.final)
-
-
-def test_keep_every_is_a_subsample_of_the_full_run(oscillator):
-    """keep_every=M returns exactly the full run's states at ts[::M] and the same final state (M = 7: the
-    199 intervals are not a multiple of M, the last state kept is at ts[196])."""
-    flt, state, ts, us, ys = oscillator
-    every = 7
-    full, kept = flt.run(state, ts, us, ys), flt.run(state, ts, us, ys, keep_every=every)
-    np.testing.assert_array_equal(np.asarray(kept.ts), ts[::every])
-    np.testing.assert_array_equal(np.asarray(kept.g_hat.x), np.asarray(full.g_hat.x)[::every])
-    np.testing.assert_array_equal(np.asarray(kept.K), np.asarray(full.K)[::every])
-    assert _leaves_equal(kept.final, full.final)
