@@ -30,7 +30,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_real_logs.py
 
 # One hour of 1 kHz TSE(2) data (3.6 M filter steps), chunk by chunk; MINUTES=2 for a smoke test.
-# The hour took 11 min on one core of a shared 2-core machine (load average 8); the 2-minute run 1-2 min.
+# The hour takes 5-11 min on one core of a shared 2-core machine (load average 4-8), 30-40 s of it compiling;
+# MINUTES=2 takes 1-2 min.
 bench-soak: $(STAMP)
 	$(PY) benchmarks/bench_soak.py --minutes $(MINUTES)
 
