@@ -17,6 +17,9 @@ from ..metrics import ErrorTable, Window
 
 SCHEMA = "liemef.metrics/1"
 """Version tag of the ``metrics.json`` layout (see :class:`Result`)."""
+PAPER_SUBSTEPS = 1
+"""Integrator steps per sample interval in the papers' experiments: one, as the papers integrate (their
+measurements are dense and their gains moderate, so no interval is stiff). Real-log systems use ``"auto"``."""
 
 
 class RunConfig:

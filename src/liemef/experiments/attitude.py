@@ -43,7 +43,17 @@ from ..groups import R3, SO3, TSO3
 from ..metrics import FULL, Window, error_table, gain_stats, group_error
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import RigidBodyAttitude
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
+from ._base import (
+    PAPER_SUBSTEPS,
+    Experiment,
+    FigureSpec,
+    Output,
+    Reproduction,
+    Result,
+    RunConfig,
+    TrialSpec,
+    register,
+)
 from ._evaluate import evaluate
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, montecarlo
 from ._reproduce import default_reproduce
@@ -184,7 +194,8 @@ def _setup(config: AttitudeConfig) -> Setup:
                                Q=(se**2 if printed else 1.0) * np.eye(6),
                                R=(sd**2 if printed else 1.0) * np.eye(3))  # eqs. (84)-(85)
     filters = tuple(MinimumEnergyFilter(system, connection=conn, order=config.order, integrator=config.integrator,
-                                        alpha=config.alpha) for conn in config.connections)
+                                        alpha=config.alpha, substeps=PAPER_SUBSTEPS)
+                    for conn in config.connections)
     state0 = filters[0].init(initial_estimate(config), np.diag(config.K0_diag))
     g0 = TSO3((SO3.identity(), R3(jnp.asarray(config.omega0))))
     return Setup(config=config, system=system, filters=filters, g0=g0, state0=state0, ts=config.ts)

@@ -44,7 +44,18 @@ from ..metrics import FULL
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import ChaplyginSleigh
 from ..systems.chaplygin import SENSORS, constraint_K0, se2r2_state
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, config_dict, register
+from ._base import (
+    PAPER_SUBSTEPS,
+    Experiment,
+    FigureSpec,
+    Output,
+    Reproduction,
+    Result,
+    RunConfig,
+    TrialSpec,
+    config_dict,
+    register,
+)
 from ._evaluate import evaluate, state_error_trial
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, ProgressLine, montecarlo
 from ._reproduce import default_reproduce
@@ -238,7 +249,7 @@ def _setup(config: ChaplyginConfig) -> Setup:
     system = make_system(config)
     cls = PrintedWeightsFilter if config.weights == "printed" else MinimumEnergyFilter
     flt = cls(system, connection=config.connection, order=config.order, integrator=config.integrator,
-              alpha=config.alpha)
+              alpha=config.alpha, substeps=PAPER_SUBSTEPS)
     state0 = flt.init(se2r2_state(*config.filter0), config.K0_matrix)
     return Setup(config=config, system=system, filter=flt, g0=se2r2_state(*config.truth0), state0=state0,
                  ts=config.ts)

@@ -31,7 +31,7 @@ from ..metrics import FULL, Window, state_error
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import PlanarRigidBody, tse2_state
 from ..systems.planar_rigid_body import SENSORS
-from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
+from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate, state_error_trial
 
 
@@ -141,7 +141,7 @@ def _setup(config: TSE2Config) -> Setup:
     if config.weights == "consistent":
         system = PlanarRigidBody(sensor=config.sensor, Q=np.eye(system.output_dim), R=np.eye(system.B.shape[1]))
     flt = MinimumEnergyFilter(system, connection=config.connection, order=config.order,
-                              integrator=config.integrator, alpha=config.alpha)
+                              integrator=config.integrator, alpha=config.alpha, substeps=PAPER_SUBSTEPS)
     state0 = flt.init(tse2_state(*config.filter0), np.diag(config.K0_diag))
     return Setup(config=config, system=system, filter=flt, g0=tse2_state(*config.truth0), state0=state0,
                  ts=config.ts)

@@ -36,7 +36,7 @@ from ..groups import R1, SO2, SO2R1
 from ..metrics import FULL, Window, state_error
 from ..simulation import SensorLog, Truth
 from ..systems.unit_circle import DEG, MEASUREMENTS, UnitCircleBias
-from ._base import Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
+from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate, state_error_trial
 
 OMEGA_RATE = 0.25
@@ -151,7 +151,7 @@ def _setup(config: UnitCircleConfig) -> Setup:
                             B_b=config.B_b_deg * DEG,
                             D=config.noise_std * np.eye(2) if config.measurement == "vector" else None)
     flt = MinimumEnergyFilter(system, connection=config.connection, order=config.order,
-                              integrator=config.integrator)
+                              integrator=config.integrator, substeps=PAPER_SUBSTEPS)
     # Zamani et al., eq. (39): X_hat(0) = I, b_hat(0) = 0, P(0) = diag(1/K1, 1/K2), K = P^-1
     state0 = flt.init(UnitCircleBias.state(0.0, 0.0), np.diag([config.K1, config.K2]))
     return Setup(config=config, system=system, filter=flt, state0=state0, ts=config.ts)

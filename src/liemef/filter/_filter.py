@@ -295,8 +295,14 @@ class MinimumEnergyFilter(eqx.Module):
             def more(c):
                 return c[2] < dt
 
+            # the first step is taken outside the loop (most intervals are not stiff: the loop then runs 0 times)
+            first, rate = field_and_rate(g, K, t)
+            forced = (self.max_substeps <= 1) & (rate * dt > 1.0)
+            last = forced | (rate * dt <= 1.0)
+            h = jnp.where(last, dt, 1.0 / rate)
+            g1, K1 = self.integrator.step(f, g, K, t, h, first=first)
             g1, K1, _, n_sub, capped = jax.lax.while_loop(
-                more, sub, (g, K, jnp.zeros_like(dt), jnp.asarray(0, jnp.int32), jnp.asarray(False)))
+                more, sub, (g1, K1, jnp.where(last, dt, h), jnp.asarray(1, jnp.int32), forced))
         else:
             n_sub, capped = jnp.asarray(self.substeps, jnp.int32), jnp.asarray(False)
             h = dt / self.substeps
