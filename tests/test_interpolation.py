@@ -26,14 +26,15 @@ T_END, STEADY = 20.0, 10.0
 @pytest.fixture(scope="module")
 def attitude_errors():
     """Saccon et al. 2016, Sec. V-B at h = 10 ms: the experiment's system, initial state (60 deg off), alpha and
-    K(0) (liemef.experiments.attitude.setup), one filter step per sample. Noise-free data (torque and directions
-    of an accurate truth: RKMK4 with 20 steps per sample), so that the filter's error after its transient is its
-    integration error. Returns the attitude error rms (deg) over [10, 20] s per (integrator, interpolation)."""
+    K(0) (liemef.experiments.attitude.setup), one filter step per sample. Noise-free data (the torque, and the
+    directions of the paper's truth: geometric Euler with h = 1 ms), so that the filter's error after its
+    transient is its integration error. Returns the attitude error rms (deg) over [10, 20] s per (integrator,
+    interpolation)."""
     cfg = attitude.AttitudeConfig(dt=DT, duration=T_END)
     s = attitude.setup(cfg)
     ts = s.ts
-    truth, _ = simulate(s.system, s.g0, attitude.paper_torque, ts, jax.random.key(0), substeps=20,
-                        integrator="rkmk4")
+    truth, _ = simulate(s.system, s.g0, attitude.paper_torque, ts, jax.random.key(0), substeps=10,
+                        integrator=cfg.truth_integrator)
     us = np.asarray(jax.vmap(attitude.paper_torque)(jnp.asarray(ts)))
     ys = np.asarray(jax.vmap(s.system.output)(truth.g, jnp.asarray(ts)))
     out = {}
@@ -49,12 +50,13 @@ def attitude_errors():
 
 
 def test_rkmk4_needs_linear_interpolation(attitude_errors):
-    """Measured rms over [10, 20] s: RKMK4 + hold 0.35 deg, Lie-Euler (hold; interpolation does not matter to
-    it, it samples the data at the interval's start only) 0.20 deg, RKMK4 + linear 0.02 deg."""
+    """Measured rms over [10, 20] s: RKMK4 + hold 0.36 deg, Lie-Euler (hold; interpolation does not matter to
+    it, it samples the data at the interval's start only) 0.18 deg, RKMK4 + linear 0.027 deg (part of which is
+    the 1 ms Euler truth's own error)."""
     e = attitude_errors
     assert e["rkmk4", "hold"] > 1.3 * e["lie-euler", "hold"]  # held data: RKMK4 is worse
     assert e["rkmk4", "linear"] <= e["lie-euler", "hold"]  # linear: it is no worse ...
-    assert e["rkmk4", "linear"] < 0.1 * e["lie-euler", "hold"]  # ... here an order of magnitude better
+    assert e["rkmk4", "linear"] < 0.25 * e["lie-euler", "hold"]  # ... here several times better
 
 
 # --- convergence slopes -------------------------------------------------------------------------------------------
@@ -66,7 +68,7 @@ def _direction(g, t):
     return g.as_matrix().T @ jnp.array([0.0, 0.0, 1.0])
 
 
-T_SLOPE, DT0 = 2.0, 0.04
+T_SLOPE, DT0 = 1.0, 0.04
 DTS = (DT0, DT0 / 2, DT0 / 4)
 KNOTS = np.arange(0.0, T_SLOPE + 1e-9, DT0)
 
@@ -115,7 +117,7 @@ _REFERENCE = {}
     (smooth, "hold", 1.0), (smooth, "linear", 2.0), (piecewise_linear, "hold", 1.0), (piecewise_linear, "linear", 4.0),
 ])
 def test_convergence_slope(so3_filter, signal, interpolation, slope):
-    """Error of (g_hat, K) at t = 2 s against the same filter at 0.01/8 s with linear interpolation (the filter of the
+    """Error of (g_hat, K) at t = 1 s against the same filter at 0.01/8 s with linear interpolation (the filter of the
     continuous data), halving dt from 0.04 s. Measured slopes: held data 1.00 (smooth or not); linear on smooth
     data 2.00 (the interpolation error, not RKMK4's order); linear on data linear between samples 3.9."""
     linear = interpolation == "linear"
