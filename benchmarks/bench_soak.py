@@ -24,7 +24,6 @@ import math
 import os
 import platform
 import resource
-import subprocess
 import sys
 import time
 
@@ -37,6 +36,7 @@ os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from _provenance import source_version  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 import liemef  # noqa: E402
 from liemef.filter import TRACES, bucket  # noqa: E402
@@ -83,18 +83,6 @@ def rss_mb() -> tuple[float, float]:
     except OSError:
         pass
     return peak, cur
-
-
-def source_version():
-    """The commit the benchmark ran on and the uncommitted files under src/ (the figures are of the working tree)."""
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    try:
-        git = lambda *a: subprocess.run(["git", "-C", root, *a], capture_output=True, text=True,  # noqa: E731
-                                        check=True).stdout
-        return {"head": git("rev-parse", "--short", "HEAD").strip(),
-                "src_uncommitted": [line[3:] for line in git("status", "--porcelain", "--", "src").splitlines()]}
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def main():

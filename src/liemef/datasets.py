@@ -61,17 +61,6 @@ def realdata_dir() -> Path | None:
     return None
 
 
-def _file(path, name: str = "path") -> Path:
-    if not isinstance(path, str | os.PathLike):
-        raise ValueError(f"{name}: expected a file path (str or os.PathLike), got {type(path).__name__}")
-    p = Path(path)
-    if not p.exists():
-        raise ValueError(f"{name}: file not found: {str(p)!r}")
-    if not p.is_file():
-        raise ValueError(f"{name}: expected a file, got a directory {str(p)!r}")
-    return p
-
-
 # --- BROAD ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BroadTrial:
@@ -120,7 +109,7 @@ def broad(path: str | os.PathLike) -> BroadTrial:
     """
     import scipy.io
 
-    p = _file(path)
+    p = io._existing_file(path, "path")
     try:
         d = scipy.io.loadmat(p, squeeze_me=True)
     except Exception as err:  # scipy raises several types on a file that is not a .mat
@@ -180,7 +169,7 @@ def wifibot(path: str | os.PathLike) -> WifibotRun:
 
     ValueError naming ``path`` if the file is missing or is not such a run.
     """
-    p = _file(path)
+    p = io._existing_file(path, "path")
     try:
         with p.open(encoding="utf-8") as f:
             header = f.readline().split()

@@ -141,6 +141,9 @@ def write_result(out: str | os.PathLike, metrics: Mapping[str, Any], arrays: Map
 
 # --- reading -----------------------------------------------------------------------------------------------
 def _existing_file(path: str | os.PathLike, name: str) -> Path:
+    """``path`` as an existing file; a ValueError naming ``name`` otherwise."""
+    if not isinstance(path, str | os.PathLike):
+        raise ValueError(f"{name}: expected a file path (str or os.PathLike), got {type(path).__name__}")
     p = Path(path)
     if not p.exists():
         raise ValueError(f"{name}: file not found: {str(p)!r}")
