@@ -184,6 +184,7 @@ def test_registry_and_quick_config():
     assert exp.quick_runs > 0 and exp.runs >= exp.quick_runs
 
 
+@pytest.mark.slow  # a 20-seed paired Monte Carlo study: `make test-slow`
 def test_consistent_weights_halve_the_attitude_error_and_close_the_gap_between_connections():
     """The printed Q = sigma_eps^2 I6, R = sigma_delta^2 I3 make the filter ignore the noise levels; with Q = I6,
     R = I3, on the same data, the attitude error of both connections is about halved and the (-)-filter almost

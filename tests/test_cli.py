@@ -12,6 +12,7 @@ from click.testing import CliRunner
 from liemef import io, plots
 from liemef.cli import cli, main
 from liemef.experiments import EXPERIMENTS, SCHEMA, MonteCarloResult, Output, Reproduction, tse2
+from liemef.experiments._base import PAPER_SUBSTEPS
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -157,7 +158,8 @@ def test_run_with_a_ready_system_repeats_its_experiments_filter(system, experime
     k0 = ",".join(repr(float(v)) for v in a["K_diag"][0])
     alpha = res.metrics["config"].get("alpha", 0.0)
     out = invoke("run", "--system", system, "--log", tmp_path / "exp" / "arrays.npz", "--out", tmp_path / "run",
-                 "--x0", x0, "--k0-diag", k0, "--alpha", alpha, "--connection", res.metrics["config"]["connection"])
+                 "--x0", x0, "--k0-diag", k0, "--alpha", alpha, "--connection", res.metrics["config"]["connection"],
+                 "--substeps", PAPER_SUBSTEPS)  # the experiments integrate as the papers do
     assert out.exit_code == 0, out.output
     est = np.loadtxt(tmp_path / "run" / "estimates.csv", delimiter=",", skiprows=1)
     c = a["filtered"].shape[1]

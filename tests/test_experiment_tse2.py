@@ -192,6 +192,7 @@ def test_consistent_weights_weigh_by_the_noise_levels(sensor):
     assert np.array_equal(printed.system.D, consistent.system.D)  # the same simulated noise
 
 
+@pytest.mark.slow  # a 20-seed paired Monte Carlo study: `make test-slow`
 def test_consistent_weights_beat_the_printed_ones_on_the_same_data():
     """Same seeds, same simulated data (the weights change only the filter): over 10-20 s Q = I, R = I give a
     smaller rms error than the printed Q = D'D, R = B'B in every component, in the mean over 6 trials (ratios
