@@ -410,10 +410,9 @@ class MinimumEnergyFilter(eqx.Module):
         else:
             n_chunks = -(-(N - 1) // M)
             pad = n_chunks * M - (N - 1)
-            xs = jax.tree_util.tree_map(
-                lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape((n_chunks, M) + a.shape[1:]),
-                xs)
-            xs = (xs[0].at[:].set(jnp.arange(n_chunks * M).reshape(n_chunks, M)),) + xs[1:]
+            # the data padded with its last row; the indices run on, so the padding counts as invalid
+            rows = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape((n_chunks, M) + a.shape[1:])  # noqa: E731
+            xs = (jnp.arange(n_chunks * M).reshape(n_chunks, M), *jax.tree_util.tree_map(rows, xs[1:]))
 
             def chunk(st, xc):
                 st = jax.lax.scan(lambda s, x: (advance(s, x), None), st, xc)[0]
