@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import types
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,32 @@ class UserSystem:
     initial_guess: Any = None
 
 
+def run_python_file(path: Path, option: str, source: str | None = None):
+    """Execute a user's Python file as a fresh module (``source``: its text, when the file itself is not on
+    this machine, e.g. on a Dask worker) and return the module. ValueError naming ``option`` when it cannot be
+    loaded or raises."""
+    name = f"liemef_user_{uuid.uuid4().hex}"
+    if source is None:
+        spec = importlib.util.spec_from_file_location(name, path)
+        if spec is None or spec.loader is None:
+            raise ValueError(f"{option}: cannot load {str(path)!r} as a Python module")
+        module = importlib.util.module_from_spec(spec)
+    else:
+        module = types.ModuleType(name)
+        module.__file__ = str(path)
+    sys.modules[name] = module
+    try:
+        if source is None:
+            spec.loader.exec_module(module)
+        else:
+            exec(compile(source, str(path), "exec"), module.__dict__)  # noqa: S102 - the user's own file
+    except Exception as err:  # a user's file: report whatever it raised, with its type
+        raise ValueError(f"{option}: running {str(path)!r} failed: {type(err).__name__}: {err}") from err
+    finally:
+        sys.modules.pop(name, None)
+    return module
+
+
 def load_system_file(path: str | os.PathLike) -> UserSystem:
     """Execute ``path`` and return its ``system`` (and optional ``K0``, ``x0``, ``initial_guess``).
 
@@ -40,18 +67,7 @@ def load_system_file(path: str | os.PathLike) -> UserSystem:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"--system-file: expected a Python file defining `system`, got {str(p)!r} (not found)")
-    name = f"liemef_user_system_{uuid.uuid4().hex}"
-    spec = importlib.util.spec_from_file_location(name, p)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"--system-file: cannot load {str(p)!r} as a Python module")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    try:
-        spec.loader.exec_module(module)
-    except Exception as err:  # a user's file: report whatever it raised, with its type
-        raise ValueError(f"--system-file: running {str(p)!r} failed: {type(err).__name__}: {err}") from err
-    finally:
-        sys.modules.pop(name, None)
+    module = run_python_file(p, "--system-file")
     system = getattr(module, "system", None)
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"--system-file: expected {str(p)!r} to define `system`, a liemef system (e.g. "

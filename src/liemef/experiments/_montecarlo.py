@@ -68,7 +68,8 @@ def trial_keys(seed: int, runs: int) -> jax.Array:
 
 
 # --- progress ----------------------------------------------------------------------------------------------
-def _seconds(s: float) -> str:
+def format_seconds(s: float) -> str:
+    """``12.3 s``, ``4 min 05 s``, ``2 h 07 min``."""
     if s < 60:
         return f"{s:.1f} s"
     if s < 3600:
@@ -79,8 +80,8 @@ def _seconds(s: float) -> str:
 def format_progress(label: str, done: int, total: int, elapsed: float, eta: float | None) -> str:
     """``"<label>: 40/100 trials (40%), 12.3 s elapsed, ETA 18.0 s"``."""
     pct = 100.0 * done / total if total else 100.0
-    eta_text = "--" if eta is None else _seconds(eta)
-    return f"{label}: {done}/{total} trials ({pct:.0f}%), {_seconds(elapsed)} elapsed, ETA {eta_text}"
+    eta_text = "--" if eta is None else format_seconds(eta)
+    return f"{label}: {done}/{total} trials ({pct:.0f}%), {format_seconds(elapsed)} elapsed, ETA {eta_text}"
 
 
 class ProgressLine:
@@ -97,11 +98,15 @@ class ProgressLine:
         self._width = 0
 
     def __call__(self, done: int, total: int, elapsed: float, eta: float | None) -> None:
-        line = format_progress(self.label, done, total, elapsed, eta)
+        self.show(format_progress(self.label, done, total, elapsed, eta), elapsed, done >= total)
+
+    def show(self, line: str, elapsed: float, final: bool = False) -> None:
+        """Display ``line`` (rewritten in place on a terminal; elsewhere at most every ``interval`` s, and
+        always when ``final``)."""
         if self.tty:
-            self.stream.write("\r" + line.ljust(self._width) + ("\n" if done >= total else ""))
+            self.stream.write("\r" + line.ljust(self._width) + ("\n" if final else ""))
             self._width = len(line)
-        elif done >= total or self._last is None or elapsed - self._last >= self.interval:
+        elif final or self._last is None or elapsed - self._last >= self.interval:
             self.stream.write(line + "\n")
             self._last = elapsed
         self.stream.flush()
@@ -205,10 +210,82 @@ def _compiled(experiment: Experiment, config: Any, keep_every: int | None = None
     return entry
 
 
+def _spec_of(experiment: Experiment, config: Any, keep_every: int | None = None) -> tuple[TrialSpec, np.ndarray]:
+    """The trial spec and time grid of a config: from the compiled cache when this process ran it, else from
+    ``trial_fn`` alone (no tracing; e.g. a campaign's client, whose trials ran on workers)."""
+    try:
+        entry = _CACHE.get((experiment.trial_fn, config, keep_every))
+    except TypeError:
+        entry = None
+    if entry is not None:
+        return entry[0], entry[1]
+    spec = experiment.trial_fn(config)
+    return spec, np.asarray(spec.ts, dtype=np.float64)
+
+
 def _count(name: str, value, minimum: int) -> int:
     if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def resolve_experiment(experiment: Experiment | str) -> Experiment:
+    """``experiment`` itself or the registered experiment of that name; a ValueError unless it has a
+    ``trial_fn`` (a Monte Carlo trial)."""
+    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
+    if not isinstance(exp, Experiment):
+        raise ValueError(f"experiment: expected an Experiment or a registered name, got {type(exp).__name__}")
+    if exp.trial_fn is None:
+        raise ValueError(f"experiment: {exp.name!r} has no trial_fn, so no Monte Carlo; expected one of "
+                         f"{sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)}")
+    return exp
+
+
+@dataclass(frozen=True)
+class TrialArrays:
+    """The per-trial outputs of trials ``start <= i < stop`` (:func:`run_trials`): ``stats[i - start]``
+    (windows, components, :data:`STATS`), ``finite``, ``causes`` and, with ``keep_every``, ``series``;
+    ``samples`` is the number of time samples of one trial (the trial-steps of a trial)."""
+
+    start: int
+    stop: int
+    stats: np.ndarray
+    finite: np.ndarray
+    causes: np.ndarray
+    samples: int
+    series: np.ndarray | None = None
+
+
+def run_trials(experiment: Experiment, config: Any, seed: int, runs: int, start: int, stop: int,
+               batch_size: int, keep_every: int | None = None,
+               on_batch: Callable[[int], None] | None = None) -> TrialArrays:
+    """Trials ``start <= i < stop`` of ``runs`` seeded trials, ``batch_size`` at a time through one compiled
+    ``jit(vmap(trial))`` (cached per experiment and config), the last batch padded with copies of its last
+    key. Trial ``i`` uses ``trial_keys(seed, runs)[i]``; with ``start`` a multiple of ``batch_size`` the
+    compiled batches are exactly those of :func:`montecarlo`, so any split of ``[0, runs)`` into such ranges
+    gives bit-identical arrays. ``on_batch(done)`` is called after every batch with the trials done so far."""
+    spec, ts, batched = _compiled(experiment, config, keep_every)
+    keys = trial_keys(seed, runs)
+    n_trials = stop - start
+    series = None if keep_every is None else np.empty((n_trials, ts[::keep_every].shape[0], len(spec.names)))
+    stats = np.empty((n_trials, len(spec.windows), len(spec.names), len(STATS)))
+    finite = np.empty(n_trials, dtype=bool)
+    causes = np.empty(n_trials, dtype=np.int32)
+    for lo in range(start, stop, batch_size):
+        n = min(batch_size, stop - lo)
+        # Pad the last batch with copies of the last key: one shape, one compilation.
+        idx = np.minimum(np.arange(lo, lo + batch_size), stop - 1)
+        s, f, c, *e = batched(keys[idx])
+        at = slice(lo - start, lo - start + n)
+        if series is not None:
+            series[at] = np.asarray(e[0])[:n]
+        stats[at] = np.asarray(s)[:n]
+        finite[at] = np.asarray(f)[:n]
+        causes[at] = np.asarray(c)[:n]
+        if on_batch is not None:
+            on_batch(lo - start + n)
+    return TrialArrays(start=start, stop=stop, stats=stats, finite=finite, causes=causes, samples=int(ts.shape[0]),
+                       series=series)
 
 
 def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: int = 100, seed: int = 0,
@@ -223,13 +300,10 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
     nothing, a function ``progress(done, total, elapsed, eta)`` is called after every batch.
     ``keep_every = M`` also keeps every trial's errors at every M-th sample (:attr:`MonteCarloResult.series`,
     memory runs x N/M x components), e.g. for bands across trials over time (:meth:`MonteCarloResult.bands`).
+    A campaign (:mod:`liemef.campaign`) runs the same trials split into tasks on a Dask cluster, with
+    identical results.
     """
-    exp = get_experiment(experiment) if isinstance(experiment, str) else experiment
-    if not isinstance(exp, Experiment):
-        raise ValueError(f"experiment: expected an Experiment or a registered name, got {type(exp).__name__}")
-    if exp.trial_fn is None:
-        raise ValueError(f"experiment: {exp.name!r} has no trial_fn, so no Monte Carlo; expected one of "
-                         f"{sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)}")
+    exp = resolve_experiment(experiment)
     runs = _count("runs", runs, 1)
     seed = _count("seed", seed, -(2**63))
     batch = min(_count("batch_size", batch_size, 1), runs)
@@ -237,39 +311,36 @@ def montecarlo(experiment: Experiment | str, config: Any | None = None, runs: in
     config = exp.default_config if config is None else config
     report = _reporter(progress, f"montecarlo {exp.name}")
 
-    spec, ts, batched = _compiled(exp, config, keep_every)
-    keys = trial_keys(seed, runs)
-    series = None if keep_every is None else np.empty((runs, ts[::keep_every].shape[0], len(spec.names)))
-    stats = np.empty((runs, len(spec.windows), len(spec.names), len(STATS)))
-    finite = np.empty(runs, dtype=bool)
-    causes = np.empty(runs, dtype=np.int32)
     t0 = time.perf_counter()
-    first: tuple[int, float] | None = None
-    for start in range(0, runs, batch):
-        n = min(batch, runs - start)
-        # Pad the last batch with copies of the last key: one shape, one compilation.
-        idx = np.minimum(np.arange(start, start + batch), runs - 1)
-        s, f, c, *e = batched(keys[idx])
-        if series is not None:
-            series[start:start + n] = np.asarray(e[0])[:n]
-        stats[start:start + n] = np.asarray(s)[:n]
-        finite[start:start + n] = np.asarray(f)[:n]
-        causes[start:start + n] = np.asarray(c)[:n]
-        done, elapsed = start + n, time.perf_counter() - t0
-        if first is None:
-            first = (done, elapsed)  # includes compilation: no rate from it
+    first: list[tuple[int, float]] = []
+
+    def on_batch(done: int) -> None:
+        elapsed = time.perf_counter() - t0
+        if not first:
+            first.append((done, elapsed))  # includes compilation: no rate from it
             eta = 0.0 if done == runs else None
         else:
-            eta = (runs - done) * (elapsed - first[1]) / (done - first[0])
+            eta = (runs - done) * (elapsed - first[0][1]) / (done - first[0][0])
         if report is not None:
             report(done, runs, elapsed, eta)
-    elapsed = time.perf_counter() - t0
+
+    arrays = run_trials(exp, config, seed, runs, 0, runs, batch, keep_every, on_batch)
+    return result_of(exp, config, seed, runs, arrays, time.perf_counter() - t0, batch, keep_every)
+
+
+def result_of(experiment: Experiment, config: Any, seed: int, runs: int, arrays: TrialArrays, elapsed: float,
+              batch_size: int, keep_every: int | None = None) -> MonteCarloResult:
+    """The :class:`MonteCarloResult` of all ``runs`` trials from their arrays (``arrays.start == 0`` and
+    ``arrays.stop == runs``: :func:`run_trials` over the whole range, or the concatenation of its ranges)."""
+    if (arrays.start, arrays.stop) != (0, runs):
+        raise ValueError(f"arrays: expected the trials [0, {runs}), got [{arrays.start}, {arrays.stop})")
+    spec, ts = _spec_of(experiment, config, keep_every)
     counts = tuple(int(np.sum(np.asarray(window_mask(ts, w)))) for w in spec.windows)
     return MonteCarloResult(
-        experiment=exp.name, title=exp.title, paper=exp.paper, config=_config_data(config), seed=seed,
-        names=tuple(spec.names), units=tuple(spec.units), windows=tuple(spec.windows), counts=counts,
-        stats=stats, finite=finite, keys=np.asarray(jax.random.key_data(keys)), elapsed=elapsed,
-        batch_size=batch, causes=causes, series=series,
+        experiment=experiment.name, title=experiment.title, paper=experiment.paper, config=_config_data(config),
+        seed=seed, names=tuple(spec.names), units=tuple(spec.units), windows=tuple(spec.windows), counts=counts,
+        stats=arrays.stats, finite=arrays.finite, keys=np.asarray(jax.random.key_data(trial_keys(seed, runs))),
+        elapsed=elapsed, batch_size=batch_size, causes=arrays.causes, series=arrays.series,
         series_ts=None if keep_every is None else ts[::keep_every])
 
 
