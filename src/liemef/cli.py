@@ -16,6 +16,8 @@
   ``failure.json`` and exits with status 1.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
+* ``liemef campaign run FILE [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N]``: a Monte Carlo campaign
+  over a grid of settings on Dask, resumable (:mod:`liemef.campaign`); ``liemef campaign status FILE``.
 """
 
 from __future__ import annotations
@@ -569,6 +571,104 @@ def dataset(kind, path, out, truth, seconds, gps_std):
                f"--log {out} --out DIR")
 
 
+@cli.group("campaign")
+def campaign_group():
+    """Monte Carlo campaigns over a grid of settings on Dask: resumable, fault-tolerant.
+
+    A campaign file (TOML or YAML) names an experiment (or an experiment file), a grid of config values, the
+    seeds per setting and an output folder; see `liemef campaign run --help` and docs/campaigns.md."""
+
+
+def _load_campaign(path: Path, out: Path | None):
+    from .campaign import Campaign, CampaignError
+
+    try:
+        return Campaign.load(path, out=None if out is None else str(out.resolve()))
+    except CampaignError as err:
+        raise click.BadParameter(str(err), param_hint="'FILE'") from err
+
+
+@campaign_group.command("run")
+@click.argument("file", type=click.Path(path_type=Path), metavar="FILE")
+@click.option("--out", type=click.Path(path_type=Path), help="Output folder (default: the file's `out`).")
+@click.option("--scheduler", metavar="tcp://HOST:PORT",
+              help="Use this running Dask scheduler and its workers (default: a local cluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Worker processes of the local cluster (one thread each).")
+@click.option("--progress/--no-progress", default=True, show_default=True,
+              help="Tasks done, trial-steps/s and time left on stderr.")
+def campaign_run(file, out, scheduler, workers, progress):
+    """Run the campaign FILE, or resume it: tasks already in its output folder are not computed again.
+
+    Each setting's trials run as tasks of whole compiled vmap batches on Dask; each result is written to the
+    output folder as it arrives (tasks/, manifest.jsonl with a SHA-256 per task). When all are finished:
+    settings/*/montecarlo.{npz,json,md,csv}, summary.md, summary.csv and result.json. Trial i of a setting
+    uses the key of `liemef montecarlo` trial i, so the statistics are the same. Exit status: 0 when complete,
+    1 on an error (the failed task is named; finished tasks are kept), 130 when interrupted (Ctrl-C or
+    SIGTERM): run the same command again to resume."""
+    import signal
+
+    from .campaign import CampaignError, run_campaign
+
+    c = _load_campaign(file, out)
+
+    def terminate(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        result = run_campaign(c, scheduler=scheduler, workers=workers, progress=progress)
+    except CampaignError as err:
+        raise click.ClickException(str(err)) from err
+    except KeyboardInterrupt:
+        raise SystemExit(130) from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    click.echo(result.to_markdown())
+    rate = "--" if result.rate is None else f"{result.rate:.3g}"
+    click.echo(f"{result.computed} tasks computed, {result.reused} reused from earlier runs; {result.elapsed:.1f} s, "
+               f"{rate} trial-steps/s on {result.workers} worker(s)")
+    for s, r in zip(result.settings, result.results, strict=True):
+        if r.n_nonfinite:
+            click.echo(f"WARNING: setting {s.index} ({s.label}): {r.divergence_summary()}; left out of its "
+                       "statistics", err=True)
+    click.echo(f"Wrote {c.out}/summary.md, summary.csv, result.json and settings/*/montecarlo.*")
+
+
+@campaign_group.command("status")
+@click.argument("file", type=click.Path(path_type=Path), metavar="FILE")
+@click.option("--out", type=click.Path(path_type=Path), help="Output folder (default: the file's `out`).")
+def campaign_status(file, out):
+    """How far the campaign FILE has come: finished tasks per setting (verified against their checksums),
+    and whether its results are complete. Runs nothing."""
+    from .campaign import CAMPAIGN_FILE, RESULT_FILE, CampaignError, Store
+
+    c = _load_campaign(file, out)
+    if not (c.out / CAMPAIGN_FILE).exists():
+        click.echo(f"campaign {c.name}: not started ({c.out} has no {CAMPAIGN_FILE}); "
+                   f"{len(c.tasks())} tasks to run")
+        return
+    try:
+        store = Store.open(c)
+    except CampaignError as err:
+        raise click.ClickException(str(err)) from err
+    done = store.finished()
+    tasks = c.tasks()
+    for p in store.problems:
+        click.echo(p)
+    for s in c.points():
+        mine = [t for t in tasks if t.setting == s.index]
+        n = sum(t.id in done for t in mine)
+        click.echo(f"setting {s.index} ({s.label}): {n}/{len(mine)} tasks")
+    complete = len(done) == len(tasks) and (c.out / RESULT_FILE).exists()
+    click.echo(f"campaign {c.name}: {len(done)}/{len(tasks)} tasks finished; "
+               + ("complete" if complete else "incomplete: `liemef campaign run` resumes it"))
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``liemef``)."""
     cli.main(args=argv, prog_name="liemef")
+
+
+if __name__ == "__main__":
+    main()
