@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out/tse2
 MINUTES ?= 60
 
-.PHONY: venv demo test test-slow bench bench-soak lint docs clean
+.PHONY: venv demo test test-slow bench bench-soak bench-campaign lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -35,8 +35,12 @@ bench: $(STAMP)
 bench-soak: $(STAMP)
 	$(PY) benchmarks/bench_soak.py --minutes $(MINUTES)
 
+# Campaign throughput with 1 and 2 local Dask workers, overhead per task, and the 10^6-seed estimate (1-3 min).
+bench-campaign: $(STAMP)
+	$(PY) benchmarks/bench_campaign.py
+
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks tools
+	$(VENV)/bin/ruff check src tests benchmarks tools examples
 
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict -d site

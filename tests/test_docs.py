@@ -60,6 +60,7 @@ def test_site_builds_strict_with_every_page(site):
     ("simulation", ["simulate", "SensorLog"]),
     ("metrics", ["state_error", "ErrorTable"]),
     ("experiments", ["MonteCarloResult", "tse2.TSE2Config"]),
+    ("campaign", ["Campaign", "run_campaign", "Store", "CampaignResult"]),
     ("io", ["read_log"]),
     ("plots", ["write_figures"]),
 ])
