@@ -159,6 +159,26 @@ def test_bad_files_and_settings_are_named(tmp_path):
     assert not (tmp_path / "o").exists()  # nothing was written
 
 
+# --- parameters are data ------------------------------------------------------------------------------------
+def test_a_sweep_of_values_compiles_one_batch():
+    from liemef.experiments import trial_keys, trial_statistics
+    from liemef.experiments._montecarlo import TRACES
+
+    exp = experiment_of(None, EXAMPLE.read_text(), str(EXAMPLE))
+    base = {"duration": 0.9, "dt": 0.05, "substeps": 1, "steady_from": 0.5}
+    before = TRACES["heading"]
+    a = montecarlo(exp, exp.config(**base, meas_std=0.4), runs=4, batch_size=4, progress=False)
+    other = exp.config(**{**base, "steady_from": 0.3}, meas_std=0.6, model_std=0.05, alpha=0.2, initial_error=0.5)
+    b = montecarlo(exp, other, runs=4, batch_size=4, progress=False)
+    assert TRACES["heading"] - before == 1  # noise levels, alpha, initial state and window: values only
+    assert np.isfinite(a.stats).all() and not np.allclose(a.stats[:, 0], b.stats[:, 0])
+    # the shared batch computes what the trial computes on its own (closed over its config's parameters)
+    s, f, c = trial_statistics(exp.trial_fn(other))(trial_keys(0, 4)[2])
+    np.testing.assert_allclose(b.stats[2], np.asarray(s), rtol=1e-12, atol=1e-15)
+    montecarlo(exp, exp.config(**base, order="first"), runs=4, batch_size=4, progress=False)
+    assert TRACES["heading"] - before == 2  # another order is another program
+
+
 # --- the store ---------------------------------------------------------------------------------------------
 def _fake(store: Store, task: Task, value: float):
     n = task.trials

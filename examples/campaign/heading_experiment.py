@@ -71,23 +71,41 @@ def rate(t):
     return jnp.array([0.3 + 0.5 * jnp.sin(t)])
 
 
+def _turn(g, u, t):
+    return u  # the body turns at the measured rate
+
+
+def _direction(g, t):
+    return g.as_matrix()[:, 0]  # (cos theta, sin theta)
+
+
 @functools.lru_cache(maxsize=8)
 def _setup(config: HeadingConfig):
-    system = System(group_type=SO2, dynamics_fn=lambda g, u, t: u,
-                    output_fn=lambda g, t: g.as_matrix()[:, 0],
+    """The system, the filter and its initial state. Only arrays depend on the noise levels, alpha and the
+    initial error; the functions are module-level: settings that differ in those values share one compiled
+    Monte Carlo batch (see ``trial_errors``)."""
+    system = System(group_type=SO2, dynamics_fn=_turn, output_fn=_direction,
                     B=[[config.model_std / math.sqrt(config.dt)]], D=config.meas_std * np.eye(2),
                     Q=np.eye(2), R=np.eye(1), n_inputs=1, names=("cos", "sin"))
     flt = MinimumEnergyFilter(system, connection=config.connection, order=config.order, alpha=config.alpha,
                               substeps=config.substeps)
     state0 = flt.init(SO2.from_angle(jnp.asarray(config.initial_error)), np.eye(1))
-    return system, flt, state0
+    return flt, state0
 
 
-def _run(config: HeadingConfig, key):
-    system, flt, state0 = _setup(config)
-    ts = jnp.asarray(config.ts)
-    truth, log = simulate_core(system, SO2.identity(), rate, ts, key, config.model_std)
-    return system, flt, truth, log, flt.scan(state0, log.ts, log.us, log.ys)
+def _params(config: HeadingConfig):
+    flt, state0 = _setup(config)
+    return flt, state0, jnp.asarray(config.model_std), jnp.asarray(config.ts)
+
+
+def trial_errors(params, key):
+    """One seeded trial: simulate, filter, and return the heading error and the filter's status. A function
+    of the parameters (filter, initial state, model error std, time grid) and the key, so that the Monte
+    Carlo batch takes the parameters as data (``TrialSpec.params``)."""
+    flt, state0, model_std, ts = params
+    truth, log = simulate_core(flt.system, SO2.identity(), rate, ts, key, model_std)
+    traj = flt.scan(state0, log.ts, log.us, log.ys)
+    return state_error(truth.g, traj.g_hat), traj.status
 
 
 def _windows(config: HeadingConfig) -> tuple[Window, ...]:
@@ -95,21 +113,19 @@ def _windows(config: HeadingConfig) -> tuple[Window, ...]:
 
 
 def trial_fn(config: HeadingConfig) -> TrialSpec:
-    """The Monte Carlo trial: the heading error of one seeded run, and the filter's status."""
-    system, _, _ = _setup(config)
-    names, units = state_labels(system)
-
-    def errors(key):
-        _, _, truth, _, traj = _run(config, key)
-        return state_error(truth.g, traj.g_hat), traj.status
-
-    return TrialSpec(ts=config.ts, names=names, units=units, windows=_windows(config), errors=errors)
+    """The Monte Carlo trial of ``config``: :func:`trial_errors` with this config's parameters."""
+    flt, _ = _setup(config)
+    names, units = state_labels(flt.system)
+    return TrialSpec(ts=config.ts, names=names, units=units, windows=_windows(config), errors=trial_errors,
+                     params=_params(config))
 
 
 def run_fn(config: HeadingConfig, key=None):
     """One seeded run as a liemef Result (``experiment.run``)."""
     key = jax.random.key(config.seed) if key is None else key
-    _, flt, truth, log, traj = _run(config, key)
+    flt, state0, model_std, ts = _params(config)
+    truth, log = simulate_core(flt.system, SO2.identity(), rate, ts, key, model_std)
+    traj = flt.scan(state0, log.ts, log.us, log.ys)
     ys = np.asarray(log.ys)
     measured = np.arctan2(ys[:, 1], ys[:, 0])[:, None]
     return evaluate(experiment, config, flt, truth, log, traj, measured, _windows(config), {

@@ -114,13 +114,21 @@ class TrialSpec:
     ``errors`` is traceable in the ``jax.random`` key (simulation and filter for that key, truth minus
     estimate in coordinates), so a Monte Carlo driver batches trials with ``jax.vmap`` over split keys and
     reduces each trial to per-window statistics (:func:`liemef.metrics.error_stats`).
+
+    **Parameters as data.** With ``params`` (a pytree of arrays and equinox modules: the system, the filter,
+    its initial state, noise levels...), ``errors(params, key)`` receives them as an argument instead of
+    closing over them, and the Monte Carlo driver compiles one batch per ``errors`` function and structure of
+    ``params`` (and number of samples): configs that differ only in array values (weights, noise levels,
+    initial states, window bounds) share one compilation. ``errors`` must then be one function object for
+    every config (a module-level function, not a closure made per config).
     """
 
     ts: np.ndarray
     names: tuple[str, ...]
     units: tuple[str, ...]
     windows: tuple[Window, ...]
-    errors: Callable[[Any], Any] = field(repr=False)
+    errors: Callable[..., Any] = field(repr=False)
+    params: Any = field(default=None, repr=False)
 
 
 class Output(NamedTuple):

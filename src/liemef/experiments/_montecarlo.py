@@ -27,6 +27,7 @@ published value. Results print as a table and save as ``<stem>.npz`` + ``<stem>.
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import os
 import sys
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -123,6 +125,29 @@ def _reporter(progress: bool | ProgressFn, label: str) -> ProgressFn | None:
 
 
 # --- the compiled batch ------------------------------------------------------------------------------------
+_SHAPES: dict = {}
+
+
+def _output_shape(spec: TrialSpec):
+    """The shapes ``errors`` returns (``jax.eval_shape``: a trace). For a spec with ``params`` the trace is
+    kept per ``errors`` function and structure of the params (their shapes, dtypes and static parts), so a
+    sweep of values traces it once, as it compiles once."""
+    key = jax.random.key(0)
+    if spec.params is None:
+        return jax.eval_shape(spec.errors, key)
+    dynamic, static = eqx.partition(spec.params, eqx.is_array)
+    leaves, treedef = jax.tree_util.tree_flatten(dynamic)
+    try:
+        cache_key = (spec.errors, treedef, tuple((x.shape, str(x.dtype)) for x in leaves),
+                     jax.tree_util.tree_structure(static), tuple(jax.tree_util.tree_leaves(static)))
+        hash(cache_key)
+    except TypeError:
+        return eqx.filter_eval_shape(spec.errors, spec.params, key)
+    if cache_key not in _SHAPES:
+        _SHAPES[cache_key] = eqx.filter_eval_shape(spec.errors, spec.params, key)
+    return _SHAPES[cache_key]
+
+
 def _check_spec(name: str, spec: TrialSpec) -> np.ndarray:
     if not isinstance(spec, TrialSpec):
         raise ValueError(f"trial_fn of {name!r}: expected a TrialSpec, got {type(spec).__name__}")
@@ -134,7 +159,7 @@ def _check_spec(name: str, spec: TrialSpec) -> np.ndarray:
         raise ValueError(f"trial_fn of {name!r}: expected one unit per name ({c}), got {len(spec.units)}")
     if not spec.windows:
         raise ValueError(f"trial_fn of {name!r}: expected at least one window, got none")
-    out = jax.eval_shape(spec.errors, jax.random.key(0))
+    out = _output_shape(spec)
     if isinstance(out, tuple):
         if len(out) != 2:
             raise ValueError(f"trial_fn of {name!r}: expected errors(key) to return the errors or (errors, "
@@ -162,18 +187,22 @@ def trial_cause(errors: Float[Array, "N c"], status: Status | Int[Array, ""] | N
     return jnp.where(code != OK, code, cause)
 
 
-def trial_statistics(spec: TrialSpec, keep_every: int | None = None) -> Callable[[Any], tuple]:
-    """``one(key) -> (stats, finite, cause)``: the trial's per-window statistics ``stats[w, c, k]`` (``k`` in
-    :data:`STATS`), whether it is healthy (errors all finite and, if ``spec.errors`` returns a status too,
-    the status ok) and its cause code (:func:`trial_cause`). With ``keep_every = M`` also the errors at every
-    M-th sample, ``errors[::M]``. Traceable; :func:`montecarlo` vmaps it."""
-    ts = jnp.asarray(spec.ts, dtype=jnp.float64)
-    windows = tuple(spec.windows)
+TRACES = collections.Counter()
+"""How many times a trial batch was traced (= compiled), by experiment name: a test that a sweep of weights
+over a ``params`` trial (:class:`~liemef.experiments.TrialSpec`) compiles once reads it."""
 
-    def one(key):
-        out = spec.errors(key)
+
+def _statistics_fn(name: str, errors: Callable, windows: tuple[Window, ...] | int, keep_every: int | None,
+                   with_params: bool) -> Callable:
+    """``one(params, ts, bounds, key)``: a trial's statistics. ``windows`` are the spec's (static) windows, or
+    their number when the bounds come traced in ``bounds`` ((W, 2), +-inf for an open side)."""
+
+    def one(params, ts, bounds, key):
+        TRACES[name] += 1  # Python runs here only while tracing
+        out = errors(params, key) if with_params else errors(key)
         e, status = out if isinstance(out, tuple) else (out, None)
-        per_window = [error_stats(ts, e, w) for w in windows]
+        wins = windows if bounds is None else [Window(bounds[i, 0], bounds[i, 1]) for i in range(windows)]
+        per_window = [error_stats(ts, e, w) for w in wins]
         stats = jnp.stack([jnp.stack([s[k] for k in STATS], axis=-1) for s in per_window])
         cause = trial_cause(e, status)
         if keep_every is None:
@@ -183,15 +212,41 @@ def trial_statistics(spec: TrialSpec, keep_every: int | None = None) -> Callable
     return one
 
 
+def trial_statistics(spec: TrialSpec, keep_every: int | None = None) -> Callable[[Any], tuple]:
+    """``one(key) -> (stats, finite, cause)``: the trial's per-window statistics ``stats[w, c, k]`` (``k`` in
+    :data:`STATS`), whether it is healthy (errors all finite and, if ``spec.errors`` returns a status too,
+    the status ok) and its cause code (:func:`trial_cause`). With ``keep_every = M`` also the errors at every
+    M-th sample, ``errors[::M]``. Traceable; :func:`montecarlo` vmaps it (for a spec with ``params``, over the
+    key only, with the params as a traced argument shared by the batch)."""
+    ts = jnp.asarray(spec.ts, dtype=jnp.float64)
+    one = _statistics_fn("", spec.errors, tuple(spec.windows), keep_every, spec.params is not None)
+    return lambda key: one(spec.params, ts, None, key)
+
+
+@functools.lru_cache(maxsize=16)
+def _shared_batch(name: str, errors: Callable, n_windows: int, keep_every: int | None) -> Callable:
+    """``batch(params, ts, bounds, keys)``: one compiled function per ``errors`` function, reused (through
+    equinox's cache on the static structure of its arguments) by every config whose params, time grid and
+    window bounds differ only in values."""
+    one = _statistics_fn(name, errors, n_windows, keep_every, True)
+    return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, None, 0)))
+
+
+def _bounds(windows: tuple[Window, ...]) -> jax.Array:
+    return jnp.asarray([[-jnp.inf if w.start is None else w.start, jnp.inf if w.stop is None else w.stop]
+                        for w in windows], dtype=jnp.float64)
+
+
 _CACHE: collections.OrderedDict = collections.OrderedDict()
 _CACHE_SIZE = 8
 
 
 def _compiled(experiment: Experiment, config: Any, keep_every: int | None = None
               ) -> tuple[TrialSpec, np.ndarray, Callable]:
-    """The trial spec, its time grid and ``jit(vmap(trial_statistics))``, cached per (trial_fn, config,
-    keep_every) so repeated Monte Carlos of one config (other seeds, runs or batch sizes) reuse the compiled
-    function."""
+    """The trial spec, its time grid and the batch ``keys -> statistics`` (``jit(vmap(trial_statistics))``),
+    cached per (trial_fn, config, keep_every) so repeated Monte Carlos of one config (other seeds, runs or
+    batch sizes) reuse it; a spec with ``params`` uses the batch compiled for its ``errors`` function
+    (:func:`_shared_batch`), whatever the config's values."""
     try:
         cache_key = (experiment.trial_fn, config, keep_every)
         hash(cache_key)
@@ -202,7 +257,15 @@ def _compiled(experiment: Experiment, config: Any, keep_every: int | None = None
         return _CACHE[cache_key]
     spec = experiment.trial_fn(config)
     ts = _check_spec(experiment.name, spec)
-    entry = (spec, ts, jax.jit(jax.vmap(trial_statistics(spec, keep_every))))
+    if spec.params is None:
+        one = _statistics_fn(experiment.name, spec.errors, tuple(spec.windows), keep_every, False)
+        ts_j = jnp.asarray(ts)
+        batched = jax.jit(jax.vmap(lambda key: one(None, ts_j, None, key)))
+    else:
+        shared = _shared_batch(experiment.name, spec.errors, len(spec.windows), keep_every)
+        args = (spec.params, jnp.asarray(ts), _bounds(tuple(spec.windows)))
+        batched = functools.partial(shared, *args)
+    entry = (spec, ts, batched)
     if cache_key is not None:
         _CACHE[cache_key] = entry
         while len(_CACHE) > _CACHE_SIZE:
