@@ -20,7 +20,7 @@ demo: $(STAMP)
 	$(VENV)/bin/liemef reproduce tse2 --out $(OUT)
 
 test: $(STAMP)
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 --dist worksteal -q
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow

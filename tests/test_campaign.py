@@ -2,7 +2,8 @@
 killed worker, a stopped and resumed campaign, and a failing task.
 
 The campaign here is the user's experiment in examples/campaign/heading_experiment.py (heading on SO(2)),
-shortened: 2 settings x 24 seeds in tasks of 8 trials (3 per setting), 4 trials per compiled batch.
+shortened: 2 settings (two measurement noise levels: one compiled program, its parameters as data) x 24 seeds
+in tasks of 8 trials (3 per setting), 4 trials per compiled batch.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "campaign" / "heading_experiment.py"
 SMALL = {"name": "test", "experiment_file": str(EXAMPLE), "seeds": 24, "batch_size": 4, "trials_per_task": 8,
          "base": {"duration": 1.0, "dt": 0.05, "substeps": 1, "steady_from": 0.5},
-         "grid": {"order": ["second", "first"]}}
+         "grid": {"meas_std": [0.2, 0.4]}}
 
 
 def small(out: Path, **changes) -> Campaign:
@@ -56,7 +57,7 @@ substeps = 1
 steady_from = 0.5
 
 [grid]
-order = ["second", "first"]
+meas_std = [0.2, 0.4]
 """
 
 
@@ -66,7 +67,7 @@ def test_toml_yaml_and_python_describe_the_same_campaign(tmp_path):
     yaml_text = "\n".join([
         "name: test", f"experiment_file: {EXAMPLE}", "seeds: 24", "batch_size: 4", "trials_per_task: 8",
         f"out: {tmp_path / 'out'}", "base: {duration: 1.0, dt: 0.05, substeps: 1, steady_from: 0.5}",
-        "grid: {order: [second, first]}", ""])
+        "grid: {meas_std: [0.2, 0.4]}", ""])
     (tmp_path / "c.yaml").write_text(yaml_text)
     a, b, c = Campaign.load(tmp_path / "c.toml"), Campaign.load(tmp_path / "c.yaml"), small(tmp_path / "out")
     assert a.fingerprint() == b.fingerprint() == c.fingerprint()
@@ -123,7 +124,7 @@ def test_the_example_campaign_is_the_documented_one_and_is_valid():
     ({"seeds": 0}, "seeds: expected an integer >= 1, got 0"),
     ({"grid": {"order": []}}, "grid.order: expected a non-empty list"),
     ({"grid": {"order": ["first", "first"]}}, "grid.order: expected distinct values"),
-    ({"settings": [{"order": "first"}]}, "grid/settings: expected each field in one of them"),
+    ({"settings": [{"meas_std": 0.1}]}, "grid/settings: expected each field in one of them"),
     ({"base": {"alpha": float("nan")}}, "base.alpha: expected a finite number"),
     ({"quick": "yes"}, "quick: expected true or false"),
 ])
@@ -265,7 +266,7 @@ def test_one_worker_two_workers_and_montecarlo_give_identical_statistics(tmp_pat
     saved = np.load(tmp_path / "two" / "settings" / two.settings[1].folder / "montecarlo.npz")
     np.testing.assert_array_equal(saved["stats"], reference[1].stats)
     table = (tmp_path / "two" / "summary.md").read_text()
-    assert "| order=first | 0/24 |" in table
+    assert "| meas_std=0.4 | 0/24 |" in table
     # run again: nothing is computed, and the same numbers come back
     again = run_campaign(small(tmp_path / "two"), client=client, progress=False)
     assert again.computed == 0 and again.reused == 6
@@ -303,7 +304,7 @@ def test_a_failing_task_stops_the_campaign_and_keeps_the_rest(tmp_path, client):
         "    spec = _trial_fn(config)\n"
         "    if config.alpha == 0:\n"
         "        return spec\n"
-        "    def errors(key):\n"
+        "    def errors(params, key):\n"
         "        raise RuntimeError('no trial for alpha > 0')\n"
         "    return dataclasses.replace(spec, errors=errors)\n\n"
         "experiment = Experiment(name='heading', title='', paper='', default_config=HeadingConfig(), "

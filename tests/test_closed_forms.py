@@ -251,13 +251,13 @@ def test_vector_field_matches_printed_filter(connection):
 
 @pytest.mark.parametrize("connection", ["zero", "minus"])
 def test_tso3_run_matches_printed_filter(connection):
-    """flt.run (RKMK4, 2 ms) over 1 s of held samples equals Saccon's printed filter (Props. 5.1/5.2,
+    """flt.run (RKMK4, 2 ms) over 0.5 s of held samples equals Saccon's printed filter (Props. 5.1/5.2,
     observer + eq. 11) integrated by scipy on the embedded matrix ODE R_dot = R hat(xi). With the
     (-)-connection K leaves the symmetric matrices; with the (0)-connection it stays symmetric."""
     system = RigidBodyAttitude()
     a1, a2 = np.asarray(system.a1), np.asarray(system.a2)
     rng = np.random.default_rng(8)
-    ts = np.arange(0.0, 1.0 + 0.005, 0.01)
+    ts = np.arange(0.0, 0.5 + 0.005, 0.01)
     taus = np.column_stack([np.sin(2 * np.pi * ts / 3), np.cos(2 * np.pi * ts), np.sin(2 * np.pi * ts / 5)])
     truth = np.asarray(SO3.exp(jnp.asarray(np.outer(ts, [0.5, 0.6, 0.4]))).as_matrix())
     ys = np.array([pf.tso3_output(Rt, a1, a2) for Rt in truth]) + 0.05 * rng.standard_normal((ts.size, 6))
