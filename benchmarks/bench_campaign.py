@@ -12,9 +12,10 @@ Prints one JSON document (issue 10):
 * ``overhead``: per task, what is not the filter: a Dask round trip of an empty task (``--empty-tasks`` of them
   through the same 2-worker cluster: the scheduler's and the transport's cost per task), and the client's
   recording of one task (npz written atomically, SHA-256, manifest line with fsync).
-* ``estimate_1e6_seeds_100_machines``: tasks, data volume, compile time and scheduler load for 10^6 seeds of
-  this campaign on 100 machines like this one (2 workers each), with every assumption stated; derived from
-  the measurements above, not measured.
+* ``estimate_1e6_seeds_100_machines``: tasks, data volume, compile time, the load of the scheduler and of the
+  client's recording, and which of them bounds the wall time, for 10^6 seeds of this campaign on 100 machines
+  like this one (2 workers each), at the benchmarked task size and at the smallest task size that keeps the
+  scheduler below 10 % busy; every assumption stated, derived from the measurements above, not measured.
 
     python benchmarks/bench_campaign.py [--seeds 512] [--duration 20] [--trials-per-task 64]
 """
@@ -100,36 +101,50 @@ def overhead(args, tmp: Path) -> dict:
             "record_task_s_median": round(float(np.median(rec)), 6)}
 
 
+def _load(tpt: int, seeds: int, samples: int, per_worker: float, workers: int, sched_per_task: float,
+          record_s: float, npz_bytes: int, compile_s: float) -> dict:
+    tasks = -(-seeds // tpt)
+    compute_s = seeds * samples / (per_worker * workers)
+    busy = {"workers": 1.0, "scheduler": tasks * sched_per_task / compute_s,
+            "client_recording": tasks * record_s / compute_s}
+    return {"trials_per_task": tpt, "tasks": tasks, "task_compute_s": round(tpt * samples / per_worker, 2),
+            "compute_s": round(compute_s, 1), "scheduler_tasks_per_s_needed": round(tasks / compute_s, 1),
+            "scheduler_busy_fraction": round(busy["scheduler"], 3),
+            "client_recording_busy_fraction": round(busy["client_recording"], 3),
+            "bottleneck": max(busy, key=busy.get),
+            "wall_s": round(compute_s * max(busy.values()) + compile_s, 1),
+            "data_volume_bytes": tasks * npz_bytes, "manifest_bytes": tasks * 330}
+
+
 def estimate(tp2: dict, tp1: dict, ov: dict, args) -> dict:
     seeds, machines, workers_per_machine = 10**6, 100, 2
     workers = machines * workers_per_machine
     samples = int(round(args.duration / 0.01)) + 1
     per_worker = tp1["trial_steps_per_s"]  # one worker process on one core, compilation excluded
-    tasks = -(-seeds // args.trials_per_task)
-    compute_s = seeds * samples / (per_worker * workers)
-    task_s = args.trials_per_task * samples / per_worker
-    sched_per_task = ov["empty_task_s_in_a_batch"]
+    sched_per_task, record_s = ov["empty_task_s_in_a_batch"], ov["record_task_s_median"]
+    compile_s = round(tp1["worker_s_per_task"]["max_first_tasks"] - args.trials_per_task * samples / per_worker, 1)
+    as_run = _load(args.trials_per_task, seeds, samples, per_worker, workers, sched_per_task,
+                   record_s, tp2["task_npz_bytes"], compile_s)
+    # the smallest task (a whole number of batches) that keeps the scheduler below 10 % busy
+    tpt = args.batch_size
+    while _load(tpt, seeds, samples, per_worker, workers, sched_per_task, record_s, tp2["task_npz_bytes"],
+                compile_s)["scheduler_busy_fraction"] > 0.1:
+        tpt += args.batch_size
     return {
         "assumptions": [
             f"one setting of this campaign ({samples} samples per trial), {seeds} seeds",
             f"{machines} machines like this one, {workers_per_machine} single-threaded workers each "
             f"({workers} workers), each at the 1-worker rate measured here ({per_worker} trial-steps/s)",
-            "one Dask scheduler; its cost per task as measured here for empty tasks (it grows with the number "
-            "of workers, so the load below is a lower bound)",
-            "results gathered to the client and written there; the network moves the task files only",
-            "each worker compiles the setting once (the first result's extra time measured here)"],
-        "tasks": tasks,
-        "trials_per_task": args.trials_per_task,
-        "task_compute_s": round(task_s, 2),
-        "compute_wall_s": round(compute_s, 1),
-        "compile_s_per_worker_once": round(tp1["worker_s_per_task"]["max_first_tasks"] - task_s, 1),
-        "scheduler_tasks_per_s": round(tasks / compute_s, 2),
-        "scheduler_busy_fraction": round(tasks * sched_per_task / compute_s, 5),
-        "data_volume_bytes": tasks * tp2["task_npz_bytes"],
-        "manifest_bytes": tasks * 330,
-        "note": "with tasks of seconds the scheduler is idle; it would become the bottleneck only near "
-                f"{round(1 / sched_per_task)} tasks/s, i.e. tasks shorter than "
-                f"{round(workers * sched_per_task, 3)} s on {workers} workers"}
+            f"one Dask scheduler, {sched_per_task * 1e3:.2f} ms per task as measured here for empty tasks "
+            "(on this 2-core machine beside its workers; it grows with the number of workers)",
+            "results gathered to the client and written there one by one (file, SHA-256, fsync'd manifest line: "
+            f"{record_s * 1e3:.2f} ms per task as measured here); the network moves the task files only",
+            "each worker compiles the setting once, in parallel with the others (the first result's extra "
+            "time measured here)"],
+        "compile_s_per_worker_once": compile_s,
+        "with_trials_per_task_as_benchmarked": as_run,
+        "with_trials_per_task_for_scheduler_below_10_percent": _load(
+            tpt, seeds, samples, per_worker, workers, sched_per_task, record_s, tp2["task_npz_bytes"], compile_s)}
 
 
 def main():
