@@ -19,11 +19,15 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/liemef reproduce tse2 --out $(OUT)
 
+# JAX's persistent compilation cache, shared by the test processes (xdist workers, CLI subprocesses, Dask
+# workers): a program compiled in one is loaded, not compiled again, in another, and in the next run.
+JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax
+
 test: $(STAMP)
-	$(PY) -m pytest -n 2 --dist worksteal -q
+	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow
+	$(JAX_CACHE) $(PY) -m pytest -q -m slow
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_tse2.py
@@ -46,4 +50,4 @@ docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict -d site
 
 clean:
-	rm -rf $(VENV) out site .pytest_cache
+	rm -rf $(VENV) out site .pytest_cache .cache

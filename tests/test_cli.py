@@ -141,8 +141,9 @@ def test_run_accepts_an_experiments_arrays_npz_and_initial_state(reproduced, tmp
 
 
 @pytest.mark.parametrize(("system", "experiment", "config"), [
-    ("attitude", "attitude", {"duration": 0.3}),
-    ("chaplygin", "chaplygin", {"duration": 2.0}),
+    # the TSO(3) and the Chaplygin IMU filters compile for 25-40 s each: in `make test-slow`
+    pytest.param("attitude", "attitude", {"duration": 0.3}, marks=pytest.mark.slow),
+    pytest.param("chaplygin", "chaplygin", {"duration": 2.0}, marks=pytest.mark.slow),
     ("chaplygin-gps", "chaplygin", {"duration": 2.0, "sensor": "gps"}),
     ("unit-circle", "unit-circle", {"duration": 2.0}),
 ])
