@@ -134,6 +134,7 @@ def _cli_has_system_file() -> bool:
     return "--system-file" in out.stdout
 
 
+@pytest.mark.slow  # a subprocess that imports JAX and compiles the localization filter again: 30 s
 def test_tutorial_cli_run_on_the_csv_log(tutorial):
     if not _cli_has_system_file():
         pytest.skip("liemef run --system-file is not available yet")
