@@ -327,15 +327,15 @@ def test_a_failing_task_stops_the_campaign_and_keeps_the_rest(tmp_path, client):
 
 
 # --- the command line, stopped and resumed -----------------------------------------------------------------
-def _default_sigint():
-    # pytest-xdist's workers ignore SIGINT, and an ignored signal is inherited: give the CLI the default
-    # disposition a terminal's Ctrl-C meets (Python then raises KeyboardInterrupt).
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+# pytest-xdist's workers ignore SIGINT, and an ignored signal is inherited: the CLI is started with the handler
+# a terminal's Ctrl-C meets (KeyboardInterrupt), set in the child itself (no pre-exec hook in a JAX process).
+CLI = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+       "from liemef.cli import main; main(sys.argv[1:])")
 
 
 def _cli(*args, **kw):
-    return subprocess.Popen([sys.executable, "-m", "liemef.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint, **kw)
+    return subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **kw)
 
 
 def _wait_for_tasks(out: Path, n: int, proc, timeout: float = 300.0) -> None:
