@@ -58,15 +58,15 @@ def throughput(workers: int, args, tmp: Path) -> dict:
         started = time.perf_counter() - t0
         result = run_campaign(campaign(tmp / f"w{workers}", args), client=client, progress=False)
     store = Store(result.campaign)
-    seconds = [e.seconds for e in store.finished().values()]
+    done = store.finished().values()
+    seconds = [e.seconds for e in done]
     return {"workers": workers, "tasks": result.computed, "trial_steps": result.steps_computed,
             "cluster_start_s": round(started, 2), "campaign_s": round(result.elapsed, 2),
             "trial_steps_per_s": None if result.rate is None else round(result.rate),
             "trial_steps_per_s_wall": round(result.rate_wall),
             "worker_s_per_task": {"max_first_tasks": round(max(seconds), 3),
                                   "median": round(float(np.median(seconds)), 3)},
-            "task_npz_bytes": int(np.median([(store.out / e.file).stat().st_size
-                                             for e in store.finished().values()]))}
+            "task_npz_bytes": int(np.median([(store.out / e.file).stat().st_size for e in done]))}
 
 
 def _empty(i):

@@ -81,6 +81,12 @@ def test_toml_yaml_and_python_describe_the_same_campaign(tmp_path):
     d = Campaign.load(tmp_path / "sub" / "c.toml")
     assert d.out == tmp_path / "sub" / "o" and d.experiment_file == tmp_path / "sub" / "exp.py"
     assert d.fingerprint() == a.fingerprint()
+    # the text is read once: what was fingerprinted is what the workers get, whatever happens to the file
+    (tmp_path / "sub" / "exp.py").write_text("# edited\n")
+    assert d.fingerprint() == a.fingerprint() and d.experiment_source() == EXAMPLE.read_text()
+    (tmp_path / "sub" / "exp.py").unlink()
+    with pytest.raises(CampaignError, match="experiment_file: cannot read"):
+        Campaign.load(tmp_path / "sub" / "c.toml")
     assert small(tmp_path, seeds=25).fingerprint() != a.fingerprint()
 
 

@@ -110,6 +110,7 @@ class CampaignResult:
     def to_markdown(self) -> str:
         """Per window, a table with a row per setting: diverged trials, then per error component the mean
         across trials of its rms over time, with the spread (std across trials)."""
+        from ..experiments import STATS
         from ..metrics._stats import format_number
 
         first = self.results[0]
@@ -122,7 +123,7 @@ class CampaignResult:
                f"{c.batch_size} per compiled batch.", "",
                "Per trial: the rms over time of each error component in the window; across trials: mean "
                "(spread = std, ddof = 1) over the trials that did not diverge.", ""]
-        k = 2  # STATS.index("rms")
+        k = STATS.index("rms")
         for w, label in enumerate(first.window_labels):
             head = ["setting", "diverged", *(f"{n} rms ({u})" if u else f"{n} rms" for n, u in
                                              zip(first.names, first.units, strict=True))]

@@ -148,6 +148,7 @@ class Campaign:
     seed: int = 0
     batch_size: int = 8
     trials_per_task: int = 64
+    _source: str | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -161,6 +162,11 @@ class Campaign:
             raise CampaignError(f"experiment: expected a registered experiment name, got {self.experiment!r}")
         if self.experiment_file is not None:
             set_("experiment_file", Path(self.experiment_file))
+            # read once: the text fingerprinted is the text the workers run, whatever happens to the file later
+            try:
+                set_("_source", self.experiment_file.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError) as err:
+                raise CampaignError(f"experiment_file: cannot read {str(self.experiment_file)!r} ({err})") from None
         if not isinstance(self.quick, bool):
             raise CampaignError(f"quick: expected true or false, got {self.quick!r}")
         set_("out", Path(self.out))
@@ -257,13 +263,9 @@ class Campaign:
                 for s in self.points() for lo in range(0, self.seeds, self.trials_per_task)]
 
     def experiment_source(self) -> str | None:
-        """The text of ``experiment_file`` (None for a registered experiment)."""
-        if self.experiment_file is None:
-            return None
-        try:
-            return self.experiment_file.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as err:
-            raise CampaignError(f"experiment_file: cannot read {str(self.experiment_file)!r} ({err})") from err
+        """The text of ``experiment_file``, as read when the campaign was made (None for a registered
+        experiment)."""
+        return self._source
 
     # --- identity
     def description(self) -> dict:
@@ -284,7 +286,7 @@ class Campaign:
 
     def to_dict(self) -> dict:
         """The campaign's keys as JSON data (paths as strings)."""
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.init}
         d["out"] = str(self.out)
         d["experiment_file"] = None if self.experiment_file is None else str(self.experiment_file)
         d["settings"] = list(self.settings)

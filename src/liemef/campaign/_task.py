@@ -9,7 +9,6 @@ setting once, whatever number of its tasks it runs.
 from __future__ import annotations
 
 import functools
-import hashlib
 import os
 import socket
 import time
@@ -61,7 +60,7 @@ def _frozen(value: Any) -> Any:
 
 
 @functools.lru_cache(maxsize=8)
-def _experiment_from_source(source: str, filename: str, digest: str):
+def _experiment_from_source(source: str, filename: str):
     from .._system_file import run_python_file
     from ..experiments import Experiment
 
@@ -80,9 +79,8 @@ def experiment_of(name: str | None, source: str | None, filename: str = "<experi
     from ..experiments._montecarlo import resolve_experiment
 
     if source is not None:
-        digest = hashlib.sha256(source.encode()).hexdigest()
         try:
-            exp = _experiment_from_source(source, filename, digest)
+            exp = _experiment_from_source(source, filename)
         except ValueError as err:
             raise CampaignError(str(err)) from None
     else:
