@@ -1,0 +1,428 @@
+r"""The driver shared by every filter of the library: its state, trajectory, health checks and compiled loop.
+
+A filter is an :class:`AbstractFilter` that says how one sample interval ``[t, t + dt]`` advances its state
+(``_interval``). The driver gives it :meth:`~AbstractFilter.init`, the online :meth:`~AbstractFilter.step`,
+the checked :meth:`~AbstractFilter.run` over a whole log (padded to a length bucket, so that one compilation
+serves every log of a bucket and every weight set) and the traceable :meth:`~AbstractFilter.scan`. The
+minimum-energy filter (:class:`~liemef.MinimumEnergyFilter`) and the baselines (:mod:`liemef.baselines`) are
+such filters: they share the sample conventions (a sample at ``ts[k]`` is used over ``[ts[k], ts[k+1])``, NaN
+is missing), the status and the outputs.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import functools
+import math
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from .. import _validate
+from ..groups import LieGroup
+from ._riccati import information_in_force
+from ._status import ASYMMETRIC, DEFINITE_TOL, GATE, INDEFINITE, NONFINITE, OK, SYMMETRY_TOL, Status
+
+
+class FilterState(eqx.Module):
+    """The filter's state: the estimate $\\hat g$, the gain K (n x n), the last input (held over missing input
+    samples) and the :class:`~liemef.filter.Status` of the run so far."""
+
+    g_hat: LieGroup
+    K: Float[Array, "n n"]
+    u_last: Float[Array, " m"]
+    status: Status
+
+
+class Trajectory(eqx.Module):
+    """A filter run: ``g_hat[k]`` and ``K[k]`` at ``ts[k]`` (``g_hat`` has batch shape (N,)).
+
+    ``status`` says whether the run failed, where, when and why (:class:`~liemef.filter.Status`); the states
+    after a failure are NaN, so that nothing downstream can mistake them for estimates, and ``final`` is the
+    last good state (the state at ``ts[-1]`` when the run is healthy), from which a run can continue.
+    With ``keep_every = M`` the history holds every M-th sample (``ts = log ts[::M]``).
+    """
+
+    ts: Float[Array, " N"]
+    g_hat: LieGroup
+    K: Float[Array, "N n n"]
+    status: Status
+    final: FilterState
+
+    @property
+    def finite(self) -> Bool[Array, ""]:
+        """True if the run did not fail (kept under its old name: a failed run has NaN states)."""
+        return self.status.code == OK
+
+    def coords(self) -> Float[Array, "N c"]:
+        """The estimate in the group's coordinates (e.g. theta, x, y, omega, vx, vy for TSE(2))."""
+        return self.g_hat.coords()
+
+
+
+TRACES: collections.Counter = collections.Counter()
+"""How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
+
+
+def positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
+    """Whether the symmetric ``S`` has a Cholesky factor, by an unrolled factorization: on the CPU a LAPACK call
+    costs more than the whole filter step for these small matrices."""
+    n = S.shape[0]
+    L = [[None] * n for _ in range(n)]
+    ok = jnp.asarray(True)
+    for j in range(n):
+        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.asarray(0.0))
+        ok = ok & (d > 0)
+        L[j][j] = jnp.sqrt(jnp.where(d > 0, d, 1.0))
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.asarray(0.0))) / L[j][j]
+    return ok
+
+
+def bucket(n: int) -> int:
+    """The padded number of intervals for a log of ``n`` intervals: the next power of two (at least 64), so
+    that logs of different lengths share one compilation per bucket."""
+    return max(64, 1 << max(0, (n - 1).bit_length()))
+
+
+def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
+    """The sensor layout a filter needs: the system's blocks, per output component whether it has sample
+    meaning, and whether the information matrix ``Wy`` is diagonal (a missing component is then dropped by
+    zeroing its row and column; otherwise the filter forms the marginal information, DESIGN.md §6)."""
+    blocks = system.blocks()
+    sample = [False] * system.output_dim
+    for b in blocks:
+        sample[b.start:b.stop] = [b.sample] * b.dim
+    Wy = np.asarray(Wy)
+    return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
+
+
+class AbstractFilter(eqx.Module):
+    """A filter on a liemef system: :meth:`init`, :meth:`step`, :meth:`run` and :meth:`scan` over the
+    sample intervals of a log, with the status of the run (:class:`~liemef.filter.Status`).
+
+    A concrete filter holds ``system``, ``weights`` (the system's nominal :class:`~liemef.filter.Weights`),
+    ``blocks``, ``sample`` and ``diagonal`` (the sensor layout, see :func:`sensor_layout`) and ``symmetric``
+    (whether K must stay symmetric), and implements ``_interval(state, t, dt, u0, u1, y0, y1, gap)``: advance
+    over ``[t, t + dt]`` from the samples at its two ends (NaN = missing), with :meth:`_samples` and
+    :meth:`_finish` for the shared conventions.
+    """
+
+    @abc.abstractmethod
+    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        """Advance over ``[t, t + dt]``."""
+
+    def __hash__(self) -> int:
+        # The structure only (static fields and non-array leaves), never the arrays: filters equal as pytrees
+        # hash equal, and ``jax.jit(flt.vector_field)`` works (equality still compares the arrays).
+        leaves, treedef = jax.tree_util.tree_flatten(self)
+        return hash((treedef, tuple(x for x in leaves if not eqx.is_array(x))))
+
+
+    @property
+    def n(self) -> int:
+        """The dimension n of the group's algebra (K is n x n)."""
+        return self.system.group.tangent_dim
+
+    # --- initialisation -----------------------------------------------------------------------------------
+    def init(self, g0: LieGroup, K0: ArrayLike | None = None, *, X0: ArrayLike | None = None,
+             u0: ArrayLike | None = None) -> FilterState:
+        """Initial state: ``g_hat = g0`` (argmin of m0) and ``K = K0``, or ``K = X0^{-1}`` with X0 the
+        left-trivialized Hessian of m0. K0 may be singular (positive semidefinite), as in Rigo et al. 2023,
+        eq. (63). ``u0`` is the input held until the first present input sample (default zeros)."""
+        self._check_element("g0", g0)
+        n, m = self.n, self.system.input_dim
+        if (K0 is None) == (X0 is None):
+            raise ValueError("init: expected exactly one of K0 (initial gain) or X0 (Hessian of m0), got "
+                             f"{'both' if K0 is not None else 'neither'}")
+        if K0 is not None:
+            K = _validate.symmetric_psd("K0", K0, n, definite=False)
+        else:
+            K = np.linalg.inv(_validate.symmetric_psd("X0", X0, n))
+        u = np.zeros(m) if u0 is None else _validate.array("u0", u0, (m,))
+        return FilterState(g_hat=g0, K=jnp.asarray(K), u_last=jnp.asarray(u), status=Status.initial(len(self.blocks)))
+
+
+    def _samples(self, state: FilterState, dt, u0, u1, y0, y1, gap):
+        """The interval's data under the shared conventions: a missing input sample holds the last one; a missing
+        measurement component has no weight; density samples are not held across a gap. Returns the inputs
+        ``u0, u1``, whether ``u0`` was present, the measurements ``y0, y1`` (zeros where missing), the mask of
+        present components of ``y0``, the information in force ``Wy`` and whether the interval is a gap."""
+        sample = jnp.asarray(self.sample, dtype=bool)
+        u_ok = jnp.isfinite(u0)
+        u0 = jnp.where(u_ok, u0, state.u_last)
+        u1 = jnp.where(jnp.isfinite(u1), u1, u0)
+        is_gap = dt > gap
+        mask = jnp.isfinite(y0) & ~(is_gap & ~sample)
+        dense = mask & jnp.isfinite(y1) & ~sample
+        y0 = jnp.where(mask, y0, 0.0)
+        y1 = jnp.where(dense, y1, y0)
+        Wy = information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal)
+        return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
+
+    def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
+                n_sub=1, capped=False) -> FilterState:
+        """The state after an interval: checks ``(g1, K1)`` (:meth:`_health`) and updates the status; a failing
+        interval keeps the state before it, and a state that had failed stays as it was."""
+        st = state.status
+        code = self._health(g1, K1, consecutive)
+        new_fail = code != OK
+        g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
+        K_out = jnp.where(new_fail, state.K, K1)
+        n_sub = jnp.asarray(n_sub, jnp.int32)
+        status = Status(
+            code=code, index=jnp.where(new_fail, st.steps, st.index), time=jnp.where(new_fail, t, st.time),
+            steps=st.steps + 1, rejected=rejected, consecutive=consecutive,
+            substeps_max=jnp.maximum(st.substeps_max, n_sub), substeps_total=st.substeps_total + n_sub,
+            substeps_capped=st.substeps_capped + capped, gaps=st.gaps + is_gap,
+            longest_gap=jnp.maximum(st.longest_gap, dt), inputs_held=st.inputs_held + jnp.any(~u_ok))
+        out = FilterState(g_hat=g_out, K=K_out, u_last=jnp.where(new_fail, state.u_last, u0), status=status)
+        # A failed state is final: later intervals leave all of it unchanged (estimate, gain, held input and the
+        # status with its counters, which describe the run up to and including the failing interval).
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != OK, a, b), state, out)
+
+    @property
+    def _screens_samples(self) -> bool:
+        """Whether a sensor has a gate, a robust loss or a time-varying weight (static)."""
+        return any(b.gate_threshold is not None or b.robust is not None or b.weight_fn is not None
+                   for b in self.blocks)
+
+    def _sensor_scale(self, nu, HKH, t, dt, mask, Wy, st):
+        """Per-component weight factors from the sensors' gates, robust losses and time-varying weights, and
+        the updated rejection counters, from the innovation ``nu = y - h(g_hat)`` and its covariance from the
+        state, ``HKH`` = Dh K Dh^T (the sample's own covariance is added here)."""
+        p = self.system.output_dim
+        scale = jnp.ones((p,))
+        rejected, consecutive = st.rejected, st.consecutive
+        if not self._screens_samples:
+            return scale, rejected, consecutive
+        for i, b in enumerate(self.blocks):
+            sl = slice(b.start, b.stop)
+            factor = jnp.asarray(1.0)
+            if b.gate_threshold is not None or b.robust is not None:
+                present = jnp.all(mask[sl])
+                # the sample's covariance: its information over the interval, times the interval
+                info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(b.dim))
+                S = HKH[sl, sl] + jnp.linalg.inv(info)
+                d2 = nu[sl] @ jnp.linalg.solve(S, nu[sl])
+                d2 = jnp.where(jnp.isfinite(d2), d2, jnp.inf)
+                if b.gate_threshold is not None:
+                    reject = present & (d2 > b.gate_threshold)
+                    factor = jnp.where(reject, 0.0, factor)
+                    rejected = rejected.at[i].add(reject.astype(jnp.int32))
+                    consecutive = consecutive.at[i].set(
+                        jnp.where(reject, consecutive[i] + 1, jnp.where(present, 0, consecutive[i])))
+                if b.robust is not None:
+                    d = jnp.sqrt(jnp.maximum(d2, 1e-300))
+                    c = b.robust_scale
+                    w = jnp.minimum(1.0, c / d) if b.robust == "huber" else 1.0 / (1.0 + (d / c) ** 2)
+                    factor = factor * jnp.where(present, w, 1.0)
+            if b.weight_fn is not None:
+                factor = factor * jnp.asarray(b.weight_fn(t), dtype=jnp.float64)
+            scale = scale.at[sl].multiply(factor)
+        return scale, rejected, consecutive
+
+    def _health(self, g, K, consecutive):
+        """The cause code of a state just computed (:data:`~liemef.filter.CAUSES`)."""
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves((g, K))]))
+        Kf = jnp.where(finite, K, jnp.eye(K.shape[0]))
+        big = jnp.max(jnp.abs(Kf))
+        asym = jnp.max(jnp.abs(Kf - Kf.T)) > SYMMETRY_TOL * jnp.maximum(1.0, big)
+        Ks = 0.5 * (Kf + Kf.T) + DEFINITE_TOL * jnp.maximum(big, 1e-300) * jnp.eye(K.shape[0])
+        definite = positive_definite(Ks)
+        gate = jnp.asarray(False)
+        for i, b in enumerate(self.blocks):
+            if b.max_rejections is not None:
+                gate = gate | (consecutive[i] > b.max_rejections)
+        code = jnp.where(~finite, NONFINITE, jnp.where(asym & self.symmetric, ASYMMETRIC,
+                                                        jnp.where(~definite, INDEFINITE, jnp.where(gate, GATE, OK))))
+        return code.astype(jnp.int32)
+
+    # --- drivers ------------------------------------------------------------------------------------------
+    def scan(self, state: FilterState, ts, us, ys, *, gap=jnp.inf, n_valid=None, keep_every: int = 1) -> Trajectory:
+        """Traceable core of :meth:`run` (no checks): one ``lax.scan`` over the sample intervals.
+
+        ``n_valid``: only the first ``n_valid`` samples are data (the rest is padding, skipped);
+        ``keep_every`` (static): keep every M-th state in the history (memory flat in the log length)."""
+        N = ts.shape[0]
+        n_valid = N if n_valid is None else n_valid
+        xs = (jnp.arange(N - 1), ts[:-1], jnp.diff(ts), us[:-1], us[1:], ys[:-1], ys[1:])
+
+        def advance(st, x):
+            k, t, dt, u0, u1, y0, y1 = x
+            return jax.lax.cond(k + 1 < n_valid, lambda s: self._interval(s, t, dt, u0, u1, y0, y1, gap),
+                                lambda s: s, st)
+
+        def emit(st):
+            bad = st.status.code != OK
+            nan = lambda a: jnp.where(bad, jnp.nan, a)  # noqa: E731
+            return jax.tree_util.tree_map(nan, st.g_hat), nan(st.K)
+
+        M = keep_every
+        if M == 1:
+            def body(st, x):
+                st = advance(st, x)
+                return st, emit(st)
+
+            final, (g_tr, K_tr) = jax.lax.scan(body, state, xs)
+        else:
+            n_chunks = -(-(N - 1) // M)
+            pad = n_chunks * M - (N - 1)
+            # the data padded with its last row; the indices run on, so the padding counts as invalid
+            rows = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape((n_chunks, M) + a.shape[1:])  # noqa: E731
+            xs = (jnp.arange(n_chunks * M).reshape(n_chunks, M), *jax.tree_util.tree_map(rows, xs[1:]))
+
+            def chunk(st, xc):
+                st = jax.lax.scan(lambda s, x: (advance(s, x), None), st, xc)[0]
+                return st, emit(st)
+
+            final, (g_tr, K_tr) = jax.lax.scan(chunk, state, xs)
+        g_all = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), state.g_hat, g_tr)
+        K_all = jnp.concatenate([state.K[None], K_tr])
+        return Trajectory(ts=ts[::M], g_hat=g_all, K=K_all, status=final.status, final=final)
+
+    def run(self, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
+            gap: float | None = None, keep_every: int = 1) -> Trajectory:
+        """Filter a whole log: ``ts`` (N,) strictly increasing, ``us`` (N, m), ``ys`` (N, p).
+
+        Sample k is used over ``[ts[k], ts[k+1])``; the result holds the state at every ``ts[k]`` (every
+        ``keep_every``-th), the first being ``state``. NaN in ``ys`` marks a missing sample; NaN in ``us`` holds
+        the last input. An interval longer than ``gap`` (default: 10 times the median interval) is predicted
+        through without holding density measurements, and a warning says so (``gap=math.inf``: no interval is
+        a gap, as in :meth:`step`). Logs are padded to a length bucket (:func:`bucket`): one compilation serves
+        every log of a bucket and every weight set.
+        """
+        self._check_state(state)
+        self._check_element("state.g_hat", state.g_hat)
+        _validate.square("state.K", state.K, self.n)
+        ts = _validate.sorted_times("ts", ts)
+        N = ts.shape[0]
+        if N < 2:
+            raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
+        m, p = self.system.input_dim, self.system.output_dim
+        us = np.zeros((N, 0)) if us is None and m == 0 else _validate.array("us", us, (N, m), missing=True)
+        ys = _validate.array("ys", ys, (N, p), missing=True)
+        if not (isinstance(keep_every, int) and keep_every >= 1):
+            raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
+        dts = np.diff(ts)
+        if gap is None:
+            gap = 10.0 * float(np.median(dts))
+        elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
+            gap = float(_validate.nonnegative("gap", gap))
+        nb = bucket(N - 1)
+        nb = -(-nb // keep_every) * keep_every
+        pad = nb + 1 - N
+        tsp = np.concatenate([ts, np.full(pad, ts[-1])])
+        usp = np.concatenate([us, np.full((pad, m), np.nan)])
+        ysp = np.concatenate([ys, np.full((pad, p), np.nan)])
+        traj = _run_jit(self, state, tsp, usp, ysp, np.asarray(N, np.int32), np.asarray(gap), keep_every)
+        kept = -(-N // keep_every) if keep_every > 1 else N
+        traj = Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=traj.g_hat[:kept], K=traj.K[:kept],
+                          status=traj.status, final=traj.final)
+        gaps = int(traj.status.gaps)
+        if gaps:
+            warnings.warn(f"run: {gaps} sample interval(s) longer than the gap threshold {gap:.4g} s (longest "
+                          f"{float(traj.status.longest_gap):.4g} s) were predicted through without holding "
+                          "density measurements", LogGapWarning, stacklevel=2)
+        return traj
+
+    def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
+             u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf) -> FilterState:
+        """Advance one sample interval ``[t, t + dt]`` (online use). NaN in ``y`` marks a missing component,
+        NaN in ``u`` holds the last input; ``u_next``/``y_next`` are the samples at ``t + dt`` for
+        ``interpolation="linear"`` (default: held). On a failure the returned state is the input state with a
+        failed ``status`` (see :class:`~liemef.filter.Status`), and later steps leave it unchanged."""
+        self._check_state(state)
+        m, p = self.system.input_dim, self.system.output_dim
+        u = self._check_sample("u", u, m, missing=True)
+        y = self._check_sample("y", y, p, missing=True)
+        u1 = u if u_next is None else self._check_sample("u_next", u_next, m, missing=True)
+        y1 = y if y_next is None else self._check_sample("y_next", y_next, p, missing=True)
+        dt = self._check_dt(dt)
+        if not np.isfinite(t):
+            raise ValueError(f"t: expected a finite time, got {t}")
+        fn, leaves = _fast_parts(self)
+        z = np.concatenate([[float(t), dt, float(gap)], u, u1, y, y1])
+        out = fn(leaves, jax.tree_util.tree_leaves(state), z)
+        return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(state), out)
+
+    # --- checks -------------------------------------------------------------------------------------------
+    def _check_state(self, state):
+        # cheap structural checks only: step() is the online hot path
+        if not isinstance(state, FilterState):
+            raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
+        G, n = self.system.group, self.n
+        if type(state.g_hat) is not G or getattr(state.K, "shape", None) != (n, n):
+            raise ValueError(f"state: expected g_hat in {G.__name__} and K of shape ({n}, {n}), got "
+                             f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
+
+    def _check_element(self, name, g):
+        G = self.system.group
+        if not isinstance(g, G):
+            raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
+        if g.batch_shape != ():
+            raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
+        for leaf in jax.tree_util.tree_leaves(g):
+            _validate.array(name, leaf)
+
+    @staticmethod
+    def _check_dt(dt) -> float:
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
+        return float(dt)
+
+    @staticmethod
+    def _check_sample(name, v, n, missing: bool = False) -> np.ndarray:
+        return _validate.array(name, np.zeros(0) if v is None and n == 0 else v, (n,), missing=missing)
+
+
+
+class LogGapWarning(UserWarning):
+    """A log had sample intervals longer than the gap threshold; the filter predicted through them."""
+
+
+# --- compiled entry points, shared by every filter of the same structure --------------------------------------
+@eqx.filter_jit
+def _run_jit(flt, state, ts, us, ys, n_valid, gap, keep_every):
+    TRACES["run"] += 1
+    return flt.scan(state, ts, us, ys, gap=gap, n_valid=n_valid, keep_every=keep_every)
+
+
+
+def _step_leaves(static, leaves, state_leaves, z):
+    # Online step on flat arrays: jit dispatch flattens nested modules in Python (~20 us); lists of arrays and
+    # one packed sample vector z = (t, dt, gap, u, u_next, y, y_next) take the C++ fast path.
+    TRACES["step"] += 1
+    flt = eqx.combine(jax.tree_util.tree_unflatten(static[0], leaves), static[1])
+    m, p = flt.system.input_dim, flt.system.output_dim
+    state = jax.tree_util.tree_unflatten(static[2], state_leaves)
+    o = 3
+    u0, u1, y0, y1 = z[o:o + m], z[o + m:o + 2 * m], z[o + 2 * m:o + 2 * m + p], z[o + 2 * m + p:]
+    return jax.tree_util.tree_leaves(flt._interval(state, z[0], z[1], u0, u1, y0, y1, z[2]))
+
+
+_STEP_JIT: dict = {}
+
+
+def _fast_parts(flt: AbstractFilter):
+    """The compiled step of the filter's structure (one per structure, shared) and its array leaves, cached on
+    the instance."""
+    cached = flt.__dict__.get("_fast")
+    if cached is None:
+        dyn, static = eqx.partition(flt, eqx.is_array)
+        leaves, treedef = jax.tree_util.tree_flatten(dyn)
+        n_blocks = len(flt.blocks)
+        state_def = jax.tree_util.tree_structure(FilterState(flt.system.group.identity(), jnp.zeros((flt.n, flt.n)),
+                                                             jnp.zeros(flt.system.input_dim),
+                                                             Status.initial(n_blocks)))
+        key = (treedef, static, state_def)
+        if key not in _STEP_JIT:
+            _STEP_JIT[key] = jax.jit(functools.partial(_step_leaves, key))
+        cached = (_STEP_JIT[key], leaves)
+        object.__setattr__(flt, "_fast", cached)
+    return cached
