@@ -89,8 +89,8 @@ def test_retractions_invert_and_the_covariance_is_reported_in_the_left_error(err
     np.testing.assert_allclose(np.asarray(minus(plus(g, e), g)), e, atol=1e-12)
     np.testing.assert_allclose(np.asarray(minus(g, g)), np.zeros(n), atol=1e-12)
     # J = d(left error)/d(e) at 0, checked by a central difference of the left error of plus(g, e)
-    sys = SensorSystem(G_, lambda gg, u, t: jnp.zeros(n), (Sensor("s", lambda gg, t: gg.log(), Noise.sample(np.ones(n))),),
-                       Noise.density(np.ones(n)))
+    sys = SensorSystem(G_, lambda gg, u, t: jnp.zeros(n),
+                       (Sensor("s", lambda gg, t: gg.log(), Noise.sample(np.ones(n))),), Noise.density(np.ones(n)))
     J = np.asarray(ExtendedKalmanFilter(sys, error)._left_jacobian(g))
     h = 1e-6
     J_fd = np.stack([(np.asarray(plus(g, h * d).rminus(g)) - np.asarray(plus(g, -h * d).rminus(g))) / (2 * h)

@@ -92,6 +92,9 @@ def test_the_static_names_of_the_cli_match_the_registries():
     assert cli.CONNECTIONS == tuple(CARTAN_SCHOUTEN)
     assert cli.ORDERS == tuple(ORDERS)
     assert cli.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
+    from liemef.compare import STUDIES
+
+    assert cli.COMPARE_STUDIES == tuple(STUDIES), f"update cli.COMPARE_STUDIES = {tuple(STUDIES)!r}"
     params = {cmd: {p.name: p for p in cli.cli.commands[cmd].params} for cmd in COMMANDS}
     assert list(params["reproduce"]["experiment"].type.choices) == [*sorted(EXPERIMENTS), "all"]
     assert list(params["montecarlo"]["experiment"].type.choices) == sorted(EXPERIMENTS)

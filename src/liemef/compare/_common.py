@@ -1,0 +1,128 @@
+"""What every comparison shares: the filters by name, paired statistics across filters run on the same trials,
+and the tables and figures of a study."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from .. import _validate
+from ..baselines import invariant_ekf, local_ekf, ukf_m
+from ..filter import AbstractFilter, MinimumEnergyFilter
+from ..metrics._stats import json_number
+
+FILTERS = {
+    "mef": ("minimum-energy filter, second order, (0)-connection (the default)",
+            lambda s: MinimumEnergyFilter(s)),
+    "mef-minus": ("minimum-energy filter, second order, (-)-connection",
+                  lambda s: MinimumEnergyFilter(s, connection="minus")),
+    "mef-plus": ("minimum-energy filter, second order, (+)-connection",
+                 lambda s: MinimumEnergyFilter(s, connection="plus")),
+    "mef-first": ("first-order minimum-energy filter (continuous-time left-invariant EKF)",
+                  lambda s: MinimumEnergyFilter(s, order="first")),
+    "iekf": ("invariant EKF (left-invariant error), discrete", invariant_ekf),
+    "ekf": ("EKF in local coordinates (rotation multiplicative, position additive), discrete", local_ekf),
+    "ukf-left": ("UKF-M with the left retraction (ukfm's ukf_left), discrete", ukf_m),
+}
+"""Filter names of the comparisons: a description and a factory from a system."""
+
+
+def make_filter(name: str, system) -> AbstractFilter:
+    """The filter ``name`` (:data:`FILTERS`) on ``system``."""
+    _validate.choice("filter", name, set(FILTERS))
+    return FILTERS[name][1](system)
+
+
+def parse_filters(names: str | Sequence[str] | None, default: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list or a sequence of filter names, checked (unknown names are an error)."""
+    if names is None:
+        return tuple(default)
+    items = [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
+    if not items or any(not n for n in items):
+        raise ValueError(f"filters: expected a comma-separated list of names from {sorted(FILTERS)}, got {names!r}")
+    for n in items:
+        _validate.choice("filters", n, set(FILTERS))
+    if len(set(items)) != len(items):
+        raise ValueError(f"filters: expected each name once, got {names!r}")
+    return tuple(items)
+
+
+def paired_comparison(values: Mapping[str, np.ndarray], z: float = 1.96) -> dict:
+    """Which filter has the lowest mean of a per-trial metric, and whether its lead is outside the Monte Carlo
+    spread: the filters ran on the same trials, so each is compared with the winner by the paired differences
+    d_i = x_i - x_winner,i over the trials where both are finite, with the 95 % interval mean(d) +- z sd(d)/sqrt(n).
+
+    Returns ``winner``, ``means`` (per filter), ``versus`` (per other filter: mean difference, its interval and
+    ``significant``: the interval excludes 0) and ``level`` (the filters whose interval includes 0: the
+    winner's lead over them is within the spread)."""
+    means = {k: float(np.nanmean(v)) if np.isfinite(v).any() else math.nan for k, v in values.items()}
+    finite = {k: m for k, m in means.items() if math.isfinite(m)}
+    if not finite:
+        return {"winner": None, "means": {k: None for k in means}, "versus": {}, "level": []}
+    winner = min(finite, key=finite.get)
+    versus, level = {}, [winner]
+    w = np.asarray(values[winner], float)
+    for k, v in values.items():
+        if k == winner:
+            continue
+        v = np.asarray(v, float)
+        ok = np.isfinite(v) & np.isfinite(w)
+        d = v[ok] - w[ok]
+        n = d.size
+        if n < 2:
+            versus[k] = {"diff": None, "ci": [None, None], "n": int(n), "significant": False}
+            continue
+        mean, half = float(d.mean()), float(z * d.std(ddof=1) / math.sqrt(n))
+        sig = bool(mean - half > 0)
+        versus[k] = {"diff": mean, "ci": [mean - half, mean + half], "n": int(n), "significant": sig}
+        if not sig:
+            level.append(k)
+    return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "versus": versus,
+            "level": level}
+
+
+def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float = 0.95, seed: int = 0):
+    """A percentile bootstrap interval of ``stat(x)`` over the trials (fixed seed, so reports are reproducible)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)] if x.ndim == 1 else x[np.all(np.isfinite(x), axis=tuple(range(1, x.ndim)))]
+    if x.shape[0] < 2:
+        return [None, None]
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, x.shape[0], size=(n_boot, x.shape[0]))
+    s = np.array([stat(x[i]) for i in idx])
+    lo, hi = np.percentile(s, [50 * (1 - prob), 50 * (1 + prob)])
+    return [float(lo), float(hi)]
+
+
+def fmt(v, digits: int = 4) -> str:
+    """A table cell: ``-`` for None or NaN."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    return f"{v:.{digits}g}"
+
+
+def winners_markdown(rows: Mapping[str, dict], units: Mapping[str, str]) -> list[str]:
+    """Lines of a table: per metric, the winner, its lead over the runner-up (paired mean difference and 95 %
+    interval) and the filters level with it."""
+    lines = ["| metric | winner | mean | runner-up | lead (95 % interval) | outside the spread? | "
+             "level with the winner |", "|---|---|---:|---|---:|---|---|"]
+    for metric, cmp in rows.items():
+        w = cmp["winner"]
+        if w is None:
+            lines.append(f"| {metric} | - | - | - | - | - | - |")
+            continue
+        others = {k: v for k, v in cmp["versus"].items() if v["diff"] is not None}
+        if others:
+            r = min(others, key=lambda k: others[k]["diff"])
+            v = others[r]
+            lead = f"{fmt(v['diff'], 3)} ({fmt(v['ci'][0], 3)} to {fmt(v['ci'][1], 3)}) {units.get(metric, '')}"
+            sig = "yes" if v["significant"] else "no"
+        else:
+            r, lead, sig = "-", "-", "-"
+        level = ", ".join(k for k in cmp["level"] if k != w) or "none"
+        lines.append(f"| {metric} | {w} | {fmt(cmp['means'][w])} | {r} | {lead} | {sig} | {level} |")
+    return lines
