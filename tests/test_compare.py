@@ -8,7 +8,8 @@ import pytest
 from click.testing import CliRunner
 
 from liemef import cli
-from liemef.compare import LocalizationComparison, bootstrap_interval, paired_comparison, parse_filters
+from liemef.compare import HeadingBasin, LocalizationComparison, bootstrap_interval, paired_comparison, parse_filters
+from liemef.compare._basins import convergence
 
 
 def test_the_paired_comparison_names_a_winner_only_when_its_lead_is_outside_the_spread():
@@ -44,15 +45,34 @@ def test_bad_study_settings_are_named():
         LocalizationComparison(runs=2, optimum_runs=3)
     with pytest.raises(ValueError, match="runs"):
         LocalizationComparison(runs=0)
+    with pytest.raises(ValueError, match="angles_deg"):
+        HeadingBasin(angles_deg=(0.0, 200.0))
+    with pytest.raises(ValueError, match="tolerance_deg"):
+        HeadingBasin(tolerance_deg=0)
     res = CliRunner().invoke(cli.cli, ["compare", "localization", "--out", "/tmp/x", "--filters", "mef,nope"])
     assert res.exit_code == 2 and "filters" in res.output and "nope" in res.output
+    res = CliRunner().invoke(cli.cli, ["compare", "heading-basin", "--out", "/tmp/x", "--set", "optimum_runs=1"])
+    assert res.exit_code == 2 and "optimum_runs" in res.output and "angles_deg" in res.output
+
+
+def test_convergence_is_staying_below_the_tolerance_to_the_end():
+    ts = np.linspace(0.0, 10.0, 11)
+    err = np.array([[9, 8, 4, 3, 6, 2, 1, 1, 1, 1, 1],  # converges at t = 5 (the last excursion is at t = 4)
+                    [9, 1, 1, 1, 1, 1, 1, 1, 1, 7, 1],  # out again in the last quarter: does not converge
+                    [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1],  # converged from the start
+                    [9, 1, 1, 1, 1, 1, 1, 1, 1, 1, np.nan]], float)  # NaN at the end: not converged
+    ok, t = convergence(ts, err, np.array([0, 0, 0, 0]), 5.0)
+    assert ok.tolist() == [True, False, True, False]
+    assert t[0] == 5.0 and t[2] == 0.0 and np.isnan(t[1]) and np.isnan(t[3])
+    ok, _ = convergence(ts, err, np.array([0, 0, 1, 0]), 5.0)  # a failed run never converges
+    assert not ok[2]
 
 
 def test_compare_localization_at_a_tiny_size(tmp_path):
     out = tmp_path / "cmp"
-    res = CliRunner().invoke(cli.cli, ["compare", "localization", "--runs", "3", "--duration", "4", "--steady", "2",
-                                       "--filters", "mef,iekf,ekf", "--batch-size", "3", "--out", str(out),
-                                       "--no-progress"])
+    res = CliRunner().invoke(cli.cli, ["compare", "localization", "--runs", "3", "--set", "duration=4", "--set",
+                                       "steady=2", "--filters", "mef,iekf,ekf", "--set", "batch_size=3", "--out",
+                                       str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
     for f in ("comparison.md", "comparison.csv", "comparison.json", "arrays.npz", "fig_errors.png"):
         assert (out / f).stat().st_size > 0, f
@@ -71,3 +91,22 @@ def test_compare_localization_at_a_tiny_size(tmp_path):
     assert winner == min(meta["filters"], key=lambda n: meta["filters"][n]["heading_rms"]["mean"])
     md = (out / "comparison.md").read_text()
     assert "| iekf |" in md and "## Winners" in md and "NaN" not in md
+
+
+def test_compare_heading_basin_at_a_tiny_size(tmp_path):
+    out = tmp_path / "basin"
+    res = CliRunner().invoke(cli.cli, ["compare", "heading-basin", "--runs", "4", "--set", "duration=4", "--set",
+                                       "angles_deg=0,179", "--set", "tolerance_deg=30", "--filters", "iekf,ekf",
+                                       "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("basin.md", "basin.csv", "basin.json", "arrays.npz", "fig_basin.png"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "basin.json").read_text())
+    rows = {name: e["angles"] for name, e in meta["filters"].items()}
+    assert [r["angle_deg"] for r in rows["iekf"]] == [0.0, 179.0]
+    # from the true heading every trial stays within 30 deg; from 179 deg, 4 fixes in 4 s do not turn it round
+    for name in ("iekf", "ekf"):
+        assert rows[name][0]["converged"] == 4 and rows[name][0]["time_median_s"] == 0.0
+        assert rows[name][1]["converged"] == 0 and rows[name][1]["time_median_s"] is None
+    arrays = np.load(out / "arrays.npz")
+    assert arrays["fraction"].shape == (2, 2) and arrays["fraction"][0, 0] == 1.0

@@ -16,9 +16,9 @@
   ``failure.json`` and exits with status 1.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
-* ``liemef compare STUDY --out DIR [--runs N] [--seed S] [--filters a,b] [--optimum-runs M]``: every filter
-  (the minimum-energy filter with its connections and orders, and the baselines) on the same trials; writes
-  ``comparison.{json,md,csv}``, ``arrays.npz`` and figures (:mod:`liemef.compare`).
+* ``liemef compare localization|heading-basin --out DIR [--runs N] [--seed S] [--filters a,b] [--set KEY=VALUE]``:
+  every filter (the minimum-energy filter with its connections and orders, and the baselines) on the same
+  trials; writes the study's tables (Markdown, CSV, JSON), ``arrays.npz`` and figures (:mod:`liemef.compare`).
 * ``liemef campaign run FILE [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N]``: a Monte Carlo campaign
   over a grid of settings on Dask, resumable (:mod:`liemef.campaign`); ``liemef campaign status FILE``.
 """
@@ -61,7 +61,7 @@ ORDERS = ("second", "first")
 """``liemef.filter.ORDERS``."""
 DEFAULT_BATCH_SIZE = 8
 """``liemef.experiments.DEFAULT_BATCH_SIZE``."""
-COMPARE_STUDIES = ("localization",)
+COMPARE_STUDIES = ("localization", "heading-basin")
 """``tuple(liemef.compare.STUDIES)``."""
 
 
@@ -579,45 +579,65 @@ def dataset(kind, path, out, truth, seconds, gps_std):
 @cli.command("compare")
 @click.argument("study", type=click.Choice(COMPARE_STUDIES))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder (created if missing).")
-@click.option("--runs", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Trials (the same for every filter).")
+@click.option("--runs", type=click.IntRange(min=1), help="Trials (the same for every filter; default: the study's).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Trial i uses split(key(seed), runs)[i].")
-@click.option("--duration", type=float, default=40.0, show_default=True, help="Length of each trial (s).")
-@click.option("--steady", type=float, default=20.0, show_default=True, help="Start of the steady-state window (s).")
 @click.option("--filters", metavar="A,B,...", help="Filters to compare (default: all of the study's).")
-@click.option("--optimum-runs", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Trials on which to measure the distance to the exact minimum-energy estimate (GTSAM iSAM2).")
-@click.option("--batch-size", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Trials per compiled vmap batch (the results do not depend on it).")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="Any other setting of the study (repeatable): localization: duration, steady, optimum_runs, "
+                   "batch_size; heading-basin: duration, angles_deg (comma-separated), prior_std_deg, "
+                   "tolerance_deg, batch_size.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
-def compare_cmd(study, out, runs, seed, duration, steady, filters, optimum_runs, batch_size, progress):
+def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.
 
-    localization: ukfm's 2D localization benchmark (odometry 100 Hz, GPS 1 Hz, 45 deg initial heading error):
-    mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left. Writes
-    comparison.md (tables: per filter the rms, pooled rms with its bootstrap interval, NEES, the published
-    figures, and per metric the winner with its paired lead), comparison.csv, comparison.json, arrays.npz and
-    fig_errors.png (and fig_optimum.png with --optimum-runs). Filters that diverge are counted and named, and
-    left out of the statistics."""
-    from .compare import LocalizationComparison, compare_localization
-    from .compare._localization import markdown, save
+    Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left.
 
+    localization: ukfm's 2D localization benchmark (odometry 100 Hz, GPS 1 Hz, 45 deg initial heading error);
+    writes comparison.md (per filter the rms, pooled rms with its bootstrap interval, NEES, the published
+    figures, and per metric the winner with its paired lead), comparison.csv, comparison.json, arrays.npz and
+    fig_errors.png (and fig_optimum.png with --set optimum_runs=M).
+
+    heading-basin: the fraction of trials that converge and the time to converge against the initial heading
+    error; writes basin.md, basin.csv, basin.json, arrays.npz and fig_basin.png.
+
+    Trials where a filter fails are counted and named, and left out of the statistics."""
+    from .compare import STUDIES
+
+    spec = STUDIES[study]
     d = _out_dir(out)
+    fields = {f.name: f for f in dataclasses.fields(spec.settings)}
+    kwargs = {"seed": seed}
+    if runs is not None:
+        kwargs["runs"] = runs
+    if filters is not None:
+        kwargs["filters"] = filters
+    for item in settings:
+        key, sep, value = item.partition("=")
+        if not sep or key not in fields or key in ("seed", "runs", "filters"):
+            allowed = sorted(k for k in fields if k not in ("seed", "runs", "filters"))
+            raise click.BadParameter(f"expected KEY=VALUE with KEY one of {allowed}, got {item!r}",
+                                     param_hint="'--set'")
+        try:
+            kwargs[key] = json.loads(f"[{value}]") if key == "angles_deg" else json.loads(value)
+        except json.JSONDecodeError as err:
+            raise click.BadParameter(f"{key}: expected a number, got {value!r}", param_hint="'--set'") from err
     try:
-        st = LocalizationComparison(runs=runs, seed=seed, duration=duration, steady=steady,
-                                    filters=filters,
-                                    optimum_runs=optimum_runs, batch_size=batch_size)
-    except ValueError as err:
+        st = spec.settings(**kwargs)
+    except (ValueError, TypeError) as err:
         raise click.UsageError(str(err)) from err
-    result = compare_localization(st, progress=progress)
-    click.echo(markdown(result))
-    written = save(result, d)
+    result = spec.run(st, progress=progress)
+    click.echo(spec.markdown(result))
+    written = spec.save(result, d)
     for name, e in result["filters"].items():
-        if e["diverged"]["count"]:
+        failed = e.get("diverged", {}).get("count", 0)
+        if failed:
             first = e["diverged"]["trials"][0]
-            click.echo(f"WARNING: {name}: {e['diverged']['count']} of {e['runs']} trials failed (first: trial "
-                       f"{first['trial']}, {first['cause']} at t = {first['time']:.3f} s); left out of the "
-                       "statistics", err=True)
+            click.echo(f"WARNING: {name}: {failed} of {e['runs']} trials failed (first: trial {first['trial']}, "
+                       f"{first['cause']} at t = {first['time']:.3f} s); left out of the statistics", err=True)
+        for r in e.get("angles", []):
+            if r["failed"]:
+                click.echo(f"WARNING: {name}: {r['failed']} of {r['trials']} trials at {r['angle_deg']:g} deg "
+                           "failed (counted as not converged)", err=True)
     click.echo(f"Wrote {', '.join(p.name for p in written)} to {d}")
 
 

@@ -1,15 +1,44 @@
 r"""Comparisons of the minimum-energy filter with the filters people use (:mod:`liemef.baselines`), on the same
-trials or recordings: ``liemef compare STUDY`` writes each study's metrics, tables (Markdown, CSV) and figures.
+trials: ``liemef compare STUDY`` writes each study's metrics, tables (Markdown, CSV) and figures.
 
-Studies: ``localization`` (ukfm's 2D localization benchmark, :mod:`liemef.compare._localization`).
+Studies (:data:`STUDIES`):
+
+* ``localization``: ukfm's 2D localization benchmark, every filter on the same trials
+  (:class:`LocalizationComparison`);
+* ``heading-basin``: the convergence basin in the initial heading error on the same scenario
+  (:class:`HeadingBasin`).
 """
 
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from . import _basins, _localization
+from ._basins import HeadingBasin, compare_heading_basin
 from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters
 from ._localization import DEFAULT_FILTERS as LOCALIZATION_FILTERS
 from ._localization import LocalizationComparison, compare_localization
 
-STUDIES = {"localization": "ukfm's 2D localization benchmark: every filter on the same trials"}
+
+@dataclass(frozen=True)
+class Study:
+    """A study of ``liemef compare``: its settings class, its runner and how its result is written."""
+
+    description: str
+    settings: type
+    run: Callable[..., dict]
+    markdown: Callable[[dict], str]
+    save: Callable[[dict, Any], list]
+
+
+STUDIES = {
+    "localization": Study("ukfm's 2D localization benchmark: every filter on the same trials",
+                          LocalizationComparison, compare_localization, _localization.markdown, _localization.save),
+    "heading-basin": Study("convergence basin in the initial heading error (0-180 deg) on the same scenario",
+                           HeadingBasin, compare_heading_basin, _basins.markdown, _basins.save),
+}
 """The studies of ``liemef compare``."""
 
-__all__ = ["STUDIES", "FILTERS", "make_filter", "parse_filters", "paired_comparison", "bootstrap_interval",
-           "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS"]
+__all__ = ["STUDIES", "Study", "FILTERS", "make_filter", "parse_filters", "paired_comparison", "bootstrap_interval",
+           "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
+           "compare_heading_basin"]

@@ -40,7 +40,7 @@ from .. import _validate
 from ..connections import CARTAN_SCHOUTEN
 from ..filter import INTEGRATORS, MinimumEnergyFilter, Trajectory
 from ..groups import R3, SO3, TSO3
-from ..metrics import FULL, Window, error_table, gain_stats, group_error
+from ..metrics import FULL, Window, error_table, gain_stats, group_error, wilson_interval
 from ..simulation import SensorLog, Truth, simulate, simulate_core
 from ..systems import RigidBodyAttitude
 from ._base import (
@@ -314,16 +314,6 @@ def trial_spec(config: AttitudeConfig) -> TrialSpec:
 
 
 # --- the paired Monte Carlo comparison of the two connections -------------------------------------------------
-def _wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float | None, float | None]:
-    """Wilson score interval (95 %) of a binomial proportion k/n."""
-    if n == 0:
-        return (None, None)
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
 def _summary(x: np.ndarray) -> dict | None:
     if x.size == 0:
         return None
@@ -349,7 +339,7 @@ def comparison(mc: MonteCarloResult, config: AttitudeConfig) -> dict:
         ra, rb, wa, wb = ra[ok], rb[ok], wa[ok], wb[ok]
         wins, n = int(np.sum(ra < rb)), int(ra.size)
         out["windows"][window.label] = {
-            "wins": wins, "trials": n, "fraction": wins / n if n else None, "wilson95": list(_wilson(wins, n)),
+            "wins": wins, "trials": n, "fraction": wins / n if n else None, "wilson95": list(wilson_interval(wins, n)),
             "rms_e_R_deg": {a: _summary(ra), b: _summary(rb)},
             "rms_e_Omega": {a: _summary(wa), b: _summary(wb)},
             "difference_deg": {"definition": f"rms e_R({b}) - rms e_R({a}) per trial", **(_summary(rb - ra) or {})},

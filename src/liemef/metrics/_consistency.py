@@ -53,3 +53,14 @@ def chi2_bounds(dof: int, n_runs: int, prob: float = 0.95, *, per_dof: bool = Fa
     k = int(dof) * int(n_runs)
     scale = int(n_runs) * (int(dof) if per_dof else 1)
     return float(chi2.ppf((1.0 - prob) / 2.0, k)) / scale, float(chi2.ppf((1.0 + prob) / 2.0, k)) / scale
+
+
+def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float | None, float | None]:
+    """Wilson score interval (95 % by default) of a binomial proportion k/n, e.g. the fraction of trials that
+    converge; (None, None) without trials."""
+    if n == 0:
+        return (None, None)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
