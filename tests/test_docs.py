@@ -48,7 +48,7 @@ def site(tmp_path_factory) -> Path:
 
 
 def test_site_builds_strict_with_every_page(site):
-    for page in ("index", "concepts/index", "theorem/index", "errata/index", "chaplygin/index"):
+    for page in ("index", "concepts/index", "theorem/index", "errata/index", "chaplygin/index", "comparisons/index"):
         assert (site / f"{page}.html").is_file(), page
 
 
@@ -61,6 +61,8 @@ def test_site_builds_strict_with_every_page(site):
     ("metrics", ["state_error", "ErrorTable"]),
     ("experiments", ["MonteCarloResult", "tse2.TSE2Config"]),
     ("campaign", ["Campaign", "run_campaign", "Store", "CampaignResult"]),
+    ("baselines", ["ExtendedKalmanFilter", "UnscentedKalmanFilter", "invariant_ekf", "ukf_m"]),
+    ("compare", ["paired_comparison", "LocalizationComparison", "HeadingBasin", "STUDIES"]),
     ("io", ["read_log"]),
     ("plots", ["write_figures"]),
 ])
