@@ -61,7 +61,7 @@ ORDERS = ("second", "first")
 """``liemef.filter.ORDERS``."""
 DEFAULT_BATCH_SIZE = 8
 """``liemef.experiments.DEFAULT_BATCH_SIZE``."""
-COMPARE_STUDIES = ("localization", "heading-basin")
+COMPARE_STUDIES = ("localization", "heading-basin", "broad")
 """``tuple(liemef.compare.STUDIES)``."""
 
 
@@ -585,7 +585,7 @@ def dataset(kind, path, out, truth, seconds, gps_std):
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any other setting of the study (repeatable): localization: duration, steady, optimum_runs, "
                    "batch_size; heading-basin: duration, angles_deg (comma-separated), prior_std_deg, "
-                   "tolerance_deg, batch_size.")
+                   "tolerance_deg, batch_size; broad: trials (comma-separated ids), seconds, realdata.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.
@@ -600,17 +600,23 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
     heading-basin: the fraction of trials that converge and the time to converge against the initial heading
     error; writes basin.md, basin.csv, basin.json, arrays.npz and fig_basin.png.
 
+    broad: the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer
+    with optical truth), with the MEF, a robust MEF, the invariant EKF, the UKF-M and ahrs's Madgwick and
+    Mahony (default and published gains), one weight set for all trials; writes broad.md, broad.csv, broad.json
+    and arrays.npz.
+
     Trials where a filter fails are counted and named, and left out of the statistics."""
     from .compare import STUDIES
 
     spec = STUDIES[study]
     d = _out_dir(out)
     fields = {f.name: f for f in dataclasses.fields(spec.settings)}
-    kwargs = {"seed": seed}
-    if runs is not None:
-        kwargs["runs"] = runs
-    if filters is not None:
-        kwargs["filters"] = filters
+    kwargs = {}
+    for key, value in (("runs", runs), ("seed", seed), ("filters", filters)):
+        if value is not None and not (key == "seed" and value == 0):
+            if key not in fields:
+                raise click.BadParameter(f"{study} has no {key} (a recording, not trials)", param_hint=f"'--{key}'")
+            kwargs[key] = value
     for item in settings:
         key, sep, value = item.partition("=")
         if not sep or key not in fields or key in ("seed", "runs", "filters"):
@@ -619,8 +625,8 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
                                      param_hint="'--set'")
         try:
             kwargs[key] = json.loads(f"[{value}]") if key == "angles_deg" else json.loads(value)
-        except json.JSONDecodeError as err:
-            raise click.BadParameter(f"{key}: expected a number, got {value!r}", param_hint="'--set'") from err
+        except json.JSONDecodeError:
+            kwargs[key] = value  # a name or a list of names (trials=01,07; realdata=PATH): the study checks it
     try:
         st = spec.settings(**kwargs)
     except (ValueError, TypeError) as err:
@@ -628,7 +634,12 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
     result = spec.run(st, progress=progress)
     click.echo(spec.markdown(result))
     written = spec.save(result, d)
-    for name, e in result["filters"].items():
+    for tid, per in result.get("trials", {}).items():
+        for name, r in per["filters"].items():
+            if not r["ok"]:
+                click.echo(f"WARNING: trial {tid}: {name} failed: {r['status']}; its errors are of the states before",
+                           err=True)
+    for name, e in result.get("filters", {}).items():
         failed = e.get("diverged", {}).get("count", 0)
         if failed:
             first = e["diverged"]["trials"][0]

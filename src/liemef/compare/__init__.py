@@ -6,15 +6,17 @@ Studies (:data:`STUDIES`):
 * ``localization``: ukfm's 2D localization benchmark, every filter on the same trials
   (:class:`LocalizationComparison`);
 * ``heading-basin``: the convergence basin in the initial heading error on the same scenario
-  (:class:`HeadingBasin`).
+  (:class:`HeadingBasin`);
+* ``broad``: the attitude filters on the BROAD recordings (:class:`BroadComparison`).
 """
 
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from . import _basins, _localization
+from . import _basins, _broad, _localization
 from ._basins import HeadingBasin, compare_heading_basin
+from ._broad import BroadComparison, compare_broad
 from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters
 from ._localization import DEFAULT_FILTERS as LOCALIZATION_FILTERS
 from ._localization import LocalizationComparison, compare_localization
@@ -36,9 +38,11 @@ STUDIES = {
                           LocalizationComparison, compare_localization, _localization.markdown, _localization.save),
     "heading-basin": Study("convergence basin in the initial heading error (0-180 deg) on the same scenario",
                            HeadingBasin, compare_heading_basin, _basins.markdown, _basins.save),
+    "broad": Study("the BROAD attitude recordings: the MEF, the EKF, the UKF-M, Madgwick and Mahony",
+                   BroadComparison, compare_broad, _broad.markdown, _broad.save),
 }
 """The studies of ``liemef compare``."""
 
 __all__ = ["STUDIES", "Study", "FILTERS", "make_filter", "parse_filters", "paired_comparison", "bootstrap_interval",
            "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
-           "compare_heading_basin"]
+           "compare_heading_basin", "BroadComparison", "compare_broad"]
