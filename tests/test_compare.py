@@ -110,3 +110,30 @@ def test_compare_heading_basin_at_a_tiny_size(tmp_path):
         assert rows[name][1]["converged"] == 0 and rows[name][1]["time_median_s"] is None
     arrays = np.load(out / "arrays.npz")
     assert arrays["fraction"].shape == (2, 2) and arrays["fraction"][0, 0] == 1.0
+
+
+def test_compare_broad_at_a_tiny_size(tmp_path):
+    from liemef import datasets
+
+    folder = datasets.realdata_dir()
+    if folder is None or not (folder / datasets.BROAD_TRIALS["07"]).is_file():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    out = tmp_path / "broad"
+    res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=07", "--set", "seconds=32",
+                                       "--filters", "iekf,madgwick,mahony-broad", "--out", str(out),
+                                       "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("broad.md", "broad.csv", "broad.json", "arrays.npz"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "broad.json").read_text())
+    rows = meta["trials"]["07"]["filters"]
+    assert list(rows) == ["iekf", "madgwick", "mahony-broad"]
+    for name, r in rows.items():  # 5 s of motion after 26.5 s of rest, from a TRIAD start: a few degrees
+        assert r["ok"] and 0.0 < r["inclination"] <= r["total"] < 15.0, (name, r)
+    assert meta["trials"]["07"]["published"] is None  # a head of the trial is not the published run
+    w = meta["winners"]["07"]["total"]
+    assert w["value"] == min(r["total"] for r in rows.values())
+    res = CliRunner().invoke(cli.cli, ["compare", "broad", "--runs", "3", "--out", str(out)])
+    assert res.exit_code == 2 and "runs" in res.output
+    res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=99", "--out", str(out)])
+    assert res.exit_code == 2 and "trials" in res.output and "99" in res.output

@@ -98,8 +98,10 @@ class BroadComparison:
         trials = self.trials
         if trials is None:
             trials = present
-        elif isinstance(trials, str):
-            trials = tuple(t.strip() for t in trials.split(","))
+        elif isinstance(trials, str | int):
+            trials = tuple(t.strip() for t in str(trials).split(","))
+        # ids are two digits ("07"); a number given on the command line (7, 24) means the same trial
+        trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
         unknown = [t for t in trials if t not in present]
         if not trials or unknown:
             raise ValueError(f"trials: expected BROAD trials present in {folder} from {list(present)}, got "
