@@ -137,3 +137,12 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     assert res.exit_code == 2 and "runs" in res.output
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=99", "--out", str(out)])
     assert res.exit_code == 2 and "trials" in res.output and "99" in res.output
+
+
+def test_wilson_interval_of_a_fraction():
+    from liemef.metrics import wilson_interval
+
+    assert wilson_interval(0, 50)[0] == 0.0 and wilson_interval(50, 50)[1] == 1.0
+    lo, hi = wilson_interval(25, 50)
+    assert lo == pytest.approx(0.366, abs=1e-3) and hi == pytest.approx(0.634, abs=1e-3)  # the textbook value
+    assert wilson_interval(0, 0) == (None, None)
