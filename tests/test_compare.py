@@ -146,3 +146,24 @@ def test_wilson_interval_of_a_fraction():
     lo, hi = wilson_interval(25, 50)
     assert lo == pytest.approx(0.366, abs=1e-3) and hi == pytest.approx(0.634, abs=1e-3)  # the textbook value
     assert wilson_interval(0, 0) == (None, None)
+
+
+def test_compare_wifibot_at_a_tiny_size(tmp_path):
+    from liemef import datasets
+
+    folder = datasets.realdata_dir()
+    if folder is None or not (folder / datasets.WIFIBOT_RUNS["4"]).is_file():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    out = tmp_path / "wifibot"
+    res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--runs", "3", "--set", "recordings=4", "--filters",
+                                       "iekf,ekf", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((out / "wifibot.json").read_text())
+    rec = meta["recordings"]["4"]
+    for name, e in rec["filters"].items():  # the straight run: GPS of 0.1 m keeps the position within ~0.1 m
+        assert e["healthy"] == 3 and 0.02 < e["position_rms"]["mean"] < 0.2 and e["heading_rms"]["mean"] < 5, name
+    arrays = np.load(out / "arrays.npz")
+    assert arrays["4/iekf/heading_rms"].shape == (3,)
+    assert rec["winners"]["heading rms"]["winner"] in ("iekf", "ekf")
+    res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--set", "recordings=9", "--out", str(out)])
+    assert res.exit_code == 2 and "recordings" in res.output

@@ -7,19 +7,21 @@ Studies (:data:`STUDIES`):
   (:class:`LocalizationComparison`);
 * ``heading-basin``: the convergence basin in the initial heading error on the same scenario
   (:class:`HeadingBasin`);
-* ``broad``: the attitude filters on the BROAD recordings (:class:`BroadComparison`).
+* ``broad``: the attitude filters on the BROAD recordings (:class:`BroadComparison`);
+* ``wifibot``: the planar filters on UKF-M's Wifibot runs with synthetic GPS (:class:`WifibotComparison`).
 """
 
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from . import _basins, _broad, _localization
+from . import _basins, _broad, _localization, _wifibot
 from ._basins import HeadingBasin, compare_heading_basin
 from ._broad import BroadComparison, compare_broad
 from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters
 from ._localization import DEFAULT_FILTERS as LOCALIZATION_FILTERS
 from ._localization import LocalizationComparison, compare_localization
+from ._wifibot import WifibotComparison, compare_wifibot
 
 
 @dataclass(frozen=True)
@@ -40,9 +42,12 @@ STUDIES = {
                            HeadingBasin, compare_heading_basin, _basins.markdown, _basins.save),
     "broad": Study("the BROAD attitude recordings: the MEF, the EKF, the UKF-M, Madgwick and Mahony",
                    BroadComparison, compare_broad, _broad.markdown, _broad.save),
+    "wifibot": Study("UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
+                     WifibotComparison, compare_wifibot, _wifibot.markdown, _wifibot.save),
 }
 """The studies of ``liemef compare``."""
 
 __all__ = ["STUDIES", "Study", "FILTERS", "make_filter", "parse_filters", "paired_comparison", "bootstrap_interval",
            "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
-           "compare_heading_basin", "BroadComparison", "compare_broad"]
+           "compare_heading_basin", "BroadComparison", "compare_broad",
+           "WifibotComparison", "compare_wifibot"]
