@@ -2,7 +2,9 @@
 
 The public surface: :class:`MinimumEnergyFilter`, the groups (:mod:`liemef.groups`), connections
 (:mod:`liemef.connections`), ready systems (:mod:`liemef.systems`), :func:`simulate` and the metrics
-(:mod:`liemef.metrics`). Experiments, I/O, plots and the CLI sit on top (:mod:`liemef.experiments`).
+(:mod:`liemef.metrics`). The baselines (:mod:`liemef.baselines`), the exact minimum-energy estimate
+(:mod:`liemef.optimum`) and the comparisons (:mod:`liemef.compare`) sit beside the filter; experiments, I/O, plots
+and the CLI on top (:mod:`liemef.experiments`).
 
 Importing the package is cheap: JAX and the submodules load on first use (``liemef.MinimumEnergyFilter``,
 ``from liemef import simulate``, ``import liemef.groups``, ...), so ``liemef --help`` answers without JAX.
@@ -29,12 +31,25 @@ _ATTRS = {
 }
 # Submodules reachable as attributes of the package without an explicit import.
 _SUBMODULES = frozenset({"groups", "systems", "connections", "simulation", "metrics", "filter", "experiments",
-                         "io", "plots"})
+                         "io", "plots", "baselines", "compare", "optimum"})
 # Submodules that load without JAX: importing them does not run _config.
 _JAX_FREE = frozenset({"cli", "_config"})
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
-    from . import connections, experiments, filter, groups, io, metrics, plots, simulation, systems  # noqa: F401
+    from . import (  # noqa: F401
+        baselines,
+        compare,
+        connections,
+        experiments,
+        filter,
+        groups,
+        io,
+        metrics,
+        optimum,
+        plots,
+        simulation,
+        systems,
+    )
     from .connections import Connection, connection
     from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
     from .simulation import SensorLog, Truth, simulate
