@@ -167,3 +167,45 @@ def test_compare_wifibot_at_a_tiny_size(tmp_path):
     assert rec["winners"]["heading rms"]["winner"] in ("iekf", "ekf")
     res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--set", "recordings=9", "--out", str(out)])
     assert res.exit_code == 2 and "recordings" in res.output
+
+
+def test_compare_attitude_basin_at_a_tiny_size(tmp_path):
+    out = tmp_path / "attbasin"
+    res = CliRunner().invoke(cli.cli, ["compare", "attitude-basin", "--runs", "3", "--set", "angles_deg=0,179",
+                                       "--set", "duration=1", "--set", "imu_rate=50", "--set", "systems=gyro-bias",
+                                       "--set", "tolerance_deg=10", "--filters", "iekf,mef-first", "--out",
+                                       str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("attitude_basin.md", "attitude_basin.csv", "attitude_basin.json", "arrays.npz",
+              "fig_basin_gyro_bias.png"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "attitude_basin.json").read_text())
+    assert list(meta["systems"]) == ["gyro-bias"] and meta["systems"]["gyro-bias"]["samples"] == 51
+    rows = {name: e["angles"] for name, e in meta["systems"]["gyro-bias"]["filters"].items()}
+    assert list(rows) == ["iekf", "mef-first"]
+    for name, r in rows.items():
+        assert [x["angle_deg"] for x in r] == [0.0, 179.0]
+        assert r[0]["converged"] == 3 and r[0]["failed"] == 0 and r[0]["time_median_s"] == 0.0, name
+        for x in r:  # the fields agree with each other
+            assert x["trials"] == 3 and x["fraction"] == x["converged"] / 3
+            assert x["wilson95"][0] <= x["fraction"] <= x["wilson95"][1]
+            assert (x["time_median_s"] is None) == (x["converged"] == 0)
+    arrays = np.load(out / "arrays.npz")
+    assert arrays["gyro_bias_fraction"].shape == (2, 2) and np.all(arrays["gyro_bias_fraction"][:, 0] == 1.0)
+    assert list(arrays["gyro_bias_filters"]) == ["iekf", "mef-first"]
+    csv = (out / "attitude_basin.csv").read_text().splitlines()
+    assert csv[0].startswith("system,filter,angle_deg") and len(csv) == 1 + 4
+    assert "| iekf |" in (out / "attitude_basin.md").read_text()
+
+
+def test_bad_attitude_basin_settings_are_named():
+    from liemef.compare import AttitudeBasin
+
+    assert AttitudeBasin(filters="iekf,mahony").filters_of("rigid-body") == ("iekf",)  # ahrs: gyro bias only
+    assert AttitudeBasin(filters="iekf,mahony").filters_of("gyro-bias") == ("iekf", "mahony")
+    with pytest.raises(ValueError, match="filters"):
+        AttitudeBasin(filters="ekf")  # the local EKF is the invariant one on TSO(3)
+    for setting, name in (("angles_deg=0,200", "angles_deg"), ("systems=rigid-body,nope", "systems"),
+                          ("tolerance_deg=0", "tolerance_deg")):
+        res = CliRunner().invoke(cli.cli, ["compare", "attitude-basin", "--out", "/tmp/x", "--set", setting])
+        assert res.exit_code == 2 and name in res.output, (setting, res.output)

@@ -61,7 +61,7 @@ ORDERS = ("second", "first")
 """``liemef.filter.ORDERS``."""
 DEFAULT_BATCH_SIZE = 8
 """``liemef.experiments.DEFAULT_BATCH_SIZE``."""
-COMPARE_STUDIES = ("localization", "heading-basin", "broad", "wifibot")
+COMPARE_STUDIES = ("localization", "heading-basin", "attitude-basin", "broad", "wifibot")
 """``tuple(liemef.compare.STUDIES)``."""
 
 
@@ -585,8 +585,10 @@ def dataset(kind, path, out, truth, seconds, gps_std):
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any other setting of the study (repeatable): localization: duration, steady, optimum_runs, "
                    "batch_size; heading-basin: duration, angles_deg (comma-separated), prior_std_deg, "
-                   "tolerance_deg, batch_size; broad: trials (comma-separated ids), seconds, realdata; wifibot: "
-                   "recordings (comma-separated ids), gps_rate, gps_std, realdata.")
+                   "tolerance_deg, batch_size; attitude-basin: duration, angles_deg, tolerance_deg, systems "
+                   "(rigid-body,gyro-bias), rigid_body_dt, imu_rate, prior_std_deg, batch_size; broad: trials "
+                   "(comma-separated ids), seconds, realdata; wifibot: recordings (comma-separated ids), gps_rate, "
+                   "gps_std, realdata.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.
@@ -600,6 +602,11 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
 
     heading-basin: the fraction of trials that converge and the time to converge against the initial heading
     error; writes basin.md, basin.csv, basin.json, arrays.npz and fig_basin.png.
+
+    attitude-basin: the same against the initial attitude error (0-180 deg) on TSO(3), Saccon et al.'s rigid body
+    and attitude + gyro bias from a synthetic IMU (filters: mef, mef-first, mef-minus, mef-plus, iekf, ukf-left;
+    madgwick and mahony on request, gyro bias only); writes attitude_basin.md, attitude_basin.csv,
+    attitude_basin.json, arrays.npz and fig_basin_<system>.png.
 
     broad: the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer
     with optical truth), with the MEF, a robust MEF, the invariant EKF, the UKF-M and ahrs's Madgwick and

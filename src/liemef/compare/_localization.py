@@ -20,9 +20,10 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from .. import io
+from .. import _validate, io
 from ..experiments import localization as L
 from ..filter import CAUSES
 from ..metrics import chi2_bounds
@@ -44,7 +45,9 @@ METRICS = (("heading_rms", "heading rms t >= steady", "deg"), ("position_rms", "
 class LocalizationComparison:
     """The study's settings: ``runs`` trials from ``seed``, the scenario's ``duration`` (s) and ``steady``
     window start (s), the ``filters`` (names of :data:`~liemef.compare.FILTERS`), ``optimum_runs`` trials with
-    the distance to the exact estimate, ``batch_size`` trials per compiled batch."""
+    the distance to the exact estimate, ``batch_size`` trials per compiled batch, and ``rng``: ``"jax"`` (trial
+    i from ``split(key(seed), runs)[i]``) or ``"numpy"`` (ukfm's legacy stream seeded ``seed + i``: with seeds
+    0-19 these are the runs behind ukfm's published figures)."""
 
     runs: int = 20
     seed: int = 0
@@ -53,8 +56,10 @@ class LocalizationComparison:
     filters: tuple[str, ...] = DEFAULT_FILTERS
     optimum_runs: int = 0
     batch_size: int = 20
+    rng: str = "jax"
 
     def __post_init__(self):
+        _validate.choice("rng", self.rng, set(L.RNGS))
         for name in ("runs", "batch_size"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
@@ -70,25 +75,39 @@ class LocalizationComparison:
         return L.LocalizationConfig(duration=self.duration, steady=self.steady)
 
 
+def trial_draws(config: L.LocalizationConfig, rng: str, seed: int, runs: int) -> L.Draws:
+    """The standard normals of the trials, stacked (leading axis: trial): ``rng="jax"``: trial i from
+    ``split(key(seed), runs)[i]``; ``rng="numpy"``: ukfm's legacy stream after ``np.random.seed(seed + i)``
+    (:func:`liemef.experiments.localization.numpy_draws`), the data of ukfm's own benchmark runs."""
+    if rng == "numpy":
+        draws = [L.numpy_draws(config, seed + i) for i in range(runs)]
+        return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *draws)
+    keys = jax.random.split(jax.random.key(seed), runs)
+    return jax.jit(jax.vmap(lambda k: L.jax_draws(config, k)))(keys)
+
+
 def _trial_fn(config: L.LocalizationConfig):
     s = L.setup(config)
 
-    def one(flt, state0, key):
-        log, g0 = L.sensor_log(config, s.truth, L.jax_draws(config, key))
+    def one(flt, state0, draws):
+        log, g0 = L.sensor_log(config, s.truth, draws)
         traj = flt.scan(eqx.tree_at(lambda st: st.g_hat, state0, g0), log.ts, log.us, log.ys)
         return L.series(s.truth, traj.g_hat, traj.K), traj.g_hat.coords(), traj.status.code, traj.status.time
 
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0)))
 
 
-def run_filter(name: str, config: L.LocalizationConfig, keys, batch_size: int = 20) -> dict[str, np.ndarray]:
-    """One filter on the trials of ``keys``: its error series (runs, N, 4) (:func:`~liemef.experiments.
-    localization.series`), estimates (runs, N, 3) as (theta, x, y), status codes and failure times."""
+def run_filter(name: str, config: L.LocalizationConfig, draws: L.Draws, batch_size: int = 20) -> dict[str, np.ndarray]:
+    """One filter on the trials of ``draws`` (:func:`trial_draws`): its error series (runs, N, 4)
+    (:func:`~liemef.experiments.localization.series`), estimates (runs, N, 3) as (theta, x, y), status codes
+    and failure times."""
     s = L.setup(config)
     flt = make_filter(name, s.system)
     state0 = flt.init(s.truth[0], np.diag([config.theta0_std**2, 0.0, 0.0]))
     fn = _trial_fn(config)
-    parts = [fn(flt, state0, keys[i:i + batch_size]) for i in range(0, keys.shape[0], batch_size)]
+    runs = draws.theta0.shape[0]
+    parts = [fn(flt, state0, jax.tree_util.tree_map(lambda a, i=i: a[i:i + batch_size], draws))
+             for i in range(0, runs, batch_size)]
     ser, coords, code, t_fail = (np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(4))
     return {"series": ser, "coords": coords, "code": code, "time": t_fail}
 
@@ -107,8 +126,10 @@ def per_trial(config: L.LocalizationConfig, out: dict[str, np.ndarray]) -> dict[
     return {k: np.where(ok, v, np.nan) for k, v in m.items()}
 
 
-def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, prob: float = 0.95) -> dict:
-    """One filter's numbers across trials (JSON-ready)."""
+def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, prob: float = 0.95, *,
+              same_runs: bool = False) -> dict:
+    """One filter's numbers across trials (JSON-ready). ``same_runs``: the trials are ukfm's own benchmark runs
+    (its legacy stream, seeds 0-19), so the published figures are compared on the same data."""
     ok = np.isfinite(trials["heading_rms"])
     n = int(ok.sum())
 
@@ -141,7 +162,7 @@ def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, 
         # same spread across trials), and the two agree within Monte Carlo error when their difference is within
         # 1.96 standard errors of a difference.
         pub = L.PUBLISHED[PUBLISHED_OF[name]]
-        entry["published"] = {"which": PUBLISHED_OF[name], "runs": PUBLISHED_RUNS}
+        entry["published"] = {"which": PUBLISHED_OF[name], "runs": PUBLISHED_RUNS, "same_runs": same_runs}
         for key, pkey in (("heading_rms", "heading_deg"), ("position_rms", "position_m")):
             lo, hi = entry[key]["pooled_interval"]
             ours = entry[key]["pooled"]
@@ -149,11 +170,13 @@ def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, 
             if lo is None or ours is None:
                 entry["published"][f"{pkey}_z"], entry["published"][f"{pkey}_within"] = None, None
                 continue
+            entry["published"][f"{pkey}_difference"] = ours - pub[pkey]
+            # on ukfm's own runs the two figures share their Monte Carlo error: only the difference is reported
             se = (hi - lo) / (2 * 1.96)
             se_diff = se * np.sqrt(1.0 + n / PUBLISHED_RUNS)
-            z = abs(ours - pub[pkey]) / se_diff if se_diff > 0 else float("inf")
-            entry["published"][f"{pkey}_z"] = json_number(z)
-            entry["published"][f"{pkey}_within"] = bool(z <= 1.96)
+            z = None if same_runs or se_diff == 0 else abs(ours - pub[pkey]) / se_diff
+            entry["published"][f"{pkey}_z"] = None if z is None else json_number(z)
+            entry["published"][f"{pkey}_within"] = None if z is None else bool(z <= 1.96)
     return entry
 
 
@@ -162,14 +185,15 @@ def compare_localization(study: LocalizationComparison | None = None, *, progres
     (``arrays``: the per-trial metrics and the time bands per filter, for :func:`save`)."""
     st = LocalizationComparison() if study is None else study
     config = st.config
-    keys = jax.random.split(jax.random.key(st.seed), st.runs)
+    draws = trial_draws(config, st.rng, st.seed, st.runs)
     per_filter, trials, bands, timing, coords = {}, {}, {}, {}, {}
     for name in st.filters:
         t0 = time.perf_counter()
-        out = run_filter(name, config, keys, st.batch_size)
+        out = run_filter(name, config, draws, st.batch_size)
         timing[name] = time.perf_counter() - t0
         trials[name] = per_trial(config, out)
-        per_filter[name] = summarize(config, name, out, trials[name])
+        same = st.rng == "numpy" and st.seed == 0 and st.runs == PUBLISHED_RUNS
+        per_filter[name] = summarize(config, name, out, trials[name], same_runs=same)
         per_filter[name]["elapsed_s"] = timing[name]
         ok = np.isfinite(trials[name]["heading_rms"])
         ab = np.abs(out["series"][ok][..., :2])
@@ -186,7 +210,8 @@ def compare_localization(study: LocalizationComparison | None = None, *, progres
     if st.optimum_runs:
         from ._optimum import localization_distances
 
-        optimum = localization_distances(config, keys[:st.optimum_runs], coords, progress=progress)
+        first = jax.tree_util.tree_map(lambda a: a[:st.optimum_runs], draws)
+        optimum = localization_distances(config, first, coords, progress=progress)
     arrays = {"ts": config.ts, "filters": np.array(st.filters),
               "bands": np.stack([bands[n] for n in st.filters]),  # (filters, 3, N, 2): p5/p50/p95 |heading|, pos
               **{f"{key}": np.stack([trials[n][key] for n in st.filters]) for key in trials[st.filters[0]]}}
@@ -194,7 +219,9 @@ def compare_localization(study: LocalizationComparison | None = None, *, progres
         arrays.update(optimum.pop("arrays"))
     return {"study": {**dataclasses.asdict(st), "scenario": "ukfm 2D localization benchmark "
                       "(../shared/scenarios/ukfm_localization.md), rebuilt by liemef.experiments.localization",
-                      "keys": f"trial i uses jax.random.split(jax.random.key({st.seed}), {st.runs})[i]"},
+                      "keys": (f"trial i uses jax.random.split(jax.random.key({st.seed}), {st.runs})[i]"
+                               if st.rng == "jax" else f"trial i uses ukfm's legacy NumPy stream after "
+                               f"np.random.seed({st.seed} + i), the data of ukfm's own benchmark runs")},
             "filters": per_filter, "winners": winners, "optimum": optimum, "arrays": arrays}
 
 
@@ -218,10 +245,16 @@ def markdown(result: dict) -> str:
         nees = [f"{fmt(e[k]['mean'], 3)}" for k in ("nees_heading", "nees_position")]
         pub = e.get("published")
         yes = lambda b: "-" if b is None else ("yes" if b else "no")  # noqa: E731
-        pub_cell = "-" if pub is None else (
-            f"{pub['which']}: {pub['heading_deg']:g} deg / {pub['position_m']:g} m (z = "
-            f"{fmt(pub['heading_deg_z'], 2)} / {fmt(pub['position_m_z'], 2)}; within MC error: "
-            f"{yes(pub['heading_deg_within'])} / {yes(pub['position_m_within'])})")
+        if pub is None:
+            pub_cell = "-"
+        elif pub["same_runs"]:
+            pub_cell = (f"{pub['which']}: {pub['heading_deg']:g} deg / {pub['position_m']:g} m on the same runs "
+                        f"(ours - published: {fmt(pub['heading_deg_difference'], 2)} / "
+                        f"{fmt(pub['position_m_difference'], 2)})")
+        else:
+            pub_cell = (f"{pub['which']}: {pub['heading_deg']:g} deg / {pub['position_m']:g} m (z = "
+                        f"{fmt(pub['heading_deg_z'], 2)} / {fmt(pub['position_m_z'], 2)}; within MC error: "
+                        f"{yes(pub['heading_deg_within'])} / {yes(pub['position_m_within'])})")
         lines.append(f"| {name} | {e['healthy']}/{e['runs']} | {e['heading_flips']['count']} | {cells[0]} | "
                      f"{cells[1]} | {cells[2]} | {cells[3]} | {nees[0]} | {nees[1]} | {pub_cell} |")
     e0 = next(iter(pf.values()))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import jax
 import numpy as np
 
 from .. import optimum
@@ -14,9 +15,9 @@ from ..metrics._stats import json_number
 from ._common import paired_comparison
 
 
-def localization_distances(config: L.LocalizationConfig, keys, coords: dict[str, np.ndarray], *,
+def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords: dict[str, np.ndarray], *,
                            progress: bool = True) -> dict:
-    """For each trial of ``keys`` (the first trials of the comparison) the per-step MAP by iSAM2, and for each
+    """For each trial of ``draws`` (the first trials of the comparison, stacked) the per-step MAP by iSAM2, and for each
     filter the heading (deg) and position (m) distance of its estimates ``coords[name][i]`` (N, 3) from it:
     per trial the mean over the run and over t >= steady; across trials their means and the paired winner;
     the mean curves over time for the figure (``arrays``)."""
@@ -28,8 +29,9 @@ def localization_distances(config: L.LocalizationConfig, keys, coords: dict[str,
     pos = {n: [] for n in names}
     per = {n: {"heading_mean": [], "heading_steady": [], "position_mean": [], "position_steady": []} for n in names}
     elapsed, solver = [], None
-    for i in range(keys.shape[0]):
-        log, g0 = L.sensor_log(config, s.truth, L.jax_draws(config, keys[i]))
+    runs = int(draws.theta0.shape[0])
+    for i in range(runs):
+        log, g0 = L.sensor_log(config, s.truth, jax.tree_util.tree_map(lambda a, i=i: a[i], draws))
         t0 = time.perf_counter()
         est = optimum.map_estimates(s.system, np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys), g0, K0)
         elapsed.append(time.perf_counter() - t0)
@@ -53,8 +55,8 @@ def localization_distances(config: L.LocalizationConfig, keys, coords: dict[str,
                           f"before it, on the same discretized cost, by {solver} (liemef.optimum.map_estimates); "
                           f"distance of each filter's estimate from it at every step: heading [deg] and position "
                           f"[m], averaged over the run and over t >= {config.steady:g} s, then over "
-                          f"{keys.shape[0]} trials (the comparison's first).",
-            "solver": solver, "trials": int(keys.shape[0]), "elapsed_s": elapsed, "filters": filters,
+                          f"{runs} trials (the comparison's first).",
+            "solver": solver, "trials": runs, "elapsed_s": elapsed, "filters": filters,
             "winners": winners,
             "arrays": {"optimum_heading_deg": np.stack([np.mean(head[n], axis=0) for n in names]),
                        "optimum_position_m": np.stack([np.mean(pos[n], axis=0) for n in names]),
