@@ -68,24 +68,29 @@ def test_convergence_is_staying_below_the_tolerance_to_the_end():
     assert not ok[2]
 
 
-def test_compare_localization_at_a_tiny_size(tmp_path):
+@pytest.mark.parametrize("filters", [
+    "iekf,ekf",
+    pytest.param("mef,mef-first,mef-minus,mef-plus,iekf,ekf,ukf-left", marks=pytest.mark.slow),
+])
+def test_compare_localization_at_a_tiny_size(tmp_path, filters):
     out = tmp_path / "cmp"
     res = CliRunner().invoke(cli.cli, ["compare", "localization", "--runs", "3", "--set", "duration=4", "--set",
-                                       "steady=2", "--filters", "mef,iekf,ekf", "--set", "batch_size=3", "--out",
+                                       "steady=2", "--filters", filters, "--set", "batch_size=3", "--out",
                                        str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
     for f in ("comparison.md", "comparison.csv", "comparison.json", "arrays.npz", "fig_errors.png"):
         assert (out / f).stat().st_size > 0, f
     meta = json.loads((out / "comparison.json").read_text())
-    assert list(meta["filters"]) == ["mef", "iekf", "ekf"]
+    names = filters.split(",")
+    assert list(meta["filters"]) == names
     for name, e in meta["filters"].items():
         assert e["runs"] == 3 and e["healthy"] + e["diverged"]["count"] == 3
         assert e["heading_rms"]["p5"] <= e["heading_rms"]["mean"] <= e["heading_rms"]["p95"], name
     assert "published" not in meta["filters"]["iekf"]  # not the published 40 s scenario: no comparison
     arrays = np.load(out / "arrays.npz")
-    assert arrays["heading_rms"].shape == (3, 3) and arrays["bands"].shape == (3, 3, 400, 2)
+    assert arrays["heading_rms"].shape == (len(names), 3) and arrays["bands"].shape == (len(names), 3, 400, 2)
     # the table's means are the arrays' means
-    for i, name in enumerate(["mef", "iekf", "ekf"]):
+    for i, name in enumerate(names):
         assert meta["filters"][name]["heading_rms"]["mean"] == pytest.approx(np.nanmean(arrays["heading_rms"][i]))
     winner = meta["winners"]["heading rms t >= steady"]["winner"]
     assert winner == min(meta["filters"], key=lambda n: meta["filters"][n]["heading_rms"]["mean"])
@@ -123,7 +128,7 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
                                        "--filters", "iekf,madgwick,mahony-broad", "--out", str(out),
                                        "--no-progress"])
     assert res.exit_code == 0, res.output
-    for f in ("broad.md", "broad.csv", "broad.json", "arrays.npz"):
+    for f in ("broad.md", "broad.csv", "broad.json", "arrays.npz", "fig_errors_07.png"):
         assert (out / f).stat().st_size > 0, f
     meta = json.loads((out / "broad.json").read_text())
     rows = meta["trials"]["07"]["filters"]
@@ -164,16 +169,19 @@ def test_compare_wifibot_at_a_tiny_size(tmp_path):
         assert e["healthy"] == 3 and 0.02 < e["position_rms"]["mean"] < 0.2 and e["heading_rms"]["mean"] < 5, name
     arrays = np.load(out / "arrays.npz")
     assert arrays["4/iekf/heading_rms"].shape == (3,)
+    assert arrays["4/iekf/bands"].shape == (3, arrays["4/ts"].shape[0], 2)
+    assert (out / "fig_errors_4.png").stat().st_size > 0
     assert rec["winners"]["heading rms"]["winner"] in ("iekf", "ekf")
     res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--set", "recordings=9", "--out", str(out)])
     assert res.exit_code == 2 and "recordings" in res.output
 
 
-def test_compare_attitude_basin_at_a_tiny_size(tmp_path):
+@pytest.mark.parametrize("filters", ["iekf", pytest.param("iekf,mef-first", marks=pytest.mark.slow)])
+def test_compare_attitude_basin_at_a_tiny_size(tmp_path, filters):
     out = tmp_path / "attbasin"
     res = CliRunner().invoke(cli.cli, ["compare", "attitude-basin", "--runs", "3", "--set", "angles_deg=0,179",
                                        "--set", "duration=1", "--set", "imu_rate=50", "--set", "systems=gyro-bias",
-                                       "--set", "tolerance_deg=10", "--filters", "iekf,mef-first", "--out",
+                                       "--set", "tolerance_deg=10", "--filters", filters, "--out",
                                        str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
     for f in ("attitude_basin.md", "attitude_basin.csv", "attitude_basin.json", "arrays.npz",
@@ -182,7 +190,7 @@ def test_compare_attitude_basin_at_a_tiny_size(tmp_path):
     meta = json.loads((out / "attitude_basin.json").read_text())
     assert list(meta["systems"]) == ["gyro-bias"] and meta["systems"]["gyro-bias"]["samples"] == 51
     rows = {name: e["angles"] for name, e in meta["systems"]["gyro-bias"]["filters"].items()}
-    assert list(rows) == ["iekf", "mef-first"]
+    assert list(rows) == filters.split(",")
     for name, r in rows.items():
         assert [x["angle_deg"] for x in r] == [0.0, 179.0]
         assert r[0]["converged"] == 3 and r[0]["failed"] == 0 and r[0]["time_median_s"] == 0.0, name
@@ -191,8 +199,8 @@ def test_compare_attitude_basin_at_a_tiny_size(tmp_path):
             assert x["wilson95"][0] <= x["fraction"] <= x["wilson95"][1]
             assert (x["time_median_s"] is None) == (x["converged"] == 0)
     arrays = np.load(out / "arrays.npz")
-    assert arrays["gyro_bias_fraction"].shape == (2, 2) and np.all(arrays["gyro_bias_fraction"][:, 0] == 1.0)
-    assert list(arrays["gyro_bias_filters"]) == ["iekf", "mef-first"]
+    assert arrays["gyro_bias_fraction"].shape == (len(rows), 2) and np.all(arrays["gyro_bias_fraction"][:, 0] == 1.0)
+    assert list(arrays["gyro_bias_filters"]) == filters.split(",")
     csv = (out / "attitude_basin.csv").read_text().splitlines()
     assert csv[0].startswith("system,filter,angle_deg") and len(csv) == 1 + 4
     assert "| iekf |" in (out / "attitude_basin.md").read_text()

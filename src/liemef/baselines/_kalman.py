@@ -235,6 +235,14 @@ class UnscentedKalmanFilter(AbstractKalmanFilter):
     $w_j = 1/(2(n + \lambda))$, $w_m = \lambda/(n + \lambda)$, $w_0 = w_m + 3 - a^2$, with ``spread`` a = 1e-3 as
     ukfm's benchmark (ukfm's ``alpha``). The propagated mean is $f(\hat g, u, 0)$; the covariance is the
     weighted spread of the propagated state and noise points mapped back by $\varphi^{-1}$ (ukfm's scheme).
+
+    ukfm's scheme, kept as the reference this baseline stands for, has a trap: $w_0 = 1 - 1/a^2 + 3 - a^2
+    \approx -10^6$ multiplies $\bar\xi\bar\xi^\top$, and $\bar\xi = w_j\sum_j \xi_j$ is the points'
+    second-order displacement, of the order of the curvature times P whatever a. Where the propagation is
+    linear in the error coordinates (group-affine dynamics with the invariant error, e.g. the localization)
+    $\bar\xi = 0$ and the filter is the invariant EKF to $O(a^2)$; elsewhere (the rigid body of Saccon et al.
+    2016) the term subtracts about $10^6\,\bar\xi\bar\xi^\top$ from P and the filter turns overconfident (seen in
+    ``liemef compare attitude-basin``). A larger ``spread`` tempers it.
     """
 
     spread: float = eqx.field(static=True)

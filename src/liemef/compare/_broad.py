@@ -138,6 +138,43 @@ def broad_errors(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -
                                                                           strict=True)}
 
 
+def error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The total attitude error (deg) as its rms over each whole second (NaN where the second has no sample in
+    the movement mask with a reference), for the figure."""
+    from scipy.spatial.transform import Rotation
+
+    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
+    err = np.full(ts.shape, np.nan)
+    e = (Rotation.from_quat(quat_est[ok][:, [1, 2, 3, 0]]) * Rotation.from_quat(quat_ref[ok][:, [1, 2, 3, 0]]).inv())
+    err[ok] = np.degrees(e.magnitude())
+    sec = np.floor(ts - ts[0]).astype(int)
+    out = np.full(sec[-1] + 1, np.nan)
+    for k in np.unique(sec[ok]):
+        x = err[(sec == k) & ok]
+        out[k] = np.sqrt(np.mean(x**2))
+    return out
+
+
+def error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
+    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for i, n in enumerate(names):
+        e = arrays[f"{trial}/{n}/error_1s"]
+        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
+    ax.set_yscale("log")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("total attitude error, rms per second [deg]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize="small", ncol=3)
+    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
+    return fig
+
+
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
     """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
     st = BroadComparison() if study is None else study
@@ -158,6 +195,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             traj = flt.run(state, log.ts, log.us, log.ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
             status = traj.status
+            arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
             rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": bool(int(status.code) == 0),
                           "status": status.message(log.ts) if int(status.code) != 0 else "ok",
                           **broad_errors(q, trial.quat_true, trial.movement), "elapsed_s": time.perf_counter() - t0}
@@ -228,12 +266,20 @@ def markdown(result: dict) -> str:
 
 
 def save(result: dict, out: str | Path) -> list[Path]:
-    """Write ``broad.json``, ``broad.md``, ``broad.csv`` and ``arrays.npz`` to ``out``."""
+    """Write ``broad.json``, ``broad.md``, ``broad.csv``, ``arrays.npz`` and per trial ``fig_errors_<id>.png``
+    (each filter's attitude error over time) to ``out``."""
+    from .. import plots
+
     out = io.ensure_dir(out)
     rows = [[t, n, r["ok"], r["total"], r["heading"], r["inclination"]]
             for t, per in result["trials"].items() for n, r in per["filters"].items()]
-    return [io.write_npz(out / "arrays.npz", result["arrays"]),
-            io.write_json(out / "broad.json", {k: v for k, v in result.items() if k != "arrays"}),
-            io.write_text(out / "broad.md", markdown(result)),
-            io.write_rows(out / "broad.csv", ["trial", "filter", "ok", "total_deg", "heading_deg",
-                                              "inclination_deg"], rows)]
+    written = [io.write_npz(out / "arrays.npz", result["arrays"]),
+               io.write_json(out / "broad.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_text(out / "broad.md", markdown(result)),
+               io.write_rows(out / "broad.csv", ["trial", "filter", "ok", "total_deg", "heading_deg",
+                                                 "inclination_deg"], rows)]
+    a = io.read_arrays(out / "arrays.npz")
+    for tid, per in result["trials"].items():
+        fig = error_figure(a, tid, list(result["study"]["filters"]), f"BROAD trial {tid} ({per['file']})")
+        written.append(plots.save_figure(fig, out / f"fig_errors_{tid}.png"))
+    return written

@@ -112,10 +112,14 @@ def compare_wifibot(study: WifibotComparison | None = None, *, progress: bool = 
                                     {"mean": None, "p5": None, "p95": None})
             for k in ("heading_rms", "position_rms"):
                 arrays[f"{rid}/{name}/{k}"] = trials[name][k]
+            ab = np.abs(ser[ok][..., :2])
+            arrays[f"{rid}/{name}/bands"] = (np.percentile(ab, (5, 50, 95), axis=0) if ok.any()
+                                             else np.full((3, ts.shape[0], 2), np.nan))
             if progress:
                 print(f"  run {rid} {name:10s} heading {fmt(summary[name]['heading_rms']['mean'])} deg, position "
                       f"{fmt(summary[name]['position_rms']['mean'])} m; {summary[name]['elapsed_s']:.1f} s",
                       flush=True)
+        arrays[f"{rid}/ts"] = ts
         winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}) for key, label, _ in METRICS}
         out[rid] = {"file": run.name, "rows": int(ts.shape[0]), "seconds": float(ts[-1] - ts[0]),
                     "filters": summary, "winners": winners}
@@ -146,13 +150,26 @@ def markdown(result: dict) -> str:
 
 
 def save(result: dict, out: str | Path) -> list[Path]:
-    """Write ``wifibot.json``, ``wifibot.md``, ``wifibot.csv`` and ``arrays.npz`` to ``out``."""
+    """Write ``wifibot.json``, ``wifibot.md``, ``wifibot.csv``, ``arrays.npz`` and per recording
+    ``fig_errors_<id>.png`` (per filter the median and 5-95 % band across the GPS seeds of the heading and
+    position errors over time) to ``out``."""
+    from .. import plots
+    from ._localization import band_figure
+
     out = io.ensure_dir(out)
     rows = [[rid, name, e["healthy"], e["runs"], e["heading_rms"]["mean"], e["position_rms"]["mean"],
              e["nees_heading"]["mean"], e["nees_position"]["mean"]]
             for rid, rec in result["recordings"].items() for name, e in rec["filters"].items()]
-    return [io.write_npz(out / "arrays.npz", result["arrays"]),
-            io.write_json(out / "wifibot.json", {k: v for k, v in result.items() if k != "arrays"}),
-            io.write_text(out / "wifibot.md", markdown(result)),
-            io.write_rows(out / "wifibot.csv", ["recording", "filter", "healthy", "runs", "heading_rms_deg",
-                                                "position_rms_m", "nees_heading", "nees_position"], rows)]
+    written = [io.write_npz(out / "arrays.npz", result["arrays"]),
+               io.write_json(out / "wifibot.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_text(out / "wifibot.md", markdown(result)),
+               io.write_rows(out / "wifibot.csv", ["recording", "filter", "healthy", "runs", "heading_rms_deg",
+                                                   "position_rms_m", "nees_heading", "nees_position"], rows)]
+    a = io.read_arrays(out / "arrays.npz")
+    names = result["study"]["filters"]
+    for rid, rec in result["recordings"].items():
+        fig = band_figure({"ts": a[f"{rid}/ts"], "filters": np.array(names),
+                           "bands": np.stack([a[f"{rid}/{n}/bands"] for n in names])},
+                          f"{rec['file']}: median and 5-95 % band across {result['study']['runs']} GPS seeds")
+        written.append(plots.save_figure(fig, out / f"fig_errors_{rid}.png"))
+    return written
