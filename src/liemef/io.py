@@ -119,13 +119,13 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
 
 def write_rows(path: str | os.PathLike, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> Path:
     """Rows of mixed text and numbers under ``header`` to a CSV file, written atomically. Floats keep full
-    float64 precision (``repr``); NaN is written ``nan``."""
+    float64 precision (``repr``); NaN is written ``nan``; None (no value) is an empty cell, as a missing sample."""
     rows = [list(r) for r in rows]
     bad = [i for i, r in enumerate(rows) if len(r) != len(header)]
     if bad:
         raise ValueError(f"rows: expected {len(header)} values per row (the header), got {len(rows[bad[0]])} "
                          f"in row {bad[0]}")
-    cell = lambda v: repr(float(v)) if isinstance(v, float | np.floating) else str(v)  # noqa: E731
+    cell = lambda v: "" if v is None else repr(float(v)) if isinstance(v, float | np.floating) else str(v)  # noqa: E731
     with atomic_open(path, "w") as f:
         w = csv.writer(f)
         w.writerow(header)
