@@ -26,6 +26,7 @@ import numpy as np
 from .. import datasets, io
 from ..experiments import localization as L
 from ..groups import SE2
+from ..metrics import chi2_bounds
 from ..systems import planar_localization
 from ._common import FILTERS, fmt, make_filter, paired_comparison, parse_filters, winners_markdown
 
@@ -145,7 +146,12 @@ def markdown(result: dict) -> str:
             lines.append(f"| {name} | {e['healthy']}/{e['runs']} | {cell(e['heading_rms'])} | "
                          f"{cell(e['position_rms'])} | {fmt(e['nees_heading']['mean'], 3)} | "
                          f"{fmt(e['nees_position']['mean'], 3)} |")
-        lines += ["", *winners_markdown(rec["winners"], {label: unit for _, label, unit in METRICS}), ""]
+        lo1, hi1 = chi2_bounds(1, st["runs"], 0.95, per_dof=True)
+        lo2, hi2 = chi2_bounds(2, st["runs"], 0.95, per_dof=True)
+        lines += ["", f"NEES: mean over the run and the seeds, 1 for a consistent filter; the 95 % chi-square bounds "
+                  f"of one step's average over {st['runs']} seeds: {lo1:.3f}-{hi1:.3f} (heading), {lo2:.3f}-"
+                  f"{hi2:.3f} (position / 2). The seeds share the odometry, so the bounds are optimistic.", "",
+                  *winners_markdown(rec["winners"], {label: unit for _, label, unit in METRICS}), ""]
     return "\n".join(lines)
 
 
