@@ -204,7 +204,10 @@ def test_compare_attitude_basin_at_a_tiny_size(tmp_path, filters):
     csv = (out / "attitude_basin.csv").read_text().splitlines()
     assert csv[0].startswith("system,filter,angle_deg") and len(csv) == 1 + 2 * len(rows)
     assert "None" not in "".join(csv)  # no value is an empty cell
-    assert "| iekf |" in (out / "attitude_basin.md").read_text()
+    md = (out / "attitude_basin.md").read_text()
+    assert "| iekf |" in md and "NEES per degree of freedom" in md
+    for name, r in rows.items():  # a consistent-ish covariance from the true start: NEES per dof of order 1
+        assert r[0]["nees_per_dof"] is not None and 0.05 < r[0]["nees_per_dof"] < 20, (name, r[0])
 
 
 def test_bad_attitude_basin_settings_are_named():

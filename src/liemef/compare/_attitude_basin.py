@@ -52,7 +52,7 @@ from ..baselines import Madgwick, Mahony
 from ..experiments import attitude as A
 from ..filter import MinimumEnergyFilter
 from ..groups import R3, SO3, TSO3
-from ..metrics import wilson_interval
+from ..metrics import chi2_bounds, left_error, nees, wilson_interval
 from ..metrics._stats import json_number
 from ..simulation import simulate_core
 from ..systems import attitude_gyro_bias
@@ -191,7 +191,9 @@ def _trial_fn(make_log):
     def one(flt, state0, key, alpha):
         g, log, g_hat0 = make_log(key, alpha)
         traj = flt.scan(eqx.tree_at(lambda st: st.g_hat, state0, g_hat0), log.ts, log.us, log.ys)
-        return A.attitude_errors(g, traj.g_hat)[:, 0], traj.status.code
+        # NEES of K as the covariance of the left error, per degree of freedom
+        nees_dof = nees(left_error(g, traj.g_hat), traj.K) / traj.K.shape[-1]
+        return A.attitude_errors(g, traj.g_hat)[:, 0], traj.status.code, nees_dof
 
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0, None)))
 
@@ -213,10 +215,11 @@ def _description(name: str) -> str:
     return AHRS[name][0] if name in AHRS else FILTERS[name][0]
 
 
-def _row(angle: float, ok: np.ndarray, t_conv: np.ndarray, code: np.ndarray) -> dict:
+def _row(angle: float, ok: np.ndarray, t_conv: np.ndarray, code: np.ndarray, nees_last: np.ndarray | None) -> dict:
     n, k = ok.size, int(ok.sum())
     times = t_conv[ok]
-    return {"angle_deg": angle, "converged": k, "trials": n, "fraction": k / n,
+    nees_mean = None if nees_last is None or k == 0 else json_number(float(np.mean(nees_last[ok])))
+    return {"angle_deg": angle, "converged": k, "trials": n, "fraction": k / n, "nees_per_dof": nees_mean,
             "wilson95": list(wilson_interval(k, n)), "failed": int(np.sum(code != 0)),
             "time_median_s": json_number(float(np.median(times))) if k else None,
             "time_p90_s": json_number(float(np.percentile(times, 90))) if k else None}
@@ -274,6 +277,7 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
             rows = []
             for a in st.angles_deg:
                 alpha_rad = jnp.asarray(math.radians(a))
+                nees_last = None
                 if name in AHRS:
                     err, code = _ahrs_trials(flt, logs_fn, keys, alpha_rad, st.batch_size, ts)
                 else:
@@ -282,8 +286,10 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
                              for i in range(0, st.runs, st.batch_size)]
                     err = np.concatenate([np.asarray(p[0]) for p in parts])
                     code = np.concatenate([np.asarray(p[1]) for p in parts])
+                    last = ts >= ts[0] + 0.75 * (ts[-1] - ts[0])
+                    nees_last = np.concatenate([np.asarray(p[2]) for p in parts])[:, last].mean(axis=1)
                 ok, t_conv = convergence(ts, err, code, st.tolerance_deg)
-                rows.append(_row(a, ok, t_conv, code))
+                rows.append(_row(a, ok, t_conv, code, nees_last))
             per_filter[name] = {"filter": _description(name), "angles": rows, "elapsed_s": time.perf_counter() - t0}
             frac.append([r["fraction"] for r in rows])
             t_med.append([np.nan if r["time_median_s"] is None else r["time_median_s"] for r in rows])
@@ -327,6 +333,18 @@ def markdown(result: dict) -> str:
                 f = f" ({r['failed']} failed)" if r["failed"] else ""
                 cells.append(f"{r['converged']}/{r['trials']} [{fmt(lo, 2)}-{fmt(hi, 2)}]{t}{f}")
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        with_nees = {n: e for n, e in sysr["filters"].items() if any(r["nees_per_dof"] is not None
+                                                                     for r in e["angles"])}
+        if with_nees:
+            dof = 6
+            lo, hi = chi2_bounds(dof, st["runs"], 0.95, per_dof=True)
+            lines += ["", f"NEES per degree of freedom over the last quarter, mean over the trials that converge "
+                      f"(K as the covariance of the left error; 1 for a consistent filter; 95 % chi-square bounds "
+                      f"of one step's average over {st['runs']} trials: {lo:.3f}-{hi:.3f}):", "",
+                      "| filter | " + " | ".join(f"{a:g} deg" for a in angles) + " |",
+                      "|---|" + "---:|" * len(angles)]
+            for name, e in with_nees.items():
+                lines.append(f"| {name} | " + " | ".join(fmt(r["nees_per_dof"], 3) for r in e["angles"]) + " |")
         lines.append("")
     return "\n".join(lines + ["Cells: converged/trials [95 % Wilson interval of the fraction], median time to "
                               "converge.", ""])
@@ -335,9 +353,9 @@ def markdown(result: dict) -> str:
 def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     """One row per system, filter and angle."""
     header = ["system", "filter", "angle_deg", "converged", "trials", "fraction", "wilson_lo", "wilson_hi", "failed",
-              "time_median_s", "time_p90_s"]
+              "time_median_s", "time_p90_s", "nees_per_dof"]
     rows = [[sname, name, r["angle_deg"], r["converged"], r["trials"], r["fraction"], *r["wilson95"], r["failed"],
-             r["time_median_s"], r["time_p90_s"]]
+             r["time_median_s"], r["time_p90_s"], r["nees_per_dof"]]
             for sname, sysr in result["systems"].items() for name, e in sysr["filters"].items() for r in e["angles"]]
     return header, rows
 
