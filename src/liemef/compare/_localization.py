@@ -277,8 +277,8 @@ def markdown(result: dict) -> str:
             lines.append(f"| {name} | {fmt(d['heading_mean'])} | {fmt(d['heading_steady'])} | "
                          f"{fmt(d['position_mean'])} | {fmt(d['position_steady'])} |")
         lines += ["", "## Winners: distance to the optimum", ""]
-        lines += winners_markdown(opt["winners"], {"heading distance t >= steady": "deg",
-                                                   "position distance t >= steady": "m"})
+        lines += winners_markdown(opt["winners"], {k: "deg" if k.startswith("heading") else "m"
+                                                   for k in opt["winners"]})
     return "\n".join(lines + [""])
 
 

@@ -47,10 +47,9 @@ def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords:
         if progress:
             print(f"  optimum, trial {i}: {solver} in {elapsed[-1]:.1f} s", flush=True)
     filters = {n: {k: json_number(float(np.mean(v))) for k, v in per[n].items()} for n in names}
-    winners = {"heading distance t >= steady": paired_comparison({n: np.array(per[n]["heading_steady"])
-                                                                 for n in names}),
-               "position distance t >= steady": paired_comparison({n: np.array(per[n]["position_steady"])
-                                                                  for n in names})}
+    labels = {"heading_mean": "heading distance, whole run", "heading_steady": "heading distance t >= steady",
+              "position_mean": "position distance, whole run", "position_steady": "position distance t >= steady"}
+    winners = {label: paired_comparison({n: np.array(per[n][key]) for n in names}) for key, label in labels.items()}
     return {"definition": f"the exact minimum-energy estimate: the MAP of the current pose given every sample "
                           f"before it, on the same discretized cost, by {solver} (liemef.optimum.map_estimates); "
                           f"distance of each filter's estimate from it at every step: heading [deg] and position "
