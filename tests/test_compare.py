@@ -26,6 +26,15 @@ def test_the_paired_comparison_names_a_winner_only_when_its_lead_is_outside_the_
     assert r["versus"]["d"]["n"] == 197 and r["versus"]["d"]["diff"] == pytest.approx(1.0)
     assert sorted(r["level"]) == ["b", "c"]
     assert math.isclose(r["means"]["b"], float(base.mean()))
+    # a filter that failed where the others did not cannot win, however good its few healthy trials
+    r = paired_comparison({"ok": np.array([1.0, 1.1, 0.9, 1.0, 1.2, 1.0]),
+                           "fails": np.array([0.1, 0.1, np.nan, np.nan, np.nan, np.nan])})
+    assert r["winner"] == "ok" and r["healthy"] == {"ok": 6, "fails": 2}
+    # few trials: Student's t, not 1.96 (n = 3: t = 4.30)
+    r = paired_comparison({"a": np.array([1.0, 2.0, 3.0]), "b": np.array([1.5, 2.4, 3.7])})
+    d = np.array([0.5, 0.4, 0.7])
+    assert r["versus"]["b"]["ci"][1] - r["versus"]["b"]["diff"] == pytest.approx(4.303 * d.std(ddof=1) / 3**0.5,
+                                                                                  rel=1e-3)
 
 
 def test_bootstrap_interval_covers_the_statistic_and_is_reproducible():
@@ -51,6 +60,8 @@ def test_bad_study_settings_are_named():
         HeadingBasin(tolerance_deg=0)
     res = CliRunner().invoke(cli.cli, ["compare", "localization", "--out", "/tmp/x", "--filters", "mef,nope"])
     assert res.exit_code == 2 and "filters" in res.output and "nope" in res.output
+    res = CliRunner().invoke(cli.cli, ["compare", "heading-basin", "--out", "/tmp/x", "--set", "duration=true"])
+    assert res.exit_code == 2 and "duration" in res.output
     res = CliRunner().invoke(cli.cli, ["compare", "heading-basin", "--out", "/tmp/x", "--set", "optimum_runs=1"])
     assert res.exit_code == 2 and "optimum_runs" in res.output and "angles_deg" in res.output
 

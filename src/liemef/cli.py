@@ -16,7 +16,8 @@
   ``failure.json`` and exits with status 1.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
-* ``liemef compare localization|heading-basin --out DIR [--runs N] [--seed S] [--filters a,b] [--set KEY=VALUE]``:
+* ``liemef compare localization|heading-basin|attitude-basin|broad|wifibot --out DIR [--runs N] [--seed S]
+  [--filters a,b] [--set KEY=VALUE]``:
   every filter (the minimum-energy filter with its connections and orders, and the baselines) on the same
   trials; writes the study's tables (Markdown, CSV, JSON), ``arrays.npz`` and figures (:mod:`liemef.compare`).
 * ``liemef campaign run FILE [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N]``: a Monte Carlo campaign
@@ -635,9 +636,14 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
             raise click.BadParameter(f"expected KEY=VALUE with KEY one of {allowed}, got {item!r}",
                                      param_hint="'--set'")
         try:
-            kwargs[key] = json.loads(f"[{value}]") if key == "angles_deg" else json.loads(value)
+            parsed = json.loads(f"[{value}]") if key == "angles_deg" else json.loads(value)
         except json.JSONDecodeError:
-            kwargs[key] = value  # a name or a list of names (trials=01,07; realdata=PATH): the study checks it
+            parsed = value  # a name or a list of names (trials=01,07; realdata=PATH): the study checks it
+        default = fields[key].default
+        number = isinstance(parsed, int | float) and not isinstance(parsed, bool)
+        if isinstance(default, int | float) and not isinstance(default, bool) and not number:
+            raise click.BadParameter(f"{key}: expected a number, got {value!r}", param_hint="'--set'")
+        kwargs[key] = value if isinstance(parsed, bool) else parsed  # true/false is no number: left as text
     try:
         st = spec.settings(**kwargs)
     except (ValueError, TypeError) as err:
@@ -645,6 +651,11 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
     result = spec.run(st, progress=progress)
     click.echo(spec.markdown(result))
     written = spec.save(result, d)
+    for sname, sysr in result.get("systems", {}).items():
+        for name, e in sysr["filters"].items():
+            failed = sum(r["failed"] for r in e["angles"])
+            if failed:
+                click.echo(f"WARNING: {sname}: {name} failed in {failed} trials (counted as not converged)", err=True)
     for rid, rec in result.get("recordings", {}).items():
         for name, e in rec["filters"].items():
             if e["failed"]:

@@ -340,7 +340,8 @@ def markdown(result: dict) -> str:
             lo, hi = chi2_bounds(dof, st["runs"], 0.95, per_dof=True)
             lines += ["", f"NEES per degree of freedom over the last quarter, mean over the trials that converge "
                       f"(K as the covariance of the left error; 1 for a consistent filter; 95 % chi-square bounds "
-                      f"of one step's average over {st['runs']} trials: {lo:.3f}-{hi:.3f}):", "",
+                      f"of one step's average over {st['runs']} trials: {lo:.3f}-{hi:.3f}; a cell averages only "
+                      "the trials that converged, and its bounds are wider when they are fewer):", "",
                       "| filter | " + " | ".join(f"{a:g} deg" for a in angles) + " |",
                       "|---|" + "---:|" * len(angles)]
             for name, e in with_nees.items():

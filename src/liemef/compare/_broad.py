@@ -196,9 +196,12 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             q = np.asarray(traj.g_hat.factors[0].wxyz)
             status = traj.status
             arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
-            rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": bool(int(status.code) == 0),
-                          "status": status.message(log.ts) if int(status.code) != 0 else "ok",
-                          **broad_errors(q, trial.quat_true, trial.movement), "elapsed_s": time.perf_counter() - t0}
+            ok = bool(int(status.code) == 0)
+            # a failed run has no error figures: its states before the failure are not the whole trial's
+            errors = broad_errors(q, trial.quat_true, trial.movement) if ok else dict.fromkeys(METRICS)
+            rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": ok,
+                          "status": status.message(log.ts) if not ok else "ok", **errors,
+                          "elapsed_s": time.perf_counter() - t0}
             arrays[f"{tid}/{name}"] = np.array([np.nan if rows[name][m] is None else rows[name][m] for m in METRICS])
             if progress:
                 r = rows[name]

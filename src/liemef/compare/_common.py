@@ -49,38 +49,47 @@ def parse_filters(names: str | Sequence[str] | None, default: Sequence[str]) -> 
     return tuple(items)
 
 
-def paired_comparison(values: Mapping[str, np.ndarray], z: float = 1.96) -> dict:
+def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> dict:
     """Which filter has the lowest mean of a per-trial metric, and whether its lead is outside the Monte Carlo
-    spread: the filters ran on the same trials, so each is compared with the winner by the paired differences
-    d_i = x_i - x_winner,i over the trials where both are finite, with the 95 % interval mean(d) +- z sd(d)/sqrt(n).
+    spread. A failed trial is NaN.
 
-    Returns ``winner``, ``means`` (per filter), ``versus`` (per other filter: mean difference, its interval and
-    ``significant``: the interval excludes 0) and ``level`` (the filters whose interval includes 0: the
-    winner's lead over them is within the spread)."""
-    means = {k: float(np.nanmean(v)) if np.isfinite(v).any() else math.nan for k, v in values.items()}
-    finite = {k: m for k, m in means.items() if math.isfinite(m)}
-    if not finite:
-        return {"winner": None, "means": {k: None for k in means}, "versus": {}, "level": []}
-    winner = min(finite, key=finite.get)
+    The winner is chosen among the filters healthy on the most trials (a filter that failed where another did
+    not cannot win), by the lowest mean over its healthy trials. The filters ran on the same trials, so each
+    other filter is compared with it by the paired differences d_i = x_i - x_winner,i over the trials where
+    both are finite, with the interval mean(d) +- t sd(d)/sqrt(n) (Student's t quantile of ``prob``, n - 1
+    degrees of freedom: honest for the few trials of a distance-to-optimum study).
+
+    Returns ``winner``, ``means`` and ``healthy`` (per filter), ``versus`` (per other filter: mean difference,
+    its interval, n and ``significant``: the interval excludes 0) and ``level`` (the filters whose interval
+    includes 0, and the winner); a filter with fewer than 2 trials in common with the winner is not compared."""
+    from scipy.stats import t as student_t
+
+    arrays = {k: np.asarray(v, float) for k, v in values.items()}
+    healthy = {k: int(np.isfinite(v).sum()) for k, v in arrays.items()}
+    means = {k: float(np.nanmean(v)) if healthy[k] else math.nan for k, v in arrays.items()}
+    most = max(healthy.values(), default=0)
+    if most == 0:
+        return {"winner": None, "means": {k: None for k in means}, "healthy": healthy, "versus": {}, "level": []}
+    winner = min((k for k in arrays if healthy[k] == most), key=lambda k: means[k])
     versus, level = {}, [winner]
-    w = np.asarray(values[winner], float)
-    for k, v in values.items():
+    w = arrays[winner]
+    for k, v in arrays.items():
         if k == winner:
             continue
-        v = np.asarray(v, float)
         ok = np.isfinite(v) & np.isfinite(w)
         d = v[ok] - w[ok]
         n = d.size
         if n < 2:
             versus[k] = {"diff": None, "ci": [None, None], "n": int(n), "significant": False}
             continue
-        mean, half = float(d.mean()), float(z * d.std(ddof=1) / math.sqrt(n))
+        mean = float(d.mean())
+        half = float(student_t.ppf(0.5 + prob / 2, n - 1) * d.std(ddof=1) / math.sqrt(n))
         sig = bool(mean - half > 0)
         versus[k] = {"diff": mean, "ci": [mean - half, mean + half], "n": int(n), "significant": sig}
         if not sig:
             level.append(k)
-    return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "versus": versus,
-            "level": level}
+    return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "healthy": healthy,
+            "versus": versus, "level": level}
 
 
 def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float = 0.95, seed: int = 0):
@@ -124,5 +133,8 @@ def winners_markdown(rows: Mapping[str, dict], units: Mapping[str, str]) -> list
         else:
             r, lead, sig = "-", "-", "-"
         level = ", ".join(k for k in cmp["level"] if k != w) or "none"
+        apart = [f"{k} (n = {v['n']})" for k, v in cmp["versus"].items() if v["diff"] is None]
+        if apart:
+            level += "; not comparable: " + ", ".join(apart)
         lines.append(f"| {metric} | {w} | {fmt(cmp['means'][w])} | {r} | {lead} | {sig} | {level} |")
     return lines
