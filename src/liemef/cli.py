@@ -581,15 +581,17 @@ def dataset(kind, path, out, truth, seconds, gps_std):
 @click.argument("study", type=click.Choice(COMPARE_STUDIES))
 @click.option("--out", type=click.Path(path_type=Path), required=True, help="Output folder (created if missing).")
 @click.option("--runs", type=click.IntRange(min=1), help="Trials (the same for every filter; default: the study's).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Trial i uses split(key(seed), runs)[i].")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="First seed: trial i uses split(key(seed), runs)[i] (localization with --set rng=numpy: ukfm's "
+                   "stream seeded seed + i; wifibot: the GPS noise of seed + i).")
 @click.option("--filters", metavar="A,B,...", help="Filters to compare (default: all of the study's).")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-              help="Any other setting of the study (repeatable): localization: duration, steady, optimum_runs, "
-                   "batch_size; heading-basin: duration, angles_deg (comma-separated), prior_std_deg, "
-                   "tolerance_deg, batch_size; attitude-basin: duration, angles_deg, tolerance_deg, systems "
-                   "(rigid-body,gyro-bias), rigid_body_dt, imu_rate, prior_std_deg, batch_size; broad: trials "
-                   "(comma-separated ids), seconds, realdata; wifibot: recordings (comma-separated ids), gps_rate, "
-                   "gps_std, realdata.")
+              help="Any other setting of the study (repeatable). localization: duration, steady, "
+                   "optimum_runs, rng (jax or numpy), batch_size. heading-basin: duration, angles_deg "
+                   "(comma-separated), prior_std_deg, tolerance_deg, batch_size. attitude-basin: duration, "
+                   "angles_deg, tolerance_deg, systems (rigid-body,gyro-bias), rigid_body_dt, imu_rate, "
+                   "prior_std_deg, batch_size. broad: trials (comma-separated ids), seconds, realdata. wifibot: "
+                   "recordings (comma-separated ids), gps_rate, gps_std, realdata.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.
