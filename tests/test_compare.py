@@ -226,9 +226,25 @@ def test_bad_attitude_basin_settings_are_named():
 
     assert AttitudeBasin(filters="iekf,mahony").filters_of("rigid-body") == ("iekf",)  # ahrs: gyro bias only
     assert AttitudeBasin(filters="iekf,mahony").filters_of("gyro-bias") == ("iekf", "mahony")
+    with pytest.raises(ValueError, match="optimum_runs"):
+        AttitudeBasin(runs=2, optimum_runs=3)
     with pytest.raises(ValueError, match="filters"):
         AttitudeBasin(filters="ekf")  # the local EKF is the invariant one on TSO(3)
     for setting, name in (("angles_deg=0,200", "angles_deg"), ("systems=rigid-body,nope", "systems"),
                           ("tolerance_deg=0", "tolerance_deg")):
         res = CliRunner().invoke(cli.cli, ["compare", "attitude-basin", "--out", "/tmp/x", "--set", setting])
         assert res.exit_code == 2 and name in res.output, (setting, res.output)
+
+
+@pytest.mark.slow
+def test_attitude_basin_distance_to_the_optimum(tmp_path):
+    from liemef.compare import AttitudeBasin, compare_attitude_basin
+
+    r = compare_attitude_basin(AttitudeBasin(runs=2, systems="gyro-bias", angles_deg=(0.0,), duration=2.0,
+                                             imu_rate=50.0, filters="iekf,mef", optimum_runs=1, optimum_every=20),
+                               progress=False)
+    rows = {n: e["angles"][0] for n, e in r["systems"]["gyro-bias"]["filters"].items()}
+    for name, row in rows.items():  # from the true start, both stay within a degree of the exact estimate
+        assert 0.0 <= row["optimum_deg_final"] < 1.0 and 0.0 <= row["optimum_deg_mean"] < 2.0, (name, row)
+    # the discrete invariant EKF is the Kalman filter of the very cost the MAP minimizes: the closer one
+    assert rows["iekf"]["optimum_deg_final"] < rows["mef"]["optimum_deg_final"]

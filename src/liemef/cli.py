@@ -590,8 +590,8 @@ def dataset(kind, path, out, truth, seconds, gps_std):
                    "optimum_runs, rng (jax or numpy), batch_size. heading-basin: duration, angles_deg "
                    "(comma-separated), prior_std_deg, tolerance_deg, batch_size. attitude-basin: duration, "
                    "angles_deg, tolerance_deg, systems (rigid-body,gyro-bias), rigid_body_dt, imu_rate, "
-                   "prior_std_deg, batch_size. broad: trials (comma-separated ids), seconds, realdata. wifibot: "
-                   "recordings (comma-separated ids), gps_rate, gps_std, realdata.")
+                   "prior_std_deg, batch_size, optimum_runs, optimum_every. broad: trials (comma-separated ids), "
+                   "seconds, realdata. wifibot: recordings (comma-separated ids), gps_rate, gps_std, realdata.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.

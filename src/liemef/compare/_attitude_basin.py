@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _validate, io
+from .. import _validate, io, optimum
 from ..baselines import Madgwick, Mahony
 from ..experiments import attitude as A
 from ..filter import MinimumEnergyFilter
@@ -105,7 +105,10 @@ def _parse_names(what: str, names, options, default) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class AttitudeBasin:
-    """The study's settings (module docstring)."""
+    """The study's settings (module docstring). ``optimum_runs`` > 0: on the gyro-bias system, the distance of
+    each covariance filter's attitude from the exact minimum-energy estimate (:func:`liemef.optimum.map_estimates`
+    with the JAX batch solver, every ``optimum_every``-th sample) on the first ``optimum_runs`` trials of each
+    angle."""
 
     runs: int = 50
     seed: int = 0
@@ -118,12 +121,16 @@ class AttitudeBasin:
     imu_rate: float = 100.0
     prior_std_deg: float = 90.0
     batch_size: int = 50
+    optimum_runs: int = 0
+    optimum_every: int = 100
 
     def __post_init__(self):
-        for name in ("runs", "batch_size"):
+        for name in ("runs", "batch_size", "optimum_every"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        if not (isinstance(self.optimum_runs, int) and 0 <= self.optimum_runs <= self.runs):
+            raise ValueError(f"optimum_runs: expected an integer in [0, runs = {self.runs}], got {self.optimum_runs!r}")
         angles = tuple(float(a) for a in self.angles_deg)
         if not angles or any(not (math.isfinite(a) and 0.0 <= a <= 180.0) for a in angles):
             raise ValueError(f"angles_deg: expected angles in [0, 180] deg, got {self.angles_deg!r}")
@@ -198,6 +205,36 @@ def _trial_fn(make_log):
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0, None)))
 
 
+def _estimates_fn(make_log):
+    def one(flt, state0, key, alpha):
+        g, log, g_hat0 = make_log(key, alpha)
+        return flt.scan(eqx.tree_at(lambda st: st.g_hat, state0, g_hat0), log.ts, log.us, log.ys).g_hat
+
+    return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0, None)))
+
+
+def _optimum_distances(st: AttitudeBasin, flt, state0, make_log, system, K0, keys, alpha, cache: dict) -> dict:
+    """Attitude distance (deg) of the filter's estimates from the per-step MAP at its checkpoints, on ``keys``
+    (the MAP per trial and angle is computed once, in ``cache``): the mean over the checkpoints after the first,
+    and at the last, averaged over the trials."""
+    g_f = _estimates_fn(make_log)(flt, state0, keys, alpha)
+    means, finals = [], []
+    for i in range(keys.shape[0]):
+        ck = (float(alpha), i)
+        if ck not in cache:
+            g, log, g_hat0 = make_log(keys[i], alpha)
+            cache[ck] = optimum.map_estimates(system, np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys),
+                                              g_hat0, K0, solver="jax", every=st.optimum_every)
+        est = cache[ck]
+        idx = np.searchsorted(np.asarray(st.imu_ts), np.asarray(est.ts) - 1e-9)
+        gi = jax.tree_util.tree_map(lambda a, i=i, idx=idx: a[i][idx], g_f)
+        d = np.degrees(np.asarray(optimum.distance_components(gi, est.g)["0.angle"]))
+        means.append(float(np.mean(d[1:])) if d.size > 1 else float(d[0]))
+        finals.append(float(d[-1]))
+    return {"optimum_deg_mean": json_number(float(np.mean(means))),
+            "optimum_deg_final": json_number(float(np.mean(finals)))}
+
+
 def _logs_fn(make_log):
     return eqx.filter_jit(eqx.filter_vmap(make_log, in_axes=(0, None)))
 
@@ -269,6 +306,8 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
         fn, logs_fn = _trial_fn(make_log), _logs_fn(make_log)
         g0 = _first(make_log(keys[0], jnp.asarray(0.0))[0])
         per_filter, frac, t_med = {}, [], []
+        map_cache: dict = {}
+        with_optimum = sname == "gyro-bias" and st.optimum_runs > 0
         if progress:
             print(f"{sname}:", flush=True)
         for name in st.filters_of(sname):
@@ -290,6 +329,9 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
                     nees_last = np.concatenate([np.asarray(p[2]) for p in parts])[:, last].mean(axis=1)
                 ok, t_conv = convergence(ts, err, code, st.tolerance_deg)
                 rows.append(_row(a, ok, t_conv, code, nees_last))
+                if with_optimum and name not in AHRS:
+                    rows[-1].update(_optimum_distances(st, flt, state0, make_log, system, K0,
+                                                       keys[:st.optimum_runs], alpha_rad, map_cache))
             per_filter[name] = {"filter": _description(name), "angles": rows, "elapsed_s": time.perf_counter() - t0}
             frac.append([r["fraction"] for r in rows])
             t_med.append([np.nan if r["time_median_s"] is None else r["time_median_s"] for r in rows])
@@ -346,6 +388,17 @@ def markdown(result: dict) -> str:
                       "|---|" + "---:|" * len(angles)]
             for name, e in with_nees.items():
                 lines.append(f"| {name} | " + " | ".join(fmt(r["nees_per_dof"], 3) for r in e["angles"]) + " |")
+        with_opt = {n: e for n, e in sysr["filters"].items() if "optimum_deg_mean" in e["angles"][0]}
+        if with_opt:
+            lines += ["", f"Distance of the attitude from the exact minimum-energy estimate (the per-step MAP by "
+                      f"liemef.optimum's JAX Levenberg-Marquardt, every {st['optimum_every']}-th sample, on the first "
+                      f"{st['optimum_runs']} trials of each angle), deg: mean over the checkpoints / at the last:", "",
+                      "| filter | " + " | ".join(f"{a:g} deg" for a in angles) + " |",
+                      "|---|" + "---:|" * len(angles)]
+            for name, e in with_opt.items():
+                lines.append(f"| {name} | " + " | ".join(f"{fmt(r['optimum_deg_mean'], 3)} / "
+                                                         f"{fmt(r['optimum_deg_final'], 3)}" for r in e["angles"])
+                             + " |")
         lines.append("")
     return "\n".join(lines + ["Cells: converged/trials [95 % Wilson interval of the fraction], median time to "
                               "converge.", ""])
