@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _validate, io, optimum
+from .. import io, optimum
 from ..baselines import Madgwick, Mahony
 from ..experiments import attitude as A
 from ..filter import MinimumEnergyFilter
@@ -58,7 +58,7 @@ from ..simulation import simulate_core
 from ..systems import attitude_gyro_bias
 from ..systems.attitude_bias import GYRO_STD
 from ._basins import basin_figure, convergence
-from ._common import FILTERS, fmt
+from ._common import FILTERS, check_counts, fmt, parse_names
 
 SYSTEMS = {
     "rigid-body": "Saccon et al. 2016's rigid body on TSO(3) (attitude, angular velocity; torque input, two "
@@ -90,19 +90,6 @@ def omega_profile(t):
                       1.2 * jnp.sin(0.07 * w + 2.0) + 0.3 * jnp.sin(0.53 * w + 0.7)])
 
 
-def _parse_names(what: str, names, options, default) -> tuple[str, ...]:
-    if names is None:
-        return tuple(default)
-    items = [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
-    if not items or any(not n for n in items):
-        raise ValueError(f"{what}: expected a comma-separated list of names from {sorted(options)}, got {names!r}")
-    for n in items:
-        _validate.choice(what, n, set(options))
-    if len(set(items)) != len(items):
-        raise ValueError(f"{what}: expected each name once, got {names!r}")
-    return tuple(items)
-
-
 @dataclass(frozen=True)
 class AttitudeBasin:
     """The study's settings (module docstring). ``optimum_runs`` > 0: on the gyro-bias system, the distance of
@@ -125,10 +112,7 @@ class AttitudeBasin:
     optimum_every: int = 100
 
     def __post_init__(self):
-        for name in ("runs", "batch_size", "optimum_every"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        check_counts(self, "runs", "batch_size", "optimum_every")
         if not (isinstance(self.optimum_runs, int) and 0 <= self.optimum_runs <= self.runs):
             raise ValueError(f"optimum_runs: expected an integer in [0, runs = {self.runs}], got {self.optimum_runs!r}")
         angles = tuple(float(a) for a in self.angles_deg)
@@ -141,8 +125,8 @@ class AttitudeBasin:
         if self.duration * self.imu_rate < 4 or self.duration / self.rigid_body_dt < 4:
             raise ValueError(f"duration: expected at least 4 samples of both systems, got {self.duration!r} s")
         object.__setattr__(self, "angles_deg", angles)
-        object.__setattr__(self, "systems", _parse_names("systems", self.systems, SYSTEMS, SYSTEMS))
-        object.__setattr__(self, "filters", _parse_names("filters", self.filters, FILTER_NAMES, DEFAULT_FILTERS))
+        object.__setattr__(self, "systems", parse_names("systems", self.systems, SYSTEMS, SYSTEMS))
+        object.__setattr__(self, "filters", parse_names("filters", self.filters, FILTER_NAMES, DEFAULT_FILTERS))
 
     def filters_of(self, system: str) -> tuple[str, ...]:
         """The filters run on ``system`` (Madgwick and Mahony need the gyro-bias system's sensors)."""

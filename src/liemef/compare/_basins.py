@@ -29,7 +29,7 @@ from .. import io
 from ..experiments import localization as L
 from ..metrics import wilson_interval
 from ..metrics._stats import json_number
-from ._common import FILTERS, fmt, make_filter, parse_filters
+from ._common import FILTERS, check_counts, fmt, make_filter, parse_filters
 
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 DEFAULT_ANGLES = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 179.0)
@@ -49,10 +49,7 @@ class HeadingBasin:
     batch_size: int = 50
 
     def __post_init__(self):
-        for name in ("runs", "batch_size"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        check_counts(self, "runs", "batch_size")
         angles = tuple(float(a) for a in self.angles_deg)
         if not angles or any(not (math.isfinite(a) and 0.0 <= a <= 180.0) for a in angles):
             raise ValueError(f"angles_deg: expected angles in [0, 180] deg, got {self.angles_deg!r}")

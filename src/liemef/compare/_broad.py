@@ -44,7 +44,7 @@ from ..baselines import Madgwick, Mahony, invariant_ekf, ukf_m
 from ..filter import MinimumEnergyFilter
 from ..systems import attitude_gyro_bias
 from ..systems.attitude_bias import initial_estimate, magnetic_dip
-from ._common import fmt
+from ._common import fmt, parse_names, realdata_present
 
 REFERENCE_ACCURACY_DEG = 0.35
 """The optical truth's accuracy (the dataset README's median agreement of the accelerometer at rest)."""
@@ -90,11 +90,7 @@ class BroadComparison:
     realdata: str | None = None
 
     def __post_init__(self):
-        folder = Path(self.realdata) if self.realdata is not None else datasets.realdata_dir()
-        if folder is None or not folder.is_dir():
-            raise ValueError(f"realdata: expected the real-data folder (set {datasets.ENV_VAR} or give "
-                             f"realdata=PATH), got {self.realdata or 'none found'}")
-        present = tuple(k for k, rel in datasets.BROAD_TRIALS.items() if (folder / rel).is_file())
+        folder, present = realdata_present(self.realdata, datasets.BROAD_TRIALS)
         trials = self.trials
         if trials is None:
             trials = present
@@ -106,11 +102,7 @@ class BroadComparison:
         if not trials or unknown:
             raise ValueError(f"trials: expected BROAD trials present in {folder} from {list(present)}, got "
                              f"{list(trials)}")
-        names = tuple(BROAD_FILTERS) if self.filters is None else (
-            tuple(n.strip() for n in self.filters.split(",")) if isinstance(self.filters, str) else tuple(self.filters))
-        bad = [n for n in names if n not in BROAD_FILTERS]
-        if not names or bad or len(set(names)) != len(names):
-            raise ValueError(f"filters: expected distinct names from {list(BROAD_FILTERS)}, got {list(names)}")
+        names = parse_names("filters", self.filters, BROAD_FILTERS, tuple(BROAD_FILTERS))
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -35,18 +36,44 @@ def make_filter(name: str, system) -> AbstractFilter:
     return FILTERS[name][1](system)
 
 
-def parse_filters(names: str | Sequence[str] | None, default: Sequence[str]) -> tuple[str, ...]:
-    """A comma-separated list or a sequence of filter names, checked (unknown names are an error)."""
+def parse_names(what: str, names: str | Sequence[str] | None, options, default: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list or a sequence of names from ``options``, each once (default ``default``); a
+    ValueError names the setting ``what``."""
     if names is None:
         return tuple(default)
     items = [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
     if not items or any(not n for n in items):
-        raise ValueError(f"filters: expected a comma-separated list of names from {sorted(FILTERS)}, got {names!r}")
+        raise ValueError(f"{what}: expected a comma-separated list of names from {sorted(options)}, got {names!r}")
     for n in items:
-        _validate.choice("filters", n, set(FILTERS))
+        _validate.choice(what, n, set(options))
     if len(set(items)) != len(items):
-        raise ValueError(f"filters: expected each name once, got {names!r}")
+        raise ValueError(f"{what}: expected each name once, got {names!r}")
     return tuple(items)
+
+
+def parse_filters(names: str | Sequence[str] | None, default: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list or a sequence of filter names of :data:`FILTERS`, checked (:func:`parse_names`)."""
+    return parse_names("filters", names, FILTERS, default)
+
+
+def check_counts(settings, *names: str) -> None:
+    """Each named field of ``settings`` is an integer >= 1 (runs, batch sizes)."""
+    for name in names:
+        v = getattr(settings, name)
+        if not (isinstance(v, int) and v >= 1):
+            raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+
+
+def realdata_present(realdata: str | None, table: Mapping[str, str]) -> tuple[Path, tuple[str, ...]]:
+    """The real-data folder (``realdata``, else :func:`liemef.datasets.realdata_dir`) and the ids of ``table``
+    (id -> path inside it) whose files are present."""
+    from .. import datasets
+
+    folder = Path(realdata) if realdata is not None else datasets.realdata_dir()
+    if folder is None or not folder.is_dir():
+        raise ValueError(f"realdata: expected the real-data folder (set {datasets.ENV_VAR} or give realdata=PATH), "
+                         f"got {realdata or 'none found'}")
+    return folder, tuple(k for k, rel in table.items() if (folder / rel).is_file())
 
 
 def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> dict:

@@ -28,7 +28,16 @@ from ..experiments import localization as L
 from ..filter import CAUSES
 from ..metrics import chi2_bounds
 from ..metrics._stats import json_number
-from ._common import FILTERS, bootstrap_interval, fmt, make_filter, paired_comparison, parse_filters, winners_markdown
+from ._common import (
+    FILTERS,
+    bootstrap_interval,
+    check_counts,
+    fmt,
+    make_filter,
+    paired_comparison,
+    parse_filters,
+    winners_markdown,
+)
 
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 PUBLISHED_OF = {"iekf": "iekf", "ukf-left": "iekf", "ekf": "ekf"}
@@ -60,10 +69,7 @@ class LocalizationComparison:
 
     def __post_init__(self):
         _validate.choice("rng", self.rng, set(L.RNGS))
-        for name in ("runs", "batch_size"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        check_counts(self, "runs", "batch_size")
         if not (isinstance(self.optimum_runs, int) and 0 <= self.optimum_runs <= self.runs):
             raise ValueError(f"optimum_runs: expected an integer in [0, runs = {self.runs}], got {self.optimum_runs!r}")
         object.__setattr__(self, "filters", parse_filters(self.filters, DEFAULT_FILTERS))

@@ -28,7 +28,16 @@ from ..experiments import localization as L
 from ..groups import SE2
 from ..metrics import chi2_bounds
 from ..systems import planar_localization
-from ._common import FILTERS, fmt, make_filter, paired_comparison, parse_filters, winners_markdown
+from ._common import (
+    FILTERS,
+    check_counts,
+    fmt,
+    make_filter,
+    paired_comparison,
+    parse_filters,
+    realdata_present,
+    winners_markdown,
+)
 
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 ODOMETRY_STD = (0.2, 0.05, 0.01)
@@ -51,18 +60,13 @@ class WifibotComparison:
     realdata: str | None = None
 
     def __post_init__(self):
-        folder = Path(self.realdata) if self.realdata is not None else datasets.realdata_dir()
-        if folder is None or not folder.is_dir():
-            raise ValueError(f"realdata: expected the real-data folder (set {datasets.ENV_VAR} or give "
-                             f"realdata=PATH), got {self.realdata or 'none found'}")
-        present = tuple(k for k, rel in datasets.WIFIBOT_RUNS.items() if (folder / rel).is_file())
+        folder, present = realdata_present(self.realdata, datasets.WIFIBOT_RUNS)
         rec = present if self.recordings is None else tuple(str(r).strip() for r in (
             str(self.recordings).split(",") if isinstance(self.recordings, str | int) else self.recordings))
         if not rec or any(r not in present for r in rec):
             raise ValueError(f"recordings: expected Wifibot runs present in {folder} from {list(present)}, got "
                              f"{list(rec)}")
-        if not (isinstance(self.runs, int) and self.runs >= 1):
-            raise ValueError(f"runs: expected an integer >= 1, got {self.runs!r}")
+        check_counts(self, "runs")
         for name in ("gps_rate", "gps_std"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
