@@ -70,6 +70,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import _validate
 from ..filter import FilterState, Trajectory
+from ..filter._driver import check_dt, check_element
 from ..filter._status import NONFINITE, OK, Status
 from ..groups import R3, SO3, TSO3, LieGroup
 from ..systems import AbstractSystem
@@ -295,21 +296,12 @@ class _AhrsFilter(eqx.Module):
 
     def _check_element(self, name, g):
         G = self.system.group
-        if not isinstance(g, G):
-            raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
-        if g.batch_shape != ():
-            raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
-        for leaf in (g.factors[0].wxyz, g.factors[1].x) if G is TSO3 else (g.wxyz,):
-            _validate.array(name, leaf)
+        check_element(G, name, g)
         q = np.asarray(g.factors[0].wxyz if G is TSO3 else g.wxyz)
         if not np.linalg.norm(q) > 0:
             raise ValueError(f"{name}: expected a non-zero quaternion, got {q.tolist()}")
 
-    @staticmethod
-    def _check_dt(dt) -> float:
-        if not (isinstance(dt, int | float | np.number) and math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
-        return float(dt)
+    _check_dt = staticmethod(check_dt)
 
 
 def _positive(name: str, value, *, zero: bool = False) -> float:

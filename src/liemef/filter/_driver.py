@@ -362,24 +362,38 @@ class AbstractFilter(eqx.Module):
                              f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
 
     def _check_element(self, name, g):
-        G = self.system.group
-        if not isinstance(g, G):
-            raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
-        if g.batch_shape != ():
-            raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
-        for leaf in jax.tree_util.tree_leaves(g):
-            _validate.array(name, leaf)
+        check_element(self.system.group, name, g)
 
     @staticmethod
     def _check_dt(dt) -> float:
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
-        return float(dt)
+        return check_dt(dt)
 
     @staticmethod
     def _check_sample(name, v, n, missing: bool = False) -> np.ndarray:
         return _validate.array(name, np.zeros(0) if v is None and n == 0 else v, (n,), missing=missing)
 
+
+
+def check_element(G: type[LieGroup], name: str, g) -> None:
+    """``g`` is a single element of ``G`` with finite parameters (ValueError naming ``name`` otherwise): the
+    boundary check of every filter's initial and given states."""
+    if not isinstance(g, G):
+        raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
+    if g.batch_shape != ():
+        raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
+    for leaf in jax.tree_util.tree_leaves(g):
+        _validate.array(name, leaf)
+
+
+def check_dt(dt) -> float:
+    """A finite time step > 0, as a float (ValueError naming ``dt`` otherwise, also for a non-number)."""
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
+    return value
 
 
 class LogGapWarning(UserWarning):
