@@ -112,7 +112,7 @@ class MinimumEnergyFilter(AbstractFilter):
 
     # --- the mathematics ----------------------------------------------------------------------------------
     def _terms(self, weights: Weights, g_hat, K, u, y, t) -> Terms:
-        return terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
+        return _terms_call(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
 
     def terms(self, g_hat: LieGroup, K: ArrayLike, u: ArrayLike, y: ArrayLike, t: float = 0.0, *,
               dt: float | None = None) -> Terms:
@@ -213,6 +213,11 @@ class MinimumEnergyFilter(AbstractFilter):
                             consecutive=consecutive, n_sub=n_sub, capped=capped)
 
 
+
+
+# One call per evaluation of the terms: traced once per interval structure (not once per RK stage), and one
+# function in the exported C (liemef.codegen); XLA inlines it.
+_terms_call = eqx.filter_jit(terms)
 
 
 @eqx.filter_jit
