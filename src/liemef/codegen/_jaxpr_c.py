@@ -1,0 +1,1007 @@
+r"""C99 for a jaxpr: the translator behind :func:`liemef.codegen.export_c`.
+
+A traced JAX function (a ``ClosedJaxpr``) becomes one C function over fixed-size arrays, with no heap, no
+library but ``<math.h>``, and every derivative the trace holds (``jacfwd``, ``hessian``) as plain arithmetic.
+
+How it works, in one pass over the equations:
+
+* **Values.** Each jaxpr variable is a C array (``double v12[6]``, ``int32_t``, ``_Bool``) in row-major order,
+  or a known constant (a literal, a traced constant, or the result of an equation whose inputs are all known:
+  those are evaluated in Python, *constant folding*, so iotas, index arithmetic and zero tangents cost nothing).
+* **Inlining.** Calls (``jit``, ``custom_jvp_call``, ``custom_vjp_call``, ``closed_call``, ``checkpoint``) are
+  emitted in place; ``custom_linear_solve`` emits its ``solve`` jaxpr.
+* **Structure by index maps.** Every primitive that only moves elements (``broadcast_in_dim``, ``reshape``,
+  ``transpose``, ``slice``, ``pad``, ``concatenate``, ``stack``, ``split``, ``gather``/``scatter`` with known
+  indices, ...) is run once in Python on arrays of element ids; the ids it returns say which input element
+  each output element is. Reshapes that keep the order are aliases (no code).
+* **Arithmetic.** Elementwise primitives are loops (or statements, for scalars); ``dot_general`` is nested
+  loops over its batch, free and contracted axes; reductions are loops over an index table; ``lu`` and
+  ``triangular_solve`` are unrolled-size loops (partial pivoting as LAPACK's ``getrf``).
+* **Control flow.** ``while`` is a C ``for (;;)`` loop over carry arrays; ``cond`` a ``switch``.
+
+The primitives covered are :data:`PRIMITIVES`; any other raises :class:`UnsupportedPrimitive` naming it, and
+where in the traced Python it came from. The semantics follow XLA's on the CPU: NaN propagates through
+``max``/``min``, integer division truncates, ``select_n`` picks by its predicate. Results agree with XLA's to
+rounding (libm's ``sin``/``cos`` against XLA's own, summation order in reductions): the tests ask 1e-12.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax
+import numpy as np
+from jax.extend import core as jcore
+
+_CTYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dtype(np.int32): "int32_t",
+           np.dtype(np.int64): "int64_t", np.dtype(np.uint32): "uint32_t", np.dtype(np.uint8): "uint8_t",
+           np.dtype(np.int8): "int8_t", np.dtype(np.bool_): "_Bool"}
+
+
+class UnsupportedPrimitive(NotImplementedError):
+    """A primitive (or a use of one, e.g. a gather with indices known only at run time) the translator has no C
+    for."""
+
+
+def ctype(dtype) -> str:
+    """The C type of a NumPy dtype."""
+    dt = np.dtype(dtype)
+    if dt not in _CTYPES:
+        raise UnsupportedPrimitive(f"dtype {dt} has no C type here (expected one of {sorted(map(str, _CTYPES))})")
+    return _CTYPES[dt]
+
+
+def literal(x, dtype) -> str:
+    """A C literal for one value of ``dtype`` (NaN and infinities by ``<math.h>``'s macros)."""
+    dt = np.dtype(dtype)
+    if dt == np.bool_:
+        return "1" if bool(x) else "0"
+    if dt.kind in "iu":
+        v = int(x)
+        return f"INT64_C({v})" if dt.itemsize == 8 else (f"({v})" if v < 0 else str(v))
+    v = float(x)
+    if math.isnan(v):
+        return "NAN"
+    if math.isinf(v):
+        return "INFINITY" if v > 0 else "(-INFINITY)"
+    s = repr(v)
+    if "e" not in s and "." not in s and "inf" not in s:
+        s += ".0"
+    return f"({s})" if v < 0 or s.startswith("-") else s
+
+
+@dataclass
+class Val:
+    """A value of the C program: a named array, or a known constant (``const``)."""
+
+    shape: tuple
+    dtype: np.dtype
+    name: str | None = None
+    const: np.ndarray | None = None
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+
+# --- elementwise primitives: C expressions of the operands' elements a, b, c --------------------------------
+_FLOAT_UNARY = {
+    "neg": "-({a})", "sin": "sin({a})", "cos": "cos({a})", "tan": "tan({a})", "asin": "asin({a})",
+    "acos": "acos({a})", "atan": "atan({a})", "sinh": "sinh({a})", "cosh": "cosh({a})", "tanh": "tanh({a})",
+    "asinh": "asinh({a})", "acosh": "acosh({a})", "atanh": "atanh({a})", "exp": "exp({a})", "exp2": "exp2({a})",
+    "log": "log({a})", "log1p": "log1p({a})", "expm1": "expm1({a})", "sqrt": "sqrt({a})",
+    "rsqrt": "(1.0 / sqrt({a}))", "cbrt": "cbrt({a})", "abs": "fabs({a})", "floor": "floor({a})",
+    "ceil": "ceil({a})", "is_finite": "isfinite({a})", "logistic": "(1.0 / (1.0 + exp(-({a}))))",
+    "square": "(({a}) * ({a}))", "erf": "erf({a})", "erfc": "erfc({a})", "lgamma": "lgamma({a})",
+    "sign": "lm_sign({a})", "stop_gradient": "{a}", "copy": "{a}", "copy_p": "{a}", "real": "{a}",
+    "reduce_precision": "{a}", "optimization_barrier": "{a}",
+}
+_INT_UNARY = {"neg": "-({a})", "abs": "(({a}) < 0 ? -({a}) : ({a}))", "not": "~({a})", "stop_gradient": "{a}",
+              "copy": "{a}", "copy_p": "{a}", "sign": "((({a}) > 0) - (({a}) < 0))", "square": "(({a}) * ({a}))"}
+_BOOL_UNARY = {"not": "!({a})", "stop_gradient": "{a}", "copy": "{a}", "copy_p": "{a}"}
+_BINARY = {
+    "add": "({a}) + ({b})", "add_any": "({a}) + ({b})", "sub": "({a}) - ({b})", "mul": "({a}) * ({b})",
+    "div": "({a}) / ({b})", "lt": "({a}) < ({b})", "le": "({a}) <= ({b})", "gt": "({a}) > ({b})",
+    "ge": "({a}) >= ({b})", "eq": "({a}) == ({b})", "ne": "({a}) != ({b})",
+}
+_FLOAT_BINARY = {"max": "lm_max({a}, {b})", "min": "lm_min({a}, {b})", "pow": "pow({a}, {b})",
+                 "atan2": "atan2({a}, {b})", "rem": "fmod({a}, {b})", "nextafter": "nextafter({a}, {b})"}
+_INT_BINARY = {"max": "(({a}) > ({b}) ? ({a}) : ({b}))", "min": "(({a}) < ({b}) ? ({a}) : ({b}))",
+               "rem": "({a}) % ({b})", "and": "({a}) & ({b})", "or": "({a}) | ({b})", "xor": "({a}) ^ ({b})",
+               "shift_left": "({a}) << ({b})"}
+_BOOL_BINARY = {"and": "({a}) && ({b})", "or": "({a}) || ({b})", "xor": "({a}) != ({b})",
+                "max": "({a}) || ({b})", "min": "({a}) && ({b})"}
+
+_STRUCTURAL = {"broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpose", "slice", "pad", "concatenate",
+               "rev", "stack", "unstack", "split", "gather", "scatter", "scatter-add", "scatter_add",
+               "dynamic_slice", "dynamic_update_slice", "select_and_gather_add"}
+_REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduce_prod": "prod",
+           "reduce_and": "and", "reduce_or": "or", "argmax": "argmax", "argmin": "argmin"}
+_CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
+          "checkpoint", "remat", "custom_lin"}
+_CONTROL = {"while", "cond"}
+_LINALG = {"dot_general", "lu", "triangular_solve", "custom_linear_solve", "select_n", "clamp",
+           "convert_element_type", "integer_pow", "iota", "sort"}
+
+PRIMITIVES: frozenset[str] = frozenset(
+    set(_FLOAT_UNARY) | set(_INT_UNARY) | set(_BOOL_UNARY) | set(_BINARY) | set(_FLOAT_BINARY) | set(_INT_BINARY)
+    | _STRUCTURAL | set(_REDUCE) | _CALLS | _CONTROL | _LINALG)
+"""The primitives :func:`jaxpr_to_c` translates (``sort`` only when its inputs are known constants)."""
+
+HELPERS = r"""
+static inline double lm_max(double a, double b) { return (a != a || b != b) ? a + b : (a > b ? a : b); }
+static inline double lm_min(double a, double b) { return (a != a || b != b) ? a + b : (a < b ? a : b); }
+static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
+"""
+"""Static inline functions every generated source starts with (XLA's NaN-propagating max and min, sign)."""
+
+
+def _subjaxpr(params: dict, *keys):
+    for k in keys:
+        if k in params:
+            j = params[k]
+            return (j.jaxpr, j.consts) if hasattr(j, "consts") else (j, ())
+    raise UnsupportedPrimitive(f"call without a jaxpr (params {sorted(params)})")
+
+
+def _pad(x, pv, config):
+    for ax, (lo, hi, interior) in enumerate(config):
+        n = x.shape[ax]
+        size = n + max(n - 1, 0) * interior
+        shape = list(x.shape)
+        shape[ax] = size
+        y = np.full(shape, pv, dtype=x.dtype)
+        idx = [slice(None)] * x.ndim
+        idx[ax] = slice(0, size, interior + 1)
+        y[tuple(idx)] = x
+        # lo / hi: pad (positive) or crop (negative)
+        if lo < 0:
+            y = np.take(y, range(-lo, y.shape[ax]), axis=ax)
+        if hi < 0:
+            y = np.take(y, range(0, y.shape[ax] + hi), axis=ax)
+        widths = [(0, 0)] * x.ndim
+        widths[ax] = (max(lo, 0), max(hi, 0))
+        x = np.pad(y, widths, constant_values=pv)
+    return x
+
+
+def _broadcast_in_dim(x, shape, dims):
+    expanded = [1] * len(shape)
+    for d, n in zip(dims, x.shape, strict=True):
+        expanded[d] = n
+    return np.broadcast_to(x.reshape(expanded), tuple(shape))
+
+
+# NumPy versions of the primitives that move elements, for index maps and constant folding (an eager JAX call
+# costs milliseconds each: thousands of them made an export take seconds)
+_NP_STRUCTURAL = {
+    "broadcast_in_dim": lambda xs, p: [_broadcast_in_dim(xs[0], p["shape"], p["broadcast_dimensions"])],
+    "reshape": lambda xs, p: [xs[0].reshape(p["new_sizes"])] if p.get("dimensions") is None else None,
+    "squeeze": lambda xs, p: [np.squeeze(xs[0], axis=tuple(p["dimensions"]))],
+    "expand_dims": lambda xs, p: [np.expand_dims(xs[0], tuple(p["dimensions"]))],
+    "transpose": lambda xs, p: [np.transpose(xs[0], p["permutation"])],
+    "slice": lambda xs, p: [xs[0][tuple(slice(a, b, c) for a, b, c in zip(
+        p["start_indices"], p["limit_indices"], p["strides"] or [1] * xs[0].ndim, strict=True))]],
+    "concatenate": lambda xs, p: [np.concatenate(xs, axis=p["dimension"])],
+    "pad": lambda xs, p: [_pad(xs[0], xs[1], p["padding_config"])],
+    "rev": lambda xs, p: [np.flip(xs[0], axis=tuple(p["dimensions"]))],
+    "stack": lambda xs, p: [np.stack(xs, axis=p["axis"])],
+    "unstack": lambda xs, p: [np.take(xs[0], i, axis=p["axis"]) for i in range(xs[0].shape[p["axis"]])],
+    "split": lambda xs, p: np.split(xs[0], np.cumsum(p["sizes"])[:-1].astype(int), axis=p["axis"]),
+}
+_NP_ELEMENTWISE = {
+    "add": np.add, "add_any": np.add, "sub": np.subtract, "mul": np.multiply, "neg": np.negative,
+    "eq": np.equal, "ne": np.not_equal, "lt": np.less, "le": np.less_equal, "gt": np.greater,
+    "ge": np.greater_equal, "and": lambda a, b: a & b, "or": lambda a, b: a | b, "not": np.invert,
+    "sin": np.sin, "cos": np.cos, "sqrt": np.sqrt, "abs": np.abs, "exp": np.exp, "log": np.log,
+    "max": np.maximum, "min": np.minimum, "stop_gradient": lambda a: a, "is_finite": np.isfinite,
+}
+
+
+def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[np.ndarray] | None:
+    """The primitive on NumPy arrays, or None where NumPy's version could differ from XLA's."""
+    if name in _NP_STRUCTURAL:
+        out = _NP_STRUCTURAL[name](xs, params)
+        return None if out is None else [np.asarray(o) for o in out]
+    if name in _NP_ELEMENTWISE:
+        with np.errstate(all="ignore"):
+            out = _NP_ELEMENTWISE[name](*xs)
+        return [np.asarray(out, out_dtypes[0])]
+    if name == "div" and all(x.dtype.kind == "f" for x in xs):
+        with np.errstate(all="ignore"):
+            return [np.asarray(xs[0] / xs[1], out_dtypes[0])]
+    if name == "select_n":
+        return [np.asarray(np.choose(xs[0].astype(int), xs[1:]), out_dtypes[0])]
+    if name == "convert_element_type":
+        if xs[0].dtype.kind == "f" and np.dtype(out_dtypes[0]).kind in "iu":
+            return None
+        return [xs[0].astype(out_dtypes[0])]
+    if name == "iota":
+        shape, dim = params["shape"], params["dimension"]
+        ar = np.arange(shape[dim], dtype=params["dtype"]).reshape([-1 if d == dim else 1 for d in range(len(shape))])
+        return [np.broadcast_to(ar, shape).copy()]
+    if name == "integer_pow" and xs[0].dtype.kind == "f" and params["y"] in (2, 3):
+        return [xs[0] ** params["y"]]
+    return None
+
+
+def _subjaxprs(params: dict):
+    """The jaxprs among an equation's parameters (open jaxprs; a ClosedJaxpr's ``.jaxpr``)."""
+    for v in params.values():
+        for sub in (v if isinstance(v, list | tuple) else [v]):
+            if hasattr(sub, "jaxpr") and hasattr(sub, "consts"):
+                yield sub.jaxpr
+            elif hasattr(sub, "eqns"):
+                yield sub
+
+
+def _size(jaxpr) -> int:
+    """Equations in ``jaxpr``, nested ones included."""
+    return sum(1 + sum(_size(s) for s in _subjaxprs(e.params)) for e in jaxpr.eqns)
+
+
+def _where(eqn) -> str:
+    tb = eqn.source_info.traceback if eqn.source_info is not None else None
+    if tb is None:
+        return ""
+    frames = [ln.strip() for ln in str(tb).splitlines() if "site-packages" not in ln]
+    return f" (traced at {frames[-1]})" if frames else ""
+
+
+class Translator:
+    """Emits C statements for jaxpr equations; one instance per generated source (names are unique in it)."""
+
+    def __init__(self, table_limit: int = 16):
+        self.lines: list[str] = []
+        self.tables: dict[bytes, str] = {}
+        self.table_lines: list[str] = []
+        self.indent = 1
+        self._n = 0
+        self.table_limit = table_limit
+        # dead-code elimination: the lines come in nodes (one per equation, loop scaffold, copy), each with
+        # the arrays it defines and reads; only nodes that a root (an output, a loop test) needs are kept
+        self.nodes: list[list] = []  # [first line, end line, defs, reads, root]
+        self._open: list | None = None
+        # a called jaxpr used more than once becomes a C function (once), not a copy per call
+        self.calls: dict[int, int] = {}
+        self.functions: dict[int, tuple[str, object]] = {}
+        self.function_texts: list[str] = []
+        self.function_min = 40
+
+    # --- names and tables ---------------------------------------------------------------------------------
+    def fresh(self, prefix: str = "v") -> str:
+        self._n += 1
+        return f"{prefix}{self._n}"
+
+    def emit(self, line: str) -> None:
+        if self._open is None:  # scaffolding outside any node: a root of its own
+            self.begin(root=True)
+            self.lines.append("    " * self.indent + line)
+            self.end()
+            return
+        self.lines.append("    " * self.indent + line)
+
+    def begin(self, root: bool = False) -> None:
+        """Open a node: the lines emitted until :meth:`end` stand or fall together."""
+        assert self._open is None
+        self._open = [len(self.lines), None, set(), set(), root]
+
+    def end(self) -> None:
+        node, self._open = self._open, None
+        node[1] = len(self.lines)
+        self.nodes.append(node)
+
+    def _read(self, name: str | None) -> None:
+        if name is not None and self._open is not None:
+            self._open[3].add(name)
+
+    def live_lines(self, start: int) -> list[str]:
+        """The lines from ``start`` that the roots need (a fixpoint over the nodes' reads and defs)."""
+        nodes = [nd for nd in self.nodes if nd[0] >= start]
+        live = [nd[4] for nd in nodes]
+        needed: set = set()
+        for nd, lv in zip(nodes, live, strict=True):
+            if lv:
+                needed |= nd[3]
+        changed = True
+        while changed:
+            changed = False
+            for k, nd in enumerate(nodes):
+                if not live[k] and nd[2] & needed:
+                    live[k] = True
+                    needed |= nd[3]
+                    changed = True
+        keep = np.zeros(len(self.lines) - start, bool)
+        for nd, lv in zip(nodes, live, strict=True):
+            if lv:
+                keep[nd[0] - start:nd[1] - start] = True
+        return [ln for ln, k in zip(self.lines[start:], keep, strict=True) if k]
+
+    def table(self, values: np.ndarray) -> str:
+        """A ``static const`` array holding ``values`` (deduplicated), for constants and index maps."""
+        values = np.ascontiguousarray(values)
+        if values.dtype.kind in "iu":
+            values = values.astype(np.int32 if np.abs(values).max(initial=0) < 2**31 else np.int64)
+        key = values.dtype.str.encode() + values.tobytes()
+        if key not in self.tables:
+            name = f"k{len(self.tables) + 1}"
+            body = ", ".join(literal(x, values.dtype) for x in values.ravel())
+            self.table_lines.append(f"static const {ctype(values.dtype)} {name}[{max(values.size, 1)}] = {{{body}}};")
+            self.tables[key] = name
+        return self.tables[key]
+
+    def declare(self, shape, dtype) -> Val:
+        v = Val(tuple(shape), np.dtype(dtype), name=self.fresh())
+        if self._open is not None:
+            self._open[2].add(v.name)
+        self.emit(f"{ctype(v.dtype)} {v.name}[{max(v.size, 1)}];")
+        return v
+
+    # --- element access -------------------------------------------------------------------------------------
+    def elem(self, v: Val, i) -> str:
+        """C expression of element ``i`` (an int, or the name of a loop index) of ``v``."""
+        self._read(v.name if v.const is None else None)
+        if v.const is not None:
+            flat = np.asarray(v.const).ravel()
+            if flat.size == 1 or (flat == flat[0]).all() or (flat.dtype.kind == "f" and np.isnan(flat).all()):
+                return literal(flat[0], v.dtype)
+            if isinstance(i, int | np.integer):
+                return literal(flat[int(i)], v.dtype)
+            return f"{self.table(flat.astype(v.dtype))}[{i}]"
+        if v.size == 1:
+            return f"{v.name}[0]"
+        return f"{v.name}[{i}]"
+
+    def loop(self, n: int, body) -> None:
+        """``body(i)`` for i < n: a statement for n = 1, a C loop otherwise."""
+        if n == 1:
+            self.emit(body(0))
+        else:
+            i = self.fresh("i")
+            self.emit(f"for (int {i} = 0; {i} < {n}; {i}++) {body(i)}")
+
+    # --- a jaxpr --------------------------------------------------------------------------------------------
+    def run(self, jaxpr, consts, args: list[Val]) -> list[Val]:
+        """Emit ``jaxpr`` applied to ``args`` (with its ``consts``) and return its outputs."""
+        env: dict = {}
+
+        def read(a):
+            if isinstance(a, jcore.Literal):
+                val = np.asarray(a.val, dtype=a.aval.dtype)
+                return Val(tuple(a.aval.shape), np.dtype(a.aval.dtype), const=val)
+            return env[a]
+
+        for var, c in zip(jaxpr.constvars, consts, strict=True):
+            env[var] = Val(tuple(var.aval.shape), np.dtype(var.aval.dtype), const=np.asarray(c))
+        for var, a in zip(jaxpr.invars, args, strict=True):
+            env[var] = a
+        for eqn in jaxpr.eqns:
+            ins = [read(a) for a in eqn.invars]
+            leaf = eqn.primitive.name not in _CALLS and eqn.primitive.name not in _CONTROL \
+                and eqn.primitive.name != "custom_linear_solve"
+            if leaf:
+                self.begin()
+            try:
+                outs = self.equation(eqn, ins)
+            except UnsupportedPrimitive as e:
+                raise UnsupportedPrimitive(f"{e}{_where(eqn)}") from None
+            finally:
+                if leaf:
+                    self.end()
+            for var, o in zip(eqn.outvars, outs, strict=True):
+                env[var] = o
+        return [read(a) for a in jaxpr.outvars]
+
+    def equation(self, eqn, ins: list[Val]) -> list[Val]:
+        name, params = eqn.primitive.name, eqn.params
+        avals = [(tuple(v.aval.shape), np.dtype(v.aval.dtype)) for v in eqn.outvars]
+        if name in _CALLS:
+            if name in ("custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr", "closed_call", "core_call"):
+                jaxpr, consts = _subjaxpr(params, "call_jaxpr", "fun_jaxpr", "jaxpr")
+            else:
+                jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
+            n_in = len(jaxpr.invars)
+            args = ins[len(ins) - n_in:]
+            if self.calls.get(id(jaxpr), 0) >= 2 and _size(jaxpr) >= self.function_min \
+                    and not all(v.const is not None for v in args):
+                return self.call(jaxpr, consts, args)
+            return self.run(jaxpr, consts, args)
+        if name == "custom_linear_solve":
+            lengths = params["const_lengths"]
+            jaxprs = params["jaxprs"]
+            off = lengths.matvec + lengths.vecmat
+            solve_consts = ins[off:off + lengths.solve]
+            b = ins[off + lengths.solve + lengths.transpose_solve:]
+            return self.run(jaxprs.solve.jaxpr, jaxprs.solve.consts, solve_consts + b)
+        if name == "while":
+            return self.while_loop(params, ins)
+        if name == "cond":
+            return self.cond(params, ins)
+        if all(v.const is not None for v in ins):
+            return self.fold(eqn, ins)
+        if name == "gather" and ins[1].const is None:
+            return [self.take(ins[0], ins[1], params, *avals[0])]
+        if name == "sort":
+            raise UnsupportedPrimitive("sort of values known only at run time")
+        if name in _STRUCTURAL:
+            return self.structural(eqn, ins, avals)
+        if name in _REDUCE:
+            return [self.reduce(_REDUCE[name], ins[0], params["axes"], *avals[0])]
+        if name == "dot_general":
+            return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], *avals[0])]
+        if name == "lu":
+            return self.lu(ins[0], avals)
+        if name == "triangular_solve":
+            return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
+        if name == "integer_pow":
+            return [self.integer_pow(ins[0], params["y"], *avals[0])]
+        if name == "convert_element_type":
+            return [self.convert(ins[0], *avals[0])]
+        if name == "iota":
+            return self.fold(eqn, ins)
+        if name in ("select_n", "clamp") or name in _BINARY or name in _FLOAT_BINARY or name in _INT_BINARY \
+                or name in _BOOL_BINARY or name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY:
+            return [self.elementwise(name, ins, *avals[0])]
+        raise UnsupportedPrimitive(f"primitive {name!r} has no C translation (supported: liemef.codegen.PRIMITIVES)")
+
+    def count_calls(self, jaxpr) -> None:
+        """Count, over ``jaxpr`` and everything it calls, how often each called jaxpr is called."""
+        for eqn in jaxpr.eqns:
+            for sub in _subjaxprs(eqn.params):
+                if eqn.primitive.name in _CALLS:
+                    self.calls[id(sub)] = self.calls.get(id(sub), 0) + 1
+                    if self.calls[id(sub)] > 1:
+                        continue
+                self.count_calls(sub)
+
+    def call(self, jaxpr, consts, args: list[Val]) -> list[Val]:
+        """A call of the C function for ``jaxpr`` (emitted on its first call)."""
+        if id(jaxpr) not in self.functions:
+            fname = self.fresh("f")
+            params = [Val(a.shape, a.dtype, name=self.fresh("a")) for a in args]
+            saved = (self.lines, self.nodes, self._open, self.indent)
+            self.lines, self.nodes, self._open, self.indent = [], [], None, 1
+            outs = self.run(jaxpr, consts, params)
+            out_names = [self.fresh("o") for _ in outs]
+            for v, n in zip(outs, out_names, strict=True):
+                self.begin(root=True)
+                self.loop(v.size, lambda i, v=v, n=n: f"{n}[{i}] = {self.elem(v, i)};")
+                self.end()
+            body = self.live_lines(0)
+            self.lines, self.nodes, self._open, self.indent = saved
+            sig = [f"const {ctype(a.dtype)} *restrict {a.name}" for a in params] + \
+                  [f"{ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
+            used = "".join(f"    (void){a.name};\n" for a in params)
+            self.function_texts.append(f"static void {fname}({', '.join(sig)})\n{{\n{used}" + "\n".join(body) + "\n}\n")
+            self.functions[id(jaxpr)] = (fname, jaxpr)
+        fname = self.functions[id(jaxpr)][0]
+        self.begin()
+        outs = [self.declare(tuple(v.aval.shape), v.aval.dtype) for v in jaxpr.outvars]
+        refs = []
+        for a in args:
+            if a.const is not None:
+                refs.append(self.table(np.asarray(a.const, a.dtype).ravel()))
+            else:
+                self._read(a.name)
+                refs.append(a.name)
+        self.emit(f"{fname}({', '.join(refs + [o.name for o in outs])});")
+        self.end()
+        # one node defines every output: later nodes read them by name
+        return outs
+
+    # --- constants ------------------------------------------------------------------------------------------
+    def fold(self, eqn, ins: list[Val]) -> list[Val]:
+        """Evaluate an equation whose inputs are all known, in Python (constant folding)."""
+        xs = [np.asarray(v.const, v.dtype) for v in ins]
+        outs = _np_eval(eqn.primitive.name, eqn.params, xs, [v.aval.dtype for v in eqn.outvars])
+        if outs is None:
+            with jax.ensure_compile_time_eval():
+                outs = eqn.primitive.bind(*xs, **eqn.params)
+            outs = outs if eqn.primitive.multiple_results else [outs]
+        return [Val(tuple(np.shape(o)), np.dtype(o.dtype), const=np.asarray(o)) for o in outs]
+
+    # --- elementwise ----------------------------------------------------------------------------------------
+    def elementwise(self, name: str, ins: list[Val], shape, dtype) -> Val:
+        kind = ins[-1].dtype.kind if name == "select_n" else ins[0].dtype.kind
+        if name == "select_n":
+            def expr(es):
+                if len(es) == 3 and ins[0].dtype == np.bool_:
+                    return f"({es[0]}) ? ({es[2]}) : ({es[1]})"
+                out = es[-1]
+                for j in range(len(es) - 2, 0, -1):
+                    out = f"({es[0]}) == {j - 1} ? ({es[j]}) : ({out})"
+                return out
+        elif name == "clamp":
+            f = "lm_max" if kind == "f" else None
+
+            def expr(es):
+                if f:
+                    return f"lm_min(lm_max({es[1]}, {es[0]}), {es[2]})"
+                return f"(({es[1]}) < ({es[0]}) ? ({es[0]}) : (({es[1]}) > ({es[2]}) ? ({es[2]}) : ({es[1]})))"
+        else:
+            table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY},
+                     "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(
+                         kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
+            if name not in table:
+                raise UnsupportedPrimitive(f"primitive {name!r} on {ins[0].dtype}")
+            fmt = table[name]
+
+            def expr(es):
+                return fmt.format(a=es[0], b=es[1] if len(es) > 1 else "")
+        ins = [self.broadcast(v, shape) for v in ins]
+        out = self.declare(shape, dtype)
+        cast = f"({ctype(dtype)})" if dtype == np.bool_ or name in ("select_n",) else ""
+        self.loop(out.size, lambda i: f"{out.name}[{i}] = {cast}({expr([self.elem(v, i) for v in ins])});")
+        return out
+
+    def broadcast(self, v: Val, shape) -> Val:
+        """``v`` broadcast to ``shape`` (NumPy's rules; size-1 operands are read at index 0 as they are)."""
+        if v.size == 1 or tuple(v.shape) == tuple(shape):
+            return v
+        if v.const is not None:
+            return Val(tuple(shape), v.dtype, const=np.broadcast_to(v.const, shape))
+        ids = np.broadcast_to(np.arange(1, v.size + 1).reshape(v.shape), shape).ravel()
+        return self.gather_ids(ids, [(0, 1, v)], shape, v.dtype)
+
+    def integer_pow(self, x: Val, y: int, shape, dtype) -> Val:
+        out = self.declare(shape, dtype)
+
+        def body(i):
+            a = self.elem(x, i)
+            if y == 0:
+                return f"{out.name}[{i}] = 1;"
+            p = " * ".join([f"({a})"] * abs(y))
+            return f"{out.name}[{i}] = " + (f"1.0 / ({p});" if y < 0 else f"{p};")
+        self.loop(out.size, body)
+        return out
+
+    def convert(self, x: Val, shape, dtype) -> Val:
+        if x.dtype == dtype:
+            return x
+        out = self.declare(shape, dtype)
+        if dtype == np.bool_:
+            self.loop(out.size, lambda i: f"{out.name}[{i}] = ({self.elem(x, i)}) != 0;")
+        else:
+            self.loop(out.size, lambda i: f"{out.name}[{i}] = ({ctype(dtype)})({self.elem(x, i)});")
+        return out
+
+    # --- structure ------------------------------------------------------------------------------------------
+    def structural(self, eqn, ins: list[Val], avals) -> list[Val]:
+        """Run the primitive on element ids: operand j's element e is id ``base_j + e + 1``; 0 means zero."""
+        params = eqn.params
+        data = list(range(len(ins)))
+        name = eqn.primitive.name
+        if name == "gather":
+            data = [0]
+        elif name in ("scatter", "scatter-add", "scatter_add"):
+            data = [0, 2]
+        elif name in ("dynamic_slice",):
+            data = [0]
+        elif name == "dynamic_update_slice":
+            data = [0, 1]
+        for j, v in enumerate(ins):
+            if j not in data and v.const is None:
+                raise UnsupportedPrimitive(f"{name} with indices known only at run time")
+        if name in ("scatter-add", "scatter_add") and not params.get("unique_indices", False):
+            raise UnsupportedPrimitive("scatter-add with possibly repeated indices")
+        bases, args, b = {}, [], 1
+        for j, v in enumerate(ins):
+            if j in data:
+                bases[j] = b
+                args.append(np.arange(b, b + v.size, dtype=np.float64).reshape(v.shape))
+                b += v.size
+            else:
+                args.append(np.asarray(v.const, v.dtype))
+        if name in ("scatter-add", "scatter_add"):
+            # ids cannot be added: a scatter (set) with unique indices moves the same elements
+            with jax.ensure_compile_time_eval():
+                outs = [jax.lax.scatter_p.bind(*args, **params)]
+            add_into = True
+        else:
+            outs = _np_eval(name, params, args, [np.float64] * len(avals))
+            if outs is None:
+                with jax.ensure_compile_time_eval():
+                    outs = eqn.primitive.bind(*args, **params)
+                outs = outs if eqn.primitive.multiple_results else [outs]
+            add_into = False
+        owners = [(j, bases[j], ins[j]) for j in data]
+        results = []
+        for k, (o, (shape, dtype)) in enumerate(zip(outs, avals, strict=True)):
+            if k:  # one node per output, so that an unused part of a split is dropped
+                self.end()
+                self.begin()
+            ids = np.asarray(o).ravel().astype(np.int64)
+            if add_into:
+                results.append(self.scatter_add(ids, ins[0], ins[2], bases[2], shape, dtype))
+                continue
+            results.append(self.gather_ids(ids, owners, shape, dtype))
+        return results
+
+    def gather_ids(self, ids: np.ndarray, owners, shape, dtype) -> Val:
+        """The array whose element i is the element ``ids[i]`` names (0: zero)."""
+        src = []
+        for idv in ids:
+            if idv == 0:
+                src.append((None, 0))
+                continue
+            for _, base, v in owners:
+                if base <= idv < base + v.size:
+                    src.append((v, int(idv - base)))
+                    break
+        # all from constants: a constant
+        if all(v is None or v.const is not None for v, _ in src):
+            vals = np.array([0 if v is None else np.asarray(v.const).ravel()[e] for v, e in src], dtype=dtype)
+            return Val(tuple(shape), np.dtype(dtype), const=vals.reshape(shape))
+        # one operand in its own order: an alias
+        if len(owners) >= 1 and all(v is owners[0][2] for v, _ in src) and owners[0][2].size == len(src) \
+                and all(e == k for k, (_, e) in enumerate(src)) and owners[0][2].dtype == dtype:
+            v = owners[0][2]
+            return Val(tuple(shape), v.dtype, name=v.name, const=v.const)
+        out = self.declare(shape, dtype)
+        n = len(src)
+        single = len({id(v) for v, _ in src if v is not None}) == 1 and all(v is not None for v, _ in src)
+        runs = self._runs(src)
+        if single and len(runs) > self.table_limit:
+            v = src[0][0]
+            tab = self.table(np.array([e for _, e in src], dtype=np.int32))
+            self.loop(n, lambda i: f"{out.name}[{i}] = {self.elem(v, f'{tab}[{i}]')};")
+            return out
+        for start, length, v, e0, step in runs:
+            if length == 1:
+                self.emit(f"{out.name}[{start}] = {self._src(v, e0)};")
+            else:
+                k = self.fresh("i")
+                idx = f"{e0} + {k}" if step == 1 else f"{e0}"
+                if v is None:
+                    rhs = literal(0, dtype)
+                elif v.const is not None:
+                    rhs = self.elem(v, idx) if step == 1 else self.elem(v, e0)
+                else:
+                    rhs = self.elem(v, idx)
+                self.emit(f"for (int {k} = 0; {k} < {length}; {k}++) {out.name}[{start} + {k}] = {rhs};")
+        return out
+
+    def _src(self, v, e) -> str:
+        return literal(0, np.float64) if v is None else self.elem(v, e)
+
+    @staticmethod
+    def _runs(src):
+        """Maximal runs of consecutive elements (step 1) or repeats (step 0) of one operand."""
+        runs = []
+        i = 0
+        while i < len(src):
+            v, e = src[i]
+            j = i + 1
+            step = None
+            while j < len(src) and src[j][0] is v:
+                s = src[j][1] - src[j - 1][1]
+                if step is None and s in (0, 1):
+                    step = s
+                if s != step:
+                    break
+                j += 1
+            runs.append((i, j - i, v, e, 1 if step is None else step))
+            i = j
+        return runs
+
+    def take(self, x: Val, idx: Val, params, shape, dtype) -> Val:
+        """A gather with indices known at run time along one axis ``a`` (``jnp.take``, ``x[idx]``, the pivoting
+        in ``linalg.solve``, also batched by ``vmap``/``jacfwd``): out = x with axis a at ``idx[batch]``,
+        clamped into range as XLA does. Tables give each output element's base offset and index element."""
+        dn = params["dimension_numbers"]
+        sizes = tuple(int(v) for v in params["slice_sizes"])
+        smap = tuple(int(v) for v in dn.start_index_map)
+        collapsed = tuple(int(v) for v in dn.collapsed_slice_dims)
+        offset_dims = tuple(int(v) for v in dn.offset_dims)
+        ok = (len(smap) == 1 and not dn.operand_batching_dims and sizes[smap[0]] == 1
+              and all(sz == n for d, (sz, n) in enumerate(zip(sizes, x.shape, strict=True)) if d != smap[0])
+              and idx.shape[-1:] == (1,) and set(collapsed) <= {smap[0]})
+        if not ok:
+            raise UnsupportedPrimitive(f"gather with indices known only at run time (only along one axis, "
+                                       f"jnp.take's form; got {dn}, slice sizes {sizes})")
+        a = smap[0]
+        strides = np.cumprod((1,) + tuple(x.shape)[::-1])[::-1][1:]
+        op_dims = [d for d in range(len(x.shape)) if d not in collapsed]  # operand dims in the output, in order
+        batch_pos = [k for k in range(len(shape)) if k not in offset_dims]
+        base = np.zeros(int(np.prod(shape, dtype=np.int64)), np.int64)
+        bidx = np.zeros_like(base)
+        bshape = idx.shape[:-1]
+        for o, oi in enumerate(np.ndindex(*shape)):
+            src = [0] * len(x.shape)
+            for k, d in zip(offset_dims, op_dims, strict=True):
+                src[d] = oi[k] if d != a else 0
+            base[o] = int(np.dot(src, strides)) if len(src) else 0
+            bidx[o] = int(np.ravel_multi_index([oi[k] for k in batch_pos], bshape)) if bshape else 0
+        out = self.declare(shape, dtype)
+        tb, ti = self.table(base.astype(np.int32)), self.table(bidx.astype(np.int32))
+        o, r = self.fresh("i"), self.fresh("r")
+        hi = x.shape[a] - 1
+        self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
+        self.emit(f"    int {r} = (int)({self.elem(idx, f'{ti}[{o}]')});")
+        self.emit(f"    {r} = {r} < 0 ? 0 : ({r} > {hi} ? {hi} : {r});")
+        self.emit(f"    {out.name}[{o}] = {self.elem(x, f'{tb}[{o}] + {r} * {int(strides[a])}')};")
+        self.emit("}")
+        return out
+
+    def scatter_add(self, ids, operand: Val, updates: Val, base: int, shape, dtype) -> Val:
+        out = self.declare(shape, dtype)
+        self.loop(out.size, lambda i: f"{out.name}[{i}] = {self.elem(operand, i)};")
+        for i, idv in enumerate(ids):
+            if idv >= base and idv < base + updates.size:
+                self.emit(f"{out.name}[{i}] += {self.elem(updates, int(idv - base))};")
+        return out
+
+    # --- reductions and products ----------------------------------------------------------------------------
+    def reduce(self, op: str, x: Val, axes, shape, dtype) -> Val:
+        axes = tuple(int(a) for a in axes)
+        keep = [d for d in range(len(x.shape)) if d not in axes]
+        n_out = int(np.prod(shape, dtype=np.int64))
+        idx = np.arange(x.size).reshape(x.shape).transpose(keep + list(axes)).reshape(n_out, -1)
+        out = self.declare(shape, dtype)
+        R = idx.shape[1]
+        combine = {"sum": "{acc} + {x}", "prod": "{acc} * {x}", "and": "{acc} && {x}", "or": "{acc} || {x}",
+                   "max": "lm_max({acc}, {x})" if x.dtype.kind == "f" else "({acc} > {x} ? {acc} : {x})",
+                   "min": "lm_min({acc}, {x})" if x.dtype.kind == "f" else "({acc} < {x} ? {acc} : {x})"}
+        if op in ("argmax", "argmin"):
+            raise UnsupportedPrimitive(f"{op} of values known only at run time")
+        fmt = combine[op]
+        contiguous = (idx == idx[:, :1] + np.arange(R)).all()
+        if R == 0:
+            init = {"sum": 0, "prod": 1, "and": 1, "or": 0, "max": -np.inf, "min": np.inf}[op]
+            self.loop(out.size, lambda i: f"{out.name}[{i}] = {literal(init, dtype)};")
+            return out
+        if contiguous and out.size == 1:
+            acc = f"{out.name}[0]"
+            self.emit(f"{acc} = {self.elem(x, int(idx[0, 0]))};")
+            if R > 1:
+                k = self.fresh("i")
+                nxt = fmt.format(acc=acc, x=self.elem(x, f"{int(idx[0, 0])} + {k}"))
+                self.emit(f"for (int {k} = 1; {k} < {R}; {k}++) {acc} = {nxt};")
+            return out
+        if out.size * R <= 16:
+            for o in range(out.size):
+                acc = f"{out.name}[{o}]"
+                self.emit(f"{acc} = {self.elem(x, int(idx[o, 0]))};")
+                for r in range(1, R):
+                    self.emit(f"{acc} = {fmt.format(acc=acc, x=self.elem(x, int(idx[o, r])))};")
+            return out
+        tab = self.table(idx.astype(np.int32).ravel())
+        o, k = self.fresh("i"), self.fresh("i")
+        acc = f"{out.name}[{o}]"
+        self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
+        self.emit(f"    {acc} = {self.elem(x, f'{tab}[{o} * {R}]')};")
+        self.emit(f"    for (int {k} = 1; {k} < {R}; {k}++) {acc} = "
+                  f"{fmt.format(acc=acc, x=self.elem(x, f'{tab}[{o} * {R} + {k}]'))};")
+        self.emit("}")
+        return out
+
+    def dot_general(self, a: Val, b: Val, dims, shape, dtype) -> Val:
+        (ca, cb), (ba, bb) = dims
+        ca, cb, ba, bb = (tuple(int(d) for d in t) for t in (ca, cb, ba, bb))
+        fa = [d for d in range(len(a.shape)) if d not in ca and d not in ba]
+        fb = [d for d in range(len(b.shape)) if d not in cb and d not in bb]
+        sa = np.cumprod((1,) + a.shape[::-1])[::-1][1:] if a.shape else ()
+        sb = np.cumprod((1,) + b.shape[::-1])[::-1][1:] if b.shape else ()
+        out = self.declare(shape, dtype)
+        so = np.cumprod((1,) + tuple(shape)[::-1])[::-1][1:] if shape else ()
+        # output axes: batch, free of a, free of b
+        loops, ia, ib, io = [], [], [], []
+        for k, (da, db) in enumerate(zip(ba, bb, strict=True)):
+            v = self.fresh("i")
+            loops.append((v, a.shape[da]))
+            ia.append(f"{v} * {sa[da]}")
+            ib.append(f"{v} * {sb[db]}")
+            io.append(f"{v} * {so[k]}")
+        k0 = len(ba)
+        for k, d in enumerate(fa):
+            v = self.fresh("i")
+            loops.append((v, a.shape[d]))
+            ia.append(f"{v} * {sa[d]}")
+            io.append(f"{v} * {so[k0 + k]}")
+        k0 += len(fa)
+        for k, d in enumerate(fb):
+            v = self.fresh("i")
+            loops.append((v, b.shape[d]))
+            ib.append(f"{v} * {sb[d]}")
+            io.append(f"{v} * {so[k0 + k]}")
+        cl, ca_i, cb_i = [], [], []
+        for da, db in zip(ca, cb, strict=True):
+            v = self.fresh("i")
+            cl.append((v, a.shape[da]))
+            ca_i.append(f"{v} * {sa[da]}")
+            cb_i.append(f"{v} * {sb[db]}")
+        join = lambda xs: " + ".join(xs) if xs else "0"  # noqa: E731
+        opened = 0
+        for v, n in loops:
+            self.emit(f"for (int {v} = 0; {v} < {n}; {v}++) {{")
+            self.indent += 1
+            opened += 1
+        acc = self.fresh("s")
+        self.emit(f"{ctype(dtype)} {acc} = 0;")
+        for v, n in cl:
+            self.emit(f"for (int {v} = 0; {v} < {n}; {v}++) {{")
+            self.indent += 1
+        self.emit(f"{acc} += {self.elem(a, join(ia + ca_i))} * {self.elem(b, join(ib + cb_i))};")
+        for _ in cl:
+            self.indent -= 1
+            self.emit("}")
+        self.emit(f"{out.name}[{join(io)}] = {acc};")
+        for _ in range(opened):
+            self.indent -= 1
+            self.emit("}")
+        return out
+
+    # --- linear algebra -------------------------------------------------------------------------------------
+    def lu(self, a: Val, avals) -> list[Val]:
+        """LU with partial pivoting (LAPACK getrf's choice: the first largest |pivot|): ``lu``, ``pivots``
+        (row swapped with row i at step i) and the ``permutation``."""
+        if len(a.shape) != 2 or a.shape[0] != a.shape[1]:
+            raise UnsupportedPrimitive(f"lu of shape {a.shape} (only square, unbatched)")
+        n = a.shape[0]
+        lu = self.declare(*avals[0])
+        piv = self.declare(*avals[1])
+        perm = self.declare(*avals[2])
+        self.loop(n * n, lambda i: f"{lu.name}[{i}] = {self.elem(a, i)};")
+        self.loop(n, lambda i: f"{perm.name}[{i}] = {i};")
+        self.emit(f"(void){piv.name}; (void){perm.name};")
+        k, i, j, p = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("p")
+        L = lu.name
+        self.emit(f"for (int {k} = 0; {k} < {n}; {k}++) {{")
+        self.emit(f"    int {p} = {k};")
+        self.emit(f"    for (int {i} = {k} + 1; {i} < {n}; {i}++) if (fabs({L}[{i} * {n} + {k}]) > "
+                  f"fabs({L}[{p} * {n} + {k}])) {p} = {i};")
+        self.emit(f"    {piv.name}[{k}] = {p};")
+        self.emit(f"    if ({p} != {k}) {{")
+        self.emit(f"        for (int {j} = 0; {j} < {n}; {j}++) {{ double t = {L}[{k} * {n} + {j}]; "
+                  f"{L}[{k} * {n} + {j}] = {L}[{p} * {n} + {j}]; {L}[{p} * {n} + {j}] = t; }}")
+        self.emit(f"        {{ int32_t t = {perm.name}[{k}]; {perm.name}[{k}] = {perm.name}[{p}]; "
+                  f"{perm.name}[{p}] = t; }}")
+        self.emit("    }")
+        self.emit(f"    if ({L}[{k} * {n} + {k}] != 0.0) for (int {i} = {k} + 1; {i} < {n}; {i}++) {{")
+        self.emit(f"        {L}[{i} * {n} + {k}] /= {L}[{k} * {n} + {k}];")
+        self.emit(f"        for (int {j} = {k} + 1; {j} < {n}; {j}++) {L}[{i} * {n} + {j}] -= "
+                  f"{L}[{i} * {n} + {k}] * {L}[{k} * {n} + {j}];")
+        self.emit("    }")
+        self.emit("}")
+        return [lu, piv, perm]
+
+    def triangular_solve(self, a: Val, b: Val, params, shape, dtype) -> Val:
+        """op(A) X = B (``left_side``) or X op(A) = B, A triangular (m x m), unbatched."""
+        if len(a.shape) != 2 or len(b.shape) != 2:
+            raise UnsupportedPrimitive("triangular_solve with batch axes")
+        m = a.shape[0]
+        lower, trans, unit = bool(params["lower"]), bool(params["transpose_a"]), bool(params["unit_diagonal"])
+        left = bool(params["left_side"])
+        out = self.declare(shape, dtype)
+        # X op(A) = B  <=>  op(A)^T X^T = B^T: solve columns of B (left) or rows of B (right)
+        eff_lower = lower != trans if left else lower == trans
+        # element (r, c) of the effective left matrix T (T X = B): A or A^T
+        if left:
+            T = (lambda r, c: self.elem(a, f"({c}) * {m} + ({r})")) if trans else \
+                (lambda r, c: self.elem(a, f"({r}) * {m} + ({c})"))
+            cols = b.shape[1]
+            X = lambda r, c: f"{out.name}[({r}) * {cols} + ({c})]"  # noqa: E731
+        else:
+            T = (lambda r, c: self.elem(a, f"({r}) * {m} + ({c})")) if trans else \
+                (lambda r, c: self.elem(a, f"({c}) * {m} + ({r})"))
+            cols = b.shape[0]
+            X = lambda r, c: f"{out.name}[({c}) * {m} + ({r})]"  # noqa: E731
+        self.loop(out.size, lambda i: f"{out.name}[{i}] = {self.elem(b, i)};")
+        c, r, k = self.fresh("i"), self.fresh("i"), self.fresh("i")
+        self.emit(f"for (int {c} = 0; {c} < {cols}; {c}++) {{")
+        if eff_lower:
+            self.emit(f"    for (int {r} = 0; {r} < {m}; {r}++) {{")
+            self.emit(f"        for (int {k} = 0; {k} < {r}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+        else:
+            self.emit(f"    for (int {r} = {m} - 1; {r} >= 0; {r}--) {{")
+            self.emit(f"        for (int {k} = {r} + 1; {k} < {m}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+        if not unit:
+            self.emit(f"        {X(r, c)} /= {T(r, r)};")
+        self.emit("    }")
+        self.emit("}")
+        return out
+
+    # --- control flow ---------------------------------------------------------------------------------------
+    def _materialize(self, v: Val) -> Val:
+        """A fresh array holding ``v``'s value (the carry of a loop must be a variable)."""
+        opened = self._open is None
+        if opened:
+            self.begin()
+        out = self.declare(v.shape, v.dtype)
+        self.loop(out.size, lambda i: f"{out.name}[{i}] = {self.elem(v, i)};")
+        if opened:
+            self.end()
+        return out
+
+    def while_loop(self, params, ins: list[Val]) -> list[Val]:
+        nc, nb = params["cond_nconsts"], params["body_nconsts"]
+        cconsts, bconsts, init = ins[:nc], ins[nc:nc + nb], ins[nc + nb:]
+        carry = [self._materialize(v) for v in init]
+        pred = self.fresh("p")
+        self.emit("for (;;) {")
+        self.indent += 1
+        self.emit(f"_Bool {pred};")
+        self.emit("{")
+        self.indent += 1
+        (c,) = self.run(params["cond_jaxpr"].jaxpr, params["cond_jaxpr"].consts, cconsts + carry)
+        self.begin(root=True)
+        self.emit(f"{pred} = {self.elem(c, 0)};")
+        self.end()
+        self.indent -= 1
+        self.emit("}")
+        self.emit(f"if (!{pred}) break;")
+        self.emit("{")
+        self.indent += 1
+        new = self.run(params["body_jaxpr"].jaxpr, params["body_jaxpr"].consts, bconsts + carry)
+        self.assign(carry, new)
+        self.indent -= 1
+        self.emit("}")
+        self.indent -= 1
+        self.emit("}")
+        return carry
+
+    def assign(self, targets: list[Val], values: list[Val]) -> None:
+        """targets[j] = values[j] for all j at once (a value may be another target: copied through a temporary)."""
+        names = {t.name for t in targets}
+        staged = []
+        for t, v in zip(targets, values, strict=True):
+            if v.const is None and v.name == t.name:
+                staged.append(None)
+            elif v.const is None and v.name in names:
+                staged.append(self._materialize(v))
+            else:
+                staged.append(v)
+        for t, v in zip(targets, staged, strict=True):
+            if v is not None:
+                self.begin()
+                self._open[2].add(t.name)
+                self.loop(t.size, lambda i, t=t, v=v: f"{t.name}[{i}] = {self.elem(v, i)};")
+                self.end()
+
+    def cond(self, params, ins: list[Val]) -> list[Val]:
+        index, ops = ins[0], ins[1:]
+        branches = params["branches"]
+        outs = []
+        for v in branches[0].jaxpr.outvars:
+            self.begin()
+            outs.append(self.declare(tuple(v.aval.shape), v.aval.dtype))
+            self.end()
+        self.begin(root=True)
+        self.emit(f"switch ((int)({self.elem(index, 0)})) {{")
+        self.end()
+        for j, br in enumerate(branches):
+            self.emit("default: {" if j == len(branches) - 1 else f"case {j}: {{")
+            self.indent += 1
+            res = self.run(br.jaxpr, br.consts, ops)
+            self.assign(outs, res)
+            self.emit("break;")
+            self.indent -= 1
+            self.emit("}")
+        self.emit("}")
+        return outs
+
+
+def jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: list[str], *,
+               translator: Translator | None = None) -> tuple[str, Translator]:
+    """A C function ``void name(const T *arg..., T *out...)`` computing ``closed_jaxpr`` on flat row-major
+    arrays. Returns its text (tables are in ``translator.table_lines``, emitted once per source)."""
+    tr = translator or Translator()
+    jaxpr = closed_jaxpr.jaxpr
+    tr.count_calls(jaxpr)
+    args = [Val(tuple(v.aval.shape), np.dtype(v.aval.dtype), name=n)
+            for v, n in zip(jaxpr.invars, arg_names, strict=True)]
+    start = len(tr.lines)
+    tr.indent = 1
+    outs = tr.run(jaxpr, closed_jaxpr.consts, args)
+    for v, n in zip(outs, out_names, strict=True):
+        tr.begin(root=True)
+        tr.loop(v.size, lambda i, v=v, n=n: f"{n}[{i}] = {tr.elem(v, i)};")
+        tr.end()
+    body = tr.live_lines(start)
+    del tr.lines[start:]
+    tr.nodes = [nd for nd in tr.nodes if nd[0] < start]
+    sig_in = [f"const {ctype(a.dtype)} *restrict {a.name}" for a in args]
+    sig_out = [f"{ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
+    text = f"static void {name}({', '.join(sig_in + sig_out)})\n{{\n" + "\n".join(body) + "\n}\n"
+    return text, tr
