@@ -14,6 +14,9 @@
   NPZ, see :mod:`liemef.io`) and write the estimates with K's diagonal (``estimates.csv``), the innovations
   (``innovations.csv``), ``arrays.npz``, ``metrics.json`` and a figure; a failed run writes only
   ``failure.json`` and exits with status 1.
+* ``liemef export-c --system NAME|--system-file FILE.py --out DIR [--name PREFIX] [--order ...] [--connection ...]
+  [--integrator ...] [--alpha A] [--substeps auto|N]``: the filter as standalone C99, ``PREFIX.h`` and ``PREFIX.c``
+  (:func:`liemef.codegen.export_c`); prints the files and the C API.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
 * ``liemef compare localization|heading-basin|attitude-basin|broad|wifibot --out DIR [--runs N] [--seed S]
@@ -518,6 +521,101 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                f"{report['substeps_max']} in one)")
     click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
                f"{io.ARRAYS_FILE}, {', '.join(p.name for p in figs)} to {d}")
+
+
+C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
+"""What ``liemef export-c --name`` accepts: the prefix of every name of the exported C."""
+
+
+def _c_api_summary(exported, system) -> str:
+    """The exported C API with its sizes, the state's members, the status codes and the order of u and y."""
+    import re
+
+    from .filter import CAUSES
+
+    P, U = exported.prefix, exported.prefix.upper()
+    n, m, p = exported.n, exported.input_dim, exported.output_dim
+    members = []
+    for f in exported.fields:
+        size = "" if f.scalar else f"[{f.size}]"
+        members.append(f"{f.name}{size}" + (f" ({n} x {n}, row-major)" if f.name == "K" else ""))
+    codes = ", ".join(f"{i} {U}_{re.sub(r'[^A-Z]', '_', cause.upper()).strip('_')} ({cause})"
+                      for i, cause in enumerate(CAUSES))
+    return "\n".join([
+        f"C API ({P}.h; n = {n}, m = {m} inputs, p = {p} outputs, {exported.group_params} group parameters, "
+        f"{exported.coords_dim} coordinates):",
+        f"  {P}_state s;  /* {', '.join(members)} */",
+        f"  int  {P}_init({P}_state *s, const double *g0, const double *K0);  /* 0, or {U}_BAD_ARGUMENT (-1) */",
+        f"  int  {P}_step({P}_state *s, double t, double dt, const double *u, const double *y, const int *mask);",
+        f"  int  {P}_run({P}_state *s, int n, const double *ts, const double *us, const double *ys, "
+        "double *g_out, double *K_out);",
+        f"  void {P}_from_coords(const double *q, double *g);",
+        f"  void {P}_coords(const double *g, double *q);",
+        f"Status codes ({P}_step, {P}_run, s.code): {codes}",
+        f"u = ({', '.join(system.input_names) or 'none'})",
+        f"y = ({', '.join(system.output_names)}); mask[i] = 0 or a NaN in y: a missing component",
+        f"Build: cc -std=c99 -O2 -c {P}.c (link with -lm); no heap, no library but libm",
+    ])
+
+
+@cli.command("export-c")
+@click.option("--system", "system_name", type=click.Choice(SYSTEM_NAMES), help="A ready system (or --system-file).")
+@click.option("--system-file", type=click.Path(path_type=Path), help="A Python file that defines `system`.")
+@click.option("--out", required=True, type=click.Path(path_type=Path),
+              help="Folder for NAME.h and NAME.c (created if missing).")
+@click.option("--name", help="The C prefix of every exported name, a C identifier (default: the system's name with "
+                             "- replaced by _).")
+@click.option("--connection", type=click.Choice(CONNECTIONS), default="zero", show_default=True)
+@click.option("--order", type=click.Choice(ORDERS), default="second", show_default=True)
+@click.option("--integrator", type=click.Choice(("rkmk4", "lie-euler")), default="rkmk4", show_default=True)
+@click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
+@click.option("--substeps", default="auto", show_default=True,
+              help="Integrator steps per sample interval: auto (by stiffness) or a number.")
+@click.option("--max-substeps", type=click.IntRange(min=1), default=256, show_default=True,
+              help="The most steps 'auto' takes in one interval.")
+def export_c_cmd(system_name, system_file, out, name, connection, order, integrator, alpha, substeps, max_substeps):
+    """Write the filter of a ready system (--system) or of your own (--system-file) as standalone C99: NAME.h
+    and NAME.c in --out, with NAME_init, NAME_step (one sample interval, exactly as the filter's step), NAME_run
+    and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
+    of the source (export again for new ones). See docs/export-c.md."""
+    import re
+
+    given = name is not None
+    if not given and (system_name or system_file):
+        name = (system_name or system_file.stem).replace("-", "_")
+    if name is not None and not re.fullmatch(C_IDENTIFIER, name):
+        raise click.BadParameter(f"expected a C identifier (letters, digits and _, not starting with a digit), got "
+                                 f"{name!r}" + ("" if given else " (from the system's name: give --name)"),
+                                 param_hint="'--name'")
+    if substeps != "auto":
+        try:
+            substeps = int(substeps)
+        except ValueError:
+            substeps = 0
+        if substeps < 1:
+            raise click.BadParameter("expected 'auto' or an integer >= 1", param_hint="'--substeps'")
+    if not math.isfinite(alpha) or alpha < 0:
+        raise click.BadParameter(f"expected a number >= 0, got {alpha}", param_hint="'--alpha'")
+    d = _out_dir(out)
+    system, label, _, _, _ = _resolve_system(system_name, system_file)
+    from .codegen import UnsupportedPrimitive, export_c
+    from .filter import MinimumEnergyFilter
+
+    try:
+        flt = MinimumEnergyFilter(system, connection=connection, order=order, integrator=integrator, alpha=alpha,
+                                  substeps=substeps, max_substeps=max_substeps)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from err
+    try:
+        exported = export_c(flt, d, name)
+    except UnsupportedPrimitive as err:
+        raise click.ClickException(f"{label}: the filter step uses what the C translator does not cover: {err}. "
+                                   "See docs/export-c.md (supported primitives)") from err
+    except OSError as err:
+        raise click.BadParameter(f"cannot write to {str(d)!r} ({err.strerror or err})", param_hint="'--out'") from err
+    click.echo(f"Exported {label} ({flt!r}) as C99:")
+    click.echo(f"  {exported.header}\n  {exported.source}")
+    click.echo(_c_api_summary(exported, system))
 
 
 @cli.command("schema")

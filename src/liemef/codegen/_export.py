@@ -30,6 +30,7 @@ import numpy as np
 from ..filter._driver import AbstractFilter, FilterState
 from ..filter._status import CAUSES
 from ._jaxpr_c import HELPERS, Translator, ctype, jaxpr_to_c, literal
+from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Werror")
 """The flags the exported C is tested with (``-Wall -Werror`` clean)."""
@@ -100,7 +101,17 @@ def _dce(closed):
     return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
 
 
-def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "liemef_filter") -> ExportedC:
+BACKENDS = ("auto", "scalar", "array")
+"""The translators: ``"scalar"`` (straight-line code, with constants folded and zeros and common
+subexpressions removed: the fast one, :mod:`._scalar_c`), ``"array"`` (loops over arrays: compact code whose
+size grows with the number of operations, not of scalar operations, for large state dimensions;
+:mod:`._jaxpr_c`) and ``"auto"``: scalar up to :data:`SCALAR_MAX_N`, array above."""
+SCALAR_MAX_N = 12
+"""The largest algebra dimension n that ``backend="auto"`` exports as scalar code (its size grows as n^3)."""
+
+
+def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "liemef_filter", *,
+             backend: str = "auto") -> ExportedC:
     """Write ``<name>.h`` and ``<name>.c`` into ``out_dir``: the filter ``flt`` as standalone C99.
 
     The C API (``P`` = ``name``)::
@@ -115,11 +126,17 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
     ``P_step`` advances ``[t, t + dt]`` exactly as ``flt.step(state, t, u, y, dt)``: ``mask[i] = 0`` (or a
     NaN in ``y``) marks a missing component, a NaN in ``u`` holds the last input, ``mask`` may be NULL (all
     present). It returns the status code (0 healthy, else the cause ``P_NONFINITE``, ...); a failed state is
-    frozen, as in Python. Files are written completely or not at all.
+    frozen, as in Python. Files are written completely or not at all. ``backend``: the translator
+    (:data:`BACKENDS`).
     """
     if not isinstance(flt, AbstractFilter):
         raise ValueError(f"flt: expected a liemef filter (AbstractFilter), got {type(flt).__name__}")
     P = _identifier(name)
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {list(BACKENDS)}, got {backend!r}")
+    if backend == "auto":
+        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
+    translate = scalar_jaxpr_to_c if backend == "scalar" else jaxpr_to_c
     sysm = flt.system
     G, n, m, p = sysm.group, flt.n, sysm.input_dim, sysm.output_dim
     state = flt.init(G.identity(), np.eye(n))
@@ -139,8 +156,8 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
     closed, used = _dce(closed)
     in_names = [f"in_{f.name}" for f in fields] + ["t", "dt", "u", "y"]
     in_names = [a for a, keep in zip(in_names, used, strict=True) if keep]
-    tr = Translator()
-    core, tr = jaxpr_to_c(f"{P}_core", closed, in_names, [f"out_{f.name}" for f in fields], translator=tr)
+    tr = ScalarTranslator() if backend == "scalar" else Translator()
+    core, tr = translate(f"{P}_core", closed, in_names, [f"out_{f.name}" for f in fields], translator=tr)
     # coordinates <-> group parameters
     g_size = sum(f.size for f in g_fields)
     c = G.coords_dim
@@ -156,8 +173,8 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
         g = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(G.identity()), parts)
         return g.coords()
 
-    fc, tr = jaxpr_to_c(f"{P}_from_coords_core", jax.make_jaxpr(from_coords)(jnp.zeros(c)), ["q"], ["g"], translator=tr)
-    tc, tr = jaxpr_to_c(f"{P}_coords_core", jax.make_jaxpr(to_coords)(jnp.zeros(g_size)), ["g"], ["q"], translator=tr)
+    fc, tr = translate(f"{P}_from_coords_core", jax.make_jaxpr(from_coords)(jnp.zeros(c)), ["q"], ["g"], translator=tr)
+    tc, tr = translate(f"{P}_coords_core", jax.make_jaxpr(to_coords)(jnp.zeros(g_size)), ["g"], ["q"], translator=tr)
 
     code_text = "\n".join([*tr.function_texts, core, fc, tc])
     tables = [ln for ln in tr.table_lines if re.search(rf"\b{ln.split()[3].split('[')[0]}\b", code_text)]

@@ -249,6 +249,50 @@ def _where(eqn) -> str:
     return f" (traced at {frames[-1]})" if frames else ""
 
 
+def element_ids(eqn, ins) -> tuple[list[int], dict, list[np.ndarray], bool]:
+    """A data-moving equation run on element ids: operand j's element e is id ``bases[j] + e`` (ids from 1;
+    0 means zero). Returns the data operands, their bases, each output's ids, and whether the equation adds
+    its updates into the operand (a scatter-add, whose ids say where each update lands). The other operands
+    (indices) must be known: ``ins[j].const``."""
+    params = eqn.params
+    data = list(range(len(ins)))
+    name = eqn.primitive.name
+    if name == "gather":
+        data = [0]
+    elif name in ("scatter", "scatter-add", "scatter_add"):
+        data = [0, 2]
+    elif name in ("dynamic_slice",):
+        data = [0]
+    elif name == "dynamic_update_slice":
+        data = [0, 1]
+    for j, v in enumerate(ins):
+        if j not in data and v.const is None:
+            raise UnsupportedPrimitive(f"{name} with indices known only at run time")
+    if name in ("scatter-add", "scatter_add") and not params.get("unique_indices", False):
+        raise UnsupportedPrimitive("scatter-add with possibly repeated indices")
+    bases, args, b = {}, [], 1
+    for j, v in enumerate(ins):
+        if j in data:
+            bases[j] = b
+            args.append(np.arange(b, b + v.size, dtype=np.float64).reshape(v.shape))
+            b += v.size
+        else:
+            args.append(np.asarray(v.const, v.dtype))
+    if name in ("scatter-add", "scatter_add"):
+        # ids cannot be added: a scatter (set) with unique indices moves the same elements
+        with jax.ensure_compile_time_eval():
+            outs = [jax.lax.scatter_p.bind(*args, **params)]
+        add_into = True
+    else:
+        outs = _np_eval(name, params, args, [np.float64] * len(eqn.outvars))
+        if outs is None:
+            with jax.ensure_compile_time_eval():
+                outs = eqn.primitive.bind(*args, **params)
+            outs = outs if eqn.primitive.multiple_results else [outs]
+        add_into = False
+    return data, bases, [np.asarray(o).ravel().astype(np.int64) for o in outs], add_into
+
+
 class Translator:
     """Emits C statements for jaxpr equations; one instance per generated source (names are unique in it)."""
 
@@ -568,50 +612,15 @@ class Translator:
 
     # --- structure ------------------------------------------------------------------------------------------
     def structural(self, eqn, ins: list[Val], avals) -> list[Val]:
-        """Run the primitive on element ids: operand j's element e is id ``base_j + e + 1``; 0 means zero."""
-        params = eqn.params
-        data = list(range(len(ins)))
-        name = eqn.primitive.name
-        if name == "gather":
-            data = [0]
-        elif name in ("scatter", "scatter-add", "scatter_add"):
-            data = [0, 2]
-        elif name in ("dynamic_slice",):
-            data = [0]
-        elif name == "dynamic_update_slice":
-            data = [0, 1]
-        for j, v in enumerate(ins):
-            if j not in data and v.const is None:
-                raise UnsupportedPrimitive(f"{name} with indices known only at run time")
-        if name in ("scatter-add", "scatter_add") and not params.get("unique_indices", False):
-            raise UnsupportedPrimitive("scatter-add with possibly repeated indices")
-        bases, args, b = {}, [], 1
-        for j, v in enumerate(ins):
-            if j in data:
-                bases[j] = b
-                args.append(np.arange(b, b + v.size, dtype=np.float64).reshape(v.shape))
-                b += v.size
-            else:
-                args.append(np.asarray(v.const, v.dtype))
-        if name in ("scatter-add", "scatter_add"):
-            # ids cannot be added: a scatter (set) with unique indices moves the same elements
-            with jax.ensure_compile_time_eval():
-                outs = [jax.lax.scatter_p.bind(*args, **params)]
-            add_into = True
-        else:
-            outs = _np_eval(name, params, args, [np.float64] * len(avals))
-            if outs is None:
-                with jax.ensure_compile_time_eval():
-                    outs = eqn.primitive.bind(*args, **params)
-                outs = outs if eqn.primitive.multiple_results else [outs]
-            add_into = False
+        """Run the primitive on element ids (:func:`element_ids`) and move the elements they name."""
+        data, bases, outs, add_into = element_ids(eqn, ins)
         owners = [(j, bases[j], ins[j]) for j in data]
         results = []
         for k, (o, (shape, dtype)) in enumerate(zip(outs, avals, strict=True)):
             if k:  # one node per output, so that an unused part of a split is dropped
                 self.end()
                 self.begin()
-            ids = np.asarray(o).ravel().astype(np.int64)
+            ids = o
             if add_into:
                 results.append(self.scatter_add(ids, ins[0], ins[2], bases[2], shape, dtype))
                 continue

@@ -166,11 +166,12 @@ class AbstractFilter(eqx.Module):
         return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
 
     def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
-                n_sub=1, capped=False) -> FilterState:
+                n_sub=1, capped=False, asymmetric=None) -> FilterState:
         """The state after an interval: checks ``(g1, K1)`` (:meth:`_health`) and updates the status; a failing
-        interval keeps the state before it, and a state that had failed stays as it was."""
+        interval keeps the state before it, and a state that had failed stays as it was. ``asymmetric``: the
+        filter's own verdict that K cannot stay symmetric (in place of checking K1's symmetry)."""
         st = state.status
-        code = self._health(g1, K1, consecutive)
+        code = self._health(g1, K1, consecutive, asymmetric)
         new_fail = code != OK
         g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
         K_out = jnp.where(new_fail, state.K, K1)
@@ -227,12 +228,13 @@ class AbstractFilter(eqx.Module):
             scale = scale.at[sl].multiply(factor)
         return scale, rejected, consecutive
 
-    def _health(self, g, K, consecutive):
+    def _health(self, g, K, consecutive, asymmetric=None):
         """The cause code of a state just computed (:data:`~liemef.filter.CAUSES`)."""
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves((g, K))]))
         Kf = jnp.where(finite, K, jnp.eye(K.shape[0]))
         big = jnp.max(jnp.abs(Kf))
-        asym = jnp.max(jnp.abs(Kf - Kf.T)) > SYMMETRY_TOL * jnp.maximum(1.0, big)
+        asym = jnp.max(jnp.abs(Kf - Kf.T)) > SYMMETRY_TOL * jnp.maximum(1.0, big) if asymmetric is None \
+            else asymmetric
         Ks = 0.5 * (Kf + Kf.T) + DEFINITE_TOL * jnp.maximum(big, 1e-300) * jnp.eye(K.shape[0])
         definite = positive_definite(Ks)
         gate = jnp.asarray(False)

@@ -22,6 +22,7 @@ from ._driver import TRACES, AbstractFilter, FilterState, sensor_layout
 from ._integrators import AbstractIntegrator
 from ._integrators import integrator as make_integrator
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
+from ._status import SYMMETRY_TOL
 
 ORDERS = ("second", "first")
 """The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (without the Hessian
@@ -114,6 +115,12 @@ class MinimumEnergyFilter(AbstractFilter):
     def _terms(self, weights: Weights, g_hat, K, u, y, t) -> Terms:
         return _terms_call(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
 
+    def _riccati(self, tm: Terms, K):
+        """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
+        the other triangle is not computed where the compiler can see it (exported C) (DESIGN.md §1)."""
+        Kd = riccati_rhs(tm, K, self.alpha)
+        return jnp.triu(Kd) + jnp.triu(Kd, 1).T if self.symmetric else Kd
+
     def terms(self, g_hat: LieGroup, K: ArrayLike, u: ArrayLike, y: ArrayLike, t: float = 0.0, *,
               dt: float | None = None) -> Terms:
         """r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
@@ -163,7 +170,7 @@ class MinimumEnergyFilter(AbstractFilter):
         def f(gg, KK, tau):
             u, y = data(tau)
             tm = self._terms(weights, gg, KK, u, y, tau)
-            return tm.lam + mv(KK, tm.r), riccati_rhs(tm, KK, self.alpha)
+            return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
 
         def field_and_rate(gg, KK, tau):
             # the vector field at a point, and its stiffness rate: the step h is budgeted so that
@@ -172,9 +179,14 @@ class MinimumEnergyFilter(AbstractFilter):
             tm = self._terms(weights, gg, KK, u, y, tau)
             xi = tm.lam + mv(KK, tm.r)
             fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
-            rate = jnp.maximum(jnp.maximum(fro(mm(KK, tm.E)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
+            # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
+            rate = jnp.maximum(jnp.maximum(fro(mm(tm.E, KK)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
                                jnp.linalg.norm(xi) / _XI_BUDGET)
-            return (xi, riccati_rhs(tm, KK, self.alpha)), jnp.where(jnp.isfinite(rate), rate, 0.0)
+            # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from a
+            # broken system, is a failure ("K not symmetric"), checked at each interval's start
+            big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
+            skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
+            return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
 
         if self.substeps == "auto":
             # Adaptive sub-steps: each step's size comes from the stiffness where it starts, so an impulsive
@@ -182,7 +194,7 @@ class MinimumEnergyFilter(AbstractFilter):
             # logarithmic, not linear, in ||K E|| dt). The last allowed step finishes the interval.
             def sub(c):
                 gg, KK, done, j, _ = c
-                first, rate = field_and_rate(gg, KK, t + done)
+                first, rate, _ = field_and_rate(gg, KK, t + done)
                 left = dt - done
                 forced = (j + 1 >= self.max_substeps) & (rate * left > 1.0)  # the cap: finish, though stiff
                 last = forced | (rate * left <= 1.0)
@@ -194,7 +206,7 @@ class MinimumEnergyFilter(AbstractFilter):
                 return c[2] < dt
 
             # the first step is taken outside the loop (most intervals are not stiff: the loop then runs 0 times)
-            first, rate = field_and_rate(g, K, t)
+            first, rate, skew = field_and_rate(g, K, t)
             forced = (self.max_substeps <= 1) & (rate * dt > 1.0)
             last = forced | (rate * dt <= 1.0)
             h = jnp.where(last, dt, 1.0 / rate)
@@ -204,13 +216,14 @@ class MinimumEnergyFilter(AbstractFilter):
         else:
             n_sub, capped = jnp.asarray(self.substeps, jnp.int32), jnp.asarray(False)
             h = dt / self.substeps
-            g1, K1 = self.integrator.step(f, g, K, t, h, first=field_and_rate(g, K, t)[0])
+            first, _, skew = field_and_rate(g, K, t)
+            g1, K1 = self.integrator.step(f, g, K, t, h, first=first)
             if self.substeps > 1:
                 g1, K1 = jax.lax.fori_loop(1, self.substeps, lambda j, gK: self.integrator.step(f, *gK, t + j * h, h),
                                            (g1, K1))
 
         return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
-                            consecutive=consecutive, n_sub=n_sub, capped=capped)
+                            consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
 
 
 

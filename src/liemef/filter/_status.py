@@ -1,7 +1,8 @@
 """A filter run's status, carried through the compiled loop: failures are values, never raised inside ``jit``.
 
 A run (or an online step) is healthy until one sample interval produces a state that is non-finite, a gain K
-that is no longer symmetric (where the connection makes it symmetric) or no longer positive definite, beyond a
+that cannot stay symmetric (where the connection makes it symmetric, the minimum-energy filter checks
+that E is) or no longer positive definite, beyond a
 tolerance, or a sensor whose samples a gate has rejected too many times in a row. The first such interval is
 recorded (its index, its start time and the cause); the state is then frozen at the last good one, and the
 status with it: its counters describe the run up to and including the failing interval.

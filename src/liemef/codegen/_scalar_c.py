@@ -1,0 +1,673 @@
+r"""C99 for a jaxpr, one scalar at a time: the fast translator of :func:`liemef.codegen.export_c`.
+
+Every array of the jaxpr becomes an array of *scalar nodes* (a NumPy object array of node ids), every
+primitive builds nodes element by element, and the C is straight-line code, one ``const`` local per node.
+On the way, what the array translator (:mod:`._jaxpr_c`) leaves to the C compiler is done here, where the
+structure is still visible:
+
+* **constants fold** and **zeros vanish**: ``0 * x = 0``, ``x + 0 = x``, ``1 * x = x``, a product with a zero
+  factor is not formed, a sum skips its zero terms. Automatic differentiation fills Jacobians and Hessians
+  with structural zeros (``jacfwd`` pushes a one-hot basis through every operation); here they cost nothing.
+  (``0 * x = 0`` also for a NaN or infinite x: a non-finite state still propagates through the terms that
+  do depend on it, and the health check sees it.)
+* **common subexpressions** are formed once (hash-consing), and data movement (broadcasts, reshapes,
+  transposes, slices, gathers with known indices) is free: it only rearranges node ids.
+* **dead code** is never emitted: only the nodes the outputs (and loop tests) need are written.
+
+Control flow keeps its shape: a ``while`` is a C loop over carry variables, with its test and body in their
+own scopes, and a ``cond`` a ``switch``. Calls are inlined, so that their constants fold and the zeros of
+their results (the structural zeros of E, A, W) reach the caller. What has no scalar form here (an LU
+factorization of a matrix known only at run time, a triangular solve) is a block of the array translator's
+C, fed and read by nodes. The code grows with the number of scalar operations (n^3 for the Riccati
+products), so that large state dimensions are better served by the array translator.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from jax.extend import core as jcore
+
+from ._jaxpr_c import (
+    _BINARY,
+    _BOOL_BINARY,
+    _BOOL_UNARY,
+    _CALLS,
+    _FLOAT_BINARY,
+    _FLOAT_UNARY,
+    _INT_BINARY,
+    _INT_UNARY,
+    _REDUCE,
+    _STRUCTURAL,
+    Translator,
+    UnsupportedPrimitive,
+    Val,
+    _np_eval,
+    _subjaxpr,
+    _where,
+    ctype,
+    element_ids,
+    literal,
+)
+
+_SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
+                "exp", "log", "eq", "ne", "lt", "le", "gt", "ge", "and", "or", "not", "is_finite",
+                "stop_gradient"}
+
+
+class Scope:
+    """A C block: the nodes created in it, in order, and its table of common subexpressions."""
+
+    def __init__(self, parent: Scope | None):
+        self.parent = parent
+        self.nodes: list[int] = []
+        self.cse: dict = {}
+        self.stmts: list = []  # ("node", id) | ("while", ...) | ("block", ...) in order
+
+
+class ScalarTranslator:
+    """Builds the scalar graph of a jaxpr and writes it as C (one instance per generated source)."""
+
+    def __init__(self):
+        self.op: list[str] = []
+        self.args: list[tuple] = []
+        self.dtype: list[np.dtype] = []
+        self.value: list = []  # the constant's value, or the C expression of a leaf
+        self.scope_of: list[Scope] = []
+        self.scope = Scope(None)
+        self.table_lines: list[str] = []
+        self.function_texts: list[str] = []  # none: calls are inlined (the export reads it from either translator)
+        self.counter = [0]
+
+    def fresh(self, prefix: str) -> str:
+        self.counter[0] += 1
+        return f"{prefix}{self.counter[0]}"
+
+    # --- nodes ----------------------------------------------------------------------------------------------
+    def _new(self, op, args, dtype, value=None) -> int:
+        i = len(self.op)
+        self.op.append(op)
+        self.args.append(args)
+        self.dtype.append(np.dtype(dtype))
+        self.value.append(value)
+        self.scope_of.append(self.scope)
+        if op not in ("const", "leaf"):
+            self.scope.stmts.append(("node", i))
+        return i
+
+    def const(self, value, dtype) -> int:
+        dt = np.dtype(dtype)
+        v = np.asarray(value, dt).item()
+        key = ("const", dt.str, repr(v) if dt.kind != "f" else np.float64(v).tobytes())
+        s = self.scope
+        while s.parent is not None:
+            s = s.parent
+        if key not in s.cse:
+            saved, self.scope = self.scope, s
+            s.cse[key] = self._new("const", (), dt, v)
+            self.scope = saved
+        return s.cse[key]
+
+    def leaf(self, expr: str, dtype) -> int:
+        return self._new("leaf", (), dtype, expr)
+
+    def is_const(self, i: int) -> bool:
+        return self.op[i] == "const"
+
+    def cval(self, i: int):
+        return self.value[i]
+
+    def node(self, op: str, args: tuple, dtype, param=None) -> int:
+        """A node ``op(args)`` after folding, simplification and lookup of an equal node in scope."""
+        dt = np.dtype(dtype)
+        if all(self.is_const(a) for a in args) and op in _SCALAR_FOLD | {"sel", "convert", "ipow"}:
+            folded = self._fold(op, args, dt, param)
+            if folded is not None:
+                return self.const(folded, dt)
+        simple = self._simplify(op, args, dt, param)
+        if simple is not None:
+            return simple
+        key = (op, args, dt.str, param)
+        s = self.scope
+        while s is not None:
+            if key in s.cse:
+                return s.cse[key]
+            s = s.parent
+        i = self._new(op, args, dt, param)
+        self.scope.cse[key] = i
+        return i
+
+    def _fold(self, op, args, dt, param):
+        xs = [np.asarray(self.cval(a), self.dtype[a]) for a in args]
+        with np.errstate(all="ignore"):
+            if op == "sel":
+                return xs[1] if bool(xs[0]) else xs[2]
+            if op == "convert":
+                return xs[0].astype(dt)
+            if op == "ipow":
+                return xs[0] ** param if param >= 0 else 1.0 / xs[0] ** (-param)
+            out = _np_eval(op, {}, xs, [dt])
+            return None if out is None else out[0]
+
+    def _simplify(self, op, a, dt, param):
+        c = [self.is_const(x) for x in a]
+        v = [self.cval(x) if k else None for x, k in zip(a, c, strict=True)]
+        if op == "mul":
+            for k in (0, 1):
+                if c[k] and v[k] == 0:
+                    return self.const(0, dt)
+                if c[k] and v[k] == 1:
+                    return a[1 - k]
+                if c[k] and v[k] == -1 and dt.kind == "f":
+                    return self.node("neg", (a[1 - k],), dt)
+            if a[0] > a[1]:
+                return self.node("mul", (a[1], a[0]), dt)
+        elif op in ("add", "add_any"):
+            for k in (0, 1):
+                if c[k] and v[k] == 0:
+                    return a[1 - k]
+            if op == "add_any" or a[0] > a[1]:
+                return self.node("add", tuple(sorted(a)), dt)
+        elif op == "sub":
+            if c[1] and v[1] == 0:
+                return a[0]
+            if c[0] and v[0] == 0 and dt.kind == "f":
+                return self.node("neg", (a[1],), dt)
+            if a[0] == a[1] and dt.kind != "f":
+                return self.const(0, dt)
+        elif op == "div":
+            if c[1] and v[1] == 1:
+                return a[0]
+            if c[0] and v[0] == 0:
+                return self.const(0, dt)
+        elif op == "neg":
+            if self.op[a[0]] == "neg":
+                return self.args[a[0]][0]
+        elif op == "sel":
+            if c[0]:
+                return a[1] if v[0] else a[2]
+            if a[1] == a[2]:
+                return a[1]
+        elif op == "and" and dt == np.bool_:
+            for k in (0, 1):
+                if c[k]:
+                    return a[1 - k] if v[k] else self.const(False, dt)
+        elif op == "or" and dt == np.bool_:
+            for k in (0, 1):
+                if c[k]:
+                    return self.const(True, dt) if v[k] else a[1 - k]
+        elif op in ("stop_gradient", "copy", "copy_p", "reduce_precision", "optimization_barrier", "real"):
+            return a[0]
+        elif op == "ipow":
+            if param == 1:
+                return a[0]
+            if param == 2:
+                return self.node("mul", (a[0], a[0]), dt)
+        elif op == "convert" and self.dtype[a[0]] == dt:
+            return a[0]
+        return None
+
+    def array(self, v: np.ndarray, dtype) -> np.ndarray:
+        return np.asarray(v, dtype=object)
+
+    def const_array(self, value, dtype) -> np.ndarray:
+        value = np.asarray(value, dtype)
+        out = np.empty(value.shape, dtype=object)
+        for idx in np.ndindex(*value.shape):
+            out[idx] = self.const(value[idx], dtype)
+        return out
+
+    # --- expressions ----------------------------------------------------------------------------------------
+    def expr(self, i: int) -> str:
+        """The C expression naming node ``i`` (a literal, a leaf's expression, or its local)."""
+        op = self.op[i]
+        if op == "const":
+            return literal(self.value[i], self.dtype[i])
+        if op == "leaf":
+            return self.value[i]
+        return f"n{i}"
+
+    def rhs(self, i: int) -> str:
+        op, a, dt = self.op[i], self.args[i], self.dtype[i]
+        e = [self.expr(x) for x in a]
+        if op == "sel":
+            return f"({e[0]}) ? ({e[1]}) : ({e[2]})"
+        if op == "convert":
+            return f"({e[0]}) != 0" if dt == np.bool_ else f"({ctype(dt)})({e[0]})"
+        if op == "ipow":
+            p = self.value[i]
+            prod = " * ".join([f"({e[0]})"] * abs(p)) if p else "1"
+            return f"1.0 / ({prod})" if p < 0 else prod
+        if op == "ref":
+            return self.value[i]
+        kind = self.dtype[a[0]].kind
+        table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY},
+                 "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
+        if op not in table:
+            raise UnsupportedPrimitive(f"primitive {op!r} on {self.dtype[a[0]]}")
+        return table[op].format(a=e[0], b=e[1] if len(e) > 1 else "")
+
+    # --- a jaxpr --------------------------------------------------------------------------------------------
+    def run(self, jaxpr, consts, args: list[np.ndarray]) -> list[np.ndarray]:
+        """The outputs of ``jaxpr`` (with ``consts``) on ``args``, arrays of node ids."""
+        env: dict = {}
+
+        def read(a):
+            if isinstance(a, jcore.Literal):
+                return self.const_array(np.asarray(a.val, a.aval.dtype), a.aval.dtype)
+            return env[a]
+
+        for var, c in zip(jaxpr.constvars, consts, strict=True):
+            env[var] = self.const_array(np.asarray(c), var.aval.dtype)
+        for var, a in zip(jaxpr.invars, args, strict=True):
+            env[var] = a
+        for eqn in jaxpr.eqns:
+            ins = [read(a) for a in eqn.invars]
+            try:
+                outs = self.equation(eqn, ins)
+            except UnsupportedPrimitive as e:
+                raise UnsupportedPrimitive(f"{e}{_where(eqn)}") from None
+            for var, o in zip(eqn.outvars, outs, strict=True):
+                env[var] = np.asarray(o, dtype=object).reshape(var.aval.shape)
+        return [read(a) for a in jaxpr.outvars]
+
+    def _known(self, x: np.ndarray) -> bool:
+        return all(self.is_const(i) for i in x.ravel())
+
+    def _values(self, x: np.ndarray, dtype) -> np.ndarray:
+        return np.array([self.cval(i) for i in x.ravel()], dtype=dtype).reshape(x.shape)
+
+    def equation(self, eqn, ins: list[np.ndarray]) -> list[np.ndarray]:
+        name, params = eqn.primitive.name, eqn.params
+        odt = [np.dtype(v.aval.dtype) for v in eqn.outvars]
+        oshape = [tuple(v.aval.shape) for v in eqn.outvars]
+        idt = [np.dtype(v.aval.dtype) for v in eqn.invars]
+        if name in _CALLS:
+            if name in ("custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr", "closed_call", "core_call"):
+                jaxpr, consts = _subjaxpr(params, "call_jaxpr", "fun_jaxpr", "jaxpr")
+            else:
+                jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
+            # inlined: a call's constants fold into it, and the zeros of its results reach the caller
+            return self.run(jaxpr, consts, ins[len(ins) - len(jaxpr.invars):])
+        if name == "custom_linear_solve":
+            lengths, jaxprs = params["const_lengths"], params["jaxprs"]
+            off = lengths.matvec + lengths.vecmat
+            solve_consts = ins[off:off + lengths.solve]
+            b = ins[off + lengths.solve + lengths.transpose_solve:]
+            return self.run(jaxprs.solve.jaxpr, jaxprs.solve.consts, solve_consts + b)
+        if name == "while":
+            return self.while_loop(params, ins)
+        if name == "cond":
+            return self.cond(params, ins)
+        if all(self._known(x) for x in ins) and name not in ("while", "cond"):
+            xs = [self._values(x, d) for x, d in zip(ins, idt, strict=True)]
+            outs = _np_eval(name, params, xs, odt)
+            if outs is None:
+                import jax
+                with jax.ensure_compile_time_eval():
+                    outs = eqn.primitive.bind(*xs, **params)
+                outs = outs if eqn.primitive.multiple_results else [outs]
+            return [self.const_array(np.asarray(o), d) for o, d in zip(outs, odt, strict=True)]
+        if name in _STRUCTURAL:
+            return self.structural(eqn, ins, idt, oshape)
+        if name in _REDUCE:
+            return [self.reduce(_REDUCE[name], ins[0], params["axes"], oshape[0], odt[0])]
+        if name == "dot_general":
+            return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
+        if name in ("lu", "triangular_solve"):
+            return self.block(eqn, ins, idt)
+        if name == "integer_pow":
+            return [self.map1(lambda x: self.node("ipow", (x,), odt[0], params["y"]), ins[0], oshape[0])]
+        if name == "convert_element_type":
+            return [self.map1(lambda x: self.node("convert", (x,), odt[0]), ins[0], oshape[0])]
+        if name == "select_n":
+            return [self.select_n(ins, oshape[0], odt[0])]
+        if name == "clamp":
+            lo, x, hi = (np.broadcast_to(v, oshape[0]) for v in ins)
+            f = np.frompyfunc(lambda a, b, c: self.node("min", (self.node("max", (b, a), odt[0]), c), odt[0]), 3, 1)
+            return [f(lo, x, hi)]
+        if name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY or name in _BINARY \
+                or name in _FLOAT_BINARY or name in _INT_BINARY or name in _BOOL_BINARY:
+            xs = [np.broadcast_to(v, oshape[0]) for v in ins]
+            f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(xs), 1)
+            return [np.asarray(f(*xs), dtype=object).reshape(oshape[0])]
+        if name == "gather" and not self._known(ins[1]):
+            return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
+        if name == "sort":
+            raise UnsupportedPrimitive("sort of values known only at run time")
+        raise UnsupportedPrimitive(f"primitive {name!r} has no C translation (supported: liemef.codegen.PRIMITIVES)")
+
+    def map1(self, f, x, shape):
+        out = np.empty(x.shape, dtype=object)
+        for idx in np.ndindex(*x.shape):
+            out[idx] = f(x[idx])
+        return out.reshape(shape)
+
+    def select_n(self, ins, shape, dtype):
+        pred, cases = np.broadcast_to(ins[0], shape), [np.broadcast_to(c, shape) for c in ins[1:]]
+        out = np.empty(shape, dtype=object)
+        pdt = self.dtype[pred.ravel()[0]] if pred.size else np.dtype(bool)
+        for idx in np.ndindex(*shape):
+            p = pred[idx]
+            if pdt == np.bool_ and len(cases) == 2:
+                out[idx] = self.node("sel", (p, cases[1][idx], cases[0][idx]), dtype)
+            else:
+                acc = cases[-1][idx]
+                for j in range(len(cases) - 2, -1, -1):
+                    acc = self.node("sel", (self.node("eq", (p, self.const(j, pdt)), np.bool_), cases[j][idx], acc),
+                                    dtype)
+                out[idx] = acc
+        return out
+
+    # --- data movement --------------------------------------------------------------------------------------
+    def structural(self, eqn, ins, idt, oshape):
+        known = [Val(tuple(x.shape), d, const=self._values(x, d) if self._known(x) else None)
+                 for x, d in zip(ins, idt, strict=True)]
+        data, bases, outs, add_into = element_ids(eqn, known)
+        flat = {j: ins[j].ravel() for j in data}
+
+        def node_of(idv, dtype):
+            if idv == 0:
+                return self.const(0, dtype)
+            for j in data:
+                if bases[j] <= idv < bases[j] + flat[j].size:
+                    return flat[j][idv - bases[j]]
+            raise AssertionError(idv)
+
+        results = []
+        for ids, shape, v in zip(outs, oshape, eqn.outvars, strict=True):
+            dt = np.dtype(v.aval.dtype)
+            if add_into:
+                res = ins[0].ravel().copy()
+                upd = flat[2]
+                for i, idv in enumerate(ids):
+                    if bases[2] <= idv < bases[2] + upd.size:
+                        res[i] = self.node("add", (res[i], upd[idv - bases[2]]), dt)
+                results.append(res.reshape(shape))
+            else:
+                results.append(np.array([node_of(int(i), dt) for i in ids], dtype=object).reshape(shape))
+        return results
+
+    def take(self, x, idx, params, shape, dtype):
+        """A gather along one axis with indices known at run time: a chain of selects on the (clamped) index."""
+        dn = params["dimension_numbers"]
+        sizes = tuple(int(v) for v in params["slice_sizes"])
+        smap = tuple(int(v) for v in dn.start_index_map)
+        collapsed = tuple(int(v) for v in dn.collapsed_slice_dims)
+        offset_dims = tuple(int(v) for v in dn.offset_dims)
+        ok = (len(smap) == 1 and not dn.operand_batching_dims and sizes[smap[0]] == 1
+              and all(sz == n for d, (sz, n) in enumerate(zip(sizes, x.shape, strict=True)) if d != smap[0])
+              and idx.shape[-1:] == (1,) and set(collapsed) <= {smap[0]})
+        if not ok:
+            raise UnsupportedPrimitive(f"gather with indices known only at run time (only along one axis, "
+                                       f"jnp.take's form; got {dn}, slice sizes {sizes})")
+        a = smap[0]
+        op_dims = [d for d in range(x.ndim) if d not in collapsed]
+        batch_pos = [k for k in range(len(shape)) if k not in offset_dims]
+        out = np.empty(shape, dtype=object)
+        idt = self.dtype[idx.ravel()[0]]
+        for oi in np.ndindex(*shape):
+            src = [0] * x.ndim
+            for k, d in zip(offset_dims, op_dims, strict=True):
+                src[d] = oi[k] if d != a else 0
+            r = idx[tuple(oi[k] for k in batch_pos) + (0,)]
+            acc = None
+            for j in range(x.shape[a] - 1, -1, -1):
+                src[a] = j
+                cand = x[tuple(src)]
+                if acc is None:
+                    acc = cand
+                else:  # clamped: below 0 reads row 0, above the last reads the last
+                    test = self.node("le", (r, self.const(j, idt)), np.bool_)
+                    acc = self.node("sel", (test, cand, acc), dtype)
+            out[oi] = acc
+        return out
+
+    # --- sums -----------------------------------------------------------------------------------------------
+    def total(self, terms, dtype, op="sum"):
+        """The sum (or product, max, ...) of node ids, zeros of a sum skipped, pairwise: a tree, not a chain,
+        so that the additions do not wait on each other (and the rounding error grows as log n)."""
+        name = {"sum": "add", "prod": "mul", "max": "max", "min": "min", "and": "and", "or": "or"}[op]
+        terms = [t for t in terms if not (op == "sum" and self.is_const(t) and self.cval(t) == 0)]
+        if not terms:
+            init = {"sum": 0, "prod": 1, "and": True, "or": False, "max": -np.inf, "min": np.inf}[op]
+            return self.const(init, dtype)
+        while len(terms) > 1:
+            pairs = [self.node(name, (terms[k], terms[k + 1]), dtype) for k in range(0, len(terms) - 1, 2)]
+            terms = pairs + ([terms[-1]] if len(terms) % 2 else [])
+        return terms[0]
+
+    def reduce(self, op, x, axes, shape, dtype):
+        if op in ("argmax", "argmin"):
+            raise UnsupportedPrimitive(f"{op} of values known only at run time")
+        axes = tuple(int(a) for a in axes)
+        keep = [d for d in range(x.ndim) if d not in axes]
+        n_out = int(np.prod(shape, dtype=np.int64))
+        rows = x.transpose(keep + list(axes)).reshape(n_out, -1)
+        return np.array([self.total(list(r), dtype, op) for r in rows], dtype=object).reshape(shape)
+
+    def dot_general(self, a, b, dims, shape, dtype):
+        (ca, cb), (ba, bb) = dims
+        ca, cb, ba, bb = (tuple(int(d) for d in t) for t in (ca, cb, ba, bb))
+        fa = [d for d in range(a.ndim) if d not in ca and d not in ba]
+        fb = [d for d in range(b.ndim) if d not in cb and d not in bb]
+        A = a.transpose(list(ba) + fa + list(ca))
+        B = b.transpose(list(bb) + fb + list(cb))
+        nb = int(np.prod([a.shape[d] for d in ba], dtype=np.int64))
+        na = int(np.prod([a.shape[d] for d in fa], dtype=np.int64))
+        nbf = int(np.prod([b.shape[d] for d in fb], dtype=np.int64))
+        nc = int(np.prod([a.shape[d] for d in ca], dtype=np.int64))
+        A = A.reshape(nb, na, nc)
+        B = B.reshape(nb, nbf, nc)
+        out = np.empty((nb, na, nbf), dtype=object)
+        for i in range(nb):
+            for j in range(na):
+                for k in range(nbf):
+                    out[i, j, k] = self.total([self.node("mul", (A[i, j, c], B[i, k, c]), dtype) for c in range(nc)],
+                                              dtype)
+        return out.reshape(shape)
+
+    # --- blocks of array code -------------------------------------------------------------------------------
+    def block(self, eqn, ins, idt):
+        """Array C for an equation with no scalar form here (an LU factorization, a triangular solve): the
+        inputs packed into local arrays, the array translator's code, the outputs read back as nodes."""
+        tr = Translator()
+        tr.indent = 1
+        tr._n = 10**6 * (self.counter[0] + 1)  # its names cannot clash with ours
+        tr.begin(root=True)
+        vals = [Val(tuple(x.shape), d, name=tr.fresh("b")) for x, d in zip(ins, idt, strict=True)]
+        outs = tr.equation(eqn, vals)
+        tr.end()
+        bname = self.fresh("blk")
+        out_nodes, copies, off = [], [], 0
+        total = sum(o.size for o in outs)
+        for o in outs:
+            res = np.empty(o.shape, dtype=object)
+            for k, idx in enumerate(np.ndindex(*o.shape)):
+                res[idx] = self.leaf(f"{bname}_{ctype(o.dtype)[0]}[{off + k}]", o.dtype)
+                copies.append((f"{bname}_{ctype(o.dtype)[0]}[{off + k}]", tr.elem(o, k)))
+            off += o.size
+            out_nodes.append(res)
+        dtypes = sorted({ctype(o.dtype) for o in outs})
+        in_flat = [x.ravel() for x in ins]
+        self.scope.stmts.append(("block", bname, total, dtypes, vals, in_flat, tr.lines, copies,
+                                 [n for r in out_nodes for n in r.ravel()]))
+        # the block's outputs depend on its inputs: a leaf carries them for the liveness pass
+        for r in out_nodes:
+            for n in r.ravel():
+                self.args[n] = tuple(int(i) for x in in_flat for i in x)
+        return out_nodes
+
+    # --- control flow ---------------------------------------------------------------------------------------
+    def while_loop(self, params, ins):
+        nc, nb = params["cond_nconsts"], params["body_nconsts"]
+        cconsts, bconsts, init = ins[:nc], ins[nc:nc + nb], ins[nc + nb:]
+        carry_names, carry_leaves = [], []
+        for x in init:
+            names = np.empty(x.shape, dtype=object)
+            leaves = np.empty(x.shape, dtype=object)
+            for idx in np.ndindex(*x.shape):
+                nm = self.fresh("c")
+                names[idx] = nm
+                leaves[idx] = self.leaf(nm, self.dtype[x[idx]])
+            carry_names.append(names)
+            carry_leaves.append(leaves)
+        outer = self.scope
+        cond_scope = Scope(outer)
+        self.scope = cond_scope
+        (pred,) = self.run(params["cond_jaxpr"].jaxpr, params["cond_jaxpr"].consts, cconsts + carry_leaves)
+        body_scope = Scope(outer)
+        self.scope = body_scope
+        new = self.run(params["body_jaxpr"].jaxpr, params["body_jaxpr"].consts, bconsts + carry_leaves)
+        self.scope = outer
+        assigns = [(nm, n) for names, vals in zip(carry_names, new, strict=True)
+                   for nm, n in zip(names.ravel(), vals.ravel(), strict=True)]
+        inits = [(nm, n) for names, vals in zip(carry_names, init, strict=True)
+                 for nm, n in zip(names.ravel(), vals.ravel(), strict=True)]
+        dts = {nm: self.dtype[lf] for lv in carry_leaves for nm, lf in
+               zip([self.value[i] for i in lv.ravel()], lv.ravel(), strict=True)}
+        self.scope.stmts.append(("while", inits, cond_scope, pred.ravel()[0], body_scope, assigns, dts))
+        # after the loop, the carries hold the results
+        outs = []
+        for names, x in zip(carry_names, init, strict=True):
+            res = np.empty(x.shape, dtype=object)
+            for idx in np.ndindex(*x.shape):
+                res[idx] = self.leaf(names[idx], self.dtype[x[idx]])
+            outs.append(res)
+        return outs
+
+    def cond(self, params, ins):
+        index, ops = ins[0], ins[1:]
+        branches = params["branches"]
+        i0 = index.ravel()[0]
+        if self.is_const(i0):
+            k = int(np.clip(int(self.cval(i0)), 0, len(branches) - 1))
+            return self.run(branches[k].jaxpr, branches[k].consts, ops)
+        names = [np.array([self.fresh("c") for _ in range(int(np.prod(v.aval.shape, dtype=np.int64)))],
+                          dtype=object).reshape(v.aval.shape) for v in branches[0].jaxpr.outvars]
+        dts = {nm: np.dtype(v.aval.dtype) for arr, v in zip(names, branches[0].jaxpr.outvars, strict=True)
+               for nm in arr.ravel()}
+        outer = self.scope
+        arms = []
+        for br in branches:
+            sc = Scope(outer)
+            self.scope = sc
+            res = self.run(br.jaxpr, br.consts, ops)
+            arms.append((sc, [(nm, n) for arr, r in zip(names, res, strict=True)
+                              for nm, n in zip(arr.ravel(), r.ravel(), strict=True)]))
+        self.scope = outer
+        self.scope.stmts.append(("cond", i0, arms, dts))
+        return [np.array([self.leaf(nm, dts[nm]) for nm in arr.ravel()], dtype=object).reshape(arr.shape)
+                for arr in names]
+
+    # --- writing C ------------------------------------------------------------------------------------------
+    def _live(self, roots: list[int]) -> set[int]:
+        live: set[int] = set()
+        stack = list(roots)
+        while stack:
+            i = stack.pop()
+            if i in live:
+                continue
+            live.add(i)
+            stack.extend(self.args[i] if isinstance(self.args[i], tuple) else ())
+        return live
+
+    def _stmt_roots(self, scope: Scope) -> list[int]:
+        roots = []
+        for st in scope.stmts:
+            if st[0] == "while":
+                _, inits, cs, pred, bs, assigns, _ = st
+                roots += [n for _, n in inits] + [pred] + [n for _, n in assigns]
+                roots += self._stmt_roots(cs) + self._stmt_roots(bs)
+            elif st[0] == "cond":
+                roots.append(st[1])
+                for sc, asg in st[2]:
+                    roots += [n for _, n in asg] + self._stmt_roots(sc)
+        return roots
+
+    def emit_body(self, outputs: list[tuple[str, int]]) -> str:
+        """The C statements of the whole graph for ``outputs`` (C lvalue, node) pairs."""
+        root_scope = self.scope
+        while root_scope.parent is not None:
+            root_scope = root_scope.parent
+        live = self._live([n for _, n in outputs] + self._stmt_roots(root_scope))
+        lines: list[str] = []
+        self._write(root_scope, live, lines, 1)
+        for lv, n in outputs:
+            lines.append(f"    {lv} = {self.expr(n)};")
+        return "\n".join(lines) + "\n"
+
+    def _write(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
+        pad = "    " * depth
+        for st in scope.stmts:
+            kind = st[0]
+            if kind == "node":
+                i = st[1]
+                if i in live:
+                    lines.append(f"{pad}const {ctype(self.dtype[i])} n{i} = {self.rhs(i)};")
+            elif kind == "block":
+                _, bname, total, dtypes, vals, in_flat, blines, copies, outs = st
+                if not any(o in live for o in outs):
+                    continue
+                for ct in dtypes:
+                    lines.append(f"{pad}{ct} {bname}_{ct[0]}[{total}];")
+                lines.append(f"{pad}{{")
+                for v, flat in zip(vals, in_flat, strict=True):
+                    items = ", ".join(self.expr(int(n)) for n in flat) or "0"
+                    lines.append(f"{pad}    {ctype(v.dtype)} {v.name}[{max(v.size, 1)}] = {{{items}}};")
+                lines.extend(pad + ln for ln in blines)
+                lines.extend(f"{pad}    {lhs} = {rhs};" for lhs, rhs in copies)
+                lines.append(f"{pad}}}")
+            elif kind == "while":
+                _, inits, cs, pred, bs, assigns, dts = st
+                for nm, n in inits:
+                    lines.append(f"{pad}{ctype(dts[nm])} {nm} = {self.expr(n)};")
+                lines.append(f"{pad}for (;;) {{")
+                self._write(cs, live, lines, depth + 1)
+                lines.append(f"{pad}    if (!({self.expr(pred)})) break;")
+                lines.append(f"{pad}    {{")
+                self._write(bs, live, lines, depth + 2)
+                tmps = []
+                for nm, n in assigns:
+                    t = f"{nm}_next"
+                    tmps.append((nm, t))
+                    lines.append(f"{pad}        const {ctype(dts[nm])} {t} = {self.expr(n)};")
+                for nm, t in tmps:
+                    lines.append(f"{pad}        {nm} = {t};")
+                lines.append(f"{pad}    }}")
+                lines.append(f"{pad}}}")
+            elif kind == "cond":
+                _, i0, arms, dts = st
+                for nm, dt in dts.items():
+                    lines.append(f"{pad}{ctype(dt)} {nm};")
+                lines.append(f"{pad}switch ((int)({self.expr(i0)})) {{")
+                for k, (sc, asg) in enumerate(arms):
+                    lines.append(f"{pad}{'default' if k == len(arms) - 1 else f'case {k}'}: {{")
+                    self._write(sc, live, lines, depth + 1)
+                    for nm, n in asg:
+                        lines.append(f"{pad}    {nm} = {self.expr(n)};")
+                    lines.append(f"{pad}    break;")
+                    lines.append(f"{pad}}}")
+                lines.append(f"{pad}}}")
+
+
+def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: list[str], *,
+                      translator: ScalarTranslator | None = None) -> tuple[str, ScalarTranslator]:
+    """A C function ``void name(const T *arg..., T *out...)`` computing ``closed_jaxpr`` on flat row-major
+    arrays, as straight-line scalar code (functions in ``translator.function_texts``)."""
+    tr = translator or ScalarTranslator()
+    jaxpr = closed_jaxpr.jaxpr
+    tr.scope = Scope(None)
+    args = []
+    for v, n in zip(jaxpr.invars, arg_names, strict=True):
+        arr = np.empty(v.aval.shape, dtype=object)
+        for j, idx in enumerate(np.ndindex(*v.aval.shape)):
+            arr[idx] = tr.leaf(f"{n}[{j}]", v.aval.dtype)
+        args.append(arr)
+    outs = tr.run(jaxpr, closed_jaxpr.consts, args)
+    body = tr.emit_body([(f"{n}[{j}]", int(x)) for n, o in zip(out_names, outs, strict=True)
+                         for j, x in enumerate(o.ravel())])
+    sig_in = [f"const {ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.invars, arg_names, strict=True)]
+    sig_out = [f"{ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
+    used = "".join(f"    (void){n};\n" for n in arg_names)
+    text = f"static void {name}({', '.join(sig_in + sig_out)})\n{{\n{used}{body}}}\n"
+    return text, tr
