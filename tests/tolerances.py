@@ -29,3 +29,9 @@ information through different inverses (condition number of D ~10)."""
 DISCRETE_KALMAN = 1e-6
 """Sparse samples on a linear system against the exact discrete Kalman filter, with 1000 RK4 sub-steps per
 interval and the sample's information spread over 2^-30 s (both errors ~1e-9)."""
+EXPORTED_C = 1e-12
+"""The exported C99 step (liemef.codegen) against the JAX step at one state, relative to max(1, |value|): the same
+operations, with libm's sin/cos/sqrt against XLA's and other summation orders (measured <= 1e-13)."""
+EXPORTED_C_RUN = 1e-9
+"""The exported C (its run, or a C program's step loop) against the JAX run over a few hundred intervals: the
+per-step round-off of EXPORTED_C, carried along a trajectory the filter contracts."""
