@@ -9,5 +9,5 @@
 from ._export import BACKENDS, CFLAGS, SCALAR_MAX_N, CFilter, ExportedC, build_shared, compiler, export_c, state_leaves
 from ._jaxpr_c import PRIMITIVES, UnsupportedPrimitive, jaxpr_to_c
 
-__all__ = ["BACKENDS", "CFLAGS", "SCALAR_MAX_N", "PRIMITIVES", "CFilter", "ExportedC", "UnsupportedPrimitive", "build_shared", "compiler",
-           "export_c", "jaxpr_to_c", "state_leaves"]
+__all__ = ["BACKENDS", "CFLAGS", "PRIMITIVES", "SCALAR_MAX_N", "CFilter", "ExportedC", "UnsupportedPrimitive",
+           "build_shared", "compiler", "export_c", "jaxpr_to_c", "state_leaves"]
