@@ -13,8 +13,12 @@ timed on the same log in the same run. Its microseconds per step for RKMK4 and L
 first-order variant over the C RKMK4, ``run`` Lie-Euler over the C Lie-Euler, one ``step`` call over the C
 RKMK4 step. Without a C compiler the section says so and the benchmark goes on without those ratios.
 
+The ``export_c`` section times ``liemef export-c``'s C for the same filter (second order, RKMK4, adaptive
+sub-steps, health checks), built with the same compiler at ``-std=c99 -O2``, alternately with the reference on
+the same log, and one online step through ctypes.
+
 Targets (issue 9, one core): ``run`` RKMK4 <= 8x the C reference per step; <= 25 us per ``step`` call;
-compile of ``run`` < 2 s.
+compile of ``run`` < 2 s; the exported C within 2x of the reference.
 
     python benchmarks/bench_tse2.py [--duration 50] [--calls 2000]
 """
@@ -40,6 +44,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import liemef  # noqa: E402
+from liemef import codegen  # noqa: E402
 from liemef.simulation import simulate  # noqa: E402
 from liemef.systems import PlanarRigidBody, tse2_state  # noqa: E402
 
@@ -86,8 +91,10 @@ def time_step(flt, state, log, calls):
 
 
 def time_c_reference(log, g0, repeats=5):
-    """The C reference (c_reference.py) on the same log: build time and median us per step of both integrators;
-    ``{"available": False, "reason": ...}`` without a C compiler or if the build fails."""
+    """The C reference (c_reference.py) and liemef's exported C (``liemef export-c`` of the same filter, built with
+    the same compiler and flags) on the same log, timed alternately: build times and median us per step
+    (RKMK4 and Lie-Euler for the reference, RKMK4 for the export); ``{"available": False, "reason": ...}``
+    without a C compiler or if a build fails."""
     if c_reference.compiler() is None:
         return {"available": False, "reason": "no C compiler ($CC or cc)"}
     ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
@@ -100,9 +107,35 @@ def time_c_reference(log, g0, repeats=5):
         build_s = time.perf_counter() - t0
         out = {"available": True, "compiler": " ".join(c_reference.compiler()), "flags": " ".join(c_reference.FLAGS),
                "build_s": round(build_s, 3)}
-        for name, integ in [("rkmk4", "rkmk4"), ("lie_euler", "lie-euler")]:
-            us_step = c_reference.time_per_step(lib, integ, ts, us, ys, g0, np.eye(6), repeats=repeats)
-            out[f"{name}_us_per_step"] = round(us_step, 4)
+        flt = liemef.MinimumEnergyFilter(PlanarRigidBody())
+        t0 = time.perf_counter()
+        exported = codegen.export_c(flt, tmp, name="tse2_export")
+        t1 = time.perf_counter()
+        cflt = codegen.CFilter(exported, flags=("-std=c99", "-O2"))
+        t2 = time.perf_counter()
+        g0_leaves = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(g0)])
+        ref, exp = [], []
+        for _ in range(repeats):
+            ref.append(c_reference.time_per_step(lib, "rkmk4", ts, us, ys, g0, np.eye(6), repeats=1))
+            cflt.init(g0_leaves, np.eye(6))
+            c0 = time.perf_counter()
+            code, _, _ = cflt.run(ts, us, ys)
+            exp.append((time.perf_counter() - c0) / (len(ts) - 1) * 1e6)
+            assert code == 0, "the exported filter failed on the benchmark log"
+        out["rkmk4_us_per_step"] = round(float(np.median(ref)), 4)
+        out["lie_euler_us_per_step"] = round(c_reference.time_per_step(lib, "lie-euler", ts, us, ys, g0, np.eye(6),
+                                                                       repeats=repeats), 4)
+        # one online step through ctypes, fed numpy arrays (the call overhead of Python included)
+        cflt.init(g0_leaves, np.eye(6))
+        lat = []
+        for k in range(min(2000, len(ts) - 1)):
+            c0 = time.perf_counter()
+            cflt.step(ts[k], ts[k + 1] - ts[k], us[k], ys[k])
+            lat.append(time.perf_counter() - c0)
+        out["export_c"] = {"export_s": round(t1 - t0, 3), "build_s": round(t2 - t1, 3), "flags": "-std=c99 -O2",
+                           "source_lines": sum(1 for _ in open(exported.source)),
+                           "rkmk4_us_per_step": round(float(np.median(exp)), 4),
+                           "step_call_ctypes_median_us": round(float(np.median(lat)) * 1e6, 2)}
     return out
 
 
@@ -139,11 +172,16 @@ def main():
             "run_rkmk4_first_order_over_c": round(r["run_rkmk4_first_order"]["us_per_step"] / c["rkmk4_us_per_step"],
                                                   2),
             "step_call_over_c": round(r["step_rkmk4_numpy"]["median_us"] / c["rkmk4_us_per_step"], 2),
+            "export_c_rkmk4_over_c": round(c["export_c"]["rkmk4_us_per_step"] / c["rkmk4_us_per_step"], 2),
+            "export_c_step_call_over_c": round(c["export_c"]["step_call_ctypes_median_us"] / c["rkmk4_us_per_step"],
+                                               2),
         })
     results["targets"] = {
         "run_rkmk4_over_c<=8": r["run_rkmk4"]["us_per_step"] <= 8 * c["rkmk4_us_per_step"] if c["available"] else None,
         "step_call_us<=25": r["step_rkmk4_numpy"]["median_us"] <= 25,
         "compile_s<2": r["run_rkmk4"]["compile_s"] < 2,
+        "export_c_over_c<=2": c["export_c"]["rkmk4_us_per_step"] <= 2 * c["rkmk4_us_per_step"] if c["available"]
+        else None,
     }
     results["machine"] = {"python": platform.python_version(), "jax": jax.__version__, "liemef": liemef.__version__,
                           "cores_used": 1, "loadavg_1min": round(os.getloadavg()[0], 2)}
