@@ -193,26 +193,23 @@ class MinimumEnergyFilter(AbstractFilter):
             # sample with a large K takes small steps while K shrinks, then larger ones (a number of steps
             # logarithmic, not linear, in ||K E|| dt). The last allowed step finishes the interval.
             def sub(c):
-                gg, KK, done, j, _ = c
-                first, rate, _ = field_and_rate(gg, KK, t + done)
+                gg, KK, done, j, _, skew = c
+                first, rate, skew_here = field_and_rate(gg, KK, t + done)
                 left = dt - done
                 forced = (j + 1 >= self.max_substeps) & (rate * left > 1.0)  # the cap: finish, though stiff
                 last = forced | (rate * left <= 1.0)
                 h = jnp.where(last, left, 1.0 / rate)
                 g2, K2 = self.integrator.step(f, gg, KK, t + done, h, first=first)
-                return g2, K2, jnp.where(last, dt, done + h), j + 1, forced
+                return g2, K2, jnp.where(last, dt, done + h), j + 1, forced, jnp.where(j == 0, skew_here, skew)
 
             def more(c):
                 return c[2] < dt
 
-            # the first step is taken outside the loop (most intervals are not stiff: the loop then runs 0 times)
-            first, rate, skew = field_and_rate(g, K, t)
-            forced = (self.max_substeps <= 1) & (rate * dt > 1.0)
-            last = forced | (rate * dt <= 1.0)
-            h = jnp.where(last, dt, 1.0 / rate)
-            g1, K1 = self.integrator.step(f, g, K, t, h, first=first)
-            g1, K1, _, n_sub, capped = jax.lax.while_loop(
-                more, sub, (g1, K1, jnp.where(last, dt, h), jnp.asarray(1, jnp.int32), forced))
+            # one integrator step in the program, in the loop (which runs once where the interval is not stiff):
+            # half the code of a first step taken outside it, for XLA to compile and in exported C
+            g1, K1, _, n_sub, capped, skew = jax.lax.while_loop(
+                more, sub, (g, K, jnp.zeros_like(dt), jnp.asarray(0, jnp.int32), jnp.asarray(False),
+                            jnp.asarray(False)))
         else:
             n_sub, capped = jnp.asarray(self.substeps, jnp.int32), jnp.asarray(False)
             h = dt / self.substeps
