@@ -19,9 +19,9 @@ from liemef.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
 from liemef.filter import ORDERS
 
 HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.experiments", "liemef.plots", "liemef._config")
-COMMANDS = ("reproduce", "montecarlo", "run")
+COMMANDS = ("reproduce", "montecarlo", "run", "export-c")
 HELP_ARGS = (["--help"], ["-h"], ["--version"], ["reproduce", "--help"], ["run", "--help"],
-             ["montecarlo", "--help"])
+             ["montecarlo", "--help"], ["export-c", "--help"])
 
 
 def python(code: str) -> subprocess.CompletedProcess:
@@ -99,6 +99,7 @@ def test_the_static_names_of_the_cli_match_the_registries():
     assert list(params["reproduce"]["experiment"].type.choices) == [*sorted(EXPERIMENTS), "all"]
     assert list(params["montecarlo"]["experiment"].type.choices) == sorted(EXPERIMENTS)
     assert list(params["run"]["system_name"].type.choices) == sorted(SYSTEMS)
+    assert list(params["export-c"]["system_name"].type.choices) == sorted(SYSTEMS)
     assert params["montecarlo"]["batch_size"].default == DEFAULT_BATCH_SIZE
 
 

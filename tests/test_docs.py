@@ -48,7 +48,8 @@ def site(tmp_path_factory) -> Path:
 
 
 def test_site_builds_strict_with_every_page(site):
-    for page in ("index", "concepts/index", "theorem/index", "errata/index", "chaplygin/index", "comparisons/index"):
+    for page in ("index", "concepts/index", "theorem/index", "errata/index", "chaplygin/index", "comparisons/index",
+                 "export-c/index"):
         assert (site / f"{page}.html").is_file(), page
 
 
@@ -63,6 +64,7 @@ def test_site_builds_strict_with_every_page(site):
     ("campaign", ["Campaign", "run_campaign", "Store", "CampaignResult"]),
     ("baselines", ["ExtendedKalmanFilter", "UnscentedKalmanFilter", "invariant_ekf", "ukf_m"]),
     ("compare", ["paired_comparison", "LocalizationComparison", "HeadingBasin", "STUDIES"]),
+    ("codegen", ["export_c", "CFilter", "state_leaves", "PRIMITIVES", "UnsupportedPrimitive"]),
     ("io", ["read_log"]),
     ("plots", ["write_figures"]),
 ])

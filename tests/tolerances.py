@@ -33,5 +33,5 @@ EXPORTED_C = 1e-12
 """The exported C99 step (liemef.codegen) against the JAX step at one state, relative to max(1, |value|): the same
 operations, with libm's sin/cos/sqrt against XLA's and other summation orders (measured <= 1e-13)."""
 EXPORTED_C_RUN = 1e-9
-"""The exported C (its run, or a C program's step loop) against the JAX run over a few hundred intervals: the
-per-step round-off of EXPORTED_C, carried along a trajectory the filter contracts."""
+"""A C program's estimates (examples/export_c, its own build and a CSV round trip) against the JAX run over a few
+hundred intervals: EXPORTED_C's round-off carried along a trajectory the filter contracts (measured 1e-15)."""

@@ -15,8 +15,8 @@
   (``innovations.csv``), ``arrays.npz``, ``metrics.json`` and a figure; a failed run writes only
   ``failure.json`` and exits with status 1.
 * ``liemef export-c --system NAME|--system-file FILE.py --out DIR [--name PREFIX] [--order ...] [--connection ...]
-  [--integrator ...] [--alpha A] [--substeps auto|N]``: the filter as standalone C99, ``PREFIX.h`` and ``PREFIX.c``
-  (:func:`liemef.codegen.export_c`); prints the files and the C API.
+  [--integrator ...] [--alpha A] [--substeps auto|N] [--backend auto|scalar|array]``: the filter as standalone
+  C99, ``PREFIX.h`` and ``PREFIX.c`` (:func:`liemef.codegen.export_c`); prints the files and the C API.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
 * ``liemef compare localization|heading-basin|attitude-basin|broad|wifibot --out DIR [--runs N] [--seed S]
@@ -525,6 +525,8 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
 
 C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
 """What ``liemef export-c --name`` accepts: the prefix of every name of the exported C."""
+C_BACKENDS = ("auto", "scalar", "array")
+"""``liemef.codegen.BACKENDS``."""
 
 
 def _c_api_summary(exported, system) -> str:
@@ -573,7 +575,11 @@ def _c_api_summary(exported, system) -> str:
               help="Integrator steps per sample interval: auto (by stiffness) or a number.")
 @click.option("--max-substeps", type=click.IntRange(min=1), default=256, show_default=True,
               help="The most steps 'auto' takes in one interval.")
-def export_c_cmd(system_name, system_file, out, name, connection, order, integrator, alpha, substeps, max_substeps):
+@click.option("--backend", type=click.Choice(C_BACKENDS), default="auto", show_default=True,
+              help="scalar: straight-line code (fast, its size grows as n^3); array: loops over arrays (compact); "
+                   "auto: scalar up to n = 12.")
+def export_c_cmd(system_name, system_file, out, name, connection, order, integrator, alpha, substeps, max_substeps,
+                 backend):
     """Write the filter of a ready system (--system) or of your own (--system-file) as standalone C99: NAME.h
     and NAME.c in --out, with NAME_init, NAME_step (one sample interval, exactly as the filter's step), NAME_run
     and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
@@ -598,7 +604,7 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
         raise click.BadParameter(f"expected a number >= 0, got {alpha}", param_hint="'--alpha'")
     d = _out_dir(out)
     system, label, _, _, _ = _resolve_system(system_name, system_file)
-    from .codegen import UnsupportedPrimitive, export_c
+    from .codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
     from .filter import MinimumEnergyFilter
 
     try:
@@ -607,13 +613,15 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
     except ValueError as err:
         raise click.UsageError(str(err)) from err
     try:
-        exported = export_c(flt, d, name)
+        exported = export_c(flt, d, name, backend=backend)
     except UnsupportedPrimitive as err:
         raise click.ClickException(f"{label}: the filter step uses what the C translator does not cover: {err}. "
                                    "See docs/export-c.md (supported primitives)") from err
     except OSError as err:
         raise click.BadParameter(f"cannot write to {str(d)!r} ({err.strerror or err})", param_hint="'--out'") from err
-    click.echo(f"Exported {label} ({flt!r}) as C99:")
+    if backend == "auto":
+        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
+    click.echo(f"Exported {label} ({flt!r}) as C99 ({backend} code):")
     click.echo(f"  {exported.header}\n  {exported.source}")
     click.echo(_c_api_summary(exported, system))
 

@@ -239,8 +239,7 @@ void {P}_coords(const double *g, double *q);
         if f.scalar:
             st_set.append(f"    s->{f.name} = {literal(leaf, f.dtype)};")
         else:
-            first = literal(leaf.ravel()[0], f.dtype)
-            st_set.append(f"    for (int i = 0; i < {f.size}; i++) s->{f.name}[i] = {first};")
+            st_set.extend(f"    s->{f.name}[{i}] = {literal(v, f.dtype)};" for i, v in enumerate(leaf.ravel()))
     u_field = next(f for f in fields if f.name == "u_last")
     g_out = "\n".join(f"            for (int i = 0; i < {f.size}; i++) g_out[(size_t)k * {g_size} + {off} + i] = "
                       f"s->{f.name}[i];"
