@@ -35,3 +35,6 @@ operations, with libm's sin/cos/sqrt against XLA's and other summation orders (m
 EXPORTED_C_RUN = 1e-9
 """A C program's estimates (examples/export_c, its own build and a CSV round trip) against the JAX run over a few
 hundred intervals: EXPORTED_C's round-off carried along a trajectory the filter contracts (measured 1e-15)."""
+WELL_CONDITIONED = 1e-13
+"""A random state counts as well conditioned for the exported-C comparison when a relative change of K by 1e-15
+moves the JAX step's result by at most this: round-off then cannot reach EXPORTED_C."""
