@@ -218,8 +218,6 @@ def test_c_step_of_the_array_backend_equals_the_jax_step(build, system):
     check_against_jax(flt, cf, seed=sorted(SYSTEMS).index(system))
 
 
-@pytest.mark.xfail(raises=codegen.UnsupportedPrimitive, strict=True,
-                   reason="codegen: a fixed number of sub-steps is a lax.scan, which has no C translation yet")
 def test_c_step_with_fixed_substeps_equals_the_jax_step(build):
     flt, cf = build("unit-circle", "second", "zero", substeps=3)
     check_against_jax(flt, cf, seed=0, stiff=False)
@@ -250,8 +248,6 @@ def test_a_non_finite_state_is_code_1_and_frozen_as_in_jax(build):
         np.testing.assert_array_equal(c, w)
 
 
-@pytest.mark.xfail(strict=True, reason="codegen: P_init leaves the member `code` as it was (it sets the members "
-                                      "named status_*; the status code is renamed `code`)")
 def test_init_resets_a_failed_status(build):
     flt, cf = build("tse2", "second", "zero")
     template = codegen.state_leaves(flt.init(flt.system.group.identity(), np.eye(6)))
@@ -278,6 +274,39 @@ def test_init_is_flt_init_and_rejects_a_nan_or_asymmetric_gain(build):
     g_nan = group_params(g0)
     g_nan[4] = np.nan
     assert cf.init(g_nan, K0) == BAD_ARGUMENT
+    indefinite = K0 - 2.0 * np.linalg.eigvalsh(K0)[-1] * \
+        np.outer(np.eye(6)[0], np.eye(6)[0])
+    assert np.linalg.eigvalsh(indefinite)[0] < 0
+    assert cf.init(group_params(g0), indefinite) == BAD_ARGUMENT
+    assert cf.init(group_params(g0), np.zeros((6, 6))) == 0  # semidefinite is allowed, as in Python
+
+
+def test_step_rejects_bad_times_and_infinite_samples_leaving_the_state_untouched(build):
+    flt, cf = build("tse2", "second", "zero")
+    assert cf.init(group_params(tse2_state(0.3, 1.0, 2.0, 0.1, 0.2, -0.1)), np.eye(6)) == 0
+    good = cf.leaves()
+    u, y = np.array([0.1, 0.2]), np.zeros(7)
+    y_inf, u_inf = y.copy(), u.copy()
+    y_inf[3], u_inf[1] = np.inf, -np.inf
+    for what, args in {"dt = 0": (0.0, 0.0, u, y), "dt < 0": (0.0, -1e-3, u, y), "NaN t": (np.nan, 1e-3, u, y),
+                       "infinite y": (0.0, 1e-3, u, y_inf), "infinite u": (0.0, 1e-3, u_inf, y)}.items():
+        assert cf.step(*args) == BAD_ARGUMENT, what
+        for c, w in zip(cf.leaves(), good, strict=True):
+            np.testing.assert_array_equal(c, w, err_msg=what)
+    assert cf.step(0.0, 1e-3, u, y_inf, mask=[1, 1, 1, 0, 1, 1, 1]) == 0  # masked out: not looked at
+
+
+def test_a_new_export_in_the_same_place_is_the_one_loaded(tmp_path):
+    # the dynamic loader caches libraries by path: each build gets its own file
+    system = SYSTEMS["unit-circle"].make()
+    outs = []
+    for alpha in (0.0, 5.0):
+        flt = liemef.MinimumEnergyFilter(system, alpha=alpha)
+        cf = codegen.CFilter(codegen.export_c(flt, tmp_path, "circle"), flags=FLAGS)
+        assert cf.init(group_params(system.group.identity()), np.eye(flt.n)) == 0
+        assert cf.step(0.0, 0.1, np.zeros(system.input_dim), np.zeros(system.output_dim)) == 0
+        outs.append(cf.leaves()[[f.name for f in cf.exported.fields].index("K")])
+    assert np.abs(outs[0] - outs[1]).max() > 1e-3
 
 
 # --- a whole log ----------------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..filter._driver import AbstractFilter, FilterState
-from ..filter._status import CAUSES
+from ..filter._status import CAUSES, DEFINITE_TOL
 from ._jaxpr_c import HELPERS, Translator, ctype, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
@@ -125,7 +125,7 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
 
     ``P_step`` advances ``[t, t + dt]`` exactly as ``flt.step(state, t, u, y, dt)``: ``mask[i] = 0`` (or a
     NaN in ``y``) marks a missing component, a NaN in ``u`` holds the last input, ``mask`` may be NULL (all
-    present). It returns the status code (0 healthy, else the cause ``P_NONFINITE``, ...); a failed state is
+    present). It returns the status code (0 healthy, else the cause ``P_NON_FINITE``, ...); a failed state is
     frozen, as in Python. Files are written completely or not at all. ``backend``: the translator
     (:data:`BACKENDS`).
     """
@@ -179,7 +179,8 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
     code_text = "\n".join([*tr.function_texts, core, fc, tc])
     tables = [ln for ln in tr.table_lines if re.search(rf"\b{ln.split()[3].split('[')[0]}\b", code_text)]
     U = P.upper()
-    status_init = [(f, leaf) for f, leaf in zip(fields, leaves, strict=True) if f.name.startswith("status")]
+    status_init = [(f, leaf) for f, leaf, (path, _) in zip(fields, leaves, paths, strict=True)
+                   if getattr(path[0], "name", None) == "status"]
     causes = "\n".join(f"#define {U}_{re.sub(r'[^A-Z]', '_', cause.upper()).strip('_')} {i}  /* {cause} */"
                        for i, cause in enumerate(CAUSES))
     header = f"""/* {P}.h: a liemef filter exported as standalone C99 (liemef export-c). No heap, no library but libm.
@@ -204,7 +205,8 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
 #define {U}_OUTPUT_DIM {p}
 #define {U}_GROUP_PARAMS {g_size}
 #define {U}_COORDS_DIM {c}
-#define {U}_BAD_ARGUMENT (-1)  /* {P}_init: g0 or K0 not finite, or K0 not symmetric */
+#define {U}_BAD_ARGUMENT (-1)  /* init: g0 or K0 not finite, K0 not symmetric positive semidefinite;
+                                     step: t or dt not finite, dt <= 0, an infinite u or present y (state untouched) */
 {causes}
 
 typedef struct {{
@@ -214,7 +216,8 @@ typedef struct {{
 /* The initial state: g_hat = g0 ({U}_GROUP_PARAMS parameters), K = K0 (n x n, symmetric positive
  * semidefinite), u_last = 0, a healthy status. Returns 0, or {U}_BAD_ARGUMENT (the state is then untouched). */
 int {P}_init({P}_state *s, const double *g0, const double *K0);
-/* One sample interval [t, t + dt]: u (m), y (p), mask (p, or NULL). Returns the status code. */
+/* One sample interval [t, t + dt]: u (m), y (p), mask (p, or NULL). Returns the status code, or
+ * {U}_BAD_ARGUMENT (the state is then untouched). */
 int {P}_step({P}_state *s, double t, double dt, const double *u, const double *y, const int *mask);
 /* A whole log of n samples (ts: n, us: n x m, ys: n x p row-major, NaN = missing): the n - 1 intervals, the
  * estimate and gain after each written to g_out ((n-1) x {U}_GROUP_PARAMS) and K_out ((n-1) x n x n) when
@@ -264,6 +267,21 @@ int {P}_init({P}_state *s, const double *g0, const double *K0)
         for (int j = 0; j < i; j++)
             if (fabs(K0[i * {n} + j] - K0[j * {n} + i]) > 1e-12 * (1.0 + fabs(K0[i * {n} + j])))
                 return {U}_BAD_ARGUMENT;
+    {{  /* positive semidefinite: K0 + 1e-9 max|K0| I has a Cholesky factor (the filter's own test) */
+        double L[{n * n}], big = 0.0;
+        for (int i = 0; i < {n * n}; i++) big = fabs(K0[i]) > big ? fabs(K0[i]) : big;
+        for (int j = 0; j < {n}; j++) {{
+            double d = K0[j * {n} + j] + {DEFINITE_TOL!r} * (big > 1e-300 ? big : 1e-300);
+            for (int k = 0; k < j; k++) d -= L[j * {n} + k] * L[j * {n} + k];
+            if (!(d > 0.0)) return {U}_BAD_ARGUMENT;
+            L[j * {n} + j] = sqrt(d);
+            for (int i = j + 1; i < {n}; i++) {{
+                double v = K0[i * {n} + j];
+                for (int k = 0; k < j; k++) v -= L[i * {n} + k] * L[j * {n} + k];
+                L[i * {n} + j] = v / L[j * {n} + j];
+            }}
+        }}
+    }}
 {g_copy}
     for (int i = 0; i < {n * n}; i++) s->K[i] = K0[i];
     for (int i = 0; i < {max(m, 1)}; i++) s->u_last[i] = 0.0;
@@ -276,8 +294,15 @@ int {P}_step({P}_state *s, double t, double dt, const double *u, const double *y
     double yy[{max(p, 1)}];
     double uu[{max(m, 1)}];
     {P}_state next;
-    for (int i = 0; i < {p}; i++) yy[i] = (mask == NULL || mask[i]) ? y[i] : NAN;
-    for (int i = 0; i < {m}; i++) uu[i] = u[i];
+    if (!isfinite(t) || !isfinite(dt) || !(dt > 0.0)) return {U}_BAD_ARGUMENT;
+    for (int i = 0; i < {p}; i++) {{
+        yy[i] = (mask == NULL || mask[i]) ? y[i] : NAN;
+        if (isinf(yy[i])) return {U}_BAD_ARGUMENT;
+    }}
+    for (int i = 0; i < {m}; i++) {{
+        uu[i] = u[i];
+        if (isinf(uu[i])) return {U}_BAD_ARGUMENT;
+    }}
     u = uu;
     y = yy;
     {P}_core({', '.join(call_in + [f.ref("(&next)") for f in fields])});
@@ -329,7 +354,10 @@ def build_shared(exported: ExportedC, out: str | os.PathLike | None = None, flag
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
-    lib = Path(out) if out is not None else exported.source.with_suffix(".so")
+    # a fresh name each time: the dynamic loader caches libraries by path, so a new export in the same place
+    # must not be served the old one
+    lib = Path(out) if out is not None else Path(tempfile.mkstemp(dir=exported.source.parent,
+                                                                  prefix=f".{exported.prefix}.", suffix=".so")[1])
     cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(lib), str(exported.source), "-lm"]
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:

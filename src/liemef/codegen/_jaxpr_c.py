@@ -120,7 +120,7 @@ _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduc
            "reduce_and": "and", "reduce_or": "or", "argmax": "argmax", "argmin": "argmin"}
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
           "checkpoint", "remat", "custom_lin"}
-_CONTROL = {"while", "cond"}
+_CONTROL = {"while", "cond", "scan"}
 _LINALG = {"dot_general", "lu", "triangular_solve", "custom_linear_solve", "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort"}
 
@@ -462,6 +462,8 @@ class Translator:
             return self.while_loop(params, ins)
         if name == "cond":
             return self.cond(params, ins)
+        if name == "scan":
+            return self.scan(params, ins)
         if all(v.const is not None for v in ins):
             return self.fold(eqn, ins)
         if name == "gather" and ins[1].const is None:
@@ -946,6 +948,22 @@ class Translator:
         self.assign(carry, new)
         self.indent -= 1
         self.emit("}")
+        self.indent -= 1
+        self.emit("}")
+        return carry
+
+    def scan(self, params, ins: list[Val]) -> list[Val]:
+        """A ``scan`` with neither inputs nor outputs per iteration (``fori_loop``'s form): a counted C loop."""
+        nc, ncar, length = params["num_consts"], params["num_carry"], int(params["length"])
+        jaxpr = params["jaxpr"]
+        if len(ins) != nc + ncar or len(jaxpr.jaxpr.outvars) != ncar:
+            raise UnsupportedPrimitive("scan with per-iteration inputs or outputs (only fori_loop's form)")
+        carry = [self._materialize(v) for v in ins[nc:]]
+        it = self.fresh("it")
+        self.emit(f"for (int {it} = 0; {it} < {length}; {it}++) {{")
+        self.indent += 1
+        new = self.run(jaxpr.jaxpr, jaxpr.consts, ins[:nc] + carry)
+        self.assign(carry, new)
         self.indent -= 1
         self.emit("}")
         return carry

@@ -298,7 +298,9 @@ class ScalarTranslator:
             return self.while_loop(params, ins)
         if name == "cond":
             return self.cond(params, ins)
-        if all(self._known(x) for x in ins) and name not in ("while", "cond"):
+        if name == "scan":
+            return self.scan(params, ins)
+        if all(self._known(x) for x in ins):
             xs = [self._values(x, d) for x, d in zip(ins, idt, strict=True)]
             outs = _np_eval(name, params, xs, odt)
             if outs is None:
@@ -535,6 +537,38 @@ class ScalarTranslator:
             outs.append(res)
         return outs
 
+    def _carry(self, init):
+        """C variables for loop carries: their names and the leaves that read them."""
+        names, leaves = [], []
+        for x in init:
+            nm = np.empty(x.shape, dtype=object)
+            lf = np.empty(x.shape, dtype=object)
+            for idx in np.ndindex(*x.shape):
+                nm[idx] = self.fresh("c")
+                lf[idx] = self.leaf(nm[idx], self.dtype[x[idx]])
+            names.append(nm)
+            leaves.append(lf)
+        return names, leaves
+
+    def scan(self, params, ins):
+        """A ``scan`` with neither inputs nor outputs per iteration (``fori_loop``'s form): a counted C loop."""
+        nc, ncar, length = params["num_consts"], params["num_carry"], int(params["length"])
+        jaxpr = params["jaxpr"]
+        if len(ins) != nc + ncar or len(jaxpr.jaxpr.outvars) != ncar:
+            raise UnsupportedPrimitive("scan with per-iteration inputs or outputs (only fori_loop's form)")
+        consts, init = ins[:nc], ins[nc:]
+        names, leaves = self._carry(init)
+        outer = self.scope
+        body = Scope(outer)
+        self.scope = body
+        new = self.run(jaxpr.jaxpr, jaxpr.consts, consts + leaves)
+        self.scope = outer
+        flat = lambda arrs: [(nm, n) for a, b in arrs for nm, n in zip(a.ravel(), b.ravel(), strict=True)]  # noqa: E731
+        dts = {self.value[i]: self.dtype[i] for lv in leaves for i in lv.ravel()}
+        self.scope.stmts.append(("for", flat(zip(names, init, strict=True)), length, body,
+                                 flat(zip(names, new, strict=True)), dts))
+        return [np.array([self.leaf(nm, dts[nm]) for nm in a.ravel()], dtype=object).reshape(a.shape) for a in names]
+
     def cond(self, params, ins):
         index, ops = ins[0], ins[1:]
         branches = params["branches"]
@@ -578,6 +612,9 @@ class ScalarTranslator:
                 _, inits, cs, pred, bs, assigns, _ = st
                 roots += [n for _, n in inits] + [pred] + [n for _, n in assigns]
                 roots += self._stmt_roots(cs) + self._stmt_roots(bs)
+            elif st[0] == "for":
+                _, inits, _, bs, assigns, _ = st
+                roots += [n for _, n in inits] + [n for _, n in assigns] + self._stmt_roots(bs)
             elif st[0] == "cond":
                 roots.append(st[1])
                 for sc, asg in st[2]:
@@ -634,6 +671,18 @@ class ScalarTranslator:
                 for nm, t in tmps:
                     lines.append(f"{pad}        {nm} = {t};")
                 lines.append(f"{pad}    }}")
+                lines.append(f"{pad}}}")
+            elif kind == "for":
+                _, inits, length, bs, assigns, dts = st
+                for nm, n in inits:
+                    lines.append(f"{pad}{ctype(dts[nm])} {nm} = {self.expr(n)};")
+                it = self.fresh("it")
+                lines.append(f"{pad}for (int {it} = 0; {it} < {length}; {it}++) {{")
+                self._write(bs, live, lines, depth + 1)
+                for nm, n in assigns:
+                    lines.append(f"{pad}    const {ctype(dts[nm])} {nm}_next = {self.expr(n)};")
+                for nm, _ in assigns:
+                    lines.append(f"{pad}    {nm} = {nm}_next;")
                 lines.append(f"{pad}}}")
             elif kind == "cond":
                 _, i0, arms, dts = st
