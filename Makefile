@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out/tse2
 MINUTES ?= 60
 
-.PHONY: venv demo test test-slow bench bench-soak bench-campaign lint docs clean
+.PHONY: venv demo test test-slow bench bench-soak bench-campaign bench-scaling lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -42,6 +42,13 @@ bench-soak: $(STAMP)
 # Campaign throughput with 1 and 2 local Dask workers, overhead per task, and the 10^6-seed estimate (1-3 min).
 bench-campaign: $(STAMP)
 	$(PY) benchmarks/bench_campaign.py
+
+# Cost per step against the state dimension n (R^n, n = 3..24, and the papers' systems) for run, batched and
+# the exported C: JSON and scaling.png into OUT (default out/scaling), about 10 min, most of it compiling;
+# SCALING_ARGS=--quick for a smoke test (1-2 min). docs/performance.md explains the figures.
+bench-scaling: OUT = out/scaling
+bench-scaling: $(STAMP)
+	$(PY) benchmarks/bench_scaling.py --out $(OUT) $(SCALING_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks tools examples
