@@ -241,6 +241,49 @@ def _size(jaxpr) -> int:
     return sum(1 + sum(_size(s) for s in _subjaxprs(e.params)) for e in jaxpr.eqns)
 
 
+def take_layout(params, x_shape, idx_shape, shape):
+    """The layout of a gather with indices known at run time along one axis (``jnp.take``, ``x[idx]``, the
+    pivoting in ``linalg.solve``, also batched by ``vmap``/``jacfwd``), the one form both translators take:
+    the axis ``a``, and per output element (row-major) the operand index with axis a at 0 and the index
+    array's element (its multi-index, without the trailing 1) that sets axis a."""
+    dn = params["dimension_numbers"]
+    sizes = tuple(int(v) for v in params["slice_sizes"])
+    smap = tuple(int(v) for v in dn.start_index_map)
+    collapsed = tuple(int(v) for v in dn.collapsed_slice_dims)
+    offset_dims = tuple(int(v) for v in dn.offset_dims)
+    ok = (len(smap) == 1 and not dn.operand_batching_dims and sizes[smap[0]] == 1
+          and all(sz == n for d, (sz, n) in enumerate(zip(sizes, x_shape, strict=True)) if d != smap[0])
+          and tuple(idx_shape[-1:]) == (1,) and set(collapsed) <= {smap[0]})
+    if not ok:
+        raise UnsupportedPrimitive(f"gather with indices known only at run time (only along one axis, "
+                                   f"jnp.take's form; got {dn}, slice sizes {sizes})")
+    a = smap[0]
+    op_dims = [d for d in range(len(x_shape)) if d not in collapsed]  # operand dims in the output, in order
+    batch_pos = [k for k in range(len(shape)) if k not in offset_dims]
+    places = []
+    for oi in np.ndindex(*shape):
+        src = [0] * len(x_shape)
+        for k, d in zip(offset_dims, op_dims, strict=True):
+            src[d] = oi[k] if d != a else 0
+        places.append((tuple(src), tuple(oi[k] for k in batch_pos)))
+    return a, places
+
+
+def inlined(name: str, params: dict, ins: list):
+    """For a call (``jit``, ``custom_jvp_call``, ...) or a ``custom_linear_solve``: the jaxpr to emit in its
+    place, its constants and its arguments (the solve's own jaxpr on its constants and right-hand side)."""
+    if name == "custom_linear_solve":
+        lengths, jaxprs = params["const_lengths"], params["jaxprs"]
+        off = lengths.matvec + lengths.vecmat
+        b = ins[off + lengths.solve + lengths.transpose_solve:]
+        return jaxprs.solve.jaxpr, jaxprs.solve.consts, list(ins[off:off + lengths.solve]) + list(b)
+    if name in ("custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr", "closed_call", "core_call"):
+        jaxpr, consts = _subjaxpr(params, "call_jaxpr", "fun_jaxpr", "jaxpr")
+    else:
+        jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
+    return jaxpr, consts, list(ins[len(ins) - len(jaxpr.invars):])
+
+
 def _where(eqn) -> str:
     tb = eqn.source_info.traceback if eqn.source_info is not None else None
     if tb is None:
@@ -440,24 +483,12 @@ class Translator:
     def equation(self, eqn, ins: list[Val]) -> list[Val]:
         name, params = eqn.primitive.name, eqn.params
         avals = [(tuple(v.aval.shape), np.dtype(v.aval.dtype)) for v in eqn.outvars]
-        if name in _CALLS:
-            if name in ("custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr", "closed_call", "core_call"):
-                jaxpr, consts = _subjaxpr(params, "call_jaxpr", "fun_jaxpr", "jaxpr")
-            else:
-                jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
-            n_in = len(jaxpr.invars)
-            args = ins[len(ins) - n_in:]
-            if self.calls.get(id(jaxpr), 0) >= 2 and _size(jaxpr) >= self.function_min \
+        if name in _CALLS or name == "custom_linear_solve":
+            jaxpr, consts, args = inlined(name, params, ins)
+            if name in _CALLS and self.calls.get(id(jaxpr), 0) >= 2 and _size(jaxpr) >= self.function_min \
                     and not all(v.const is not None for v in args):
                 return self.call(jaxpr, consts, args)
             return self.run(jaxpr, consts, args)
-        if name == "custom_linear_solve":
-            lengths = params["const_lengths"]
-            jaxprs = params["jaxprs"]
-            off = lengths.matvec + lengths.vecmat
-            solve_consts = ins[off:off + lengths.solve]
-            b = ins[off + lengths.solve + lengths.transpose_solve:]
-            return self.run(jaxprs.solve.jaxpr, jaxprs.solve.consts, solve_consts + b)
         if name == "while":
             return self.while_loop(params, ins)
         if name == "cond":
@@ -697,33 +728,13 @@ class Translator:
         return runs
 
     def take(self, x: Val, idx: Val, params, shape, dtype) -> Val:
-        """A gather with indices known at run time along one axis ``a`` (``jnp.take``, ``x[idx]``, the pivoting
-        in ``linalg.solve``, also batched by ``vmap``/``jacfwd``): out = x with axis a at ``idx[batch]``,
-        clamped into range as XLA does. Tables give each output element's base offset and index element."""
-        dn = params["dimension_numbers"]
-        sizes = tuple(int(v) for v in params["slice_sizes"])
-        smap = tuple(int(v) for v in dn.start_index_map)
-        collapsed = tuple(int(v) for v in dn.collapsed_slice_dims)
-        offset_dims = tuple(int(v) for v in dn.offset_dims)
-        ok = (len(smap) == 1 and not dn.operand_batching_dims and sizes[smap[0]] == 1
-              and all(sz == n for d, (sz, n) in enumerate(zip(sizes, x.shape, strict=True)) if d != smap[0])
-              and idx.shape[-1:] == (1,) and set(collapsed) <= {smap[0]})
-        if not ok:
-            raise UnsupportedPrimitive(f"gather with indices known only at run time (only along one axis, "
-                                       f"jnp.take's form; got {dn}, slice sizes {sizes})")
-        a = smap[0]
+        """A gather with indices known at run time along one axis (:func:`take_layout`), clamped into range as
+        XLA does: tables give each output element's base offset and index element."""
+        a, places = take_layout(params, x.shape, idx.shape, shape)
         strides = np.cumprod((1,) + tuple(x.shape)[::-1])[::-1][1:]
-        op_dims = [d for d in range(len(x.shape)) if d not in collapsed]  # operand dims in the output, in order
-        batch_pos = [k for k in range(len(shape)) if k not in offset_dims]
-        base = np.zeros(int(np.prod(shape, dtype=np.int64)), np.int64)
-        bidx = np.zeros_like(base)
         bshape = idx.shape[:-1]
-        for o, oi in enumerate(np.ndindex(*shape)):
-            src = [0] * len(x.shape)
-            for k, d in zip(offset_dims, op_dims, strict=True):
-                src[d] = oi[k] if d != a else 0
-            base[o] = int(np.dot(src, strides)) if len(src) else 0
-            bidx[o] = int(np.ravel_multi_index([oi[k] for k in batch_pos], bshape)) if bshape else 0
+        base = np.array([int(np.dot(src, strides)) if src else 0 for src, _ in places], np.int64)
+        bidx = np.array([int(np.ravel_multi_index(b, bshape)) if bshape else 0 for _, b in places], np.int64)
         out = self.declare(shape, dtype)
         tb, ti = self.table(base.astype(np.int32)), self.table(bidx.astype(np.int32))
         o, r = self.fresh("i"), self.fresh("r")

@@ -42,11 +42,12 @@ from ._jaxpr_c import (
     UnsupportedPrimitive,
     Val,
     _np_eval,
-    _subjaxpr,
     _where,
     ctype,
     element_ids,
+    inlined,
     literal,
+    take_layout,
 )
 
 _SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
@@ -281,19 +282,9 @@ class ScalarTranslator:
         odt = [np.dtype(v.aval.dtype) for v in eqn.outvars]
         oshape = [tuple(v.aval.shape) for v in eqn.outvars]
         idt = [np.dtype(v.aval.dtype) for v in eqn.invars]
-        if name in _CALLS:
-            if name in ("custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr", "closed_call", "core_call"):
-                jaxpr, consts = _subjaxpr(params, "call_jaxpr", "fun_jaxpr", "jaxpr")
-            else:
-                jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
+        if name in _CALLS or name == "custom_linear_solve":
             # inlined: a call's constants fold into it, and the zeros of its results reach the caller
-            return self.run(jaxpr, consts, ins[len(ins) - len(jaxpr.invars):])
-        if name == "custom_linear_solve":
-            lengths, jaxprs = params["const_lengths"], params["jaxprs"]
-            off = lengths.matvec + lengths.vecmat
-            solve_consts = ins[off:off + lengths.solve]
-            b = ins[off + lengths.solve + lengths.transpose_solve:]
-            return self.run(jaxprs.solve.jaxpr, jaxprs.solve.consts, solve_consts + b)
+            return self.run(*inlined(name, params, ins))
         if name == "while":
             return self.while_loop(params, ins)
         if name == "cond":
@@ -390,28 +381,14 @@ class ScalarTranslator:
         return results
 
     def take(self, x, idx, params, shape, dtype):
-        """A gather along one axis with indices known at run time: a chain of selects on the (clamped) index."""
-        dn = params["dimension_numbers"]
-        sizes = tuple(int(v) for v in params["slice_sizes"])
-        smap = tuple(int(v) for v in dn.start_index_map)
-        collapsed = tuple(int(v) for v in dn.collapsed_slice_dims)
-        offset_dims = tuple(int(v) for v in dn.offset_dims)
-        ok = (len(smap) == 1 and not dn.operand_batching_dims and sizes[smap[0]] == 1
-              and all(sz == n for d, (sz, n) in enumerate(zip(sizes, x.shape, strict=True)) if d != smap[0])
-              and idx.shape[-1:] == (1,) and set(collapsed) <= {smap[0]})
-        if not ok:
-            raise UnsupportedPrimitive(f"gather with indices known only at run time (only along one axis, "
-                                       f"jnp.take's form; got {dn}, slice sizes {sizes})")
-        a = smap[0]
-        op_dims = [d for d in range(x.ndim) if d not in collapsed]
-        batch_pos = [k for k in range(len(shape)) if k not in offset_dims]
-        out = np.empty(shape, dtype=object)
+        """A gather along one axis with indices known at run time (:func:`take_layout`): a chain of selects on
+        the (clamped) index."""
+        a, places = take_layout(params, x.shape, idx.shape, shape)
+        out = np.empty(int(np.prod(shape, dtype=np.int64)), dtype=object)
         idt = self.dtype[idx.ravel()[0]]
-        for oi in np.ndindex(*shape):
-            src = [0] * x.ndim
-            for k, d in zip(offset_dims, op_dims, strict=True):
-                src[d] = oi[k] if d != a else 0
-            r = idx[tuple(oi[k] for k in batch_pos) + (0,)]
+        for o, (base, b) in enumerate(places):
+            src = list(base)
+            r = idx[b + (0,)]
             acc = None
             for j in range(x.shape[a] - 1, -1, -1):
                 src[a] = j
@@ -421,8 +398,8 @@ class ScalarTranslator:
                 else:  # clamped: below 0 reads row 0, above the last reads the last
                     test = self.node("le", (r, self.const(j, idt)), np.bool_)
                     acc = self.node("sel", (test, cand, acc), dtype)
-            out[oi] = acc
-        return out
+            out[o] = acc
+        return out.reshape(shape)
 
     # --- sums -----------------------------------------------------------------------------------------------
     def total(self, terms, dtype, op="sum"):
@@ -503,16 +480,7 @@ class ScalarTranslator:
     def while_loop(self, params, ins):
         nc, nb = params["cond_nconsts"], params["body_nconsts"]
         cconsts, bconsts, init = ins[:nc], ins[nc:nc + nb], ins[nc + nb:]
-        carry_names, carry_leaves = [], []
-        for x in init:
-            names = np.empty(x.shape, dtype=object)
-            leaves = np.empty(x.shape, dtype=object)
-            for idx in np.ndindex(*x.shape):
-                nm = self.fresh("c")
-                names[idx] = nm
-                leaves[idx] = self.leaf(nm, self.dtype[x[idx]])
-            carry_names.append(names)
-            carry_leaves.append(leaves)
+        carry_names, carry_leaves = self._carry(init)
         outer = self.scope
         cond_scope = Scope(outer)
         self.scope = cond_scope
