@@ -1,6 +1,7 @@
 """Parameters are leaves, structure is static (STYLE.md 16): new weights or noise levels reuse the compiled run and
 step, and logs of different lengths compile once per length bucket (``liemef.filter.TRACES`` counts traces);
-padding a log to its bucket and keeping every M-th state change nothing."""
+padding a log to its bucket and keeping every M-th state change nothing. These are the XLA engine's
+(``engine="xla"``); the C engine's kernel reuse is tests/test_engine.py's."""
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +27,7 @@ def test_twenty_noise_levels_compile_once():
                                process_noise=Noise.sample((np.radians(1.0 + 0.2 * i), 0.01, 0.01 + 0.002 * i),
                                                           rate=100.0))
         flt = liemef.MinimumEnergyFilter(sys_)
-        traj = flt.run(flt.init(g0, K0), ts, us, ys)
+        traj = flt.run(flt.init(g0, K0), ts, us, ys, engine="xla")
         assert traj.status.ok
         finals.append(np.asarray(traj.coords()[-1]))
     print("run traces for 20 noise settings:", TRACES["run"] - before)
@@ -60,7 +61,7 @@ def test_log_lengths_compile_once_per_bucket():
     buckets = {bucket(n - 1) for n in lengths}
     before = TRACES["run"]
     for n in lengths:
-        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), *_drift_log(n))
+        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), *_drift_log(n), engine="xla")
         assert traj.status.ok and traj.K.shape == (n, 2, 2)
     print("run traces for 6 lengths:", TRACES["run"] - before, "buckets:", sorted(buckets))
     assert len(buckets) == 3
@@ -81,7 +82,7 @@ def test_padding_has_no_effect():
     state = flt.init(Rn[2](jnp.array([1.0, -1.0])), np.eye(2))
     ts, us, ys = _drift_log(300)
     n = 50
-    short, long = flt.run(state, ts[:n], us[:n], ys[:n]), flt.run(state, ts, us, ys)
+    short, long = flt.run(state, ts[:n], us[:n], ys[:n], engine="xla"), flt.run(state, ts, us, ys, engine="xla")
     direct = jax.jit(flt.scan)(state, jnp.asarray(ts[:n]), jnp.asarray(us[:n]), jnp.asarray(ys[:n]))
     assert short.status.ok and long.status.ok
     for other in (long, direct):
@@ -98,7 +99,7 @@ def test_keep_every_is_a_subsample_of_the_full_run():
     state = flt.init(Rn[2](jnp.array([1.0, -1.0])), np.eye(2))
     ts, us, ys = _drift_log(300)
     every = 7
-    full, kept = flt.run(state, ts, us, ys), flt.run(state, ts, us, ys, keep_every=every)
+    full, kept = flt.run(state, ts, us, ys, engine="xla"), flt.run(state, ts, us, ys, keep_every=every, engine="xla")
     np.testing.assert_array_equal(np.asarray(kept.ts), ts[::every])
     np.testing.assert_array_equal(np.asarray(kept.g_hat.x), np.asarray(full.g_hat.x)[::every])
     np.testing.assert_array_equal(np.asarray(kept.K), np.asarray(full.K)[::every])
@@ -120,7 +121,7 @@ def test_step_compiles_once_for_two_weight_sets():
     for flt in (a, b):
         st = flt.init(Rn[2](jnp.array([1.0, 0.0])), np.eye(2))
         for k in range(5):
-            st = flt.step(st, 0.05 * k, np.array([0.3]), np.array([0.2 * k]), 0.05)
+            st = flt.step(st, 0.05 * k, np.array([0.3]), np.array([0.2 * k]), 0.05, engine="xla")
         assert st.status.ok, st.status.message()
         states.append(np.asarray(st.g_hat.x))
     print("step traces for two weight sets:", TRACES["step"] - before)

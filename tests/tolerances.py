@@ -38,3 +38,7 @@ hundred intervals: EXPORTED_C's round-off carried along a trajectory the filter 
 WELL_CONDITIONED = 1e-13
 """A random state counts as well conditioned for the exported-C comparison when a relative change of K by 1e-15
 moves the JAX step's result by at most this: round-off then cannot reach EXPORTED_C."""
+ENGINES = 1e-10
+"""The C engine's run against the XLA engine's over a log of about a hundred intervals, relative to max(1, |value|):
+the same operations, libm against XLA's sin/cos/sqrt and other summation orders, carried along a trajectory the
+filter contracts (measured <= 1e-13)."""

@@ -78,6 +78,8 @@ class ScalarTranslator:
         self.table_lines: list[str] = []
         self.function_texts: list[str] = []  # none: calls are inlined (the export reads it from either translator)
         self.counter = [0]
+        self.lanes = False  # writing lane code (emit_lanes): every non-shared value is a vector of trials
+        self.shared: set[int] = set()  # values with one value for every lane (parameters, times, and from them)
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -223,9 +225,8 @@ class ScalarTranslator:
         op = self.op[i]
         if op == "const":
             return literal(self.value[i], self.dtype[i])
-        if op == "leaf":
-            return self.value[i]
-        return f"n{i}"
+        name = self.value[i] if op == "leaf" else f"n{i}"
+        return f"{name}[l]" if self.lanes and i not in self.shared else name
 
     def rhs(self, i: int) -> str:
         op, a, dt = self.op[i], self.args[i], self.dtype[i]
@@ -300,6 +301,11 @@ class ScalarTranslator:
                     outs = eqn.primitive.bind(*xs, **params)
                 outs = outs if eqn.primitive.multiple_results else [outs]
             return [self.const_array(np.asarray(o), d) for o, d in zip(outs, odt, strict=True)]
+        if name == "gather" and not self._known(ins[1]):
+            try:
+                return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
+            except UnsupportedPrimitive:
+                return [self.gather_by_cases(eqn, ins, idt, oshape[0], odt[0])]
         if name in _STRUCTURAL:
             return self.structural(eqn, ins, idt, oshape)
         if name in _REDUCE:
@@ -323,8 +329,6 @@ class ScalarTranslator:
             xs = [np.broadcast_to(v, oshape[0]) for v in ins]
             f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(xs), 1)
             return [np.asarray(f(*xs), dtype=object).reshape(oshape[0])]
-        if name == "gather" and not self._known(ins[1]):
-            return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
         if name == "sort":
             raise UnsupportedPrimitive("sort of values known only at run time")
         raise UnsupportedPrimitive(f"primitive {name!r} has no C translation (supported: liemef.codegen.PRIMITIVES)")
@@ -379,6 +383,37 @@ class ScalarTranslator:
             else:
                 results.append(np.array([node_of(int(i), dt) for i in ids], dtype=object).reshape(shape))
         return results
+
+    def gather_by_cases(self, eqn, ins, idt, shape, dtype):
+        """Any gather whose run-time index picks along one operand axis (``start_index_map`` of length 1, e.g.
+        the pivoting of ``linalg.solve`` batched by ``jacfwd``): the gather is moved on element ids once per
+        possible index value, and each output element is a chain of selects on its (clamped) index."""
+        x, idx = ins[0], ins[1]
+        dn = eqn.params["dimension_numbers"]
+        smap = tuple(int(v) for v in dn.start_index_map)
+        if len(smap) != 1 or idx.shape[-1:] != (1,):
+            raise UnsupportedPrimitive(f"gather with indices known only at run time along more than one axis ({dn})")
+        a = smap[0]
+        positions = x.shape[a] - int(eqn.params["slice_sizes"][a]) + 1
+        batch_pos = [k for k in range(len(shape)) if k not in tuple(int(v) for v in dn.offset_dims)]
+        flat = x.ravel()
+        cases = []
+        for v in range(positions):
+            known = [Val(tuple(x.shape), idt[0]), Val(tuple(idx.shape), idt[1], const=np.full(idx.shape, v, idt[1]))]
+            _, bases, outs, _ = element_ids(eqn, known)
+            cases.append(outs[0].ravel())
+        out = np.empty(int(np.prod(shape, dtype=np.int64)), dtype=object)
+        for o, oi in enumerate(np.ndindex(*shape)):
+            r = idx[tuple(oi[k] for k in batch_pos) + (0,)]
+            acc = None
+            for v in range(positions - 1, -1, -1):
+                i = int(cases[v][o])
+                cand = self.const(0, dtype) if i == 0 else flat[i - bases[0]]
+                # clamped, as XLA's gather: below 0 reads position 0, above the last the last
+                acc = cand if acc is None else self.node("sel", (self.node("le", (r, self.const(v, idt[1])), np.bool_),
+                                                                 cand, acc), dtype)
+            out[o] = acc
+        return out.reshape(shape)
 
     def take(self, x, idx, params, shape, dtype):
         """A gather along one axis with indices known at run time (:func:`take_layout`): a chain of selects on
@@ -601,6 +636,138 @@ class ScalarTranslator:
             lines.append(f"    {lv} = {self.expr(n)};")
         return "\n".join(lines) + "\n"
 
+    def emit_lanes(self, outputs: list[tuple[str, int]]) -> str:
+        """As :meth:`emit_body`, for ``LANES`` trials at once (SIMD across trials): every value that differs
+        between trials is a GCC/Clang vector (``lane_f64``, ``lane_i32``; a boolean is a ``lane_i64`` mask of -1
+        and 0), and values from parameters and times alone stay scalars. Arithmetic, comparisons, selects, min
+        and max, conversions and ``isfinite``/``abs`` are vector expressions; other functions (sin, sqrt, ...)
+        are loops over the lanes. A ``while`` runs until no lane's test holds, and a lane whose test fails keeps
+        its carry (``vmap``'s semantics), so each lane computes the scalar code's values. Outputs are
+        ``(lvalue, node)``, written ``lvalue[l]`` per lane. ``cond`` and array blocks have no lane form
+        (UnsupportedPrimitive)."""
+        root_scope = self.scope
+        while root_scope.parent is not None:
+            root_scope = root_scope.parent
+        live = self._live([n for _, n in outputs] + self._stmt_roots(root_scope))
+        lines: list[str] = []
+        self.lanes = True
+        try:
+            self._write_lanes(root_scope, live, lines, 1)
+            for lv, n in outputs:
+                lines.append(f"    for (int l = 0; l < LANES; l++) {lv}[l] = {self.expr(n)};")
+        finally:
+            self.lanes = False
+        return "\n".join(lines) + "\n"
+
+    def _vec(self, i: int) -> str:
+        """Node ``i`` as a whole lane vector (a scalar broadcast)."""
+        if self.is_const(i) or i in self.shared:
+            e = self.expr(i)
+            dt = self.dtype[i]
+            return f"LANE_MASK({e})" if dt == np.bool_ else f"(({lane_type(dt)}){{0}} + ({e}))"
+        return self.value[i] if self.op[i] == "leaf" else f"n{i}"
+
+    def _vrhs(self, i: int) -> str | None:
+        """The vector expression of node ``i``, or None (then a loop over lanes)."""
+        op, a, dt = self.op[i], self.args[i], self.dtype[i]
+        e = [self._vec(x) for x in a]
+        kind = self.dtype[a[0]].kind if a else "f"
+        arith = {"add": "+", "sub": "-", "mul": "*", "div": "/"}
+        if op in arith and dt.kind in "fi" and not (dt.kind == "i" and op == "div"):
+            return f"({e[0]}) {arith[op]} ({e[1]})"
+        if op == "neg" and dt.kind in "fi":
+            return f"-({e[0]})"
+        if op == "ipow" and dt.kind == "f":
+            p = self.value[i]
+            prod = " * ".join([f"({e[0]})"] * abs(p)) if p else f"(({e[0]}) * 0.0 + 1.0)"
+            return f"1.0 / ({prod})" if p < 0 else prod
+        cmp = {"lt": "<", "le": "<=", "gt": ">", "ge": ">=", "eq": "==", "ne": "!="}
+        if op in cmp:
+            c = f"({e[0]}) {cmp[op]} ({e[1]})"
+            return c if kind in "fb" else f"__builtin_convertvector({c}, lane_i64)"
+        if dt == np.bool_ and op in ("and", "or", "xor", "not", "max", "min"):
+            sym = {"and": "&", "or": "|", "xor": "^", "max": "|", "min": "&"}
+            return f"~({e[0]})" if op == "not" else f"({e[0]}) {sym[op]} ({e[1]})"
+        if op == "sel":
+            return f"LANE_SEL_{LANE_SUFFIX[dt.str]}({e[0]}, {e[1]}, {e[2]})"
+        if op in ("max", "min") and dt.kind == "f":
+            return f"lane_{op}({e[0]}, {e[1]})"
+        if op in ("max", "min") and dt == np.int32:
+            test = f"__builtin_convertvector(({e[0]}) {'>' if op == 'max' else '<'} ({e[1]}), lane_i64)"
+            return f"LANE_SEL_I32({test}, {e[0]}, {e[1]})"
+        if op == "is_finite":
+            return f"(({e[0]}) - ({e[0]})) == (({e[0]}) - ({e[0]}))"
+        if op == "abs" and dt.kind == "f":
+            return f"(lane_f64)((lane_i64)({e[0]}) & 0x7fffffffffffffffLL)"
+        if op == "convert":
+            src = self.dtype[a[0]]
+            if src == dt:
+                return e[0]
+            if dt == np.bool_:
+                zero = "0.0" if src.kind == "f" else "0"
+                c = f"({e[0]}) != (({lane_type(src)}){{0}} + {zero})"
+                return c if src.itemsize == 8 else f"__builtin_convertvector({c}, lane_i64)"
+            x = f"-({e[0]})" if src == np.bool_ else e[0]
+            return f"__builtin_convertvector({x}, {lane_type(dt)})"
+        if op in ("stop_gradient", "copy", "copy_p", "reduce_precision", "optimization_barrier", "real"):
+            return e[0]
+        return None
+
+    def _write_lanes(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
+        pad = "    " * depth
+        loop = "for (int l = 0; l < LANES; l++)"
+        for st in scope.stmts:
+            kind = st[0]
+            if kind == "node":
+                i = st[1]
+                if i not in live:
+                    continue
+                dt, args = self.dtype[i], self.args[i]
+                if all(a in self.shared or self.is_const(a) for a in args):
+                    # the same in every lane (from parameters and times only): one scalar
+                    self.shared.add(i)
+                    lines.append(f"{pad}const {ctype(dt)} n{i} = {self.rhs(i)};")
+                    continue
+                v = self._vrhs(i)
+                if v is not None:
+                    lines.append(f"{pad}const {lane_type(dt)} n{i} = {v};")
+                elif dt == np.bool_:
+                    lines.append(f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;")
+                else:
+                    lines.append(f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};")
+            elif kind == "while":
+                _, inits, cs, pred, bs, assigns, dts = st
+                for nm, n in inits:
+                    lines.append(f"{pad}{lane_type(dts[nm])} {nm} = {self._vec(n)};")
+                lines.append(f"{pad}for (;;) {{")
+                self._write_lanes(cs, live, lines, depth + 1)
+                lines.append(f"{pad}    const lane_i64 go = {self._vec(pred)};")
+                lines.append(f"{pad}    int any = 0;")
+                lines.append(f"{pad}    {loop} any |= go[l] != 0;")
+                lines.append(f"{pad}    if (!any) break;")
+                lines.append(f"{pad}    {{")
+                self._write_lanes(bs, live, lines, depth + 2)
+                for nm, n in assigns:
+                    lines.append(f"{pad}        const {lane_type(dts[nm])} {nm}_next = {self._vec(n)};")
+                for nm, _ in assigns:
+                    lines.append(f"{pad}        {nm} = LANE_SEL_{LANE_SUFFIX[dts[nm].str]}(go, {nm}_next, {nm});")
+                lines.append(f"{pad}    }}")
+                lines.append(f"{pad}}}")
+            elif kind == "for":
+                _, inits, length, bs, assigns, dts = st
+                for nm, n in inits:
+                    lines.append(f"{pad}{lane_type(dts[nm])} {nm} = {self._vec(n)};")
+                it = self.fresh("it")
+                lines.append(f"{pad}for (int {it} = 0; {it} < {length}; {it}++) {{")
+                self._write_lanes(bs, live, lines, depth + 1)
+                for nm, n in assigns:
+                    lines.append(f"{pad}    const {lane_type(dts[nm])} {nm}_next = {self._vec(n)};")
+                for nm, _ in assigns:
+                    lines.append(f"{pad}    {nm} = {nm}_next;")
+                lines.append(f"{pad}}}")
+            else:
+                raise UnsupportedPrimitive(f"{kind!r} has no lane form (the batch runs one trial at a time)")
+
     def _write(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
         pad = "    " * depth
         for st in scope.stmts:
@@ -668,23 +835,75 @@ class ScalarTranslator:
 
 
 def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: list[str], *,
-                      translator: ScalarTranslator | None = None) -> tuple[str, ScalarTranslator]:
+                      translator: ScalarTranslator | None = None,
+                      zero_patterns: dict[str, np.ndarray] | None = None,
+                      lanes: tuple[str, ...] | None = None) -> tuple[str, ScalarTranslator]:
     """A C function ``void name(const T *arg..., T *out...)`` computing ``closed_jaxpr`` on flat row-major
-    arrays, as straight-line scalar code (functions in ``translator.function_texts``)."""
+    arrays, as straight-line scalar code (functions in ``translator.function_texts``).
+
+    ``zero_patterns``: for some arguments (by name), an array of their shape whose zeros are structural: those
+    elements are the constant 0 (folded away), the others are read at run time. The code then serves every
+    value of the argument with that zero pattern (the engine's parameters: a new weight set is data).
+
+    ``lanes``: the names of the arguments shared by every lane, to write the function for ``LANES`` trials at
+    once (:meth:`ScalarTranslator.emit_lanes`): the others, and the outputs, are arrays of lane vectors."""
     tr = translator or ScalarTranslator()
     jaxpr = closed_jaxpr.jaxpr
     tr.scope = Scope(None)
+    zero_patterns = zero_patterns or {}
     args = []
     for v, n in zip(jaxpr.invars, arg_names, strict=True):
         arr = np.empty(v.aval.shape, dtype=object)
+        pattern = zero_patterns.get(n)
         for j, idx in enumerate(np.ndindex(*v.aval.shape)):
-            arr[idx] = tr.leaf(f"{n}[{j}]", v.aval.dtype)
+            zero = pattern is not None and np.asarray(pattern)[idx] == 0
+            arr[idx] = tr.const(0, v.aval.dtype) if zero else tr.leaf(f"{n}[{j}]", v.aval.dtype)
+            if lanes is not None and n in lanes and not zero:
+                tr.shared.add(arr[idx])
         args.append(arr)
     outs = tr.run(jaxpr, closed_jaxpr.consts, args)
-    body = tr.emit_body([(f"{n}[{j}]", int(x)) for n, o in zip(out_names, outs, strict=True)
-                         for j, x in enumerate(o.ravel())])
-    sig_in = [f"const {ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.invars, arg_names, strict=True)]
-    sig_out = [f"{ctype(v.aval.dtype)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
+    out_pairs = [(f"{n}[{j}]", int(x)) for n, o in zip(out_names, outs, strict=True) for j, x in enumerate(o.ravel())]
+    body = tr.emit_body(out_pairs) if lanes is None else tr.emit_lanes(out_pairs)
+
+    def typ(dtype, n):
+        return ctype(dtype) if lanes is None or n in lanes else lane_type(dtype)
+
+    sig_in = [f"const {typ(v.aval.dtype, n)} *restrict {n}" for v, n in zip(jaxpr.invars, arg_names, strict=True)]
+    sig_out = [f"{typ(v.aval.dtype, n)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
     used = "".join(f"    (void){n};\n" for n in arg_names)
     text = f"static void {name}({', '.join(sig_in + sig_out)})\n{{\n{used}{body}}}\n"
     return text, tr
+
+
+LANE_TYPES = {np.dtype(np.float64): "lane_f64", np.dtype(np.int32): "lane_i32", np.dtype(np.int64): "lane_i64",
+              np.dtype(np.bool_): "lane_i64"}
+"""The lane vector type of each dtype; a boolean is a mask of -1 (true) and 0, as vector comparisons give."""
+LANE_SUFFIX = {np.dtype(np.float64).str: "F64", np.dtype(np.int32).str: "I32", np.dtype(np.int64).str: "I64",
+               np.dtype(np.bool_).str: "I64"}
+
+
+def lane_typedefs(lanes: int) -> str:
+    """The lane vector types (GCC/Clang vector extensions) for ``lanes`` trials, and their selects, broadcast
+    of a scalar boolean and NaN-propagating min and max (XLA's, as ``lm_max``)."""
+    return f"""#define LANES {lanes}
+typedef double lane_f64 __attribute__((vector_size({8 * lanes})));
+typedef int32_t lane_i32 __attribute__((vector_size({4 * lanes})));
+typedef int64_t lane_i64 __attribute__((vector_size({8 * lanes})));
+#define LANE_MASK(b) (((lane_i64){{0}}) - (int64_t)((b) != 0))
+#define LANE_SEL_I64(c, a, b) (((c) & (a)) | (~(c) & (b)))
+static inline lane_f64 LANE_SEL_F64(lane_i64 c, lane_f64 a, lane_f64 b)
+{{ return (lane_f64)((c & (lane_i64)a) | (~c & (lane_i64)b)); }}
+static inline lane_i32 LANE_SEL_I32(lane_i64 c, lane_i32 a, lane_i32 b)
+{{ const lane_i32 m = __builtin_convertvector(c, lane_i32); return (m & a) | (~m & b); }}
+static inline lane_f64 lane_max(lane_f64 a, lane_f64 b)
+{{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a > b, a, b)); }}
+static inline lane_f64 lane_min(lane_f64 a, lane_f64 b)
+{{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a < b, a, b)); }}"""
+
+
+def lane_type(dtype) -> str:
+    """The lane vector type of a dtype."""
+    dt = np.dtype(dtype)
+    if dt not in LANE_TYPES:
+        raise UnsupportedPrimitive(f"dtype {dt} has no lane type")
+    return LANE_TYPES[dt]

@@ -15,6 +15,7 @@ import abc
 import collections
 import functools
 import math
+import os
 import warnings
 
 import equinox as eqx
@@ -289,7 +290,7 @@ class AbstractFilter(eqx.Module):
         return Trajectory(ts=ts[::M], g_hat=g_all, K=K_all, status=final.status, final=final)
 
     def run(self, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
-            gap: float | None = None, keep_every: int = 1) -> Trajectory:
+            gap: float | None = None, keep_every: int = 1, engine: str | None = None) -> Trajectory:
         """Filter a whole log: ``ts`` (N,) strictly increasing, ``us`` (N, m), ``ys`` (N, p).
 
         Sample k is used over ``[ts[k], ts[k+1])``; the result holds the state at every ``ts[k]`` (every
@@ -298,6 +299,10 @@ class AbstractFilter(eqx.Module):
         through without holding density measurements, and a warning says so (``gap=math.inf``: no interval is
         a gap, as in :meth:`step`). Logs are padded to a length bucket (:func:`bucket`): one compilation serves
         every log of a bucket and every weight set.
+
+        ``engine``: ``"c"`` (the filter's interval as a compiled C kernel, :mod:`liemef.codegen._kernel`: one
+        build per structure and zero pattern of the weights, no padding), ``"xla"`` (the jitted :meth:`scan`)
+        or ``"auto"`` (the default, or ``$LIEMEF_ENGINE``): C where it is available (:func:`engine_of`).
         """
         self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
@@ -316,6 +321,91 @@ class AbstractFilter(eqx.Module):
             gap = 10.0 * float(np.median(dts))
         elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
             gap = float(_validate.nonnegative("gap", gap))
+        kern = self._kernel(engine)
+        if kern is not None:
+            traj = self._run_c(kern, state, ts, us, ys, float(gap), keep_every)
+        else:
+            traj = self._run_xla(state, ts, us, ys, gap, keep_every)
+        gaps = int(traj.status.gaps)
+        if gaps:
+            warnings.warn(f"run: {gaps} sample interval(s) longer than the gap threshold {gap:.4g} s (longest "
+                          f"{float(traj.status.longest_gap):.4g} s) were predicted through without holding "
+                          "density measurements", LogGapWarning, stacklevel=2)
+        return traj
+
+    def run_batch(self, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
+                  gap: float | None = None, keep_every: int = 1, engine: str | None = None,
+                  threads: int | None = None) -> Trajectory:
+        """Filter B logs on one time grid (Monte Carlo trials): ``states`` a FilterState with a leading trial
+        axis (B,) on every leaf (``jax.tree_util.tree_map(lambda *a: jnp.stack(a), *states)``), ``ts`` (N,),
+        ``us`` (B, N, m), ``ys`` (B, N, p). Returns a Trajectory with the trial axis first (``K`` (B, R, n, n),
+        ``status`` and ``final`` batched); each trial is its own :meth:`run` (to rounding).
+
+        By the C engine the trials are shared among ``threads`` threads (default: every CPU this process may
+        use), in groups of SIMD lanes where the kernel has them; by XLA, one ``vmap`` of :meth:`scan`."""
+        self._check_state(jax.tree_util.tree_map(lambda a: a[0], states))
+        leaves = jax.tree_util.tree_leaves(states)
+        B = int(np.shape(leaves[0])[0]) if np.ndim(leaves[0]) else 0
+        for path, leaf in jax.tree_util.tree_flatten_with_path(states)[0]:
+            if np.ndim(leaf) == 0 or np.shape(leaf)[0] != B or B < 1:
+                raise ValueError(f"states: expected a leading trial axis of one length B >= 1 on every leaf, got "
+                                 f"shape {np.shape(leaf)} at {jax.tree_util.keystr(path)} (B = {B})")
+        ts = _validate.sorted_times("ts", ts)
+        N = ts.shape[0]
+        if N < 2:
+            raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
+        m, p = self.system.input_dim, self.system.output_dim
+        us = np.zeros((B, N, 0)) if us is None and m == 0 else _validate.array("us", us, (B, N, m), missing=True)
+        ys = _validate.array("ys", ys, (B, N, p), missing=True)
+        if not (isinstance(keep_every, int) and keep_every >= 1):
+            raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
+        if gap is None:
+            gap = 10.0 * float(np.median(np.diff(ts)))
+        elif not (isinstance(gap, int | float | np.number) and gap == math.inf):
+            gap = float(_validate.nonnegative("gap", gap))
+        kern = self._kernel(engine)
+        if kern is not None:
+            x = np.stack([np.concatenate([np.ravel(np.asarray(a[b], np.float64)) for a in leaves])
+                          for b in range(B)])
+            rows, xf, _ = kern.batch(self._theta(kern), x, ts, _c_array(us), _c_array(ys), float(gap), keep_every,
+                                     threads=threads)
+            traj = self._trajectory(kern, ts, rows, xf, keep_every, lead=(B,))
+        else:
+            nb = -(-bucket(N - 1) // keep_every) * keep_every
+            pad = nb + 1 - N
+            tsp = np.concatenate([ts, np.full(pad, ts[-1])])
+            usp = np.concatenate([us, np.full((B, pad, m), np.nan)], axis=1)
+            ysp = np.concatenate([ys, np.full((B, pad, p), np.nan)], axis=1)
+            tr = _run_batch_jit(self, states, tsp, usp, ysp, np.asarray(N, np.int32), np.asarray(gap), keep_every)
+            kept = -(-N // keep_every)
+            traj = Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=jax.tree_util.tree_map(lambda a: a[:, :kept],
+                                                                                              tr.g_hat),
+                              K=tr.K[:, :kept], status=tr.status, final=tr.final)
+        gaps = int(np.sum(traj.status.gaps))
+        if gaps:
+            warnings.warn(f"run_batch: {gaps} sample interval(s) longer than the gap threshold {gap:.4g} s over the "
+                          "trials were predicted through without holding density measurements", LogGapWarning,
+                          stacklevel=2)
+        return traj
+
+    def _trajectory(self, kern, ts, rows, xf, keep_every, lead=()) -> Trajectory:
+        """The Trajectory of the kernel's kept rows (lead + (R, S)) and final packed states (lead + (S,)): NaN
+        after a failure, as :meth:`scan` emits."""
+        hist = jax.tree_util.tree_unflatten(kern.sdef, kern.unpack(rows, rows.shape[:-1]))
+        bad = np.asarray(hist.status.code) != OK
+        bad[..., 0] = False  # the first state is the one given, as in scan
+
+        def nan(a):
+            a = np.array(a)
+            a[bad] = np.nan
+            return jnp.asarray(a)
+
+        final = jax.tree_util.tree_unflatten(kern.sdef, [jnp.asarray(a) for a in kern.unpack(xf, lead)])
+        return Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=jax.tree_util.tree_map(nan, hist.g_hat),
+                          K=nan(hist.K), status=final.status, final=final)
+
+    def _run_xla(self, state, ts, us, ys, gap, keep_every) -> Trajectory:
+        N, m, p = ts.shape[0], us.shape[1], ys.shape[1]
         nb = bucket(N - 1)
         nb = -(-nb // keep_every) * keep_every
         pad = nb + 1 - N
@@ -324,21 +414,55 @@ class AbstractFilter(eqx.Module):
         ysp = np.concatenate([ys, np.full((pad, p), np.nan)])
         traj = _run_jit(self, state, tsp, usp, ysp, np.asarray(N, np.int32), np.asarray(gap), keep_every)
         kept = -(-N // keep_every) if keep_every > 1 else N
-        traj = Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=traj.g_hat[:kept], K=traj.K[:kept],
+        return Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=traj.g_hat[:kept], K=traj.K[:kept],
                           status=traj.status, final=traj.final)
-        gaps = int(traj.status.gaps)
-        if gaps:
-            warnings.warn(f"run: {gaps} sample interval(s) longer than the gap threshold {gap:.4g} s (longest "
-                          f"{float(traj.status.longest_gap):.4g} s) were predicted through without holding "
-                          "density measurements", LogGapWarning, stacklevel=2)
-        return traj
+
+    def _run_c(self, kern, state, ts, us, ys, gap, keep_every) -> Trajectory:
+        """``run`` by the C kernel: the same states as :meth:`scan` (to rounding), NaN after a failure."""
+        rows, xf = kern.scan(self._theta(kern), kern.packed(state), np.ascontiguousarray(ts, np.float64),
+                             _c_array(us), _c_array(ys), gap, keep_every)
+        return self._trajectory(kern, ts, rows, xf, keep_every)
+
+    # --- the C engine -------------------------------------------------------------------------------------
+    _c_engine = False
+    """Whether ``engine="auto"`` runs this filter class by the C kernel (the minimum-energy filter does; other
+    filters run by C only when asked, ``engine="c"``)."""
+
+    def _kernel(self, engine: str | None):
+        """The C kernel the engine choice gives (None: XLA), cached on the instance."""
+        engine = engine_of(engine)
+        if engine == "xla" or (engine == "auto" and not self._c_engine):
+            return None
+        cached = self.__dict__.get("_kernel_cache")
+        if cached is not None:
+            return cached[0]
+        from ..codegen import _kernel as kmod  # the codegen imports this module
+
+        try:
+            kern = kmod.kernel_for(self)
+        except Exception as err:  # noqa: BLE001 - auto falls back to XLA, saying why; "c" raises
+            if engine == "c":
+                raise
+            warnings.warn(f"the C engine is not available for {type(self).__name__} ({type(err).__name__}: "
+                          f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
+                          stacklevel=3)
+            kern = None
+        object.__setattr__(self, "_kernel_cache", (kern, kern.theta(self) if kern is not None else None))
+        return kern
+
+    def _theta(self, kern) -> np.ndarray:
+        return self.__dict__["_kernel_cache"][1]
 
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
-             u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf) -> FilterState:
+             u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf,
+             engine: str | None = None) -> FilterState:
         """Advance one sample interval ``[t, t + dt]`` (online use). NaN in ``y`` marks a missing component,
         NaN in ``u`` holds the last input; ``u_next``/``y_next`` are the samples at ``t + dt`` for
         ``interpolation="linear"`` (default: held). On a failure the returned state is the input state with a
-        failed ``status`` (see :class:`~liemef.filter.Status`), and later steps leave it unchanged."""
+        failed ``status`` (see :class:`~liemef.filter.Status`), and later steps leave it unchanged.
+
+        ``engine`` as in :meth:`run`: by the C kernel, the state's leaves are NumPy arrays (the next step reads
+        the packed vector they came from)."""
         self._check_state(state)
         m, p = self.system.input_dim, self.system.output_dim
         u = self._check_sample("u", u, m, missing=True)
@@ -348,6 +472,10 @@ class AbstractFilter(eqx.Module):
         dt = self._check_dt(dt)
         if not np.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
+        kern = self._kernel(engine)
+        if kern is not None:
+            return kern.state(kern.advance(self._theta(kern), kern.packed(state), float(t), dt, float(gap),
+                                           _c_array(u), _c_array(u1), _c_array(y), _c_array(y1)))
         fn, leaves = _fast_parts(self)
         z = np.concatenate([[float(t), dt, float(gap)], u, u1, y, y1])
         out = fn(leaves, jax.tree_util.tree_leaves(state), z)
@@ -398,6 +526,43 @@ def check_dt(dt) -> float:
     return value
 
 
+ENGINES = ("auto", "c", "xla")
+"""How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
+the interval, :mod:`liemef.codegen._kernel`), ``"xla"`` (jitted JAX) or ``"auto"`` (C for the minimum-energy
+filter where a C compiler is found, else XLA with an :class:`EngineWarning`)."""
+
+
+def engine_of(engine: str | None) -> str:
+    """The engine a call uses: ``engine``, else ``$LIEMEF_ENGINE``, else ``"auto"`` (ValueError naming the
+    argument if unknown); ``"auto"`` without a C compiler is ``"xla"``."""
+    if engine is None:
+        engine = os.environ.get("LIEMEF_ENGINE") or "auto"
+        where = "LIEMEF_ENGINE"
+    else:
+        where = "engine"
+    if engine not in ENGINES:
+        raise ValueError(f"{where}: expected one of {list(ENGINES)}, got {engine!r}")
+    if engine == "auto" and _no_compiler():
+        return "xla"
+    return engine
+
+
+@functools.cache
+def _no_compiler() -> bool:
+    from ..codegen._export import compiler
+    return compiler() is None
+
+
+def _c_array(a) -> np.ndarray:
+    """A float64 C-contiguous array for the kernel (a one-element one for an empty sample: never read)."""
+    a = np.ascontiguousarray(a, np.float64)
+    return a if a.size else np.zeros(1)
+
+
+class EngineWarning(UserWarning):
+    """The C engine was asked for by ``"auto"`` but could not be built; the filter runs with XLA."""
+
+
 class LogGapWarning(UserWarning):
     """A log had sample intervals longer than the gap threshold; the filter predicted through them."""
 
@@ -408,6 +573,13 @@ def _run_jit(flt, state, ts, us, ys, n_valid, gap, keep_every):
     TRACES["run"] += 1
     return flt.scan(state, ts, us, ys, gap=gap, n_valid=n_valid, keep_every=keep_every)
 
+
+
+@eqx.filter_jit
+def _run_batch_jit(flt, states, ts, us, ys, n_valid, gap, keep_every):
+    TRACES["run_batch"] += 1
+    return eqx.filter_vmap(lambda st, u, y: flt.scan(st, ts, u, y, gap=gap, n_valid=n_valid, keep_every=keep_every)
+                           )(states, us, ys)
 
 
 def _step_leaves(static, leaves, state_leaves, z):

@@ -107,6 +107,8 @@ class MinimumEnergyFilter(AbstractFilter):
 
 
 
+    _c_engine = True  # engine="auto" runs it by its C kernel (AbstractFilter.run)
+
     def __repr__(self) -> str:
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
                 f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)})")

@@ -1,0 +1,242 @@
+"""The C engine (issue 9): ``run``, ``step`` and ``run_batch`` by the compiled C kernel of the filter's interval
+(:mod:`liemef.codegen._kernel`) are the XLA engine's computation.
+
+On every ready system, with held and missing inputs, missing outputs, a gap and a failure, the C engine's
+trajectory, final state and status equal the XLA engine's to ``ENGINES`` relative (statuses and counters
+exactly). A new weight set with the same zero pattern reuses the kernel (``TRACES["kernel"]``); a new zero
+pattern builds one more. Unknown engines, a missing compiler and a kernel that cannot be built are clear.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import liemef
+from liemef import codegen
+from liemef.codegen import _kernel
+from liemef.experiments import SYSTEMS
+from liemef.filter import CAUSES, TRACES, EngineWarning, LogGapWarning
+from liemef.groups import Rn
+from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
+from tolerances import ENGINES
+
+pytestmark = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC, cc, gcc or clang)")
+
+
+def _log(flt, n=120, seed=0, dt=0.01):
+    """A log around a random true state: outputs of the truth plus noise, random bounded inputs, a few missing
+    outputs and inputs, and one long interval (a gap at the default threshold)."""
+    rng = np.random.default_rng(seed)
+    sysm = flt.system
+    G = sysm.group
+    q = 0.3 * rng.standard_normal(G.coords_dim)
+    g = G.from_coords(jnp.asarray(q))
+    ts = dt * np.arange(n, dtype=float)
+    ts[n // 2:] += 0.5  # one interval of 0.51 s: a gap
+    us = 0.2 * rng.standard_normal((n, sysm.input_dim))
+    y0 = np.asarray(sysm.output(g, 0.0))
+    ys = y0 + 0.05 * rng.standard_normal((n, sysm.output_dim))
+    ys[3::11, 0] = np.nan
+    ys[5::17] = np.nan
+    if sysm.input_dim:
+        us[7::13] = np.nan
+    g0 = G.from_coords(jnp.asarray(q + 0.1 * rng.standard_normal(G.coords_dim)))
+    return flt.init(g0, np.eye(flt.n)), ts, us, ys
+
+
+def _assert_same(a, b, tol=ENGINES):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb, strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.shape == y.shape and x.dtype == y.dtype
+        if x.dtype.kind in "iub":
+            np.testing.assert_array_equal(x, y)
+        else:
+            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
+            ok = ~np.isnan(x)
+            np.testing.assert_allclose(x[ok], y[ok], rtol=0, atol=tol * max(1.0, float(np.abs(y[ok]).max(initial=0))))
+
+
+def _runs(flt, *args, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        return flt.run(*args, engine="c", **kw), flt.run(*args, engine="xla", **kw)
+
+
+@pytest.mark.parametrize("system", sorted(SYSTEMS))
+def test_run_equals_xla_on_every_ready_system(system):
+    """Second order, (0)-connection, RKMK4 with adaptive sub-steps: the whole trajectory, the final state and its
+    status, with missing samples and a gap predicted through."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS[system].make())
+    c, x = _runs(flt, *_log(flt))
+    assert x.status.ok and int(x.status.gaps) == 1
+    _assert_same(c, x)
+
+
+@pytest.mark.parametrize("options", [dict(order="first", connection="plus"), dict(connection="minus"),
+                                     dict(integrator="lie-euler", interpolation="linear"), dict(substeps=3),
+                                     dict(alpha=0.5)], ids=str)
+def test_run_equals_xla_for_every_option(options):
+    """The options that change the kernel: order, a connection with torsion (K not symmetric), Lie-Euler with
+    linearly interpolated samples, fixed sub-steps, forgetting."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make(), **options)
+    c, x = _runs(flt, *_log(flt, seed=1))
+    assert x.status.ok
+    _assert_same(c, x)
+
+
+def test_keep_every_and_gap_threshold():
+    flt = liemef.MinimumEnergyFilter(planar_localization())
+    state, ts, us, ys = _log(flt, n=100, seed=2)
+    c, x = _runs(flt, state, ts, us, ys, keep_every=7, gap=np.inf)
+    assert c.K.shape == (15, 3, 3) and int(x.status.gaps) == 0
+    _assert_same(c, x)
+    with pytest.warns(LogGapWarning, match="1 sample interval"):
+        flt.run(state, ts, us, ys, engine="c")
+
+
+def test_a_failure_is_the_same_value():
+    """A sample of 1e200 makes the state non-finite: both engines stop at the same interval with the same
+    cause, the states after it are NaN and the final state is the last good one."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make())
+    state, ts, us, ys = _log(flt, n=60, seed=3)
+    ys[40] = 1e200
+    c, x = _runs(flt, state, ts, us, ys)
+    assert not c.status.ok and c.status.cause == "non-finite" and int(c.status.index) == 40
+    assert np.isnan(np.asarray(c.K)[41:]).all() and np.isfinite(np.asarray(c.K)[:41]).all()
+    _assert_same(c, x)
+    # a failed state stays failed: running on from it changes nothing
+    again = flt.run(c.final, ts[40:], us[40:], ys[40:], engine="c", gap=np.inf)
+    assert int(again.status.code) == CAUSES.index("non-finite")
+    _assert_same(again.final, c.final, tol=0.0)
+
+
+def test_step_equals_xla_and_chains():
+    """Twenty online steps by C (each reading the packed vector of the state before) and by XLA, with missing
+    components and held inputs; the C state's leaves are NumPy arrays."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["attitude-bias"].make())
+    state, ts, us, ys = _log(flt, n=21, seed=4)
+    sc = sx = state
+    for k in range(20):
+        sc = flt.step(sc, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="c")
+        sx = flt.step(sx, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="xla")
+    assert isinstance(sc.K, np.ndarray) and int(sc.status.steps) == 20
+    _assert_same(sc, sx)
+    # a C state fed to XLA and back: the same next state either way
+    _assert_same(flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="xla"),
+                 flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="c"))
+
+
+@pytest.mark.parametrize("system", ["tse2", "attitude-bias", "attitude"])
+def test_run_batch_equals_single_runs(system):
+    """Nine trials (two SIMD groups and a remainder) with their own logs and initial states, one of which fails,
+    on two threads: each equals its own run, and the XLA engine's vmap. The attitude's solve with its inertia
+    as data is an LU block, which has no lane form: its batch runs one trial at a time, saying why."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS[system].make())
+    logs = [_log(flt, n=50, seed=10 + b) for b in range(9)]
+    logs[5][3][30] = 1e200  # trial 5 fails at interval 30, in the middle of the second lane group
+    ts = logs[0][1]
+    states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[lg[0] for lg in logs])
+    us, ys = np.stack([lg[2] for lg in logs]), np.stack([lg[3] for lg in logs])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        batch = flt.run_batch(states, ts, us, ys, engine="c", threads=2)
+        xla = flt.run_batch(states, ts, us, ys, engine="xla")
+        for b, (state, _, u, y) in enumerate(logs):
+            one = flt.run(state, ts, u, y, engine="c")
+            mine = jax.tree_util.tree_map(lambda a, b=b: a[b], (batch.g_hat, batch.K, batch.status, batch.final))
+            _assert_same(mine, (one.g_hat, one.K, one.status, one.final))
+    assert [int(c) for c in batch.status.code] == [0] * 5 + [CAUSES.index("non-finite")] + [0] * 3
+    _assert_same(batch, xla)
+    kern = _kernel.kernel_for(flt)
+    if system == "attitude":
+        assert kern.lanes() is None and "no lane form" in kern.lanes_error
+    else:
+        assert kern.lanes() is not None
+
+
+def _drift(g, u, t):
+    return jnp.array([g.x[1], -0.1 * g.x[1] + u[0]])
+
+
+def _position(g, t):
+    return g.x[:1]
+
+
+def _drift_system(p_std, process_std):
+    return SensorSystem(Rn[2], _drift, (Sensor("p", _position, Noise.sample(p_std)),), Noise.density(process_std),
+                        inputs=("a",))
+
+
+def test_new_weights_reuse_the_kernel():
+    """Ten weight sets of one zero pattern: one kernel build (none if another test built it), and the weights do
+    change the estimates; a weight with a new zero pattern builds one more, once."""
+    ts = 0.05 * np.arange(40)
+    us, ys = np.sin(ts)[:, None], np.cos(ts)[:, None]
+    before = TRACES["kernel"]
+    finals = []
+    for i in range(10):
+        flt = liemef.MinimumEnergyFilter(_drift_system(0.1 + 0.05 * i, [0.1 + 0.01 * i, 0.2]))
+        traj = flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, us, ys, engine="c")
+        finals.append(np.asarray(traj.final.g_hat.x))
+    assert TRACES["kernel"] - before <= 1
+    assert np.abs(finals[0] - finals[-1]).max() > 1e-3
+    mid = TRACES["kernel"]
+    for _ in range(2):
+        flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]), alpha=0.2)  # alpha 0 -> 0.2: a new pattern
+        flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, us, ys, engine="c")
+    assert TRACES["kernel"] - mid <= 1
+
+
+def test_engine_argument_is_checked(monkeypatch):
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    state = flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    with pytest.raises(ValueError, match=r"engine: expected one of \['auto', 'c', 'xla'\], got 'gpu'"):
+        flt.run(state, [0.0, 0.1], [[0.0], [0.0]], [[1.0], [1.0]], engine="gpu")
+    monkeypatch.setenv("LIEMEF_ENGINE", "fast")
+    with pytest.raises(ValueError, match="LIEMEF_ENGINE: expected one of"):
+        flt.step(state, 0.0, [0.0], [1.0], 0.1)
+
+
+def test_auto_falls_back_to_xla_saying_why(monkeypatch):
+    """A kernel that cannot be built: "auto" warns and runs with XLA (the same result), "c" raises."""
+    def broken(flt):
+        raise codegen.UnsupportedPrimitive("primitive 'fft' has no C here")
+
+    monkeypatch.setattr(_kernel, "kernel_for", broken)
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    state = flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    args = (state, [0.0, 0.1, 0.2], [[0.0], [0.1], [0.2]], [[1.0], [1.0], [0.9]])
+    with pytest.raises(codegen.UnsupportedPrimitive, match="fft"):
+        flt.run(*args, engine="c")
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    with pytest.warns(EngineWarning, match="UnsupportedPrimitive: primitive 'fft'.*running with XLA"):
+        auto = flt.run(*args, engine="auto")
+    _assert_same(auto, flt.run(*args, engine="xla"), tol=0.0)
+
+
+def test_without_a_compiler_auto_is_xla(monkeypatch):
+    from liemef.filter import _driver
+
+    monkeypatch.setattr(_driver, "_no_compiler", lambda: True)
+    assert liemef.filter.engine_of("auto") == "xla" and liemef.filter.engine_of("c") == "c"
+
+
+def test_kernel_disk_cache(tmp_path, monkeypatch):
+    """A second process finds the built kernel on disk (here: the in-process cache emptied): no new build."""
+    monkeypatch.setenv("LIEMEF_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_kernel, "_KERNELS", {})
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    k1 = _kernel.kernel_for(flt)
+    files = sorted(tmp_path.glob("kernel_*.so"))
+    assert len(files) == 1 and k1.path == files[0]
+    stamp = files[0].stat().st_mtime_ns
+    monkeypatch.setattr(_kernel, "_KERNELS", {})
+    k2 = _kernel.kernel_for(liemef.MinimumEnergyFilter(_drift_system(0.7, [0.3, 0.2])))
+    assert k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
