@@ -213,6 +213,14 @@ int kernel_advance(const double *restrict theta, const double *restrict x, doubl
     return (int)xo[CODE];
 }}
 
+/* one online step: the samples packed in z = (u0, u1, y0, y1); -2 (xo untouched) if one is infinite */
+int kernel_step(const double *theta, const double *x, double *xo, double t, double dt, double gap, const double *z)
+{{
+    for (int i = 0; i < {2 * (m + p)}; i++)
+        if (isinf(z[i])) return -2;
+    return kernel_advance(theta, x, xo, t, dt, gap, z, z + {m}, z + {2 * m}, z + {2 * m + p});
+}}
+
 /* a log of n samples (ts: n, us: n x {m}, ys: n x {p}): intervals k = 0 .. n-2; rows (when not NULL) receives
  * the state at ts[0], ts[keep], ts[2 keep], ... (1 + (n-1)/keep rows of S); x the final state. A failed state
  * is final: the loop stops at the first failure and the rows after it repeat the failed state. */
@@ -423,12 +431,27 @@ class Kernel:
         self.n_theta = sum(s.size for s in pslots)
         self.n_state = sum(s.size for s in sslots)
         self.m, self.p = input_dim, output_dim
-        self._advance = self.lib.kernel_advance
-        self._advance.argtypes = [_dp, _dp, _dp, ctypes.c_double, ctypes.c_double, ctypes.c_double, _dp, _dp, _dp, _dp]
-        self._advance.restype = ctypes.c_int
         self._scan = self.lib.kernel_scan
         self._scan.argtypes = [_dp, _dp, ctypes.c_int, _dp, _dp, _dp, ctypes.c_double, ctypes.c_int, _dp]
         self._scan.restype = ctypes.c_int
+        vp = ctypes.c_void_p
+        self._step = self.lib.kernel_step
+        self._step.argtypes = [vp, vp, vp, ctypes.c_double, ctypes.c_double, ctypes.c_double, vp]
+        self._step.restype = ctypes.c_int
+        # unpacking one state fast (the online step): the integer leaves' positions, read at once; per leaf
+        # whether it is float, and a scalar's position or an array's slice and shape
+        ints = [sl for sl in sslots if sl.dtype != np.float64]
+        self._int_pos = np.array([sl.offset + i for sl in ints for i in range(sl.size)], np.intp)
+        self._int_dtype = ints[0].dtype if ints else np.dtype(np.int32)
+        if any(sl.dtype != self._int_dtype for sl in ints):
+            kinds = sorted({str(sl.dtype) for sl in ints})
+            raise UnsupportedPrimitive(f"state leaves of several integer dtypes: {kinds}")
+        self._plan, k = [], 0
+        for sl in sslots:
+            is_float = sl.dtype == np.float64
+            start = sl.offset if is_float else k
+            k += 0 if is_float else sl.size
+            self._plan.append((is_float, start if sl.shape == () else None, slice(start, start + sl.size), sl.shape))
         self._batch = self.lib.kernel_batch
         self._batch.argtypes = [_dp, ctypes.c_int, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp,
                                 ctypes.c_double, ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
@@ -454,21 +477,34 @@ class Kernel:
 
     def state(self, x: np.ndarray) -> FilterState:
         """The FilterState of one packed vector (kept on it, so that the next step need not pack it again)."""
-        st = jax.tree_util.tree_unflatten(self.sdef, self.unpack(x))
-        object.__setattr__(st, "_packed", x)
+        xi = x[self._int_pos].astype(self._int_dtype)
+        # scalars as NumPy scalars (an element read), arrays as views: a microsecond or two for the whole state
+        leaves = [(x if is_float else xi)[pos] if pos is not None else (x if is_float else xi)[sl].reshape(shape)
+                  for is_float, pos, sl, shape in self._plan]
+        st = jax.tree_util.tree_unflatten(self.sdef, leaves)
+        object.__setattr__(st, "_packed", (x, x.ctypes.data))
         return st
 
     def packed(self, state: FilterState) -> np.ndarray:
         """The packed vector of a state: the one it came from, if it is a kernel's state, else packed now."""
-        x = state.__dict__.get("_packed")
-        return x if x is not None and x.shape == (self.n_state,) else self.pack(state)
+        got = state.__dict__.get("_packed")
+        return got[0] if got is not None and got[0].shape == (self.n_state,) else self.pack(state)
+
+    def step(self, theta_address: int, state: FilterState, t: float, dt: float, gap: float, u0, u1, y0, y1
+             ) -> FilterState:
+        """One online step from ``state`` (checked samples; ``theta_address``: where the parameter vector is):
+        the C ``kernel_step``, and the new state."""
+        got = state.__dict__.get("_packed")
+        if got is None or got[0].shape != (self.n_state,):
+            x = self.pack(state)
+            got = (x, x.ctypes.data)
+        z = np.concatenate((u0, u1, y0, y1))
+        xo = np.empty(self.n_state)
+        if self._step(theta_address, got[1], xo.ctypes.data, t, dt, gap, z.ctypes.data if z.size else None) == -2:
+            raise ValueError("an infinite sample")  # the caller names it (AbstractFilter.step)
+        return self.state(xo)
 
     # --- calls ------------------------------------------------------------------------------------------------
-    def advance(self, theta, x, t, dt, gap, u0, u1, y0, y1) -> np.ndarray:
-        xo = np.empty(self.n_state)
-        self._advance(_ptr(theta), _ptr(x), _ptr(xo), t, dt, gap, _ptr(u0), _ptr(u1), _ptr(y0), _ptr(y1))
-        return xo
-
     def scan(self, theta, x, ts, us, ys, gap: float, keep: int) -> tuple[np.ndarray, np.ndarray]:
         """A whole log from packed state ``x``: (rows of kept packed states, final packed state)."""
         N = ts.shape[0]

@@ -103,6 +103,19 @@ def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
     return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
 
 
+class _hot_path:
+    """A method read off a filter as a plain ``functools.partial``: equinox builds a bound-method Module at each
+    read of an ordinary method (tens of microseconds), too slow for :meth:`AbstractFilter.step` in a robot's
+    loop."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, cls=None):
+        return self.fn if obj is None else functools.partial(self.fn, obj)
+
+
 class AbstractFilter(eqx.Module):
     """A filter on a liemef system: :meth:`init`, :meth:`step`, :meth:`run` and :meth:`scan` over the
     sample intervals of a log, with the status of the run (:class:`~liemef.filter.Status`).
@@ -447,12 +460,14 @@ class AbstractFilter(eqx.Module):
                           f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
                           stacklevel=3)
             kern = None
-        object.__setattr__(self, "_kernel_cache", (kern, kern.theta(self) if kern is not None else None))
+        theta = kern.theta(self) if kern is not None else None
+        object.__setattr__(self, "_kernel_cache", (kern, theta, theta.ctypes.data if kern is not None else None))
         return kern
 
     def _theta(self, kern) -> np.ndarray:
         return self.__dict__["_kernel_cache"][1]
 
+    @_hot_path
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
              u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf,
              engine: str | None = None) -> FilterState:
@@ -463,19 +478,33 @@ class AbstractFilter(eqx.Module):
 
         ``engine`` as in :meth:`run`: by the C kernel, the state's leaves are NumPy arrays (the next step reads
         the packed vector they came from)."""
-        self._check_state(state)
-        m, p = self.system.input_dim, self.system.output_dim
-        u = self._check_sample("u", u, m, missing=True)
-        y = self._check_sample("y", y, p, missing=True)
-        u1 = u if u_next is None else self._check_sample("u_next", u_next, m, missing=True)
-        y1 = y if y_next is None else self._check_sample("y_next", y_next, p, missing=True)
-        dt = self._check_dt(dt)
-        if not np.isfinite(t):
+        # the hot path of a robot loop: methods are reached through the class, since reading a method off an
+        # equinox Module builds a bound-method Module each time (microseconds)
+        cls = type(self)
+        dims = self.__dict__.get("_dims")
+        if dims is None:
+            dims = (self.system.group, self.n, self.system.input_dim, self.system.output_dim)
+            object.__setattr__(self, "_dims", dims)
+        G, n, m, p = dims
+        if not (type(state) is FilterState and type(state.g_hat) is G and getattr(state.K, "shape", None) == (n, n)):
+            cls._check_state(self, state)
+        samples = {"u": (u, m), "y": (y, p), "u_next": (u if u_next is None else u_next, m),
+                   "y_next": (y if y_next is None else y_next, p)}
+        dt = check_dt(dt)
+        if not math.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
-        kern = self._kernel(engine)
+        kern = cls._kernel(self, engine)
         if kern is not None:
-            return kern.state(kern.advance(self._theta(kern), kern.packed(state), float(t), dt, float(gap),
-                                           _c_array(u), _c_array(u1), _c_array(y), _c_array(y1)))
+            # shapes here, infinities in C (the full check runs only to say which sample was infinite)
+            u, y, u1, y1 = (_sample_array(nm, *samples[nm]) for nm in ("u", "y", "u_next", "y_next"))
+            try:
+                return kern.step(self.__dict__["_kernel_cache"][2], state, float(t), dt, float(gap), u, u1, y, y1)
+            except ValueError:
+                for nm, (v, k) in samples.items():
+                    _validate.array(nm, v, (k,), missing=True)
+                raise
+        u, y, u1, y1 = (_validate.array(nm, *samples[nm][:1], (samples[nm][1],), missing=True)
+                        for nm in ("u", "y", "u_next", "y_next"))
         fn, leaves = _fast_parts(self)
         z = np.concatenate([[float(t), dt, float(gap)], u, u1, y, y1])
         out = fn(leaves, jax.tree_util.tree_leaves(state), z)
@@ -486,7 +515,8 @@ class AbstractFilter(eqx.Module):
         # cheap structural checks only: step() is the online hot path
         if not isinstance(state, FilterState):
             raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
-        G, n = self.system.group, self.n
+        G = self.system.group
+        n = G.tangent_dim
         if type(state.g_hat) is not G or getattr(state.K, "shape", None) != (n, n):
             raise ValueError(f"state: expected g_hat in {G.__name__} and K of shape ({n}, {n}), got "
                              f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
@@ -551,6 +581,17 @@ def engine_of(engine: str | None) -> str:
 def _no_compiler() -> bool:
     from ..codegen._export import compiler
     return compiler() is None
+
+
+def _sample_array(name: str, v, n: int) -> np.ndarray:
+    """A sample as a float64 array of shape (n,) (ValueError naming it otherwise); infinities are not checked."""
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name}: expected a numeric array, got {type(v).__name__} ({err})") from err
+    if a.shape != (n,):
+        raise ValueError(f"{name}: expected shape ({n},), got {a.shape}")
+    return a
 
 
 def _c_array(a) -> np.ndarray:
