@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -242,3 +243,37 @@ def test_kernel_disk_cache(tmp_path, monkeypatch):
     monkeypatch.setattr(_kernel, "_KERNELS", {})
     k2 = _kernel.kernel_for(liemef.MinimumEnergyFilter(_drift_system(0.7, [0.3, 0.2])))
     assert k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
+
+
+@pytest.mark.parametrize("keep_every", [1, 4])
+def test_scan_by_c_under_jit_and_vmap(keep_every):
+    """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states, logs and weights (the Monte Carlo
+    engine's form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
+    logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
+    ts = jnp.asarray(logs[0][1])
+    states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[lg[0] for lg in logs])
+    us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
+
+    def batch(engine, n_valid):
+        fn = jax.jit(jax.vmap(lambda st, u, y: flt.scan(st, ts, u, y, keep_every=keep_every, n_valid=n_valid,
+                                                       engine=engine)))
+        return fn(states, us, ys)
+
+    for n_valid in (None, 30):
+        c, x = batch("c", n_valid), batch("xla", n_valid)
+        assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
+        _assert_same(c, x)
+    # weights as traced data: vmap over two filters' parameters through the same kernel
+    other = liemef.MinimumEnergyFilter(planar_localization(gps_std=2.0))
+    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), eqx.filter(flt, eqx.is_array),
+                                  eqx.filter(other, eqx.is_array))
+    static = eqx.filter(flt, eqx.is_array, inverse=True)
+
+    def run_with(params, engine):
+        f = eqx.combine(params, static)
+        return f.scan(jax.tree_util.tree_map(lambda a: a[0], states), ts, us[0], ys[0], engine=engine).K
+
+    per = [jax.jit(jax.vmap(lambda p_, e=e: run_with(p_, e)))(both) for e in ("c", "xla")]
+    _assert_same(per[0], per[1])
+    assert np.abs(np.asarray(per[0][0] - per[0][1])).max() > 1e-6

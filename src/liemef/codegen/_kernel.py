@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _side
 from ..filter._driver import TRACES, AbstractFilter, FilterState
 from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
@@ -73,6 +74,19 @@ def _slots(leaves) -> tuple[tuple[Slot, ...], int]:
     return tuple(out), off
 
 
+def _title(flt) -> str:
+    try:
+        return repr(flt)
+    except jax.errors.ConcretizationTypeError:  # a traced alpha: the structure only
+        return type(flt).__name__
+
+
+def _known(x) -> np.ndarray:
+    """A parameter's value, or for one traced (a weight vmapped over, inside jit) ones of its shape: no zero is
+    then structural, and the kernel serves any value."""
+    return np.ones(np.shape(x)) if isinstance(x, jax.core.Tracer) else np.asarray(x)
+
+
 def cache_dir() -> Path:
     """Where built kernels are kept: ``$LIEMEF_CACHE_DIR``, else ``$XDG_CACHE_HOME/liemef/kernels``, else
     ``~/.cache/liemef/kernels``."""
@@ -91,7 +105,7 @@ def _trace(flt: AbstractFilter) -> _Traced:
     """The jaxpr of one sample interval of ``flt`` with its parameters and state as inputs."""
     dyn, static = eqx.partition(flt, eqx.is_array)
     pleaves, pdef = jax.tree_util.tree_flatten(dyn)
-    pleaves = [np.asarray(x) for x in pleaves]
+    pleaves = [_known(x) for x in pleaves]
     sysm = flt.system
     n, m, p = flt.n, sysm.input_dim, sysm.output_dim
     state = flt.init(sysm.group.identity(), np.eye(n))
@@ -111,7 +125,7 @@ def _trace(flt: AbstractFilter) -> _Traced:
                                       jnp.zeros(p))
     closed, used = _dce(closed)
     return _Traced(closed, used, pleaves, sleaves, pslots, sslots, pdef, sdef, state, n_theta, n_state, m, p,
-                   f"{flt!r} on {type(sysm).__name__}")
+                   f"{_title(flt)} on {type(sysm).__name__}")
 
 
 @dataclass
@@ -476,25 +490,25 @@ class Kernel:
         return out
 
     def state(self, x: np.ndarray) -> FilterState:
-        """The FilterState of one packed vector (kept on it, so that the next step need not pack it again)."""
+        """The FilterState of one packed vector (kept beside it, so that the next step need not pack it again)."""
         xi = x[self._int_pos].astype(self._int_dtype)
         # scalars as NumPy scalars (an element read), arrays as views: a microsecond or two for the whole state
         leaves = [(x if is_float else xi)[pos] if pos is not None else (x if is_float else xi)[sl].reshape(shape)
                   for is_float, pos, sl, shape in self._plan]
         st = jax.tree_util.tree_unflatten(self.sdef, leaves)
-        object.__setattr__(st, "_packed", (x, x.ctypes.data))
+        _side.put(st, "packed", (x, x.ctypes.data))
         return st
 
     def packed(self, state: FilterState) -> np.ndarray:
         """The packed vector of a state: the one it came from, if it is a kernel's state, else packed now."""
-        got = state.__dict__.get("_packed")
+        got = _side.get(state, "packed")
         return got[0] if got is not None and got[0].shape == (self.n_state,) else self.pack(state)
 
     def step(self, theta_address: int, state: FilterState, t: float, dt: float, gap: float, u0, u1, y0, y1
              ) -> FilterState:
         """One online step from ``state`` (checked samples; ``theta_address``: where the parameter vector is):
         the C ``kernel_step``, and the new state."""
-        got = state.__dict__.get("_packed")
+        got = _side.get(state, "packed")
         if got is None or got[0].shape != (self.n_state,):
             x = self.pack(state)
             got = (x, x.ctypes.data)
@@ -581,7 +595,7 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
     translator has no C for, RuntimeError if there is no C compiler or the build fails."""
     dyn, static = eqx.partition(flt, eqx.is_array)
     pleaves, pdef = jax.tree_util.tree_flatten(dyn)
-    pattern = tuple(np.asarray(x) != 0 for x in pleaves)
+    pattern = tuple(_known(x) != 0 for x in pleaves)
     key = (pdef, static, tuple(x.tobytes() + bytes(str(x.shape), "ascii") for x in pattern))
     try:
         hash(key)
@@ -591,7 +605,8 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         if key is not None and key in _KERNELS:
             return _KERNELS[key]
         TRACES["kernel"] += 1
-        tr = _trace(flt)
+        with jax.ensure_compile_time_eval():  # also when asked from inside a trace (scan under jit)
+            tr = _trace(flt)
         kern = Kernel(_build(tr), tr)
         if key is not None:
             _KERNELS[key] = kern

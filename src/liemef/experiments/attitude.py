@@ -206,7 +206,7 @@ def trial(s: Setup, key) -> tuple[Truth, SensorLog, tuple[Trajectory, Trajectory
     c = s.config
     truth, log = simulate_core(s.system, s.g0, paper_torque, jnp.asarray(s.ts), key, 0.0, s.system.torque_noise,
                                1, c.truth_integrator)
-    return truth, log, tuple(f.scan(s.state0, log.ts, log.us, log.ys) for f in s.filters)
+    return truth, log, tuple(f.scan(s.state0, log.ts, log.us, log.ys, engine=None) for f in s.filters)
 
 
 def attitude_errors(truth: TSO3, estimate: TSO3) -> jax.Array:

@@ -262,7 +262,7 @@ def trial(s: Setup, draws: Draws) -> tuple[Truth, SensorLog, Trajectory]:
     """Sensor log and filter run for one set of draws: traceable, ``vmap``-able over draws (or keys)."""
     log, g0_hat = sensor_log(s.config, s.truth, draws)
     state = eqx.tree_at(lambda st: st.g_hat, s.state0, g0_hat)
-    traj = s.filter.scan(state, log.ts, log.us, log.ys)
+    traj = s.filter.scan(state, log.ts, log.us, log.ys, engine=None)
     u = jnp.broadcast_to(jnp.asarray(true_input(s.config)), log.us.shape)
     return Truth(ts=log.ts, g=s.truth, u=u), log, traj
 

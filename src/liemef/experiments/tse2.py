@@ -153,7 +153,7 @@ def trial(s: Setup, key) -> tuple[Truth, SensorLog, Trajectory]:
     c = s.config
     truth, log = simulate_core(s.system, s.g0, paper_input, jnp.asarray(s.ts), key, c.model_error_std, None,
                                c.substeps, c.integrator)
-    return truth, log, s.filter.scan(s.state0, log.ts, log.us, log.ys)
+    return truth, log, s.filter.scan(s.state0, log.ts, log.us, log.ys, engine=None)
 
 
 def measured_state(sensor: str, ys: np.ndarray) -> np.ndarray:

@@ -181,7 +181,7 @@ def simulate_circle(s: Setup, key) -> tuple[Truth, SensorLog]:
 def trial(s: Setup, key) -> tuple[Truth, SensorLog, Trajectory]:
     """Simulation and filter run for one key: traceable, ``vmap``-able over keys."""
     truth, log = simulate_circle(s, key)
-    return truth, log, s.filter.scan(s.state0, log.ts, log.us, log.ys)
+    return truth, log, s.filter.scan(s.state0, log.ts, log.us, log.ys, engine=None)
 
 
 @functools.lru_cache(maxsize=8)

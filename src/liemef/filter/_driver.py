@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .. import _validate
+from .. import _side, _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
 from ._status import ASYMMETRIC, DEFINITE_TOL, GATE, INDEFINITE, NONFINITE, OK, SYMMETRY_TOL, Status
@@ -260,11 +260,20 @@ class AbstractFilter(eqx.Module):
         return code.astype(jnp.int32)
 
     # --- drivers ------------------------------------------------------------------------------------------
-    def scan(self, state: FilterState, ts, us, ys, *, gap=jnp.inf, n_valid=None, keep_every: int = 1) -> Trajectory:
+    def scan(self, state: FilterState, ts, us, ys, *, gap=jnp.inf, n_valid=None, keep_every: int = 1,
+             engine: str | None = "xla") -> Trajectory:
         """Traceable core of :meth:`run` (no checks): one ``lax.scan`` over the sample intervals.
 
         ``n_valid``: only the first ``n_valid`` samples are data (the rest is padding, skipped);
-        ``keep_every`` (static): keep every M-th state in the history (memory flat in the log length)."""
+        ``keep_every`` (static): keep every M-th state in the history (memory flat in the log length).
+        ``engine``: ``"xla"`` (the default: differentiable, any transformation) or ``"c"``/``"auto"``/None (as
+        in :meth:`run`; the experiments' trials pass None): the C kernel through ``jax.pure_callback``, with
+        the parameters and states still traced data; under ``vmap`` one call for the whole batch, shared among
+        the cores in SIMD groups (:meth:`run_batch`); not differentiable."""
+        if engine != "xla":
+            kern = self._kernel(engine)
+            if kern is not None:
+                return _scan_c(self, kern, state, ts, us, ys, gap, n_valid, keep_every)
         N = ts.shape[0]
         n_valid = N if n_valid is None else n_valid
         xs = (jnp.arange(N - 1), ts[:-1], jnp.diff(ts), us[:-1], us[1:], ys[:-1], ys[1:])
@@ -442,11 +451,11 @@ class AbstractFilter(eqx.Module):
     filters run by C only when asked, ``engine="c"``)."""
 
     def _kernel(self, engine: str | None):
-        """The C kernel the engine choice gives (None: XLA), cached on the instance."""
+        """The C kernel the engine choice gives (None: XLA), kept beside the instance (liemef._side)."""
         engine = engine_of(engine)
         if engine == "xla" or (engine == "auto" and not self._c_engine):
             return None
-        cached = self.__dict__.get("_kernel_cache")
+        cached = _side.get(self, "kernel")
         if cached is not None:
             return cached[0]
         from ..codegen import _kernel as kmod  # the codegen imports this module
@@ -460,12 +469,14 @@ class AbstractFilter(eqx.Module):
                           f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
                           stacklevel=3)
             kern = None
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(self)):
+            return kern  # a traced filter (scan under a transformation): its parameters come as data
         theta = kern.theta(self) if kern is not None else None
-        object.__setattr__(self, "_kernel_cache", (kern, theta, theta.ctypes.data if kern is not None else None))
+        _side.put(self, "kernel", (kern, theta, theta.ctypes.data if kern is not None else None))
         return kern
 
     def _theta(self, kern) -> np.ndarray:
-        return self.__dict__["_kernel_cache"][1]
+        return _side.get(self, "kernel")[1]
 
     @_hot_path
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
@@ -481,10 +492,10 @@ class AbstractFilter(eqx.Module):
         # the hot path of a robot loop: methods are reached through the class, since reading a method off an
         # equinox Module builds a bound-method Module each time (microseconds)
         cls = type(self)
-        dims = self.__dict__.get("_dims")
+        dims = _side.get(self, "dims")
         if dims is None:
             dims = (self.system.group, self.n, self.system.input_dim, self.system.output_dim)
-            object.__setattr__(self, "_dims", dims)
+            _side.put(self, "dims", dims)
         G, n, m, p = dims
         if not (type(state) is FilterState and type(state.g_hat) is G and getattr(state.K, "shape", None) == (n, n)):
             cls._check_state(self, state)
@@ -498,7 +509,7 @@ class AbstractFilter(eqx.Module):
             # shapes here, infinities in C (the full check runs only to say which sample was infinite)
             u, y, u1, y1 = (_sample_array(nm, *samples[nm]) for nm in ("u", "y", "u_next", "y_next"))
             try:
-                return kern.step(self.__dict__["_kernel_cache"][2], state, float(t), dt, float(gap), u, u1, y, y1)
+                return kern.step(_side.get(self, "kernel")[2], state, float(t), dt, float(gap), u, u1, y, y1)
             except ValueError:
                 for nm, (v, k) in samples.items():
                     _validate.array(nm, v, (k,), missing=True)
@@ -616,6 +627,69 @@ def _run_jit(flt, state, ts, us, ys, n_valid, gap, keep_every):
 
 
 
+def _scan_c(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajectory:
+    """:meth:`AbstractFilter.scan` by the C kernel: the packed rows come back from a ``pure_callback``
+    (:func:`_scan_host`) and are unpacked, with NaN after a failure, in JAX."""
+    N, M = ts.shape[0], keep_every
+    R = 1 + -(-(N - 1) // M)
+    f64 = jnp.float64
+    theta = jnp.concatenate([jnp.ravel(x).astype(f64) for x in jax.tree_util.tree_leaves(eqx.filter(flt, eqx.is_array))]
+                            or [jnp.zeros(0)])
+    x = jnp.concatenate([jnp.ravel(a).astype(f64) for a in jax.tree_util.tree_leaves(state)])
+    nv = jnp.asarray(N if n_valid is None else n_valid, jnp.int32)
+    S = kern.n_state
+    rows, xf = jax.pure_callback(functools.partial(_scan_host, kern, M, R),
+                                 (jax.ShapeDtypeStruct((R, S), f64), jax.ShapeDtypeStruct((S,), f64)),
+                                 theta, x, jnp.asarray(ts, f64), jnp.asarray(us, f64), jnp.asarray(ys, f64),
+                                 jnp.asarray(gap, f64), nv, vmap_method="broadcast_all")
+
+    def unpack(v, lead):
+        return [v[..., s.offset:s.offset + s.size].reshape(lead + s.shape).astype(s.dtype) for s in kern.sslots]
+
+    hist = jax.tree_util.tree_unflatten(kern.sdef, unpack(rows, (R,)))
+    bad = (hist.status.code != OK).at[0].set(False)  # the first state is the one given
+
+    def nan(a):
+        return jnp.where(bad.reshape((R,) + (1,) * (a.ndim - 1)), jnp.nan, a)
+
+    final = jax.tree_util.tree_unflatten(kern.sdef, unpack(xf, ()))
+    return Trajectory(ts=ts[::M], g_hat=jax.tree_util.tree_map(nan, hist.g_hat), K=nan(hist.K), status=final.status,
+                      final=final)
+
+
+def _scan_host(kern, keep, R, theta, x, ts, us, ys, gap, n_valid):
+    """The host side of :func:`_scan_c`, on NumPy arrays with or without a leading trial axis (``vmap``'s
+    ``broadcast_all``): the kept rows (R of them; past the last valid interval, the final state) and the final
+    packed states. Trials with one time grid, length and gap go to :meth:`Kernel.batch` together."""
+    theta, x, ts, us, ys = (np.ascontiguousarray(a, np.float64) for a in (theta, x, ts, us, ys))
+    if ts.ndim == 1:
+        theta, x, ts, us, ys, gap, n_valid = theta[None], x[None], ts[None], us[None], ys[None], np.reshape(gap, 1), \
+            np.reshape(n_valid, 1)
+        one = True
+    else:
+        gap, n_valid, one = np.ravel(gap), np.ravel(n_valid), False
+    B = ts.shape[0]
+    rows = np.empty((B, R, kern.n_state))
+    finals = np.empty((B, kern.n_state))
+    nv = int(n_valid[0])
+    shared = np.all(ts == ts[:1]) and np.all(n_valid == nv) and np.all(gap == gap[0])
+    if shared:
+        th = theta[0] if np.all(theta == theta[:1]) else theta
+        got, finals[:], _ = kern.batch(th, x, np.ascontiguousarray(ts[0, :nv]), _c_array(us[:, :nv]),
+                                       _c_array(ys[:, :nv]), float(gap[0]), keep)
+        done = got.shape[1]
+        rows[:, :done] = got
+        rows[:, done:] = finals[:, None, :]
+    else:
+        for b in range(B):
+            n = int(n_valid[b])
+            got, finals[b] = kern.scan(theta[b], x[b], np.ascontiguousarray(ts[b, :n]), _c_array(us[b, :n]),
+                                       _c_array(ys[b, :n]), float(gap[b]), keep)
+            rows[b, :got.shape[0]] = got
+            rows[b, got.shape[0]:] = finals[b]
+    return (rows[0], finals[0]) if one else (rows, finals)
+
+
 @eqx.filter_jit
 def _run_batch_jit(flt, states, ts, us, ys, n_valid, gap, keep_every):
     TRACES["run_batch"] += 1
@@ -641,7 +715,7 @@ _STEP_JIT: dict = {}
 def _fast_parts(flt: AbstractFilter):
     """The compiled step of the filter's structure (one per structure, shared) and its array leaves, cached on
     the instance."""
-    cached = flt.__dict__.get("_fast")
+    cached = _side.get(flt, "fast")
     if cached is None:
         dyn, static = eqx.partition(flt, eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(dyn)
@@ -653,5 +727,5 @@ def _fast_parts(flt: AbstractFilter):
         if key not in _STEP_JIT:
             _STEP_JIT[key] = jax.jit(functools.partial(_step_leaves, key))
         cached = (_STEP_JIT[key], leaves)
-        object.__setattr__(flt, "_fast", cached)
+        _side.put(flt, "fast", cached)
     return cached
