@@ -31,6 +31,7 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_tse2.py
+	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_real_logs.py
 
 # One hour of 1 kHz TSE(2) data (3.6 M filter steps), chunk by chunk; MINUTES=2 for a smoke test.

@@ -174,9 +174,9 @@ def per_step(seconds: float, steps: int) -> float:
 
 def time_run(flt, state, ts, us, ys):
     t0 = time.perf_counter()
-    jax.block_until_ready(flt.run(state, ts, us, ys))  # compile + first run
+    jax.block_until_ready(flt.run(state, ts, us, ys, engine="xla"))  # compile + first run
     first = time.perf_counter() - t0
-    wall, cpu, traj = timed(lambda: jax.block_until_ready(flt.run(state, ts, us, ys)))
+    wall, cpu, traj = timed(lambda: jax.block_until_ready(flt.run(state, ts, us, ys, engine="xla")))
     if not traj.status.ok:
         raise RuntimeError(f"run failed: {traj.status.cause} at t = {float(traj.status.time):.4g}")
     steps = len(ts) - 1

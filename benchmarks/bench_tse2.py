@@ -2,9 +2,13 @@
 
 Prints one JSON document: compile time, run time without compile and microseconds per step of ``run`` for
 RKMK4 and Lie-Euler (second order) and for the first-order filter, and the latency of one online ``step``
-call fed numpy arrays, as a robot loop would. Figures from one run on a shared machine: compare the ratios
-printed here, measured together, rather than absolute numbers across runs; the ``cpu_`` figures (process CPU
-time) leave out the time spent waiting for a busy core.
+call fed numpy arrays, as a robot loop would. Both by the default engine (``engine``: "c" where a C compiler is
+found, the filter's interval as a compiled C kernel) and, for RKMK4, by XLA (``*_xla``). The C engine's compile
+is measured twice: the first build (``run_rkmk4.compile_s``: trace, translation and C compiler, into a fresh
+kernel cache) and in a new process that finds the kernel on disk (``compile_new_process``: the trace only).
+Figures from one run on a shared machine: compare the ratios printed here, measured together, rather than
+absolute numbers across runs; the ``cpu_`` figures (process CPU time) leave out the time spent waiting for a
+busy core.
 
 The yardstick (issue 9): a hand-written C99 step of the same filter from the closed forms
 (``c/tse2_reference.c``, built by ``c_reference.py`` with the system C compiler, ``$CC`` or ``cc``, at -O2),
@@ -29,6 +33,7 @@ import argparse
 import json
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -42,6 +47,9 @@ os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+
+# a fresh kernel cache: the first run's compile is a first build (trace, translation, C compiler)
+os.environ["LIEMEF_CACHE_DIR"] = tempfile.mkdtemp(prefix="liemef-bench-kernels-")
 
 import liemef  # noqa: E402
 from liemef import codegen  # noqa: E402
@@ -57,15 +65,15 @@ def tse2_input(t):
     return jnp.stack([jnp.sin(t), 50.0 * jnp.sin(t / 50.0)])
 
 
-def time_run(flt, state, log, repeats=3):
+def time_run(flt, state, log, repeats=3, engine=None):
     args = (state, np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys))
     t0 = time.perf_counter()
-    jax.block_until_ready(flt.run(*args))  # compile + first run
+    jax.block_until_ready(flt.run(*args, engine=engine))  # compile + first run
     first = time.perf_counter() - t0
     runs, cpus = [], []
     for _ in range(repeats):
         c0, t0 = time.process_time(), time.perf_counter()
-        traj = jax.block_until_ready(flt.run(*args))
+        traj = jax.block_until_ready(flt.run(*args, engine=engine))
         runs.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
     assert bool(traj.finite), "the benchmark run diverged"
@@ -76,14 +84,14 @@ def time_run(flt, state, log, repeats=3):
             "cpu_us_per_step": round(float(np.median(cpus)) / steps * 1e6, 3), "steps": steps}
 
 
-def time_step(flt, state, log, calls):
+def time_step(flt, state, log, calls, engine=None):
     ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
     dt = float(ts[1] - ts[0])
-    st = jax.block_until_ready(flt.step(state, float(ts[0]), us[0], ys[0], dt))  # compile
+    st = jax.block_until_ready(flt.step(state, float(ts[0]), us[0], ys[0], dt, engine=engine))  # compile
     lat, cpu = np.empty(calls), np.empty(calls)
     for k in range(calls):
         c0, t0 = time.process_time(), time.perf_counter()
-        st = flt.step(st, float(ts[k]), us[k], ys[k], dt)
+        st = flt.step(st, float(ts[k]), us[k], ys[k], dt, engine=engine)
         jax.block_until_ready(st.K)
         lat[k], cpu[k] = time.perf_counter() - t0, time.process_time() - c0
     return {"median_us": round(float(np.median(lat)) * 1e6, 2), "p90_us": round(float(np.quantile(lat, 0.9)) * 1e6, 2),
@@ -139,6 +147,36 @@ def time_c_reference(log, g0, repeats=5):
     return out
 
 
+WARM = """
+import json, time
+import numpy as np
+t0 = time.perf_counter()
+import liemef
+from liemef.systems import PlanarRigidBody, tse2_state
+flt = liemef.MinimumEnergyFilter(PlanarRigidBody())
+g0 = tse2_state(0.3, 1.0, 2.0, 0.1, 0.2, 0.0)
+state = flt.init(g0, np.eye(6))
+ts = np.arange(101) * 1e-3
+us = np.zeros((101, 2))
+ys = np.tile(np.asarray(flt.system.output(g0, 0.0)), (101, 1))
+t1 = time.perf_counter()
+flt.run(state, ts, us, ys)
+t2 = time.perf_counter()
+flt.run(state, ts, us, ys)
+t3 = time.perf_counter()
+print(json.dumps({"import_s": round(t1 - t0, 3), "compile_s": round((t2 - t1) - (t3 - t2), 3)}))
+"""
+
+
+def compile_in_new_process() -> dict:
+    """The compile time of ``run`` (C engine) in a new Python process whose kernel is on disk already (this
+    benchmark built it): the trace of the interval and the load of the library."""
+    out = subprocess.run([sys.executable, "-c", WARM], capture_output=True, text=True, env=os.environ.copy())
+    if out.returncode != 0:
+        return {"error": out.stderr[-2000:]}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=50.0)
@@ -150,13 +188,17 @@ def main():
     _, log = simulate(system, tse2_state(np.pi / 6, 1.0, 2.0, 0.0, 0.0, 0.0), tse2_input, ts, jax.random.PRNGKey(0))
     g0 = tse2_state(np.pi / 8, 1.1, 2.1, 0.1, -0.1, -0.1)
 
-    results = {}
+    results = {"engine": liemef.filter.engine_of(None)}
     for name, kw in [("rkmk4", dict(integrator="rkmk4")), ("lie_euler", dict(integrator="lie-euler")),
                      ("rkmk4_first_order", dict(integrator="rkmk4", order="first"))]:
         flt = liemef.MinimumEnergyFilter(system, **kw)
         results[f"run_{name}"] = time_run(flt, flt.init(g0, np.eye(6)), log)
+    results["compile_new_process"] = compile_in_new_process()
     flt = liemef.MinimumEnergyFilter(system)
+    results["run_rkmk4_xla"] = time_run(flt, flt.init(g0, np.eye(6)), log, engine="xla")
     results["step_rkmk4_numpy"] = time_step(flt, flt.init(g0, np.eye(6)), log, args.calls)
+    results["step_rkmk4_numpy_xla"] = time_step(flt, flt.init(g0, np.eye(6)), log, min(args.calls, 300),
+                                                engine="xla")
     results["c_reference"] = c = time_c_reference(log, g0)
 
     r = results
@@ -168,6 +210,8 @@ def main():
     if c["available"]:
         results["ratios"].update({
             "run_rkmk4_over_c": round(r["run_rkmk4"]["us_per_step"] / c["rkmk4_us_per_step"], 2),
+            "run_rkmk4_xla_over_c": round(r["run_rkmk4_xla"]["us_per_step"] / c["rkmk4_us_per_step"], 2),
+            "step_call_xla_over_c": round(r["step_rkmk4_numpy_xla"]["median_us"] / c["rkmk4_us_per_step"], 2),
             "run_lie_euler_over_c": round(r["run_lie_euler"]["us_per_step"] / c["lie_euler_us_per_step"], 2),
             "run_rkmk4_first_order_over_c": round(r["run_rkmk4_first_order"]["us_per_step"] / c["rkmk4_us_per_step"],
                                                   2),
@@ -179,7 +223,8 @@ def main():
     results["targets"] = {
         "run_rkmk4_over_c<=8": r["run_rkmk4"]["us_per_step"] <= 8 * c["rkmk4_us_per_step"] if c["available"] else None,
         "step_call_us<=25": r["step_rkmk4_numpy"]["median_us"] <= 25,
-        "compile_s<2": r["run_rkmk4"]["compile_s"] < 2,
+        "compile_s<2 (first build, kernel cache empty)": r["run_rkmk4"]["compile_s"] < 2,
+        "compile_s<2 (new process, kernel on disk)": r["compile_new_process"].get("compile_s", 1e9) < 2,
         "export_c_over_c<=2": c["export_c"]["rkmk4_us_per_step"] <= 2 * c["rkmk4_us_per_step"] if c["available"]
         else None,
     }

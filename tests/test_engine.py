@@ -277,3 +277,19 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
     per = [jax.jit(jax.vmap(lambda p_, e=e: run_with(p_, e)))(both) for e in ("c", "xla")]
     _assert_same(per[0], per[1])
     assert np.abs(np.asarray(per[0][0] - per[0][1])).max() > 1e-6
+
+
+def test_gates_and_robust_losses_are_the_same_in_c():
+    """Gated GPS (a 1e4 m outlier rejected and counted), a Huber loss, and three rejections in a row failing the
+    run with cause "gate": the same rejections, counters and failure in both engines."""
+    for kw, cause in ((dict(gate=0.999, robust="huber"), "ok"), (dict(gate=0.999, max_rejections=2), "gate")):
+        flt = liemef.MinimumEnergyFilter(planar_localization(**kw))
+        state, ts, us, ys = _log(flt, n=80, seed=30)
+        ys[:, :] = np.where(np.arange(80)[:, None] % 10 == 0, ys, np.nan)  # a fix every 10 samples
+        ys[40] += 1e4
+        if cause == "gate":
+            ys[50] += 1e4
+            ys[60] += 1e4
+        c, x = _runs(flt, state, ts, us, ys)
+        assert c.status.cause == cause and int(np.asarray(c.status.rejected).sum()) >= 1
+        _assert_same(c, x)

@@ -313,11 +313,17 @@ def element_ids(eqn, ins) -> tuple[list[int], dict, list[np.ndarray], bool]:
             raise UnsupportedPrimitive(f"{name} with indices known only at run time")
     if name in ("scatter-add", "scatter_add") and not params.get("unique_indices", False):
         raise UnsupportedPrimitive("scatter-add with possibly repeated indices")
+    # ids in the data's own dtype where it is an integer (a scatter's update function is typed), else float64
+    kinds = {np.dtype(ins[j].dtype) for j in data}
+    only = next(iter(kinds)) if len(kinds) == 1 else None
+    id_dtype = only if only is not None and only.kind in "iu" else np.dtype(np.float64)
+    if name.startswith("scatter") and np.dtype(np.bool_) in kinds:
+        raise UnsupportedPrimitive(f"{name} of booleans")
     bases, args, b = {}, [], 1
     for j, v in enumerate(ins):
         if j in data:
             bases[j] = b
-            args.append(np.arange(b, b + v.size, dtype=np.float64).reshape(v.shape))
+            args.append(np.arange(b, b + v.size, dtype=id_dtype).reshape(v.shape))
             b += v.size
         else:
             args.append(np.asarray(v.const, v.dtype))

@@ -74,6 +74,17 @@ def _slots(leaves) -> tuple[tuple[Slot, ...], int]:
     return tuple(out), off
 
 
+def _eager():
+    """A context in which JAX computes eagerly even inside an outer trace (``scan(engine="c")`` under ``jit``
+    asks for its kernel while tracing): JAX's own evaluation context (internal; without it, the public
+    ``ensure_compile_time_eval``, which also folds constants while tracing)."""
+    try:
+        from jax._src.core import eval_context
+    except ImportError:  # pragma: no cover - a JAX without it
+        return jax.ensure_compile_time_eval()
+    return eval_context()
+
+
 def _title(flt) -> str:
     try:
         return repr(flt)
@@ -605,7 +616,7 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         if key is not None and key in _KERNELS:
             return _KERNELS[key]
         TRACES["kernel"] += 1
-        with jax.ensure_compile_time_eval():  # also when asked from inside a trace (scan under jit)
+        with _eager():  # also when asked from inside a trace (scan under jit)
             tr = _trace(flt)
         kern = Kernel(_build(tr), tr)
         if key is not None:

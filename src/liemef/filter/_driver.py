@@ -212,13 +212,16 @@ class AbstractFilter(eqx.Module):
         the updated rejection counters, from the innovation ``nu = y - h(g_hat)`` and its covariance from the
         state, ``HKH`` = Dh K Dh^T (the sample's own covariance is added here)."""
         p = self.system.output_dim
-        scale = jnp.ones((p,))
         rejected, consecutive = st.rejected, st.consecutive
         if not self._screens_samples:
-            return scale, rejected, consecutive
+            return jnp.ones((p,)), rejected, consecutive
+        # per block: its factor, its rejection and its run of rejections, stacked at the end (whole arrays, no
+        # scatter: the same program in XLA and in the C kernel)
+        factors, new_rejected, new_consecutive = [], [], []
         for i, b in enumerate(self.blocks):
             sl = slice(b.start, b.stop)
             factor = jnp.asarray(1.0)
+            rej, cons = rejected[i], consecutive[i]
             if b.gate_threshold is not None or b.robust is not None:
                 present = jnp.all(mask[sl])
                 # the sample's covariance: its information over the interval, times the interval
@@ -229,9 +232,8 @@ class AbstractFilter(eqx.Module):
                 if b.gate_threshold is not None:
                     reject = present & (d2 > b.gate_threshold)
                     factor = jnp.where(reject, 0.0, factor)
-                    rejected = rejected.at[i].add(reject.astype(jnp.int32))
-                    consecutive = consecutive.at[i].set(
-                        jnp.where(reject, consecutive[i] + 1, jnp.where(present, 0, consecutive[i])))
+                    rej = rej + reject.astype(rej.dtype)
+                    cons = jnp.where(reject, cons + 1, jnp.where(present, 0, cons))
                 if b.robust is not None:
                     d = jnp.sqrt(jnp.maximum(d2, 1e-300))
                     c = b.robust_scale
@@ -239,8 +241,15 @@ class AbstractFilter(eqx.Module):
                     factor = factor * jnp.where(present, w, 1.0)
             if b.weight_fn is not None:
                 factor = factor * jnp.asarray(b.weight_fn(t), dtype=jnp.float64)
-            scale = scale.at[sl].multiply(factor)
-        return scale, rejected, consecutive
+            factors.append(factor)
+            new_rejected.append(rej)
+            new_consecutive.append(cons)
+        owner = np.full(p, len(self.blocks))  # the block of each component (none: factor 1)
+        for i, b in enumerate(self.blocks):
+            owner[b.start:b.stop] = i
+        scale = jnp.stack([*factors, jnp.asarray(1.0)])[owner]
+        return (scale, jnp.stack(new_rejected).astype(rejected.dtype),
+                jnp.stack(new_consecutive).astype(consecutive.dtype))
 
     def _health(self, g, K, consecutive, asymmetric=None):
         """The cause code of a state just computed (:data:`~liemef.filter.CAUSES`)."""
