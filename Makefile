@@ -19,9 +19,10 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/liemef reproduce tse2 --out $(OUT)
 
-# JAX's persistent compilation cache, shared by the test processes (xdist workers, CLI subprocesses, Dask
-# workers): a program compiled in one is loaded, not compiled again, in another, and in the next run.
-JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax
+# JAX's persistent compilation cache and liemef's C kernels, shared by the test processes (xdist workers, CLI
+# subprocesses, Dask workers): a program compiled in one is loaded, not compiled again, in another, and in the
+# next run; kept in the checkout, so that the tests leave the user's ~/.cache/liemef alone.
+JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(CURDIR)/.cache/liemef
 
 test: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q

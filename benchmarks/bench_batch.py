@@ -42,9 +42,10 @@ def tse2_input(t):
 
 
 def logs(system, ts, B, seed=0):
-    """B simulated logs (model error 0.01 per step, the sensors' noise) and B perturbed initial estimates."""
+    """B simulated logs (the nominal truth of the experiment, the sensors' noise drawn per trial) and B perturbed
+    initial estimates."""
     sim = jax.jit(jax.vmap(lambda k: simulate_core(system, tse2_state(np.pi / 6, 1.0, 2.0, 0.0, 0.0, 0.0),
-                                                   tse2_input, jnp.asarray(ts), k, 0.01)[1]))
+                                                   tse2_input, jnp.asarray(ts), k)[1]))
     keys = jax.random.split(jax.random.PRNGKey(seed), B)
     jax.block_until_ready(sim(keys))  # compile
     t0 = time.perf_counter()

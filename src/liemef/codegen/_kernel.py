@@ -13,15 +13,20 @@ Each interval is the very computation :meth:`~liemef.filter.AbstractFilter.step`
 jaxpr: terms, derivatives as traced, adaptive sub-steps, screening, health checks), in C straight-line code:
 20-40 times faster than XLA's per-operation dispatch for these small matrices. The kernel's C functions:
 
-* ``advance``: one interval on a packed state (every leaf of :class:`~liemef.filter.FilterState` as
-  doubles, integers exactly);
-* ``scan``: a whole log, keeping every M-th state, stopping at the first failure (a failed state is final);
-* ``batch``: ``scan`` over a range of trials (one parameter vector, or one per trial); called from two Python
-  threads at once (ctypes releases the GIL), it fills both cores.
+* ``kernel_advance``: one interval on a packed state (every leaf of :class:`~liemef.filter.FilterState` as
+  doubles, integers exactly), and ``kernel_step``, the same with the samples packed in one vector (the
+  online step, infinite samples rejected);
+* ``kernel_scan``: a whole log, keeping every M-th state, stopping at the first failure (a failed state is
+  final);
+* ``kernel_batch``: ``kernel_scan`` over a range of trials (one parameter vector, or one per trial).
 
-Builds are cached in the process (by structure and zero pattern) and on disk (by the source's hash, the
-compiler and its flags: ``$LIEMEF_CACHE_DIR``, default ``~/.cache/liemef/kernels``), so a second process
-pays only the trace and translation.
+The *batch kernel* (a second library, built on first use: :meth:`Kernel.lanes`) runs :data:`LANES` trials
+of one interval at once in SIMD (:meth:`ScalarTranslator.emit_lanes`). :meth:`Kernel.batch` calls it from one
+Python thread per core (ctypes releases the GIL), each on its own range of trials.
+
+Builds are cached in the process (by structure and zero pattern) and on disk (by the hash of the jaxpr, the
+zero pattern, the generator's code, the compiler and its flags: ``$LIEMEF_CACHE_DIR``, default
+``~/.cache/liemef/kernels``), so that a new process pays only the trace.
 """
 
 from __future__ import annotations

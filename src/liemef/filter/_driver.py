@@ -374,13 +374,15 @@ class AbstractFilter(eqx.Module):
 
         By the C engine the trials are shared among ``threads`` threads (default: every CPU this process may
         use), in groups of SIMD lanes where the kernel has them; by XLA, one ``vmap`` of :meth:`scan`."""
-        self._check_state(jax.tree_util.tree_map(lambda a: a[0], states))
-        leaves = jax.tree_util.tree_leaves(states)
+        # NumPy from here on: indexing a JAX array would compile an XLA gather for each new shape
+        states_np = jax.tree_util.tree_map(np.asarray, states)
+        leaves = jax.tree_util.tree_leaves(states_np)
         B = int(np.shape(leaves[0])[0]) if np.ndim(leaves[0]) else 0
-        for path, leaf in jax.tree_util.tree_flatten_with_path(states)[0]:
+        for path, leaf in jax.tree_util.tree_flatten_with_path(states_np)[0]:
             if np.ndim(leaf) == 0 or np.shape(leaf)[0] != B or B < 1:
                 raise ValueError(f"states: expected a leading trial axis of one length B >= 1 on every leaf, got "
                                  f"shape {np.shape(leaf)} at {jax.tree_util.keystr(path)} (B = {B})")
+        self._check_state(jax.tree_util.tree_map(lambda a: a[0], states_np))
         ts = _validate.sorted_times("ts", ts)
         N = ts.shape[0]
         if N < 2:
@@ -396,8 +398,7 @@ class AbstractFilter(eqx.Module):
             gap = float(_validate.nonnegative("gap", gap))
         kern = self._kernel(engine)
         if kern is not None:
-            x = np.stack([np.concatenate([np.ravel(np.asarray(a[b], np.float64)) for a in leaves])
-                          for b in range(B)])
+            x = np.concatenate([a.reshape(B, -1).astype(np.float64) for a in leaves], axis=1)
             rows, xf, _ = kern.batch(self._theta(kern), x, ts, _c_array(us), _c_array(ys), float(gap), keep_every,
                                      threads=threads)
             traj = self._trajectory(kern, ts, rows, xf, keep_every, lead=(B,))
