@@ -293,3 +293,30 @@ def test_gates_and_robust_losses_are_the_same_in_c():
         c, x = _runs(flt, state, ts, us, ys)
         assert c.status.cause == cause and int(np.asarray(c.status.rejected).sum()) >= 1
         _assert_same(c, x)
+
+
+def test_online_filter_is_the_step():
+    """flt.online(state): thirty steps equal the step chain by C exactly and by XLA to ENGINES; its gain, code and
+    state read back; bad samples are named; a failure returns its code and freezes the state."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make())
+    state, ts, us, ys = _log(flt, n=31, seed=40)
+    for engine in ("c", "xla"):
+        online, st = flt.online(state, engine=engine), state
+        for k in range(30):
+            code = online.step(ts[k], us[k], ys[k], ts[k + 1] - ts[k])
+            st = flt.step(st, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine=engine)
+            assert code == 0
+        _assert_same(online.state, st, tol=0.0)
+        np.testing.assert_array_equal(online.K, np.asarray(st.K))
+    _assert_same(flt.online(state).state, jax.tree_util.tree_map(np.asarray, state), tol=0.0)
+    online = flt.online(state, engine="c")
+    with pytest.raises(ValueError, match=r"y: expected shape \(7,\), got \(6,\)"):
+        online.step(0.0, us[0], ys[0][:6], 0.01)
+    with pytest.raises(ValueError, match="u_next: expected finite values or NaN"):
+        online.step(0.0, us[0], ys[0], 0.01, u_next=[np.inf, 0.0])
+    with pytest.raises(ValueError, match="dt: expected a finite time step > 0, got 0"):
+        online.step(0.0, us[0], ys[0], 0)
+    before = online.state
+    assert online.step(0.0, us[0], np.full(7, 1e200), 0.01) == CAUSES.index("non-finite") == online.code
+    _assert_same(online.state.g_hat, before.g_hat, tol=0.0)
+    assert online.step(0.01, us[1], ys[1], 0.01) == online.code != 0

@@ -453,6 +453,7 @@ class Kernel:
         pslots, sslots, pdef, sdef = traced.pslots, traced.sslots, traced.pdef, traced.sdef
         input_dim, output_dim = traced.m, traced.p
         self.traced = traced
+        self.paths = [jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_flatten_with_path(traced.state)[0]]
         self._lanes = None  # the batch kernel: built on first use (False: it has no lane form here)
         self.lanes_error: str | None = None
         self.path = lib_path

@@ -15,10 +15,11 @@ from ._driver import (
 )
 from ._filter import INTERPOLATIONS, ORDERS, MinimumEnergyFilter
 from ._integrators import INTEGRATORS, RKMK4, AbstractIntegrator, LieEuler, integrator
+from ._online import OnlineFilter
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import CAUSES, Status
 
-__all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout",
+__all__ = ["MinimumEnergyFilter", "AbstractFilter", "OnlineFilter", "sensor_layout",
            "ORDERS", "INTERPOLATIONS", "TRACES", "LogGapWarning", "EngineWarning", "ENGINES", "engine_of",
            "bucket", "Status", "CAUSES",
            "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms", "riccati_rhs",

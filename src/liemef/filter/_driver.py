@@ -426,8 +426,11 @@ class AbstractFilter(eqx.Module):
         hist = jax.tree_util.tree_unflatten(kern.sdef, kern.unpack(rows, rows.shape[:-1]))
         bad = np.asarray(hist.status.code) != OK
         bad[..., 0] = False  # the first state is the one given, as in scan
+        any_bad = bool(bad.any())
 
         def nan(a):
+            if not any_bad:
+                return jnp.asarray(a)
             a = np.array(a)
             a[bad] = np.nan
             return jnp.asarray(a)
@@ -487,6 +490,14 @@ class AbstractFilter(eqx.Module):
 
     def _theta(self, kern) -> np.ndarray:
         return _side.get(self, "kernel")[1]
+
+    def online(self, state: FilterState, *, engine: str | None = None):
+        """The online filter of a robot's loop (:class:`~liemef.filter.OnlineFilter`): steps from ``state``
+        kept packed in the C kernel, each one C call returning the status code; the state is read when asked
+        for. By XLA (``engine="xla"`` or no C compiler) the same interface over :meth:`step`."""
+        from ._online import OnlineFilter
+
+        return OnlineFilter(self, state, engine)
 
     @_hot_path
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
