@@ -429,14 +429,13 @@ class AbstractFilter(eqx.Module):
         any_bad = bool(bad.any())
 
         def nan(a):
-            if not any_bad:
-                return jnp.asarray(a)
-            a = np.array(a)
-            a[bad] = np.nan
-            return jnp.asarray(a)
+            a = np.array(a) if any_bad else _contiguous(a)
+            if any_bad:
+                a[bad] = np.nan
+            return _to_jax(a)
 
-        final = jax.tree_util.tree_unflatten(kern.sdef, [jnp.asarray(a) for a in kern.unpack(xf, lead)])
-        return Trajectory(ts=jnp.asarray(ts[::keep_every]), g_hat=jax.tree_util.tree_map(nan, hist.g_hat),
+        final = jax.tree_util.tree_unflatten(kern.sdef, [_to_jax(_contiguous(a)) for a in kern.unpack(xf, lead)])
+        return Trajectory(ts=_to_jax(_contiguous(ts[::keep_every])), g_hat=jax.tree_util.tree_map(nan, hist.g_hat),
                           K=nan(hist.K), status=final.status, final=final)
 
     def _run_xla(self, state, ts, us, ys, gap, keep_every) -> Trajectory:
@@ -624,6 +623,17 @@ def _sample_array(name: str, v, n: int) -> np.ndarray:
     if a.shape != (n,):
         raise ValueError(f"{name}: expected shape ({n},), got {a.shape}")
     return a
+
+
+def _to_jax(a: np.ndarray) -> jax.Array:
+    """A NumPy array as a JAX array by a plain transfer (``jnp.asarray`` stages a conversion that compiles a small
+    program per shape and dtype: a tenth of a second on a first run)."""
+    return jax.device_put(a)
+
+
+def _contiguous(a: np.ndarray) -> np.ndarray:
+    """``a``, or a C-ordered copy of it (of the same shape, 0-d included)."""
+    return a if a.flags.c_contiguous else a.copy()
 
 
 def _c_array(a) -> np.ndarray:
