@@ -193,7 +193,8 @@ def test_new_weights_reuse_the_kernel():
     mid = TRACES["kernel"]
     for _ in range(2):
         flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]), alpha=0.2)  # alpha 0 -> 0.2: a new pattern
-        flt.run(flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, us, ys, engine="c")
+        c, x = _runs(flt, flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, us, ys)
+        _assert_same(c, x)  # alpha is read, not folded to the 0 of the first pattern
     assert TRACES["kernel"] - mid <= 1
 
 
@@ -320,3 +321,76 @@ def test_online_filter_is_the_step():
     assert online.step(0.0, us[0], np.full(7, 1e200), 0.01) == CAUSES.index("non-finite") == online.code
     _assert_same(online.state.g_hat, before.g_hat, tol=0.0)
     assert online.step(0.01, us[1], ys[1], 0.01) == online.code != 0
+
+
+def test_a_state_of_another_filter_is_refused():
+    """Two filters on one group with other inputs and sensors: a state of one given to the other is an error
+    naming the state (the C code reads and writes a fixed number of numbers)."""
+    a = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    b = liemef.MinimumEnergyFilter(SensorSystem(Rn[2], lambda g, u, t: jnp.array([g.x[1], -0.1 * g.x[1]]),
+                                                (Sensor("p", _position, Noise.sample(0.3)),
+                                                 Sensor("q", _position, Noise.sample(0.5))), Noise.density([0.1, 0.2])))
+    state_a = a.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    with pytest.raises(ValueError, match="state: expected a state of this filter"):
+        b.step(state_a, 0.0, None, [1.0, 1.0], 0.1, engine="c")
+    with pytest.raises(ValueError, match="state: expected a state of this filter"):
+        b.online(state_a, engine="c")
+    with pytest.raises(ValueError, match="states: expected a state of this filter"):
+        b.run_batch(jax.tree_util.tree_map(lambda x: x[None], state_a), [0.0, 0.1], None, np.ones((1, 2, 2)),
+                    engine="c")
+    # b has no inputs: u may be None, in step, online and run alike
+    state_b = b.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    _assert_same(b.step(state_b, 0.0, None, [1.0, 1.0], 0.1, engine="c"),
+                 b.step(state_b, 0.0, None, [1.0, 1.0], 0.1, engine="xla"))
+    online = b.online(state_b)
+    assert online.step(0.0, None, [1.0, 1.0], 0.1) == 0
+    with pytest.raises(ValueError, match="threads: expected an integer >= 1"):
+        b.run_batch(jax.tree_util.tree_map(lambda x: x[None], state_b), [0.0, 0.1], None, np.ones((1, 2, 2)),
+                    threads=0)
+
+
+def test_c_after_a_fallback_still_raises(monkeypatch):
+    """An "auto" run that fell back to XLA does not make a later engine="c" on the same filter run XLA."""
+    def broken(flt):
+        raise codegen.UnsupportedPrimitive("primitive 'fft' has no C here")
+
+    monkeypatch.setattr(_kernel, "kernel_for", broken)
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    state = flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    with pytest.warns(EngineWarning):
+        flt.step(state, 0.0, [0.0], [1.0], 0.1)
+    with pytest.raises(codegen.UnsupportedPrimitive, match="fft"):
+        flt.step(state, 0.0, [0.0], [1.0], 0.1, engine="c")
+
+
+def test_scan_by_c_alone_nested_and_per_trial():
+    """scan(engine="c") outside vmap (with a gap threshold and padding), under two nested vmaps (weights x
+    trials), and with n_valid differing between trials (one trial at a time): each equals the XLA scan."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
+    logs = [_log(flt, n=41, seed=50 + b) for b in range(3)]
+    ts = jnp.asarray(logs[0][1])
+    state = logs[0][0]
+    u0, y0 = jnp.asarray(logs[0][2]), jnp.asarray(logs[0][3])
+    for kw in (dict(gap=0.1, n_valid=35, keep_every=3), dict()):
+        _assert_same(jax.jit(lambda u, y, kw=kw: flt.scan(state, ts, u, y, engine="c", **kw))(u0, y0),
+                     jax.jit(lambda u, y, kw=kw: flt.scan(state, ts, u, y, engine="xla", **kw))(u0, y0))
+    us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
+    nvs = jnp.asarray([41, 30, 12])
+
+    def per_trial(engine):
+        return jax.jit(jax.vmap(lambda u, y, n: flt.scan(state, ts, u, y, n_valid=n, engine=engine)))(us, ys, nvs)
+
+    _assert_same(per_trial("c"), per_trial("xla"))
+    other = liemef.MinimumEnergyFilter(planar_localization(gps_std=2.0))
+    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), eqx.filter(flt, eqx.is_array),
+                                  eqx.filter(other, eqx.is_array))
+    static = eqx.filter(flt, eqx.is_array, inverse=True)
+
+    def nested(engine):
+        def one(params, u, y):
+            return eqx.combine(params, static).scan(state, ts, u, y, engine=engine).K
+        return jax.jit(jax.vmap(jax.vmap(one, in_axes=(None, 0, 0)), in_axes=(0, None, None)))(both, us, ys)
+
+    got = nested("c")
+    assert got.shape[:2] == (2, 3)
+    _assert_same(got, nested("xla"))

@@ -441,6 +441,10 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, lanes: bool = False) -> Path:
     return lib
 
 
+class InfiniteSample(ValueError):
+    """The C step found an infinite sample (and computed nothing): the caller says which."""
+
+
 _dp = ctypes.POINTER(ctypes.c_double)
 
 
@@ -497,8 +501,22 @@ class Kernel:
         return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in leaves] or [np.zeros(0)])
 
     def pack(self, state: FilterState) -> np.ndarray:
-        """A state as the kernel's packed vector (a fresh array)."""
-        return np.concatenate([np.ravel(np.asarray(x, np.float64)) for x in jax.tree_util.tree_leaves(state)])
+        """A state as the kernel's packed vector (a fresh array); ValueError if it is not a state of this
+        kernel's filter (another filter's on the same group: other inputs or sensor blocks)."""
+        x = np.concatenate([np.ravel(np.asarray(a, np.float64)) for a in jax.tree_util.tree_leaves(state)])
+        self.check_packed(x, state, "state")
+        return x
+
+    def check_packed(self, x, state, name: str) -> None:
+        """A packed state (or a batch of them) has this kernel's layout: ValueError naming ``name`` otherwise
+        (the C code reads and writes exactly ``n_state`` numbers)."""
+        shapes = [tuple(np.shape(a)) for a in jax.tree_util.tree_leaves(state)]
+        want = [s.shape for s in self.sslots]
+        lead = len(shapes[0]) - len(want[0]) if shapes and want else 0
+        if (jax.tree_util.tree_structure(state) != self.sdef or np.shape(x)[-1] != self.n_state
+                or [sh[lead:] for sh in shapes] != want):
+            raise ValueError(f"{name}: expected a state of this filter ({self.n_state} numbers, leaf shapes {want}), "
+                             f"got {np.shape(x)[-1]} numbers, leaf shapes {[sh[lead:] for sh in shapes]}")
 
     def unpack(self, x: np.ndarray, lead: tuple = ()) -> list[np.ndarray]:
         """The state leaves of packed vectors ``x`` (shape lead + (S,)): views where the leaf is float64."""
@@ -534,7 +552,7 @@ class Kernel:
         z = np.concatenate((u0, u1, y0, y1))
         xo = np.empty(self.n_state)
         if self._step(theta_address, got[1], xo.ctypes.data, t, dt, gap, z.ctypes.data if z.size else None) == -2:
-            raise ValueError("an infinite sample")  # the caller names it (AbstractFilter.step)
+            raise InfiniteSample("an infinite sample")  # the caller names it (AbstractFilter.step)
         return self.state(xo)
 
     # --- calls ------------------------------------------------------------------------------------------------
@@ -583,13 +601,18 @@ class Kernel:
         us_p = us if us.size else np.zeros(1)
         simd = self.lanes() if lanes and stride == 0 and B >= LANES else None
 
+        errors = []
+
         def work(lo, hi):
-            mid = lo
-            if simd is not None:
-                mid = lo + (hi - lo) // LANES * LANES
-                simd(_ptr(theta), lo, mid, _ptr(x), N, _ptr(ts), _ptr(us_p), _ptr(ys), gap, keep, rp, R, cp)
-            self._batch(_ptr(theta), stride, mid, hi, _ptr(x), N, _ptr(ts), _ptr(us_p), _ptr(ys), gap, keep, rp, R,
-                        cp)
+            try:
+                mid = lo
+                if simd is not None:
+                    mid = lo + (hi - lo) // LANES * LANES
+                    simd(_ptr(theta), lo, mid, _ptr(x), N, _ptr(ts), _ptr(us_p), _ptr(ys), gap, keep, rp, R, cp)
+                self._batch(_ptr(theta), stride, mid, hi, _ptr(x), N, _ptr(ts), _ptr(us_p), _ptr(ys), gap, keep, rp,
+                            R, cp)
+            except BaseException as err:  # noqa: BLE001 - raised in the caller's thread below
+                errors.append(err)
 
         # ranges of whole lane groups per thread (the last takes the remainder)
         groups = -(-B // LANES)
@@ -601,6 +624,8 @@ class Kernel:
             th.start()
         for th in pool:
             th.join()
+        if errors:
+            raise errors[0]
         return rows, x, codes
 
 

@@ -683,6 +683,8 @@ class ScalarTranslator:
             return f"1.0 / ({prod})" if p < 0 else prod
         cmp = {"lt": "<", "le": "<=", "gt": ">", "ge": ">=", "eq": "==", "ne": "!="}
         if op in cmp:
+            if kind == "b" and op not in ("eq", "ne"):
+                return None  # an order of masks (-1 true) is not that of booleans: a loop over lanes
             c = f"({e[0]}) {cmp[op]} ({e[1]})"
             return c if kind in "fb" else f"__builtin_convertvector({c}, lane_i64)"
         if dt == np.bool_ and op in ("and", "or", "xor", "not", "max", "min"):

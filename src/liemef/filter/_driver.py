@@ -392,6 +392,10 @@ class AbstractFilter(eqx.Module):
         ys = _validate.array("ys", ys, (B, N, p), missing=True)
         if not (isinstance(keep_every, int) and keep_every >= 1):
             raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
+        if threads is not None and not (isinstance(threads, int) and threads >= 1):
+            raise ValueError(f"threads: expected an integer >= 1 (or None: every CPU), got {threads!r}")
+        for leaf in jax.tree_util.tree_leaves(states_np.g_hat):
+            _validate.array("states.g_hat", leaf)
         if gap is None:
             gap = 10.0 * float(np.median(np.diff(ts)))
         elif not (isinstance(gap, int | float | np.number) and gap == math.inf):
@@ -399,6 +403,7 @@ class AbstractFilter(eqx.Module):
         kern = self._kernel(engine)
         if kern is not None:
             x = np.concatenate([a.reshape(B, -1).astype(np.float64) for a in leaves], axis=1)
+            kern.check_packed(x, states_np, "states")
             rows, xf, _ = kern.batch(self._theta(kern), x, ts, _c_array(us), _c_array(ys), float(gap), keep_every,
                                      threads=threads)
             traj = self._trajectory(kern, ts, rows, xf, keep_every, lead=(B,))
@@ -469,9 +474,12 @@ class AbstractFilter(eqx.Module):
             return None
         cached = _side.get(self, "kernel")
         if cached is not None:
+            if cached[0] is None and engine == "c":
+                raise cached[3]  # "auto" fell back earlier: "c" says why, as on a first call
             return cached[0]
         from ..codegen import _kernel as kmod  # the codegen imports this module
 
+        error = None
         try:
             kern = kmod.kernel_for(self)
         except Exception as err:  # noqa: BLE001 - auto falls back to XLA, saying why; "c" raises
@@ -480,11 +488,11 @@ class AbstractFilter(eqx.Module):
             warnings.warn(f"the C engine is not available for {type(self).__name__} ({type(err).__name__}: "
                           f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
                           stacklevel=3)
-            kern = None
+            kern, error = None, err
         if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(self)):
             return kern  # a traced filter (scan under a transformation): its parameters come as data
         theta = kern.theta(self) if kern is not None else None
-        _side.put(self, "kernel", (kern, theta, theta.ctypes.data if kern is not None else None))
+        _side.put(self, "kernel", (kern, theta, theta.ctypes.data if kern is not None else None, error))
         return kern
 
     def _theta(self, kern) -> np.ndarray:
@@ -528,13 +536,15 @@ class AbstractFilter(eqx.Module):
         if kern is not None:
             # shapes here, infinities in C (the full check runs only to say which sample was infinite)
             u, y, u1, y1 = (_sample_array(nm, *samples[nm]) for nm in ("u", "y", "u_next", "y_next"))
+            from ..codegen._kernel import InfiniteSample
+
             try:
                 return kern.step(_side.get(self, "kernel")[2], state, float(t), dt, float(gap), u, u1, y, y1)
-            except ValueError:
+            except InfiniteSample:
                 for nm, (v, k) in samples.items():
-                    _validate.array(nm, v, (k,), missing=True)
+                    _validate.array(nm, _sample_array(nm, v, k), (k,), missing=True)
                 raise
-        u, y, u1, y1 = (_validate.array(nm, *samples[nm][:1], (samples[nm][1],), missing=True)
+        u, y, u1, y1 = (_validate.array(nm, _sample_array(nm, *samples[nm]), (samples[nm][1],), missing=True)
                         for nm in ("u", "y", "u_next", "y_next"))
         fn, leaves = _fast_parts(self)
         z = np.concatenate([[float(t), dt, float(gap)], u, u1, y, y1])
@@ -615,7 +625,10 @@ def _no_compiler() -> bool:
 
 
 def _sample_array(name: str, v, n: int) -> np.ndarray:
-    """A sample as a float64 array of shape (n,) (ValueError naming it otherwise); infinities are not checked."""
+    """A sample as a float64 array of shape (n,) (ValueError naming it otherwise; None for n = 0, a system
+    without inputs); infinities are not checked."""
+    if v is None and n == 0:
+        return np.zeros(0)
     try:
         a = np.asarray(v, np.float64)
     except (TypeError, ValueError) as err:
@@ -669,6 +682,7 @@ def _scan_c(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajector
     x = jnp.concatenate([jnp.ravel(a).astype(f64) for a in jax.tree_util.tree_leaves(state)])
     nv = jnp.asarray(N if n_valid is None else n_valid, jnp.int32)
     S = kern.n_state
+    kern.check_packed(x, state, "state")
     rows, xf = jax.pure_callback(functools.partial(_scan_host, kern, M, R),
                                  (jax.ShapeDtypeStruct((R, S), f64), jax.ShapeDtypeStruct((S,), f64)),
                                  theta, x, jnp.asarray(ts, f64), jnp.asarray(us, f64), jnp.asarray(ys, f64),
@@ -693,12 +707,10 @@ def _scan_host(kern, keep, R, theta, x, ts, us, ys, gap, n_valid):
     ``broadcast_all``): the kept rows (R of them; past the last valid interval, the final state) and the final
     packed states. Trials with one time grid, length and gap go to :meth:`Kernel.batch` together."""
     theta, x, ts, us, ys = (np.ascontiguousarray(a, np.float64) for a in (theta, x, ts, us, ys))
-    if ts.ndim == 1:
-        theta, x, ts, us, ys, gap, n_valid = theta[None], x[None], ts[None], us[None], ys[None], np.reshape(gap, 1), \
-            np.reshape(n_valid, 1)
-        one = True
-    else:
-        gap, n_valid, one = np.ravel(gap), np.ravel(n_valid), False
+    lead = ts.shape[:-1]  # () unbatched; one axis per vmap, flattened into trials
+    theta, x, ts = theta.reshape(-1, theta.shape[-1]), x.reshape(-1, x.shape[-1]), ts.reshape(-1, ts.shape[-1])
+    us, ys = us.reshape((-1,) + us.shape[-2:]), ys.reshape((-1,) + ys.shape[-2:])
+    gap, n_valid = np.ravel(gap), np.maximum(np.ravel(n_valid), 1)
     B = ts.shape[0]
     rows = np.empty((B, R, kern.n_state))
     finals = np.empty((B, kern.n_state))
@@ -718,7 +730,7 @@ def _scan_host(kern, keep, R, theta, x, ts, us, ys, gap, n_valid):
                                        _c_array(ys[b, :n]), float(gap[b]), keep)
             rows[b, :got.shape[0]] = got
             rows[b, got.shape[0]:] = finals[b]
-    return (rows[0], finals[0]) if one else (rows, finals)
+    return rows.reshape(lead + rows.shape[1:]), finals.reshape(lead + finals.shape[1:])
 
 
 @eqx.filter_jit

@@ -54,9 +54,14 @@ class OnlineFilter:
         samples = (("u", u, 0, m), ("u_next", u if u_next is None else u_next, m, m),
                    ("y", y, 2 * m, p), ("y_next", y if y_next is None else y_next, 2 * m + p, p))
         for name, v, off, n in samples:
+            if v is None and n == 0:
+                continue
             if np.shape(v) != (n,):
                 raise ValueError(f"{name}: expected shape ({n},), got {np.shape(v)}")
-            z[off:off + n] = v
+            try:
+                z[off:off + n] = v
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"{name}: expected a numeric array, got {type(v).__name__} ({err})") from err
         dt = check_dt(dt)
         if not math.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
