@@ -208,14 +208,20 @@ def test_engine_argument_is_checked(monkeypatch):
         flt.step(state, 0.0, [0.0], [1.0], 0.1)
 
 
-def test_auto_falls_back_to_xla_saying_why(monkeypatch):
-    """A kernel that cannot be built: "auto" warns and runs with XLA (the same result), "c" raises."""
+@pytest.fixture
+def no_kernel(monkeypatch):
+    """A kernel that cannot be built (the translator meets a primitive it has no C for): a filter and a state."""
     def broken(flt):
         raise codegen.UnsupportedPrimitive("primitive 'fft' has no C here")
 
     monkeypatch.setattr(_kernel, "kernel_for", broken)
     flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
-    state = flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    return flt, flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+
+
+def test_auto_falls_back_to_xla_saying_why(no_kernel):
+    """A kernel that cannot be built: "auto" warns and runs with XLA (the same result), "c" raises."""
+    flt, state = no_kernel
     args = (state, [0.0, 0.1, 0.2], [[0.0], [0.1], [0.2]], [[1.0], [1.0], [0.9]])
     with pytest.raises(codegen.UnsupportedPrimitive, match="fft"):
         flt.run(*args, engine="c")
@@ -246,6 +252,15 @@ def test_kernel_disk_cache(tmp_path, monkeypatch):
     assert k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
 
 
+def _two_weight_sets(flt):
+    """The localization filter's parameters and those of one with a 2 m GPS std, stacked on a leading axis (to
+    vmap over), and the static part to combine them with."""
+    other = liemef.MinimumEnergyFilter(planar_localization(gps_std=2.0))
+    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), eqx.filter(flt, eqx.is_array),
+                                  eqx.filter(other, eqx.is_array))
+    return both, eqx.filter(flt, eqx.is_array, inverse=True)
+
+
 @pytest.mark.parametrize("keep_every", [1, 4])
 def test_scan_by_c_under_jit_and_vmap(keep_every):
     """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states, logs and weights (the Monte Carlo
@@ -266,10 +281,7 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
         assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
         _assert_same(c, x)
     # weights as traced data: vmap over two filters' parameters through the same kernel
-    other = liemef.MinimumEnergyFilter(planar_localization(gps_std=2.0))
-    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), eqx.filter(flt, eqx.is_array),
-                                  eqx.filter(other, eqx.is_array))
-    static = eqx.filter(flt, eqx.is_array, inverse=True)
+    both, static = _two_weight_sets(flt)
 
     def run_with(params, engine):
         f = eqx.combine(params, static)
@@ -349,14 +361,9 @@ def test_a_state_of_another_filter_is_refused():
                     threads=0)
 
 
-def test_c_after_a_fallback_still_raises(monkeypatch):
+def test_c_after_a_fallback_still_raises(no_kernel):
     """An "auto" run that fell back to XLA does not make a later engine="c" on the same filter run XLA."""
-    def broken(flt):
-        raise codegen.UnsupportedPrimitive("primitive 'fft' has no C here")
-
-    monkeypatch.setattr(_kernel, "kernel_for", broken)
-    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
-    state = flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+    flt, state = no_kernel
     with pytest.warns(EngineWarning):
         flt.step(state, 0.0, [0.0], [1.0], 0.1)
     with pytest.raises(codegen.UnsupportedPrimitive, match="fft"):
@@ -381,10 +388,7 @@ def test_scan_by_c_alone_nested_and_per_trial():
         return jax.jit(jax.vmap(lambda u, y, n: flt.scan(state, ts, u, y, n_valid=n, engine=engine)))(us, ys, nvs)
 
     _assert_same(per_trial("c"), per_trial("xla"))
-    other = liemef.MinimumEnergyFilter(planar_localization(gps_std=2.0))
-    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), eqx.filter(flt, eqx.is_array),
-                                  eqx.filter(other, eqx.is_array))
-    static = eqx.filter(flt, eqx.is_array, inverse=True)
+    both, static = _two_weight_sets(flt)
 
     def nested(engine):
         def one(params, u, y):

@@ -112,11 +112,6 @@ def cache_dir() -> Path:
     return Path(base) / "liemef" / "kernels"
 
 
-def kernel_source(flt: AbstractFilter) -> str:
-    """The C source of ``flt``'s kernel."""
-    return _translate(_trace(flt))
-
-
 def _trace(flt: AbstractFilter) -> _Traced:
     """The jaxpr of one sample interval of ``flt`` with its parameters and state as inputs."""
     dyn, static = eqx.partition(flt, eqx.is_array)
@@ -657,4 +652,4 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         return kern
 
 
-__all__ = ["KERNEL_CFLAGS", "LANES", "LANE_CFLAGS", "Kernel", "cache_dir", "kernel_for", "kernel_source"]
+__all__ = ["KERNEL_CFLAGS", "LANES", "LANE_CFLAGS", "Kernel", "cache_dir", "kernel_for"]

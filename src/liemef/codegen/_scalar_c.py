@@ -652,7 +652,7 @@ class ScalarTranslator:
         lines: list[str] = []
         self.lanes = True
         try:
-            self._write_lanes(root_scope, live, lines, 1)
+            self._write(root_scope, live, lines, 1)
             for lv, n in outputs:
                 lines.append(f"    for (int l = 0; l < LANES; l++) {lv}[l] = {self.expr(n)};")
         finally:
@@ -715,69 +715,39 @@ class ScalarTranslator:
             return e[0]
         return None
 
-    def _write_lanes(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
-        pad = "    " * depth
+    def _lane_node(self, i: int, pad: str) -> str:
+        """The statement of node ``i`` in lane code: a scalar if it is the same in every lane, else a vector
+        expression, else a loop over the lanes."""
         loop = "for (int l = 0; l < LANES; l++)"
-        for st in scope.stmts:
-            kind = st[0]
-            if kind == "node":
-                i = st[1]
-                if i not in live:
-                    continue
-                dt, args = self.dtype[i], self.args[i]
-                if all(a in self.shared or self.is_const(a) for a in args):
-                    # the same in every lane (from parameters and times only): one scalar
-                    self.shared.add(i)
-                    lines.append(f"{pad}const {ctype(dt)} n{i} = {self.rhs(i)};")
-                    continue
-                v = self._vrhs(i)
-                if v is not None:
-                    lines.append(f"{pad}const {lane_type(dt)} n{i} = {v};")
-                elif dt == np.bool_:
-                    lines.append(f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;")
-                else:
-                    lines.append(f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};")
-            elif kind == "while":
-                _, inits, cs, pred, bs, assigns, dts = st
-                for nm, n in inits:
-                    lines.append(f"{pad}{lane_type(dts[nm])} {nm} = {self._vec(n)};")
-                lines.append(f"{pad}for (;;) {{")
-                self._write_lanes(cs, live, lines, depth + 1)
-                lines.append(f"{pad}    const lane_i64 go = {self._vec(pred)};")
-                lines.append(f"{pad}    int any = 0;")
-                lines.append(f"{pad}    {loop} any |= go[l] != 0;")
-                lines.append(f"{pad}    if (!any) break;")
-                lines.append(f"{pad}    {{")
-                self._write_lanes(bs, live, lines, depth + 2)
-                for nm, n in assigns:
-                    lines.append(f"{pad}        const {lane_type(dts[nm])} {nm}_next = {self._vec(n)};")
-                for nm, _ in assigns:
-                    lines.append(f"{pad}        {nm} = LANE_SEL_{LANE_SUFFIX[dts[nm].str]}(go, {nm}_next, {nm});")
-                lines.append(f"{pad}    }}")
-                lines.append(f"{pad}}}")
-            elif kind == "for":
-                _, inits, length, bs, assigns, dts = st
-                for nm, n in inits:
-                    lines.append(f"{pad}{lane_type(dts[nm])} {nm} = {self._vec(n)};")
-                it = self.fresh("it")
-                lines.append(f"{pad}for (int {it} = 0; {it} < {length}; {it}++) {{")
-                self._write_lanes(bs, live, lines, depth + 1)
-                for nm, n in assigns:
-                    lines.append(f"{pad}    const {lane_type(dts[nm])} {nm}_next = {self._vec(n)};")
-                for nm, _ in assigns:
-                    lines.append(f"{pad}    {nm} = {nm}_next;")
-                lines.append(f"{pad}}}")
-            else:
-                raise UnsupportedPrimitive(f"{kind!r} has no lane form (the batch runs one trial at a time)")
+        dt, args = self.dtype[i], self.args[i]
+        if all(a in self.shared or self.is_const(a) for a in args):
+            # the same in every lane (from parameters and times only): one scalar
+            self.shared.add(i)
+            return f"{pad}const {ctype(dt)} n{i} = {self.rhs(i)};"
+        v = self._vrhs(i)
+        if v is not None:
+            return f"{pad}const {lane_type(dt)} n{i} = {v};"
+        if dt == np.bool_:
+            return f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;"
+        return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};"
 
     def _write(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
+        """The C of a scope's statements: scalar code, or lane code while ``self.lanes`` (:meth:`emit_lanes`),
+        where values are typed and read as lane vectors, a loop runs while any lane's test holds and a lane
+        whose test fails keeps its carry."""
         pad = "    " * depth
+        lanes = self.lanes
+        typ = lane_type if lanes else ctype
+        val = self._vec if lanes else self.expr
         for st in scope.stmts:
             kind = st[0]
             if kind == "node":
                 i = st[1]
                 if i in live:
-                    lines.append(f"{pad}const {ctype(self.dtype[i])} n{i} = {self.rhs(i)};")
+                    lines.append(self._lane_node(i, pad) if lanes else
+                                 f"{pad}const {ctype(self.dtype[i])} n{i} = {self.rhs(i)};")
+            elif lanes and kind in ("block", "cond"):
+                raise UnsupportedPrimitive(f"{kind!r} has no lane form (the batch runs one trial at a time)")
             elif kind == "block":
                 _, bname, total, dtypes, vals, in_flat, blines, copies, outs = st
                 if not any(o in live for o in outs):
@@ -794,30 +764,34 @@ class ScalarTranslator:
             elif kind == "while":
                 _, inits, cs, pred, bs, assigns, dts = st
                 for nm, n in inits:
-                    lines.append(f"{pad}{ctype(dts[nm])} {nm} = {self.expr(n)};")
+                    lines.append(f"{pad}{typ(dts[nm])} {nm} = {val(n)};")
                 lines.append(f"{pad}for (;;) {{")
                 self._write(cs, live, lines, depth + 1)
-                lines.append(f"{pad}    if (!({self.expr(pred)})) break;")
+                if lanes:
+                    lines.append(f"{pad}    const lane_i64 go = {self._vec(pred)};")
+                    lines.append(f"{pad}    int any = 0;")
+                    lines.append(f"{pad}    for (int l = 0; l < LANES; l++) any |= go[l] != 0;")
+                    lines.append(f"{pad}    if (!any) break;")
+                else:
+                    lines.append(f"{pad}    if (!({self.expr(pred)})) break;")
                 lines.append(f"{pad}    {{")
                 self._write(bs, live, lines, depth + 2)
-                tmps = []
                 for nm, n in assigns:
-                    t = f"{nm}_next"
-                    tmps.append((nm, t))
-                    lines.append(f"{pad}        const {ctype(dts[nm])} {t} = {self.expr(n)};")
-                for nm, t in tmps:
-                    lines.append(f"{pad}        {nm} = {t};")
+                    lines.append(f"{pad}        const {typ(dts[nm])} {nm}_next = {val(n)};")
+                for nm, _ in assigns:
+                    new = f"LANE_SEL_{LANE_SUFFIX[dts[nm].str]}(go, {nm}_next, {nm})" if lanes else f"{nm}_next"
+                    lines.append(f"{pad}        {nm} = {new};")
                 lines.append(f"{pad}    }}")
                 lines.append(f"{pad}}}")
             elif kind == "for":
                 _, inits, length, bs, assigns, dts = st
                 for nm, n in inits:
-                    lines.append(f"{pad}{ctype(dts[nm])} {nm} = {self.expr(n)};")
+                    lines.append(f"{pad}{typ(dts[nm])} {nm} = {val(n)};")
                 it = self.fresh("it")
                 lines.append(f"{pad}for (int {it} = 0; {it} < {length}; {it}++) {{")
                 self._write(bs, live, lines, depth + 1)
                 for nm, n in assigns:
-                    lines.append(f"{pad}    const {ctype(dts[nm])} {nm}_next = {self.expr(n)};")
+                    lines.append(f"{pad}    const {typ(dts[nm])} {nm}_next = {val(n)};")
                 for nm, _ in assigns:
                     lines.append(f"{pad}    {nm} = {nm}_next;")
                 lines.append(f"{pad}}}")
