@@ -398,3 +398,81 @@ def test_scan_by_c_alone_nested_and_per_trial():
     got = nested("c")
     assert got.shape[:2] == (2, 3)
     _assert_same(got, nested("xla"))
+
+
+def test_online_states_are_values():
+    """States from flt.step by C are values: a state kept across more steps than a block of rows holds is
+    unchanged by the steps after it; samples as lists, integers or with explicit next samples are the same
+    numbers as float arrays; the generated state reader gives what ``unflatten`` gives."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make())
+    state, ts, us, ys = _log(flt, n=2, seed=41)
+    kept, copies = [], []
+    st = state
+    for _ in range(_kernel.ROWS_PER_BLOCK + 40):
+        st = flt.step(st, 0.0, us[0], ys[0], 1e-3, engine="c")
+        kept.append(st)
+        copies.append(jax.tree_util.tree_map(np.copy, st))
+    for a, b in zip(kept, copies, strict=True):
+        _assert_same(a, b, tol=0.0)
+    assert int(kept[-1].status.steps) == _kernel.ROWS_PER_BLOCK + 40
+    u_int = np.array([1, 2])
+    ref = flt.step(state, 0.0, u_int.astype(float), ys[0], 1e-3, engine="c")
+    for u, y, kw in ((u_int, ys[0], {}), (list(u_int), list(ys[0]), {}),
+                     (u_int, ys[0], dict(u_next=u_int, y_next=ys[0]))):
+        _assert_same(flt.step(state, 0.0, u, y, 1e-3, engine="c", **kw), ref, tol=0.0)
+    with pytest.raises(ValueError, match="y: expected a numeric array, got str"):
+        flt.step(state, 0.0, u_int, "seven", 1e-3, engine="c")
+    with pytest.raises(ValueError, match=r"y_next: expected finite values or NaN \(missing\), got -inf at index \(2,"):
+        flt.step(state, 0.0, u_int, ys[0], 1e-3, engine="c", y_next=np.where(np.arange(7) == 2, -np.inf, 0.0))
+    kern = flt._kernel("c")
+    x = kern.packed(ref)
+    assert kern._read.__name__ == "read"  # the generated reader, not the fallback
+    _assert_same(kern._read(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)
+
+
+def test_state_reader_falls_back_on_static_fields():
+    """A state node with a static field is built by ``unflatten`` (the generated reader covers Modules without
+    static fields and tuples), with the same result."""
+
+    class Node(eqx.Module):
+        a: np.ndarray
+        tag: int = eqx.field(static=True)
+
+    template = (Node(np.zeros(2), 3), np.zeros((2, 2)), np.int32(4))
+    leaves, sdef = jax.tree_util.tree_flatten(template)
+    slots, _ = _kernel._slots(leaves)
+    read = _kernel._state_reader(slots, sdef, template)
+    assert read.__name__ == "<lambda>"
+    got = read(np.arange(7.0))
+    assert jax.tree_util.tree_structure(got) == sdef and got[0].tag == 3
+    np.testing.assert_array_equal(got[1], [[2.0, 3.0], [4.0, 5.0]])
+    assert got[2] == 6 and got[2].dtype == np.int32
+    plain = (np.zeros(2), (np.zeros(3), np.int32(0)))
+    leaves, sdef = jax.tree_util.tree_flatten(plain)
+    read = _kernel._state_reader(_kernel._slots(leaves)[0], sdef, plain)
+    assert read.__name__ == "read" and jax.tree_util.tree_structure(read(np.arange(6.0))) == sdef
+
+
+def test_side_values_die_with_their_object():
+    """liemef._side: a value is found while its object lives, not for another object that reuses its identity,
+    and sweeps drop the entries of collected objects."""
+    from liemef import _side
+
+    class Obj:
+        pass
+
+    live = [Obj() for _ in range(3)]
+    for i, o in enumerate(live):
+        _side.put(o, "v", i)
+    assert [_side.get(o, "v") for o in live] == [0, 1, 2]
+    dead = Obj()
+    _side.put(dead, "v", "gone")
+    key = (id(dead), "v")
+    del dead
+    assert key in _side._SIDE
+    _side.sweep()
+    assert key not in _side._SIDE and [_side.get(o, "v") for o in live] == [0, 1, 2]
+    before = len(_side._SIDE)
+    for _ in range(3 * max(_side._SWEEP_AT[0], before)):  # many short-lived objects: the table stays bounded
+        _side.put(Obj(), "v", 0)
+    assert len(_side._SIDE) <= 2 * max(1024, before) + 1

@@ -2,7 +2,9 @@
 
 An equinox Module's pytree structure includes its ``__dict__`` (a key added to it changes the treedef, so that
 ``jit`` would trace again and ``tree_map`` over two states would fail): caches live here instead, keyed by the
-object's identity and dropped with it.
+object's identity and checked against a weak reference to it (an identity can be reused once the object is
+gone). Entries of collected objects are dropped in sweeps, whenever the table has doubled since the last one:
+a weak reference with a callback would cost more than the online step's whole budget to create.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import weakref
 
 _SIDE: dict[tuple[int, str], tuple[weakref.ref, object]] = {}
+_SWEEP_AT = [1024]
 
 
 def get(obj, name: str):
@@ -19,6 +22,14 @@ def get(obj, name: str):
 
 
 def put(obj, name: str, value) -> None:
-    """Keep ``value`` beside ``obj`` under ``name`` until ``obj`` is collected."""
-    key = (id(obj), name)
-    _SIDE[key] = (weakref.ref(obj, lambda _, key=key: _SIDE.pop(key, None)), value)
+    """Keep ``value`` beside ``obj`` under ``name`` while ``obj`` lives (dropped in a later sweep after)."""
+    _SIDE[(id(obj), name)] = (weakref.ref(obj), value)
+    if len(_SIDE) > _SWEEP_AT[0]:
+        sweep()
+
+
+def sweep() -> None:
+    """Drop the entries of collected objects."""
+    for key in [key for key, (ref, _) in list(_SIDE.items()) if ref() is None]:
+        _SIDE.pop(key, None)
+    _SWEEP_AT[0] = max(1024, 2 * len(_SIDE))

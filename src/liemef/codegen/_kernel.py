@@ -32,7 +32,9 @@ zero pattern, the generator's code, the compiler and its flags: ``$LIEMEF_CACHE_
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import hashlib
+import itertools
 import os
 import platform
 import subprocess
@@ -46,8 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _side
-from ..filter._driver import TRACES, AbstractFilter, FilterState
+from .. import _side, _validate
+from ..filter._driver import TRACES, AbstractFilter, FilterState, _sample_array
 from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
@@ -436,15 +438,93 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, lanes: bool = False) -> Path:
     return lib
 
 
-class InfiniteSample(ValueError):
-    """The C step found an infinite sample (and computed nothing): the caller says which."""
-
-
 _dp = ctypes.POINTER(ctypes.c_double)
 
 
 def _ptr(a: np.ndarray):
     return a.ctypes.data_as(_dp)
+
+
+ROWS_PER_BLOCK = 512
+"""Online steps' new states per preallocated block (:meth:`Kernel._row`)."""
+
+
+def fill_samples(z: np.ndarray, m: int, p: int, u, y, u_next, y_next) -> None:
+    """Copy one interval's samples into ``z`` = (u0, u1, y0, y1), ``u_next``/``y_next`` None for held (ValueError
+    naming the sample for a wrong shape or a non-number; None for an input of dimension 0)."""
+    if (u_next is None and y_next is None and type(u) is np.ndarray and type(y) is np.ndarray
+            and u.shape == (m,) and y.shape == (p,) and u.dtype.kind in "fiu" and y.dtype.kind in "fiu"):
+        np.concatenate((u, u, y, y), out=z[:2 * (m + p)])  # the common case, in half the time
+        return
+    samples = (("u", u, 0, m), ("u_next", u if u_next is None else u_next, m, m),
+               ("y", y, 2 * m, p), ("y_next", y if y_next is None else y_next, 2 * m + p, p))
+    for name, v, off, n in samples:
+        z[off:off + n] = _sample_array(name, v, n)
+
+
+def reject_infinite(z: np.ndarray, m: int, p: int) -> None:
+    """Raise the boundary check's ValueError for the first infinite sample in ``z`` (filled by
+    :func:`fill_samples`: the C step found one and computed nothing; it takes NaN as missing, as the XLA engine
+    does)."""
+    for name, off, n in (("u", 0, m), ("u_next", m, m), ("y", 2 * m, p), ("y_next", 2 * m + p, p)):
+        _validate.array(name, z[off:off + n], (n,), missing=True)
+
+
+def _state_reader(sslots: tuple[Slot, ...], sdef, template):
+    """A function from one packed vector to its FilterState: generated for the layout, since the online step
+    reads a state at each call and a loop over the slots, then ``sdef.unflatten``, cost three times as much.
+    Float arrays are views, scalars NumPy scalars, integer leaves from one typed copy. The nodes are built as
+    equinox builds them in its own unflatten (``object.__new__``, then each field set), for Modules without
+    static fields and for tuples; any other node, or a result that is not the structure ``sdef`` with exactly
+    these leaves (checked here on ``template``'s layout), falls back to ``sdef.unflatten``."""
+    ints = [sl for sl in sslots if sl.dtype != np.float64]
+    int_dtype = ints[0].dtype if ints else np.dtype(np.int32)
+    if any(sl.dtype != int_dtype for sl in ints):
+        raise UnsupportedPrimitive(f"state leaves of several integer dtypes: {sorted({str(sl.dtype) for sl in ints})}")
+    exprs, k = [], 0
+    for sl in sslots:
+        src, start = ("x", sl.offset) if sl.dtype == np.float64 else ("xi", k)
+        k += 0 if sl.dtype == np.float64 else sl.size
+        exprs.append(f"{src}[{start}]" if sl.shape == () else
+                     f"{src}[{start}:{start + sl.size}]" + (f".reshape({sl.shape})" if len(sl.shape) > 1 else ""))
+    namespace = {"int_pos": np.array([sl.offset + i for sl in ints for i in range(sl.size)], np.intp),
+                 "int_dtype": int_dtype, "new": object.__new__, "set": object.__setattr__}
+    head = "def read(x):\n    xi = x[int_pos].astype(int_dtype)\n"
+    exec(head + f"    return [{', '.join(exprs)}]\n", namespace)
+    leaves = namespace["read"]
+    lines, leaf_exprs = [], iter(exprs)
+
+    def node(td, obj) -> str:  # the expression of one node (statements for it appended to lines)
+        if td.num_nodes == 1 and td.num_leaves == 1:
+            return next(leaf_exprs)
+        cls, aux = td.node_data()
+        kids = td.children()
+        if cls is tuple:
+            return "(" + "".join(node(c, o) + ", " for c, o in zip(kids, obj, strict=True)) + ")"
+        fields = [f.name for f in dataclasses.fields(cls)] if isinstance(obj, eqx.Module) else None
+        if fields is None or len(aux) != 1 or aux[0] or len(fields) != len(kids):
+            raise UnsupportedPrimitive(f"a state node {cls.__name__} with static fields")
+        values = [node(c, vars(obj)[f]) for c, f in zip(kids, fields, strict=True)]
+        name = f"n{len(lines)}"
+        namespace[f"C{len(lines)}"] = cls
+        lines.append(f"    {name} = new(C{len(lines)})\n" + "".join(f"    set({name}, {f!r}, {v})\n"
+                                                             for f, v in zip(fields, values, strict=True)))
+        return name
+
+    try:
+        root = node(sdef, template)
+        exec(head + "".join(lines) + f"    return {root}\n", namespace)
+        read = namespace["read"]
+        probe = np.arange(sum(sl.size for sl in sslots), dtype=np.float64)
+        built, want = read(probe), sdef.unflatten(leaves(probe))
+        same = jax.tree_util.tree_structure(built) == sdef and all(
+            type(a) is type(b) and np.shape(a) == np.shape(b) and np.array_equal(a, b)
+            for a, b in zip(jax.tree_util.tree_leaves(built), jax.tree_util.tree_leaves(want), strict=True))
+        if same:
+            return read
+    except (UnsupportedPrimitive, TypeError, ValueError, StopIteration):
+        pass
+    return lambda x: sdef.unflatten(leaves(x))
 
 
 class Kernel:
@@ -470,24 +550,12 @@ class Kernel:
         self._step = self.lib.kernel_step
         self._step.argtypes = [vp, vp, vp, ctypes.c_double, ctypes.c_double, ctypes.c_double, vp]
         self._step.restype = ctypes.c_int
-        # unpacking one state fast (the online step): the integer leaves' positions, read at once; per leaf
-        # whether it is float, and a scalar's position or an array's slice and shape
-        ints = [sl for sl in sslots if sl.dtype != np.float64]
-        self._int_pos = np.array([sl.offset + i for sl in ints for i in range(sl.size)], np.intp)
-        self._int_dtype = ints[0].dtype if ints else np.dtype(np.int32)
-        if any(sl.dtype != self._int_dtype for sl in ints):
-            kinds = sorted({str(sl.dtype) for sl in ints})
-            raise UnsupportedPrimitive(f"state leaves of several integer dtypes: {kinds}")
-        self._plan, k = [], 0
-        for sl in sslots:
-            is_float = sl.dtype == np.float64
-            start = sl.offset if is_float else k
-            k += 0 if is_float else sl.size
-            self._plan.append((is_float, start if sl.shape == () else None, slice(start, start + sl.size), sl.shape))
+        self._read = _state_reader(sslots, sdef, traced.state)
         self._batch = self.lib.kernel_batch
         self._batch.argtypes = [_dp, ctypes.c_int, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp,
                                 ctypes.c_double, ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
         self._batch.restype = None
+        self._block = self._new_block()
 
     # --- packing ----------------------------------------------------------------------------------------------
     def theta(self, flt: AbstractFilter) -> np.ndarray:
@@ -521,34 +589,52 @@ class Kernel:
             out.append(a if s.dtype == np.float64 else a.astype(s.dtype))
         return out
 
-    def state(self, x: np.ndarray) -> FilterState:
-        """The FilterState of one packed vector (kept beside it, so that the next step need not pack it again)."""
-        xi = x[self._int_pos].astype(self._int_dtype)
-        # scalars as NumPy scalars (an element read), arrays as views: a microsecond or two for the whole state
-        leaves = [(x if is_float else xi)[pos] if pos is not None else (x if is_float else xi)[sl].reshape(shape)
-                  for is_float, pos, sl, shape in self._plan]
-        st = jax.tree_util.tree_unflatten(self.sdef, leaves)
-        _side.put(st, "packed", (x, x.ctypes.data))
+    def state(self, x: np.ndarray, address: int | None = None) -> FilterState:
+        """The FilterState of one packed vector (kept beside it, so that the next step need not pack it again;
+        ``address``: where ``x`` is, if known)."""
+        st = self._read(x)
+        _side.put(st, "packed", (x, x.ctypes.data if address is None else address, self))
         return st
 
     def packed(self, state: FilterState) -> np.ndarray:
-        """The packed vector of a state: the one it came from, if it is a kernel's state, else packed now."""
+        """The packed vector of a state: the one it came from, if it is this kernel's state, else packed now."""
         got = _side.get(state, "packed")
-        return got[0] if got is not None and got[0].shape == (self.n_state,) else self.pack(state)
+        return got[0] if got is not None and got[2] is self else self.pack(state)
 
-    def step(self, theta_address: int, state: FilterState, t: float, dt: float, gap: float, u0, u1, y0, y1
-             ) -> FilterState:
-        """One online step from ``state`` (checked samples; ``theta_address``: where the parameter vector is):
-        the C ``kernel_step``, and the new state."""
+    def made(self, state) -> bool:
+        """Whether ``state`` came from this kernel (then its structure needs no check)."""
         got = _side.get(state, "packed")
-        if got is None or got[0].shape != (self.n_state,):
+        return got is not None and got[2] is self
+
+    def _row(self) -> tuple[np.ndarray, int]:
+        """A fresh row for one online step (its new state, then its samples) and the row's address, cut from a
+        preallocated block: the address of a new array costs over a microsecond (``ndarray.ctypes``), a block's
+        is taken once. A block lives while a state in it does (its leaves are views)."""
+        while True:
+            block, address, counter = self._block
+            i = next(counter)
+            if i < block.shape[0]:
+                return block[i], address + i * block.strides[0]
+            self._block = self._new_block()
+
+    def _new_block(self):
+        block = np.empty((ROWS_PER_BLOCK, self.n_state + max(1, 2 * (self.m + self.p))))
+        return block, block.ctypes.data, itertools.count()
+
+    def step(self, theta_address: int, state: FilterState, t: float, dt: float, gap: float, u, y, u_next, y_next
+             ) -> FilterState:
+        """One online step from ``state`` (``theta_address``: where the parameter vector is; samples as given,
+        checked here): the C ``kernel_step``, and the new state."""
+        got = _side.get(state, "packed")
+        if got is None or got[2] is not self:
             x = self.pack(state)
             got = (x, x.ctypes.data)
-        z = np.concatenate((u0, u1, y0, y1))
-        xo = np.empty(self.n_state)
-        if self._step(theta_address, got[1], xo.ctypes.data, t, dt, gap, z.ctypes.data if z.size else None) == -2:
-            raise InfiniteSample("an infinite sample")  # the caller names it (AbstractFilter.step)
-        return self.state(xo)
+        row, address = self._row()
+        S = self.n_state
+        fill_samples(row[S:], self.m, self.p, u, y, u_next, y_next)
+        if self._step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
+            reject_infinite(row[S:], self.m, self.p)
+        return self.state(row[:S], address)
 
     # --- calls ------------------------------------------------------------------------------------------------
     def scan(self, theta, x, ts, us, ys, gap: float, keep: int) -> tuple[np.ndarray, np.ndarray]:

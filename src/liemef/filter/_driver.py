@@ -470,7 +470,7 @@ class AbstractFilter(eqx.Module):
     def _kernel(self, engine: str | None):
         """The C kernel the engine choice gives (None: XLA), kept beside the instance (liemef._side)."""
         engine = engine_of(engine)
-        if engine == "xla" or (engine == "auto" and not self._c_engine):
+        if engine == "xla" or (engine == "auto" and not type(self)._c_engine):
             return None
         cached = _side.get(self, "kernel")
         if cached is not None:
@@ -520,30 +520,18 @@ class AbstractFilter(eqx.Module):
         # the hot path of a robot loop: methods are reached through the class, since reading a method off an
         # equinox Module builds a bound-method Module each time (microseconds)
         cls = type(self)
-        dims = _side.get(self, "dims")
-        if dims is None:
-            dims = (self.system.group, self.n, self.system.input_dim, self.system.output_dim)
-            _side.put(self, "dims", dims)
-        G, n, m, p = dims
-        if not (type(state) is FilterState and type(state.g_hat) is G and getattr(state.K, "shape", None) == (n, n)):
-            cls._check_state(self, state)
-        samples = {"u": (u, m), "y": (y, p), "u_next": (u if u_next is None else u_next, m),
-                   "y_next": (y if y_next is None else y_next, p)}
         dt = check_dt(dt)
         if not math.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
         kern = cls._kernel(self, engine)
-        if kern is not None:
-            # shapes here, infinities in C (the full check runs only to say which sample was infinite)
-            u, y, u1, y1 = (_sample_array(nm, *samples[nm]) for nm in ("u", "y", "u_next", "y_next"))
-            from ..codegen._kernel import InfiniteSample
-
-            try:
-                return kern.step(_side.get(self, "kernel")[2], state, float(t), dt, float(gap), u, u1, y, y1)
-            except InfiniteSample:
-                for nm, (v, k) in samples.items():
-                    _validate.array(nm, _sample_array(nm, v, k), (k,), missing=True)
-                raise
+        if kern is not None:  # the samples are checked as the kernel copies them in, infinities by the C step
+            if not kern.made(state):
+                cls._check_state(self, state)
+            return kern.step(_side.get(self, "kernel")[2], state, float(t), dt, float(gap), u, y, u_next, y_next)
+        cls._check_state(self, state)
+        m, p = self.system.input_dim, self.system.output_dim
+        samples = {"u": (u, m), "y": (y, p), "u_next": (u if u_next is None else u_next, m),
+                   "y_next": (y if y_next is None else y_next, p)}
         u, y, u1, y1 = (_validate.array(nm, _sample_array(nm, *samples[nm]), (samples[nm][1],), missing=True)
                         for nm in ("u", "y", "u_next", "y_next"))
         fn, leaves = _fast_parts(self)

@@ -33,6 +33,9 @@ class OnlineFilter:
         if self._kern is None:
             self._state = state
             return
+        from ..codegen._kernel import fill_samples, reject_infinite  # the codegen imports the filter
+
+        self._fill, self._reject = fill_samples, reject_infinite
         kern = self._kern
         self._theta_address = _side.get(flt, "kernel")[2]
         self._x = np.array(kern.pack(state))
@@ -50,26 +53,14 @@ class OnlineFilter:
             self._state = self.filter.step(self._state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap,
                                            engine="xla")
             return int(self._state.status.code)
-        m, p, z = self.m, self.p, self._z
-        samples = (("u", u, 0, m), ("u_next", u if u_next is None else u_next, m, m),
-                   ("y", y, 2 * m, p), ("y_next", y if y_next is None else y_next, 2 * m + p, p))
-        for name, v, off, n in samples:
-            if v is None and n == 0:
-                continue
-            if np.shape(v) != (n,):
-                raise ValueError(f"{name}: expected shape ({n},), got {np.shape(v)}")
-            try:
-                z[off:off + n] = v
-            except (TypeError, ValueError) as err:
-                raise ValueError(f"{name}: expected a numeric array, got {type(v).__name__} ({err})") from err
         dt = check_dt(dt)
         if not math.isfinite(t):
             raise ValueError(f"t: expected a finite time, got {t}")
+        self._fill(self._z, self.m, self.p, u, y, u_next, y_next)
         x, xo, za = self._addresses
         code = self._kern._step(self._theta_address, x, xo, float(t), dt, float(gap), za)
         if code == -2:
-            bad = next(nm for nm, v, off, n in samples if np.isinf(z[off:off + n]).any())
-            raise ValueError(f"{bad}: expected finite values or NaN (missing), got an infinite value")
+            self._reject(self._z, self.m, self.p)
         self._x, self._xo = self._xo, self._x
         self._addresses = (xo, x, za)
         return code
