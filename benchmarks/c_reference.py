@@ -39,15 +39,16 @@ def compiler() -> list[str] | None:
     return cmd if cmd and shutil.which(cmd[0]) else None
 
 
-def build(tmpdir) -> str:
-    """Compile the reference into ``tmpdir`` and return the path of the shared library.
+def build(tmpdir, extra: tuple[str, ...] = ()) -> str:
+    """Compile the reference into ``tmpdir`` (with ``extra`` flags after :data:`FLAGS`, e.g. ``-march=native``)
+    and return the path of the shared library.
 
     Raises RuntimeError if no C compiler is found or the compilation fails (with the compiler's output)."""
     cmd = compiler()
     if cmd is None:
         raise RuntimeError("no C compiler: set $CC or install cc")
-    out = os.path.join(os.fspath(tmpdir), "libtse2_reference.so")
-    proc = subprocess.run([*cmd, *FLAGS, SOURCE, "-o", out, "-lm"], capture_output=True, text=True)
+    out = os.path.join(os.fspath(tmpdir), f"libtse2_reference{''.join(extra).replace('=', '_')}.so")
+    proc = subprocess.run([*cmd, *FLAGS, *extra, SOURCE, "-o", out, "-lm"], capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"compiling {SOURCE} failed:\n{proc.stdout}{proc.stderr}")
     return out

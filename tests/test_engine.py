@@ -239,17 +239,25 @@ def test_without_a_compiler_auto_is_xla(monkeypatch):
 
 
 def test_kernel_disk_cache(tmp_path, monkeypatch):
-    """A second process finds the built kernel on disk (here: the in-process cache emptied): no new build."""
+    """The first build is quick (-O0) and the -O2 one replaces it when done, with the same numbers bit for bit;
+    a second process finds the -O2 kernel on disk (here: the in-process cache emptied): no new build."""
     monkeypatch.setenv("LIEMEF_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(_kernel, "_KERNELS", {})
     flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
     k1 = _kernel.kernel_for(flt)
+    assert len(list(tmp_path.glob("quick_*.so"))) == 1  # the first build serves while -O2 builds
+    state, ts, us, ys = _log(flt, n=200, seed=5)
+    theta, x = k1.theta(flt), k1.pack(state)
+    quick = _kernel.Kernel(next(tmp_path.glob("quick_*.so")), k1.traced).scan(theta, x, ts, us, ys, 0.2, 3)
+    assert k1.wait().optimized and k1.optimize_error is None
     files = sorted(tmp_path.glob("kernel_*.so"))
     assert len(files) == 1 and k1.path == files[0]
+    for a, b in zip(quick, k1.scan(theta, x, ts, us, ys, 0.2, 3), strict=True):  # -O0 and -O2: bit for bit
+        np.testing.assert_array_equal(a, b)
     stamp = files[0].stat().st_mtime_ns
     monkeypatch.setattr(_kernel, "_KERNELS", {})
     k2 = _kernel.kernel_for(liemef.MinimumEnergyFilter(_drift_system(0.7, [0.3, 0.2])))
-    assert k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
+    assert k2.optimized and k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
 
 
 def _two_weight_sets(flt):
