@@ -16,8 +16,9 @@ The yardstick (issue 9): a hand-written C99 step of the same filter from the clo
 (``c/tse2_reference.c``, built by ``c_reference.py`` with the system C compiler, ``$CC`` or ``cc``, at -O2
 -march=native, the flags of the C engine's kernel), timed on the same log in the same run. Its microseconds
 per step for RKMK4 and Lie-Euler are the ``c_reference`` section, and ``ratios`` gives every speed figure
-over it (``*_over_c``): ``run`` RKMK4 and its first-order variant over the C RKMK4, ``run`` Lie-Euler over the C Lie-Euler, one ``step`` call over the C
-RKMK4 step. Without a C compiler the section says so and the benchmark goes on without those ratios.
+over it (``*_over_c``): ``run`` RKMK4 and its first-order variant over the C RKMK4, ``run`` Lie-Euler over
+the C Lie-Euler, one ``step`` call over the C RKMK4 step. Without a C compiler the section says so and the
+benchmark goes on without those ratios.
 
 The ``export_c`` section times ``liemef export-c``'s C for the same filter (second order, RKMK4, adaptive
 sub-steps, health checks), built with the same compiler and flags, alternately with the reference on the same

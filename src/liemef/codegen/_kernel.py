@@ -166,9 +166,10 @@ class _Traced:
     p: int
     title: str
 
+    @functools.cached_property
     def key(self) -> str:
         """The hash of everything the source depends on: the jaxpr and its constants, the zero pattern and
-        the generator's own code (a new liemef writes new kernels)."""
+        the generator's own code (a new liemef writes new kernels). Kept: printing the jaxpr takes 0.1 s."""
         h = hashlib.sha256()
         h.update(str(self.closed.jaxpr).encode())
         for c in self.closed.consts:
@@ -427,7 +428,7 @@ def _library(tr: _Traced, flags, kind: str) -> Path:
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
-    parts = [tr.key(), cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
+    parts = [tr.key, cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
         ([_host()] if "-march=native" in flags else [])
     return cache_dir() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
 

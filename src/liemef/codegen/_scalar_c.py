@@ -80,6 +80,7 @@ class ScalarTranslator:
         self.counter = [0]
         self.lanes = False  # writing lane code (emit_lanes): every non-shared value is a vector of trials
         self.shared: set[int] = set()  # values with one value for every lane (parameters, times, and from them)
+        self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -214,10 +215,13 @@ class ScalarTranslator:
 
     def const_array(self, value, dtype) -> np.ndarray:
         value = np.asarray(value, dtype)
-        out = np.empty(value.shape, dtype=object)
-        for idx in np.ndindex(*value.shape):
-            out[idx] = self.const(value[idx], dtype)
-        return out
+        key = (value.dtype.str, value.shape, value.tobytes())  # the same literal recurs in every equation's copy
+        if key not in self.const_arrays:
+            out = np.empty(value.shape, dtype=object)
+            for idx in np.ndindex(*value.shape):
+                out[idx] = self.const(value[idx], dtype)
+            self.const_arrays[key] = out
+        return self.const_arrays[key].copy()
 
     # --- expressions ----------------------------------------------------------------------------------------
     def expr(self, i: int) -> str:
@@ -326,9 +330,9 @@ class ScalarTranslator:
             return [f(lo, x, hi)]
         if name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY or name in _BINARY \
                 or name in _FLOAT_BINARY or name in _INT_BINARY or name in _BOOL_BINARY:
-            xs = [np.broadcast_to(v, oshape[0]) for v in ins]
-            f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(xs), 1)
-            return [np.asarray(f(*xs), dtype=object).reshape(oshape[0])]
+            f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(ins), 1)
+            out = np.asarray(f(*ins), dtype=object)  # frompyfunc broadcasts a scalar operand itself
+            return [np.broadcast_to(out, oshape[0]).copy() if out.shape != oshape[0] else out]
         if name == "sort":
             raise UnsupportedPrimitive("sort of values known only at run time")
         raise UnsupportedPrimitive(f"primitive {name!r} has no C translation (supported: liemef.codegen.PRIMITIVES)")
