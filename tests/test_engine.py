@@ -484,3 +484,23 @@ def test_side_values_die_with_their_object():
     for _ in range(3 * max(_side._SWEEP_AT[0], before)):  # many short-lived objects: the table stays bounded
         _side.put(Obj(), "v", 0)
     assert len(_side._SIDE) <= 2 * max(1024, before) + 1
+
+
+def test_folded_constants_are_xlas_bits():
+    """Constant folding in NumPy (no XLA compile during a translation) gives XLA's bits: integer powers by
+    XLA's products, and sums only where every order gives the same sum."""
+    from liemef.codegen._jaxpr_c import _exact_sum, _np_eval
+
+    rng = np.random.default_rng(7)
+    x = rng.standard_normal(2000) * 10.0 ** rng.uniform(-8, 8, 2000)
+    for y in (-7, -3, -2, -1, 0, 1, 2, 3, 5, 6, 13):
+        want = np.asarray(jax.jit(lambda a, y=y: jax.lax.integer_pow(a, y))(x))
+        got = _np_eval("integer_pow", {"y": y}, [x], [np.float64])[0]
+        np.testing.assert_array_equal(got, want)
+    ints = rng.integers(-9, 9, (4, 5)).astype(np.int32)
+    np.testing.assert_array_equal(_np_eval("reduce_sum", {"axes": (1,)}, [ints], [np.int32])[0], ints.sum(1))
+    whole = np.array([[1.0, -3.0], [2.0**40, 5.0]])
+    assert _exact_sum(whole) and not _exact_sum(np.array([0.1, 0.2])) and not _exact_sum(np.array([np.inf, 1.0]))
+    np.testing.assert_array_equal(_np_eval("reduce_sum", {"axes": (0, 1)}, [whole], [np.float64])[0],
+                                  np.asarray(jax.jit(jnp.sum)(whole)))
+    assert _np_eval("reduce_sum", {"axes": (0,)}, [np.array([0.1, 0.2, 0.3])], [np.float64]) is None

@@ -221,9 +221,35 @@ def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[
         shape, dim = params["shape"], params["dimension"]
         ar = np.arange(shape[dim], dtype=params["dtype"]).reshape([-1 if d == dim else 1 for d in range(len(shape))])
         return [np.broadcast_to(ar, shape).copy()]
-    if name == "integer_pow" and xs[0].dtype.kind == "f" and params["y"] in (2, 3):
-        return [xs[0] ** params["y"]]
+    if name == "integer_pow" and (xs[0].dtype.kind == "f" or params["y"] >= 0):
+        return [np.asarray(_integer_pow(xs[0], params["y"]), out_dtypes[0])]
+    if name == "reduce_sum" and (xs[0].dtype.kind in "iub" or _exact_sum(xs[0])):
+        return [np.asarray(np.sum(xs[0], axis=tuple(params["axes"])), out_dtypes[0])]
     return None
+
+
+def _integer_pow(x: np.ndarray, y: int) -> np.ndarray:
+    """``x ** y`` as XLA computes it (jax's lowering of ``integer_pow``: the same products in the same order,
+    hence the same bits)."""
+    if y in (0, 1, 2, 3, -1):
+        return {0: lambda: np.ones_like(x), 1: lambda: x.copy(), 2: lambda: x * x, 3: lambda: x * x * x,
+                -1: lambda: np.ones_like(x) / x}[y]()
+    recip, y, acc = y < 0, abs(y), None
+    while y > 0:
+        if y & 1:
+            acc = x if acc is None else acc * x
+        y >>= 1
+        if y > 0:
+            x = x * x
+    with np.errstate(all="ignore"):
+        return np.ones_like(acc) / acc if recip else acc
+
+
+def _exact_sum(x: np.ndarray) -> bool:
+    """Whether a float sum of ``x`` is the same in any order: whole numbers, their magnitudes summing below
+    2^53 (XLA's order of summation is its own)."""
+    with np.errstate(all="ignore"):
+        return bool(np.all(np.isfinite(x)) and np.all(x == np.round(x)) and np.abs(x).sum() < 2.0**53)
 
 
 def _subjaxprs(params: dict):
