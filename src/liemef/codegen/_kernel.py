@@ -464,8 +464,11 @@ def _ptr(a: np.ndarray):
     return a.ctypes.data_as(_dp)
 
 
-ROWS_PER_BLOCK = 512
-"""Online steps' new states per preallocated block (:meth:`Kernel._row`)."""
+ROWS_PER_BLOCK = 8
+"""Online steps' new states per preallocated block (:meth:`Kernel._row`): a block's address costs 1.5 us once
+(0.2 us a step), and a state kept alone keeps its whole block alive (8 rows of 600 bytes for TSE(2), about
+what the state's 16 leaf objects take anyway), so that keeping every 100th state costs no more than keeping
+every 8th."""
 
 
 def fill_samples(z: np.ndarray, m: int, p: int, u, y, u_next, y_next) -> None:
