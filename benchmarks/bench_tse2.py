@@ -14,11 +14,11 @@ busy core.
 
 The yardstick (issue 9): a hand-written C99 step of the same filter from the closed forms
 (``c/tse2_reference.c``, built by ``c_reference.py`` with the system C compiler, ``$CC`` or ``cc``, at -O2
--march=native, the flags of the C engine's kernel), timed on the same log in the same run. Its microseconds
-per step for RKMK4 and Lie-Euler are the ``c_reference`` section, and ``ratios`` gives every speed figure
-over it (``*_over_c``): ``run`` RKMK4 and its first-order variant over the C RKMK4, ``run`` Lie-Euler over
-the C Lie-Euler, one ``step`` call over the C RKMK4 step. Without a C compiler the section says so and the
-benchmark goes on without those ratios.
+-march=native -mno-fma on x86-64, the flags of the C engine's kernel), timed on the same log in the same run.
+Its microseconds per step for RKMK4 and Lie-Euler are the ``c_reference`` section, and ``ratios`` gives every
+speed figure over it (``*_over_c``): ``run`` RKMK4 and its first-order variant over the C RKMK4, ``run``
+Lie-Euler over the C Lie-Euler, one ``step`` call over the C RKMK4 step. Without a C compiler the section says
+so and the benchmark goes on without those ratios.
 
 The ``export_c`` section times ``liemef export-c``'s C for the same filter (second order, RKMK4, adaptive
 sub-steps, health checks), built with the same compiler and flags, alternately with the reference on the same
@@ -57,6 +57,7 @@ os.environ["LIEMEF_CACHE_DIR"] = tempfile.mkdtemp(prefix="liemef-bench-kernels-"
 
 import liemef  # noqa: E402
 from liemef import codegen  # noqa: E402
+from liemef.codegen import _kernel  # noqa: E402
 from liemef.simulation import simulate  # noqa: E402
 from liemef.systems import PlanarRigidBody, tse2_state  # noqa: E402
 
@@ -125,17 +126,18 @@ def time_online(flt, state, log, calls):
             "cpu_median_us": round(float(np.median(cpu)) * 1e6, 2), "calls": calls}
 
 
-NATIVE = ("-march=native",)
-"""The flags the C engine's kernel adds (``liemef.codegen._kernel.KERNEL_CFLAGS``): the host's instruction set."""
+NATIVE = _kernel.NATIVE
+"""The flags the C engine's kernel adds (``liemef.codegen._kernel.KERNEL_CFLAGS``): the host's instruction set,
+without fused multiply-adds."""
 
 
 def time_c_reference(log, g0, repeats=5):
-    """The C reference (c_reference.py) and liemef's exported C (``liemef export-c`` of the same filter, built with
-    the same compiler and flags) on the same log, timed alternately, with two flag sets: ``-O2 -march=native``
+    """The C reference (c_reference.py) and liemef's exported C (``liemef export-c`` of the same filter, built with the
+    same compiler and flags) on the same log, timed alternately, with two flag sets: ``-O2`` with :data:`NATIVE`
     (the host's instructions, as the C engine's kernel is built and as a robot's build targets its CPU; the
-    yardstick of every ratio) and plain ``-O2`` (x86-64's baseline, SSE2: ``generic``). Build times and median
-    us per step (RKMK4 and Lie-Euler for the reference, RKMK4 for the export); ``{"available": False,
-    "reason": ...}`` without a C compiler or if a build fails."""
+    yardstick of every ratio) and plain ``-O2`` (x86-64's baseline, SSE2: ``generic``). Build times and median us
+    per step (RKMK4 and Lie-Euler for the reference, RKMK4 for the export); ``{"available": False, "reason":
+    ...}`` without a C compiler or if a build fails."""
     if c_reference.compiler() is None:
         return {"available": False, "reason": "no C compiler ($CC or cc)"}
     ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
@@ -273,8 +275,8 @@ def main():
         "step_call_us<=25 (flt.online(state).step)": r["online_step_rkmk4_numpy"]["median_us"] <= 25,
         "compile_s<2 (first build, kernel cache empty)": r["run_rkmk4"]["compile_s"] < 2,
         "compile_s<2 (new process, kernel on disk)": r["compile_new_process"].get("compile_s", 1e9) < 2,
-        "export_c_over_c<=2 (both -O2 -march=native)": c["export_c"]["rkmk4_us_per_step"] <= 2 * c["rkmk4_us_per_step"]
-        if c["available"] else None,
+        "export_c_over_c<=2 (both -O2 -march=native -mno-fma)":
+        c["export_c"]["rkmk4_us_per_step"] <= 2 * c["rkmk4_us_per_step"] if c["available"] else None,
         "export_c_over_c<=2 (both -O2, generic x86-64)": c["generic"]["export_c_rkmk4_us_per_step"]
         <= 2 * c["generic"]["rkmk4_us_per_step"] if c["available"] else None,
     }

@@ -30,6 +30,7 @@ def put(obj, name: str, value) -> None:
 
 def sweep() -> None:
     """Drop the entries of collected objects."""
-    for key in [key for key, (ref, _) in list(_SIDE.items()) if ref() is None]:
-        _SIDE.pop(key, None)
+    for key, entry in [(key, entry) for key, entry in list(_SIDE.items()) if entry[0]() is None]:
+        if _SIDE.get(key) is entry:  # not replaced meanwhile by another thread's put at a reused identity
+            _SIDE.pop(key, None)
     _SWEEP_AT[0] = max(1024, 2 * len(_SIDE))

@@ -223,7 +223,7 @@ def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[
         return [np.broadcast_to(ar, shape).copy()]
     if name == "integer_pow" and (xs[0].dtype.kind == "f" or params["y"] >= 0):
         return [np.asarray(_integer_pow(xs[0], params["y"]), out_dtypes[0])]
-    if name == "reduce_sum" and (xs[0].dtype.kind in "iub" or _exact_sum(xs[0])):
+    if name == "reduce_sum" and (xs[0].dtype.kind in "iu" or _exact_sum(xs[0])):
         return [np.asarray(np.sum(xs[0], axis=tuple(params["axes"])), out_dtypes[0])]
     return None
 
@@ -231,25 +231,28 @@ def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[
 def _integer_pow(x: np.ndarray, y: int) -> np.ndarray:
     """``x ** y`` as XLA computes it (jax's lowering of ``integer_pow``: the same products in the same order,
     hence the same bits)."""
-    if y in (0, 1, 2, 3, -1):
-        return {0: lambda: np.ones_like(x), 1: lambda: x.copy(), 2: lambda: x * x, 3: lambda: x * x * x,
-                -1: lambda: np.ones_like(x) / x}[y]()
-    recip, y, acc = y < 0, abs(y), None
-    while y > 0:
-        if y & 1:
-            acc = x if acc is None else acc * x
-        y >>= 1
-        if y > 0:
-            x = x * x
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # overflow and 0 ** -1 as XLA: inf, quietly
+        if y in (0, 1, 2, 3, -1):
+            return {0: lambda: np.ones_like(x), 1: lambda: x.copy(), 2: lambda: x * x, 3: lambda: x * x * x,
+                    -1: lambda: np.ones_like(x) / x}[y]()
+        recip, y, acc = y < 0, abs(y), None
+        while y > 0:
+            if y & 1:
+                acc = x if acc is None else acc * x
+            y >>= 1
+            if y > 0:
+                x = x * x
         return np.ones_like(acc) / acc if recip else acc
 
 
 def _exact_sum(x: np.ndarray) -> bool:
-    """Whether a float sum of ``x`` is the same in any order: whole numbers, their magnitudes summing below
-    2^53 (XLA's order of summation is its own)."""
+    """Whether a float64 sum of ``x`` is the same in any order: whole numbers, their magnitudes summing below
+    2^53, and no -0 (whose sign the order decides; XLA's order of summation is its own)."""
+    if x.dtype != np.float64:
+        return False
     with np.errstate(all="ignore"):
-        return bool(np.all(np.isfinite(x)) and np.all(x == np.round(x)) and np.abs(x).sum() < 2.0**53)
+        return bool(np.all(np.isfinite(x)) and np.all(x == np.round(x)) and np.abs(x).sum() < 2.0**53
+                    and not np.any((x == 0) & np.signbit(x)))
 
 
 def _subjaxprs(params: dict):

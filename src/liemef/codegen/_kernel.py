@@ -41,6 +41,7 @@ import platform
 import subprocess
 import tempfile
 import threading
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,11 +56,18 @@ from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
 
-KERNEL_CFLAGS = ("-std=c99", "-O2", "-march=native", "-fno-math-errno")
+NATIVE = ("-march=native", "-mno-fma") if platform.machine().lower() in ("x86_64", "amd64", "i386", "i686") \
+    else ("-march=native",)
+"""Flags for the host's instruction set, without fused multiply-adds: ISO C contracts none across statements,
+but GCC 12's SLP vectorizer emits ``vfmaddsub`` for pairs like ``a * b - c * d`` and ``a * b + c * d`` even
+with ``-ffp-contract=off`` (the Chaplygin sleigh's kernel then differed from its -O0 build in the 12th digit).
+A compiler that refuses them builds without them."""
+
+KERNEL_CFLAGS = ("-std=c99", "-O2", *NATIVE, "-fno-math-errno")
 """The kernel's compiler flags: -O2 (as the tested export) for the host's instruction set (on x86-64 with AVX,
-three-operand instructions: a TSE(2) step in 1.04 us against 1.41 us, the same numbers bit for bit, since ISO C
-contracts no multiply-add); ``-fno-math-errno`` lets ``sqrt`` be one instruction (the kernel never reads errno;
-results are IEEE-identical). A compiler that refuses ``-march=native`` builds without it."""
+three-operand instructions: a TSE(2) step in 1.04-1.16 us against 1.41-1.46 us, the same numbers bit for bit);
+``-fno-math-errno`` lets ``sqrt`` be one instruction (the kernel never reads errno; results are
+IEEE-identical)."""
 
 QUICK_CFLAGS = ("-std=c99", "-O0", "-fno-math-errno")
 """The first build's flags, while the -O2 build runs beside it: on TSE(2) -O0 compiles in 0.3 s against
@@ -298,7 +306,7 @@ void kernel_batch(const double *theta, int theta_stride, int lo, int hi, double 
 
 LANES = 4
 """Trials per SIMD group in the batch kernel (4 doubles: one AVX2 register; two SSE2 registers without it)."""
-LANE_CFLAGS = ("-std=gnu99", "-O3", "-march=native", "-fno-math-errno", "-ffp-contract=off")
+LANE_CFLAGS = ("-std=gnu99", "-O3", *NATIVE, "-fno-math-errno", "-ffp-contract=off")
 """The batch kernel's flags: GNU C for the vector extensions, the host's SIMD (AVX2 where it has it), -O3 (on
 TSE(2) 6 % more trial-steps than -O2 for 2 s more of compiling, once: measured 2.14e6 against 2.02e6 per s),
 no fused multiply-adds (gnu99 would contract; the scalar kernel, in ISO C, does not: a lane then computes the
@@ -448,8 +456,8 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
         out = Path(tmp) / "kernel.so"
         cmd = [compiler(), *flags, "-fPIC", "-shared", "-o", str(out), str(src), "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True)
-        if res.returncode != 0 and "-march=native" in flags:  # a compiler without it (some ARM clangs)
-            cmd.remove("-march=native")
+        if res.returncode != 0 and "-march=native" in flags:  # a compiler without them (some ARM clangs)
+            cmd = [c for c in cmd if c not in NATIVE]
             res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
@@ -478,17 +486,18 @@ def fill_samples(z: np.ndarray, m: int, p: int, u, y, u_next, y_next) -> None:
             and u.shape == (m,) and y.shape == (p,) and u.dtype.kind in "fiu" and y.dtype.kind in "fiu"):
         np.concatenate((u, u, y, y), out=z[:2 * (m + p)])  # the common case, in half the time
         return
-    samples = (("u", u, 0, m), ("u_next", u if u_next is None else u_next, m, m),
-               ("y", y, 2 * m, p), ("y_next", y if y_next is None else y_next, 2 * m + p, p))
+    # checked in the XLA engine's order, each for shape then infinities: the same message for the same input
+    samples = (("u", u, 0, m), ("y", y, 2 * m, p), ("u_next", u if u_next is None else u_next, m, m),
+               ("y_next", y if y_next is None else y_next, 2 * m + p, p))
     for name, v, off, n in samples:
-        z[off:off + n] = _sample_array(name, v, n)
+        z[off:off + n] = _validate.array(name, _sample_array(name, v, n), (n,), missing=True)
 
 
 def reject_infinite(z: np.ndarray, m: int, p: int) -> None:
     """Raise the boundary check's ValueError for the first infinite sample in ``z`` (filled by
     :func:`fill_samples`: the C step found one and computed nothing; it takes NaN as missing, as the XLA engine
     does)."""
-    for name, off, n in (("u", 0, m), ("u_next", m, m), ("y", 2 * m, p), ("y_next", 2 * m + p, p)):
+    for name, off, n in (("u", 0, m), ("y", 2 * m, p), ("u_next", m, m), ("y_next", 2 * m + p, p)):
         _validate.array(name, z[off:off + n], (n,), missing=True)
 
 
@@ -565,6 +574,7 @@ class Kernel:
         self.m, self.p = input_dim, output_dim
         self._read = _state_reader(sslots, sdef, traced.state)
         self._optimizer: threading.Thread | None = None
+        self._source: str | None = None  # the C source while the -O2 build is under way
         self.optimize_error: str | None = None
         self._load(lib_path)
         self._block = self._new_block()
@@ -588,25 +598,38 @@ class Kernel:
         """Build ``source`` with :data:`KERNEL_CFLAGS` in a thread (the compiler runs on another core) and load
         it when done; until then the quick build serves. A failure is kept in ``optimize_error`` (the quick
         build goes on serving). The thread is not a daemon: a process that ends first waits for it, so that the
-        next one finds the -O2 build on disk."""
+        next one finds the -O2 build on disk. A child forked meanwhile starts its own (:func:`_after_fork`): it
+        finds the parent's build on disk, or builds it."""
+        self._source = source
+        _PENDING.add(self)
+
         def work():
-            try:
-                self._load(_build(self.traced, KERNEL_CFLAGS, source=source))
-            except Exception as err:  # noqa: BLE001 - kept for the caller, the quick build stays
-                self.optimize_error = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+            self._finish_optimizing()
 
         self._optimizer = threading.Thread(target=work, name="liemef-kernel-build")
         self._optimizer.start()
 
+    def _finish_optimizing(self) -> None:
+        try:
+            self._load(_build(self.traced, KERNEL_CFLAGS, source=self._source))
+        except Exception as err:  # noqa: BLE001 - kept for the caller, the quick build stays
+            self.optimize_error = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
+        else:
+            self._source = None
+        _PENDING.discard(self)
+
     @property
     def optimized(self) -> bool:
         """Whether the -O2 build serves (not only the quick first one)."""
-        return self._optimizer is None or (not self._optimizer.is_alive() and self.optimize_error is None)
+        return self.path.name.startswith("kernel_")
 
     def wait(self) -> Kernel:
-        """Wait for the -O2 build, if one is running."""
+        """Wait for the -O2 build, if one is running (or build it here, in a forked child whose build thread
+        was the parent's)."""
         if self._optimizer is not None:
             self._optimizer.join()
+        if not self.optimized and self.optimize_error is None:
+            self._finish_optimizing()
         return self
 
     # --- packing ----------------------------------------------------------------------------------------------
@@ -764,6 +787,21 @@ class Kernel:
 
 _KERNELS: dict = {}
 _LOCK = threading.Lock()
+_PENDING: weakref.WeakSet = weakref.WeakSet()  # kernels whose -O2 build is under way
+
+
+def _after_fork() -> None:
+    """In a forked child: a fresh lock (the parent's may have been held by a thread that is not here), and the
+    -O2 builds that the parent's threads were making, made (or found on disk) by threads of the child's."""
+    global _LOCK
+    _LOCK = threading.Lock()
+    for kern in list(_PENDING):
+        if not kern.optimized and kern.optimize_error is None:
+            kern._optimize(kern._source)
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
 
 
 def kernel_for(flt: AbstractFilter) -> Kernel:
@@ -795,4 +833,4 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         return kern
 
 
-__all__ = ["KERNEL_CFLAGS", "LANES", "LANE_CFLAGS", "QUICK_CFLAGS", "Kernel", "cache_dir", "kernel_for"]
+__all__ = ["KERNEL_CFLAGS", "LANES", "LANE_CFLAGS", "NATIVE", "QUICK_CFLAGS", "Kernel", "cache_dir", "kernel_for"]
