@@ -70,7 +70,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import _validate
 from ..filter import FilterState, Trajectory
-from ..filter._driver import check_dt, check_element
+from ..filter._driver import check_dt, check_element, check_time
 from ..filter._status import NONFINITE, OK, Status
 from ..groups import R3, SO3, TSO3, LieGroup
 from ..systems import AbstractSystem
@@ -209,9 +209,7 @@ class _AhrsFilter(eqx.Module):
         self._check_state(state)
         u = _validate.array("u", u, (3,))
         y = _validate.array("y", y, (self.system.output_dim,), missing=True)
-        dt = self._check_dt(dt)
-        if not math.isfinite(t):
-            raise ValueError(f"t: expected a finite time, got {t}")
+        t, dt = check_time(t, dt)
         st = state.status
         if int(st.code) != OK:
             return state

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
-from ..filter._driver import TRACES, AbstractFilter, FilterState, _sample_array
+from ..filter._driver import TRACES, AbstractFilter, FilterState, check_samples
 from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
@@ -486,11 +486,8 @@ def fill_samples(z: np.ndarray, m: int, p: int, u, y, u_next, y_next) -> None:
             and u.shape == (m,) and y.shape == (p,) and u.dtype.kind in "fiu" and y.dtype.kind in "fiu"):
         np.concatenate((u, u, y, y), out=z[:2 * (m + p)])  # the common case, in half the time
         return
-    # checked in the XLA engine's order, each for shape then infinities: the same message for the same input
-    samples = (("u", u, 0, m), ("y", y, 2 * m, p), ("u_next", u if u_next is None else u_next, m, m),
-               ("y_next", y if y_next is None else y_next, 2 * m + p, p))
-    for name, v, off, n in samples:
-        z[off:off + n] = _validate.array(name, _sample_array(name, v, n), (n,), missing=True)
+    u0, y0, u1, y1 = check_samples(m, p, u, y, u_next, y_next)  # as the XLA engine checks them
+    np.concatenate((u0, u1, y0, y1), out=z[:2 * (m + p)])
 
 
 def reject_infinite(z: np.ndarray, m: int, p: int) -> None:
@@ -602,11 +599,7 @@ class Kernel:
         finds the parent's build on disk, or builds it."""
         self._source = source
         _PENDING.add(self)
-
-        def work():
-            self._finish_optimizing()
-
-        self._optimizer = threading.Thread(target=work, name="liemef-kernel-build")
+        self._optimizer = threading.Thread(target=self._finish_optimizing, name="liemef-kernel-build")
         self._optimizer.start()
 
     def _finish_optimizing(self) -> None:

@@ -520,20 +520,14 @@ class AbstractFilter(eqx.Module):
         # the hot path of a robot loop: methods are reached through the class, since reading a method off an
         # equinox Module builds a bound-method Module each time (microseconds)
         cls = type(self)
-        dt = check_dt(dt)
-        if not math.isfinite(t):
-            raise ValueError(f"t: expected a finite time, got {t}")
+        t, dt = check_time(t, dt)
         kern = cls._kernel(self, engine)
         if kern is not None:  # the samples are checked as the kernel copies them in, infinities by the C step
             if not kern.made(state):
                 cls._check_state(self, state)
-            return kern.step(_side.get(self, "kernel")[2], state, float(t), dt, float(gap), u, y, u_next, y_next)
+            return kern.step(_side.get(self, "kernel")[2], state, t, dt, float(gap), u, y, u_next, y_next)
         cls._check_state(self, state)
-        m, p = self.system.input_dim, self.system.output_dim
-        samples = {"u": (u, m), "y": (y, p), "u_next": (u if u_next is None else u_next, m),
-                   "y_next": (y if y_next is None else y_next, p)}
-        u, y, u1, y1 = (_validate.array(nm, _sample_array(nm, *samples[nm]), (samples[nm][1],), missing=True)
-                        for nm in ("u", "y", "u_next", "y_next"))
+        u, y, u1, y1 = check_samples(self.system.input_dim, self.system.output_dim, u, y, u_next, y_next)
         fn, leaves = _fast_parts(self)
         z = np.concatenate([[float(t), dt, float(gap)], u, u1, y, y1])
         out = fn(leaves, jax.tree_util.tree_leaves(state), z)
@@ -612,18 +606,21 @@ def _no_compiler() -> bool:
     return compiler() is None
 
 
-def _sample_array(name: str, v, n: int) -> np.ndarray:
-    """A sample as a float64 array of shape (n,) (ValueError naming it otherwise; None for n = 0, a system
-    without inputs); infinities are not checked."""
-    if v is None and n == 0:
-        return np.zeros(0)
-    try:
-        a = np.asarray(v, np.float64)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name}: expected a numeric array, got {type(v).__name__} ({err})") from err
-    if a.shape != (n,):
-        raise ValueError(f"{name}: expected shape ({n},), got {a.shape}")
-    return a
+def check_time(t, dt) -> tuple[float, float]:
+    """An online step's finite time ``t`` and time step ``dt`` > 0, as floats (ValueError naming either)."""
+    dt = check_dt(dt)
+    if not math.isfinite(t):
+        raise ValueError(f"t: expected a finite time, got {t}")
+    return float(t), dt
+
+
+def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.ndarray, ...]:
+    """One interval's samples ``u``, ``y``, ``u_next``, ``y_next`` (None: held) as float64 arrays of shapes
+    (m,), (p,), (m,), (p,), checked in that order, each for its shape and then for infinities (NaN: missing;
+    None for an input of dimension 0): the one check of both engines, so that they name the same sample."""
+    return tuple(AbstractFilter._check_sample(name, v, n, missing=True) for name, v, n in (
+        ("u", u, m), ("y", y, p), ("u_next", u if u_next is None else u_next, m),
+        ("y_next", y if y_next is None else y_next, p)))
 
 
 def _to_jax(a: np.ndarray) -> jax.Array:

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from .. import _side
-from ._driver import AbstractFilter, FilterState, check_dt
+from ._driver import AbstractFilter, FilterState, check_time
 
 
 class OnlineFilter:
@@ -53,12 +53,10 @@ class OnlineFilter:
             self._state = self.filter.step(self._state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap,
                                            engine="xla")
             return int(self._state.status.code)
-        dt = check_dt(dt)
-        if not math.isfinite(t):
-            raise ValueError(f"t: expected a finite time, got {t}")
+        t, dt = check_time(t, dt)
         self._fill(self._z, self.m, self.p, u, y, u_next, y_next)
         x, xo, za = self._addresses
-        code = self._kern._step(self._theta_address, x, xo, float(t), dt, float(gap), za)
+        code = self._kern._step(self._theta_address, x, xo, t, dt, float(gap), za)
         if code == -2:
             self._reject(self._z, self.m, self.p)
         self._x, self._xo = self._xo, self._x
