@@ -229,12 +229,11 @@ def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[
 
 
 def _integer_pow(x: np.ndarray, y: int) -> np.ndarray:
-    """``x ** y`` as XLA computes it (jax's lowering of ``integer_pow``: the same products in the same order,
-    hence the same bits)."""
+    """``x ** y`` as XLA computes it (jax's lowering of ``integer_pow``: the same products, hence the same bits;
+    its short forms for y = 2, 3 and -1 are these products too, as multiplication commutes)."""
+    if y == 0:
+        return np.ones_like(x)
     with np.errstate(all="ignore"):  # overflow and 0 ** -1 as XLA: inf, quietly
-        if y in (0, 1, 2, 3, -1):
-            return {0: lambda: np.ones_like(x), 1: lambda: x.copy(), 2: lambda: x * x, 3: lambda: x * x * x,
-                    -1: lambda: np.ones_like(x) / x}[y]()
         recip, y, acc = y < 0, abs(y), None
         while y > 0:
             if y & 1:
@@ -242,7 +241,7 @@ def _integer_pow(x: np.ndarray, y: int) -> np.ndarray:
             y >>= 1
             if y > 0:
                 x = x * x
-        return np.ones_like(acc) / acc if recip else acc
+        return np.ones_like(acc) / acc if recip else acc.copy()
 
 
 def _exact_sum(x: np.ndarray) -> bool:
