@@ -30,9 +30,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import liemef
-from liemef.experiments import montecarlo
-from liemef.experiments._montecarlo import resolve_experiment
 from liemef.simulation import simulate_core
+from liemef.studies.experiments import montecarlo
+from liemef.studies.experiments._montecarlo import resolve_experiment
 from liemef.systems import PlanarRigidBody, tse2_state
 
 

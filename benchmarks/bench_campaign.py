@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from _provenance import source_version  # benchmarks/ is on sys.path when run as a script
 
-from liemef.campaign import Campaign, Store, run_campaign
+from liemef.studies.campaign import Campaign, Store, run_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "campaign" / "heading_experiment.py"

@@ -2,7 +2,7 @@
 
 Prints one JSON document (issue 7) on one core:
 
-* ``compile``: how many times ``run`` and ``step`` are traced (= compiled, ``liemef.filter.TRACES``) when only
+* ``compile``: how many times ``run`` and ``step`` are traced (= compiled, ``liemef.filters.TRACES``) when only
   weights change (20 GPS noise levels of the localization system, 20 measurement weights D of the TSE(2)
   system, three inertias J), when only the log length changes (logs padded to power-of-two buckets: one
   compilation per distinct bucket), and for online ``step`` on two filters with different weights; with the
@@ -41,7 +41,8 @@ import numpy as np  # noqa: E402
 from _provenance import source_version  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 import liemef  # noqa: E402
-from liemef.filter import TRACES, bucket  # noqa: E402
+from liemef.engines import bucket
+from liemef.filters import TRACES  # noqa: E402
 from liemef.groups import SE2  # noqa: E402
 from liemef.metrics import state_error  # noqa: E402
 from liemef.systems import Noise, PlanarRigidBody, planar_localization, tse2_state  # noqa: E402

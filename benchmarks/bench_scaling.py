@@ -2,7 +2,7 @@
 
 Systems: linear systems on R^n, n = 3, 6, 12, 24 (``--dims``): a fixed-seed random stable F (spectral abscissa
 -0.5), m = 2 inputs, p = ceil(n/2) outputs, B = I (n noise inputs), diagonal D, Q = I, diagonal R; and every
-ready system of the papers (``liemef.experiments.SYSTEMS``, ``--systems``) with its algebra dimension n. Every
+ready system of the papers (``liemef.studies.experiments.SYSTEMS``, ``--systems``) with its algebra dimension n. Every
 filter is the default ``MinimumEnergyFilter`` (second order, (0)-connection, RKMK4, adaptive sub-steps), K0 = I,
 started off the truth.
 
@@ -77,9 +77,9 @@ from _provenance import source_version  # noqa: E402
 
 import liemef  # noqa: E402
 from liemef import codegen  # noqa: E402
-from liemef.experiments import SYSTEMS  # noqa: E402
 from liemef.groups import Rn  # noqa: E402
 from liemef.simulation import simulate  # noqa: E402
+from liemef.studies.experiments import SYSTEMS  # noqa: E402
 from liemef.systems import System  # noqa: E402
 
 C_FLAGS = ("-std=c99", "-O2")
@@ -402,7 +402,8 @@ def main():
                     help="the first intervals of the log the batched figures use (default 1024; quick 256)")
     ap.add_argument("--batch", type=int, default=16, help="trials of the batched figures (default 16)")
     ap.add_argument("--dims", help="the n of the R^n systems, comma-separated (default 3,6,12,24; quick 3,6)")
-    ap.add_argument("--systems", help="the papers' systems, comma-separated names of liemef.experiments.SYSTEMS, "
+    ap.add_argument("--systems", help="the papers' systems, comma-separated names of "
+                    "liemef.studies.experiments.SYSTEMS, "
                                       "or none (default all; quick unit-circle)")
     ap.add_argument("--quick", action="store_true", help="smoke test: the defaults marked quick (under 2 min)")
     ap.add_argument("--out", help="folder for scaling.json and scaling.png")

@@ -39,7 +39,8 @@ import numpy as np  # noqa: E402
 from _provenance import source_version  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
 
 import liemef  # noqa: E402
-from liemef.filter import TRACES, bucket  # noqa: E402
+from liemef.engines import bucket
+from liemef.filters import TRACES  # noqa: E402
 from liemef.groups import SE2, SO2, SO3, Product  # noqa: E402
 from liemef.metrics import state_error  # noqa: E402
 from liemef.systems import PlanarRigidBody, tse2_state  # noqa: E402

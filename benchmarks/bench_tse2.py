@@ -233,7 +233,7 @@ def main():
     _, log = simulate(system, tse2_state(np.pi / 6, 1.0, 2.0, 0.0, 0.0, 0.0), tse2_input, ts, jax.random.PRNGKey(0))
     g0 = tse2_state(np.pi / 8, 1.1, 2.1, 0.1, -0.1, -0.1)
 
-    results = {"engine": liemef.filter.engine_of(None)}
+    results = {"engine": liemef.engines.engine_of(None)}
     for name, kw in [("rkmk4", dict(integrator="rkmk4")), ("lie_euler", dict(integrator="lie-euler")),
                      ("rkmk4_first_order", dict(integrator="rkmk4", order="first"))]:
         flt = liemef.MinimumEnergyFilter(system, **kw)

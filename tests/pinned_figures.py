@@ -16,8 +16,8 @@ import numpy as np
 
 def figures() -> dict[str, list[str]]:
     """Each figure's float64 values as ``float.hex`` strings, by name (engine: the default, then XLA)."""
-    from liemef.compare import LocalizationComparison, compare_localization
-    from liemef.experiments import chaplygin, localization, montecarlo, tse2
+    from liemef.studies.compare import LocalizationComparison, compare_localization
+    from liemef.studies.experiments import chaplygin, localization, montecarlo, tse2
 
     out: dict[str, list[str]] = {}
 

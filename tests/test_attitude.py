@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from liemef.experiments import EXPERIMENTS, MonteCarloResult, attitude, get_experiment, montecarlo
 from liemef.groups import SO3
+from liemef.studies.experiments import EXPERIMENTS, MonteCarloResult, attitude, get_experiment, montecarlo
 from tolerances import ON_GROUP, ROUNDOFF, SYMMETRY
 
 CONFIG = attitude.AttitudeConfig(duration=15.0, steady=(10.0, 15.0))

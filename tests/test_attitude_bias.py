@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from liemef import datasets
-from liemef.filter import MinimumEnergyFilter
-from liemef.filter._status import OK
+from liemef.filters import MinimumEnergyFilter
+from liemef.filters._status import OK
 from liemef.groups import R3, SO3, TSO3
+from liemef.studies import datasets
 from liemef.systems import Noise, attitude_gyro_bias
 from liemef.systems import attitude_bias as ab
 from tolerances import ROUNDOFF

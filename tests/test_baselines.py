@@ -1,4 +1,4 @@
-"""The Kalman baselines (liemef.baselines): reduction to the discrete Kalman filter on R^n, the retractions and
+"""The Kalman baselines (liemef.filters.baselines): reduction to the discrete Kalman filter on R^n, the retractions and
 their covariance conversion, missing samples, gates, failures as values, bad input, and the localization
 scenario (the invariant EKF equals the left UKF-M; the local EKF is the worse one)."""
 
@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from liemef.baselines import ExtendedKalmanFilter, UnscentedKalmanFilter, invariant_ekf, local_ekf, retraction, ukf_m
-from liemef.filter import CAUSES, TRACES
+from liemef.filters import CAUSES, TRACES
+from liemef.filters.baselines import (
+    ExtendedKalmanFilter,
+    UnscentedKalmanFilter,
+    invariant_ekf,
+    local_ekf,
+    retraction,
+    ukf_m,
+)
 from liemef.groups import SE2, TSE2, TSO3, Rn
 from liemef.systems import Noise, Sensor, SensorSystem
 
@@ -104,7 +111,7 @@ def test_retractions_invert_and_the_covariance_is_reported_in_the_left_error(err
 
 
 def _localization(seconds=6.0, seed=0):
-    from liemef.experiments import localization as L
+    from liemef.studies.experiments import localization as L
 
     c = L.LocalizationConfig(duration=seconds, steady=seconds / 2)
     s = L.setup(c)
@@ -113,7 +120,7 @@ def _localization(seconds=6.0, seed=0):
 
 
 def test_on_the_localization_the_invariant_ekf_and_the_left_ukf_agree_and_the_local_ekf_differs():
-    from liemef.experiments import localization as L
+    from liemef.studies.experiments import localization as L
 
     c, s, log, g0 = _localization()
     K0 = np.diag([c.theta0_std**2, 0.0, 0.0])

@@ -1,4 +1,5 @@
-"""The Madgwick and Mahony filters of ``ahrs`` as liemef baselines (liemef.baselines._ahrs): their frames against
+"""The Madgwick and Mahony filters of ``ahrs`` as liemef baselines (liemef.filters.baselines._ahrs): their frames
+against
 ahrs's own references, the sample convention against ahrs called directly, tracking on a noise-free synthetic
 log, missing samples, the failure status, bad inputs, and BROAD (real data, skipped when absent): a short slice by
 default, BROAD's published per-trial numbers in a slow test."""
@@ -13,11 +14,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from liemef import datasets
-from liemef.baselines._ahrs import Madgwick, Mahony, quat_mul
-from liemef.filter import FilterState
-from liemef.filter._status import NONFINITE, OK
+from liemef.filters import FilterState
+from liemef.filters._status import NONFINITE, OK
+from liemef.filters.baselines._ahrs import Madgwick, Mahony, quat_mul
 from liemef.groups import R3, SO3, TSO3
+from liemef.studies import datasets
 from liemef.systems import Noise, Sensor, SensorSystem, attitude_gyro_bias, planar_localization
 from liemef.systems import attitude_bias as ab
 from tolerances import ROUNDOFF

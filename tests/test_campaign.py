@@ -1,4 +1,4 @@
-"""Campaigns on Dask (liemef.campaign): the description, the store, identical numbers whatever the layout, a
+"""Campaigns on Dask (liemef.studies.campaign): the description, the store, identical numbers whatever the layout, a
 killed worker, a stopped and resumed campaign, and a failing task.
 
 The campaign here is the user's experiment in examples/campaign/heading_experiment.py (heading on SO(2)),
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from liemef.campaign import (
+from liemef.studies.campaign import (
     MANIFEST_FILE,
     RESULT_FILE,
     Campaign,
@@ -28,8 +28,8 @@ from liemef.campaign import (
     Task,
     run_campaign,
 )
-from liemef.campaign._task import config_of, experiment_of
-from liemef.experiments import montecarlo
+from liemef.studies.campaign._task import config_of, experiment_of
+from liemef.studies.experiments import montecarlo
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "campaign" / "heading_experiment.py"
@@ -109,7 +109,7 @@ def test_grid_settings_and_tasks(tmp_path):
 
 
 def test_the_example_campaign_is_the_documented_one_and_is_valid():
-    from liemef.campaign._run import _check
+    from liemef.studies.campaign._run import _check
 
     path = ROOT / "examples" / "campaign" / "heading.toml"
     doc = (ROOT / "docs" / "campaigns.md").read_text()
@@ -169,8 +169,8 @@ def test_bad_files_and_settings_are_named(tmp_path):
 
 # --- parameters are data ------------------------------------------------------------------------------------
 def test_a_sweep_of_values_compiles_one_batch():
-    from liemef.experiments import trial_keys, trial_statistics
-    from liemef.experiments._montecarlo import TRACES
+    from liemef.studies.experiments import trial_keys, trial_statistics
+    from liemef.studies.experiments._montecarlo import TRACES
 
     exp = experiment_of(None, EXAMPLE.read_text(), str(EXAMPLE))
     base = {"duration": 0.9, "dt": 0.05, "substeps": 1, "steady_from": 0.5}
@@ -204,7 +204,7 @@ def test_store_keeps_verified_tasks_only(tmp_path):
     p1.write_bytes(p1.read_bytes()[:-10])
     store.task_path(tasks[2]).unlink()
     with open(store.manifest, "a") as f:
-        f.write('{"schema": "liemef.campaign/1", "task": "s001-t00')
+        f.write('{"schema": "liemef.studies.campaign/1", "task": "s001-t00')
     done = Store.open(c).finished()  # opening again ends the torn line, so the next record starts afresh
     assert set(done) == {tasks[0].id, tasks[3].id}
     store = Store.open(c)

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 import paper_forms as pf
-from liemef import io
-from liemef.experiments import EXPERIMENTS, MonteCarloResult, get_experiment, montecarlo
-from liemef.experiments import chaplygin as ch
 from liemef.groups import SE2R2
 from liemef.metrics import FULL
+from liemef.reports import io
+from liemef.studies.experiments import EXPERIMENTS, MonteCarloResult, get_experiment, montecarlo
+from liemef.studies.experiments import chaplygin as ch
 from liemef.systems import ChaplyginSleigh
 from liemef.systems.chaplygin import constraint_K0, se2r2_state
 from tolerances import CLOSED_FORM, ROUNDOFF
@@ -335,7 +335,7 @@ def test_entries_percentiles_and_band_fraction():
 
 def test_figure_is_drawn_from_saved_arrays(tmp_path, pair):
     """Figs. 3-6 layout from arrays saved to disk (both connections on the same data)."""
-    from liemef import plots
+    from liemef.reports import plots
 
     a0, a1 = pair["zero"].arrays, pair["minus"].arrays
     arrays = {k: a0[k] for k in ("ts", "names", "units", "truth", "measured")}

@@ -204,7 +204,7 @@ def test_initial_gain_eq56_hessian_of_m0_is_diag_2_1_1_1_1():
     def m0_jax(g):
         return 0.5 * jnp.sum((jnp.eye(6) - jnp.linalg.solve(_embed(g), G0)) ** 2)
 
-    H = np.asarray(jax.jit(lambda g: liemef.filter.left_hessian(m0_jax, g))(g0))
+    H = np.asarray(jax.jit(lambda g: liemef.filters.left_hessian(m0_jax, g))(g0))
     np.testing.assert_allclose(H, np.diag([2.0, 1.0, 1.0, 1.0, 1.0]), atol=ROUNDOFF * 100)
 
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from liemef import io, plots
 from liemef.cli import cli, main
-from liemef.experiments import EXPERIMENTS, SCHEMA, MonteCarloResult, Output, Reproduction, tse2
-from liemef.experiments._base import PAPER_SUBSTEPS
+from liemef.reports import io, plots
+from liemef.studies.experiments import EXPERIMENTS, SCHEMA, MonteCarloResult, Output, Reproduction, tse2
+from liemef.studies.experiments._base import PAPER_SUBSTEPS
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from liemef import io
 from liemef.cli import cli
+from liemef.reports import io
 from liemef.systems import planar_localization
 
 
@@ -92,7 +92,7 @@ def test_schema_and_system_choice_errors(tmp_path):
 
 
 def test_dataset_converts_a_real_recording_for_run(tmp_path):
-    from liemef import datasets
+    from liemef.studies import datasets
 
     root = datasets.realdata_dir()
     if root is None or not (root / "ukfm_wifibot" / "wifibot1.txt").is_file():

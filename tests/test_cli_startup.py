@@ -15,10 +15,11 @@ import pytest
 import liemef
 from liemef import cli
 from liemef.connections import CARTAN_SCHOUTEN
-from liemef.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
-from liemef.filter import ORDERS
+from liemef.filters import ORDERS
+from liemef.studies.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
 
-HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.experiments", "liemef.plots", "liemef._config")
+HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.studies.experiments", "liemef.reports.plots",
+         "liemef._config")
 COMMANDS = ("reproduce", "montecarlo", "run", "export-c")
 HELP_ARGS = (["--help"], ["-h"], ["--version"], ["reproduce", "--help"], ["run", "--help"],
              ["montecarlo", "--help"], ["export-c", "--help"])
@@ -92,7 +93,7 @@ def test_the_static_names_of_the_cli_match_the_registries():
     assert cli.CONNECTIONS == tuple(CARTAN_SCHOUTEN)
     assert cli.ORDERS == tuple(ORDERS)
     assert cli.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
-    from liemef.compare import STUDIES
+    from liemef.studies.compare import STUDIES
 
     assert cli.COMPARE_STUDIES == tuple(STUDIES), f"update cli.COMPARE_STUDIES = {tuple(STUDIES)!r}"
     params = {cmd: {p.name: p for p in cli.cli.commands[cmd].params} for cmd in COMMANDS}
@@ -111,7 +112,7 @@ def test_the_lazy_package_keeps_its_public_surface():
     namespace: dict = {}
     exec("from liemef import *", namespace)  # noqa: S102
     assert set(liemef.__all__) <= set(namespace) and set(liemef.__all__) <= set(dir(liemef))
-    assert namespace["MinimumEnergyFilter"].__module__ == "liemef.filter._filter"
+    assert namespace["MinimumEnergyFilter"].__module__ == "liemef.filters._mef"
     assert namespace["groups"] is sys.modules["liemef.groups"]
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         liemef.nope  # noqa: B018
@@ -121,7 +122,7 @@ def test_the_lazy_package_keeps_its_public_surface():
     "import liemef.groups",  # a submodule alone: liemef/__init__.py runs first but imports nothing
     "from liemef.groups import SO2",
     "from liemef import MinimumEnergyFilter",  # through the package's __getattr__
-    "import liemef.experiments._systems",
+    "import liemef.studies.experiments._systems",
     "import jax; import liemef",  # JAX loaded first: float64 at once, as before
 ])
 def test_float64_is_on_in_every_import_path(load):

@@ -8,8 +8,14 @@ import pytest
 from click.testing import CliRunner
 
 from liemef import cli
-from liemef.compare import HeadingBasin, LocalizationComparison, bootstrap_interval, paired_comparison, parse_filters
-from liemef.compare._basins import convergence
+from liemef.studies.compare import (
+    HeadingBasin,
+    LocalizationComparison,
+    bootstrap_interval,
+    paired_comparison,
+    parse_filters,
+)
+from liemef.studies.compare._basins import convergence
 
 
 def test_the_paired_comparison_names_a_winner_only_when_its_lead_is_outside_the_spread():
@@ -129,7 +135,7 @@ def test_compare_heading_basin_at_a_tiny_size(tmp_path):
 
 
 def test_compare_broad_at_a_tiny_size(tmp_path):
-    from liemef import datasets
+    from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
     if folder is None or not (folder / datasets.BROAD_TRIALS["07"]).is_file():
@@ -165,7 +171,7 @@ def test_wilson_interval_of_a_fraction():
 
 
 def test_compare_wifibot_at_a_tiny_size(tmp_path):
-    from liemef import datasets
+    from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
     if folder is None or not (folder / datasets.WIFIBOT_RUNS["4"]).is_file():
@@ -222,7 +228,7 @@ def test_compare_attitude_basin_at_a_tiny_size(tmp_path, filters):
 
 
 def test_bad_attitude_basin_settings_are_named():
-    from liemef.compare import AttitudeBasin
+    from liemef.studies.compare import AttitudeBasin
 
     assert AttitudeBasin(filters="iekf,mahony").filters_of("rigid-body") == ("iekf",)  # ahrs: gyro bias only
     assert AttitudeBasin(filters="iekf,mahony").filters_of("gyro-bias") == ("iekf", "mahony")
@@ -238,7 +244,7 @@ def test_bad_attitude_basin_settings_are_named():
 
 @pytest.mark.slow
 def test_attitude_basin_distance_to_the_optimum(tmp_path):
-    from liemef.compare import AttitudeBasin, compare_attitude_basin
+    from liemef.studies.compare import AttitudeBasin, compare_attitude_basin
 
     r = compare_attitude_basin(AttitudeBasin(runs=2, systems="gyro-bias", angles_deg=(0.0,), duration=2.0,
                                              imu_rate=50.0, filters="iekf,mef", optimum_runs=1, optimum_every=20),

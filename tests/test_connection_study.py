@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from liemef import MinimumEnergyFilter
-from liemef.experiments.localization import LocalizationConfig, jax_draws, setup, trial
 from liemef.groups import SE2, TSE2
+from liemef.studies.experiments.localization import LocalizationConfig, jax_draws, setup, trial
 from liemef.systems import PlanarRigidBody, planar_localization
 from tolerances import ROUNDOFF
 

@@ -1,4 +1,4 @@
-"""Real-data loaders (liemef.datasets): where the data are, bad paths, the logs they make, a log CSV in a
+"""Real-data loaders (liemef.studies.datasets): where the data are, bad paths, the logs they make, a log CSV in a
 system's column names, and the Wifibot run (Brossard et al., UKF-M, BSD-3-Clause) filtered with planar
 localization and synthetic GPS (skipped when the real data are absent)."""
 
@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from liemef import datasets, io
-from liemef.filter import MinimumEnergyFilter
+from liemef.filters import MinimumEnergyFilter
 from liemef.groups import SE2
 from liemef.metrics import wrap_angle
+from liemef.reports import io
+from liemef.studies import datasets
 from liemef.systems import attitude_gyro_bias, planar_localization
 
 REALDATA = datasets.realdata_dir()

@@ -20,9 +20,10 @@ import pytest
 import liemef
 from liemef import codegen
 from liemef.codegen import _kernel
-from liemef.experiments import SYSTEMS
-from liemef.filter import CAUSES, TRACES, EngineWarning, LogGapWarning
+from liemef.engines import EngineWarning, LogGapWarning
+from liemef.filters import CAUSES, TRACES
 from liemef.groups import Rn
+from liemef.studies.experiments import SYSTEMS
 from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
 from tolerances import ENGINES
 
@@ -232,10 +233,10 @@ def test_auto_falls_back_to_xla_saying_why(no_kernel):
 
 
 def test_without_a_compiler_auto_is_xla(monkeypatch):
-    from liemef.filter import _driver
+    from liemef.filters import _driver
 
     monkeypatch.setattr(_driver, "_no_compiler", lambda: True)
-    assert liemef.filter.engine_of("auto") == "xla" and liemef.filter.engine_of("c") == "c"
+    assert liemef.engines.engine_of("auto") == "xla" and liemef.engines.engine_of("c") == "c"
 
 
 def test_kernel_disk_cache(tmp_path, monkeypatch):

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from liemef.experiments import EXPERIMENTS, SCHEMA, get_experiment, montecarlo, tse2
 from liemef.groups import SE2, TSE2
+from liemef.studies.experiments import EXPERIMENTS, SCHEMA, get_experiment, montecarlo, tse2
 from liemef.systems import tse2_state
 from tolerances import ON_GROUP, ROUNDOFF, SYMMETRY
 

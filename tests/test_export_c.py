@@ -30,10 +30,11 @@ import pytest
 from click.testing import CliRunner
 
 import liemef
-from liemef import codegen, io
+from liemef import codegen
 from liemef.cli import C_BACKENDS, cli
-from liemef.experiments import SYSTEMS
-from liemef.filter import CAUSES, ORDERS
+from liemef.filters import CAUSES, ORDERS
+from liemef.reports import io
+from liemef.studies.experiments import SYSTEMS
 from liemef.systems import tse2_state
 from tolerances import EXPORTED_C, EXPORTED_C_RUN, WELL_CONDITIONED
 

@@ -16,8 +16,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import liemef
-from liemef.filter import RKMK4, LieEuler
 from liemef.groups import R3, SE2, SO3, TSE2, TSO3
+from liemef.integrators import RKMK4, LieEuler
 from liemef.systems import System
 from tolerances import SLOPE
 

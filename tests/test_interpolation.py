@@ -14,8 +14,8 @@ import pytest
 
 import liemef
 from liemef import simulate
-from liemef.experiments import attitude
 from liemef.groups import SO3
+from liemef.studies.experiments import attitude
 from liemef.systems import System
 from tolerances import SLOPE
 
@@ -26,7 +26,7 @@ T_END, STEADY = 20.0, 10.0
 @pytest.fixture(scope="module")
 def attitude_errors():
     """Saccon et al. 2016, Sec. V-B at h = 10 ms: the experiment's system, initial state (60 deg off), alpha and
-    K(0) (liemef.experiments.attitude.setup), one filter step per sample. Noise-free data (the torque, and the
+    K(0) (liemef.studies.experiments.attitude.setup), one filter step per sample. Noise-free data (the torque, and the
     directions of the paper's truth: geometric Euler with h = 1 ms), so that the filter's error after its
     transient is its integration error. Returns the attitude error rms (deg) over [10, 20] s per (integrator,
     interpolation)."""

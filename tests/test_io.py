@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from liemef import io
+from liemef.reports import io
 
 
 def leftovers(d):

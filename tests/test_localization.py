@@ -23,11 +23,11 @@ import pytest
 from scipy.stats import chi2
 
 import liemef
-from liemef import io
-from liemef.experiments import EXPERIMENTS, get_experiment, montecarlo
-from liemef.experiments import localization as loc
 from liemef.groups import SE2, Rn
 from liemef.metrics import chi2_bounds, left_error, nees
+from liemef.reports import io
+from liemef.studies.experiments import EXPERIMENTS, get_experiment, montecarlo
+from liemef.studies.experiments import localization as loc
 from liemef.systems import Noise, Sensor, SensorSystem
 from tolerances import ROUNDOFF
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import liemef
-from liemef.filter import LogGapWarning
+from liemef.engines import LogGapWarning
 from liemef.groups import R1, SO2, SO2R1
 from liemef.systems import Noise, Sensor, SensorSystem, System
 from tolerances import MARGINAL, ROUNDOFF

@@ -12,7 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from liemef.experiments import (
+from liemef.filters import Status
+from liemef.metrics import FULL, Window, error_stats
+from liemef.studies.experiments import (
     PERCENTILES,
     STATS,
     Experiment,
@@ -25,8 +27,6 @@ from liemef.experiments import (
     trial_keys,
     tse2,
 )
-from liemef.filter import Status
-from liemef.metrics import FULL, Window, error_stats
 from tolerances import ROUNDOFF
 
 

@@ -1,4 +1,4 @@
-"""The exact minimum-energy estimate (:mod:`liemef.optimum`): GTSAM's conventions against liemef's, iSAM2's
+"""The exact minimum-energy estimate (:mod:`liemef.studies.optimum`): GTSAM's conventions against liemef's, iSAM2's
 per-step MAP against the JAX batch solver on prefixes, the linear reduction to the Kalman filter, and the
 boundary checks."""
 
@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from liemef import optimum
-from liemef.experiments import localization as loc
-from liemef.filter import information_in_force
+from liemef.filters import information_in_force
 from liemef.groups import R3, SE2, SO3, TSO3, Rn
+from liemef.studies import optimum
+from liemef.studies.experiments import localization as loc
 from liemef.systems import Noise, Sensor, SensorSystem, System, attitude_gyro_bias, planar_localization
 
 gtsam = pytest.importorskip("gtsam")

@@ -1,5 +1,5 @@
 """Parameters are leaves, structure is static (STYLE.md 16): new weights or noise levels reuse the compiled run and
-step, and logs of different lengths compile once per length bucket (``liemef.filter.TRACES`` counts traces);
+step, and logs of different lengths compile once per length bucket (``liemef.filters.TRACES`` counts traces);
 padding a log to its bucket and keeping every M-th state change nothing. These are the XLA engine's
 (``engine="xla"``); the C engine's kernel reuse is tests/test_engine.py's."""
 
@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import liemef
-from liemef.filter import TRACES, bucket
+from liemef.engines import bucket
+from liemef.filters import TRACES
 from liemef.groups import SE2, Rn
 from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
 from localization_scenario import K0, localization_log

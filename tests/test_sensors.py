@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import liemef
-from liemef.filter import Weights, information_in_force
+from liemef.filters import Weights, information_in_force
 from liemef.groups import SE2, Rn
 from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
 from liemef.systems.localization import gps_position, odometry_dynamics

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import liemef
-from liemef.filter import CAUSES, FilterState
+from liemef.filters import CAUSES, FilterState
 from liemef.groups import SE2, Rn
 from liemef.systems import PlanarRigidBody, System, planar_localization, tse2_state
 

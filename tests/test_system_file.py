@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from liemef._system_file import format_schema, load_system_file, log_schema
 from liemef.systems import PlanarRigidBody, planar_localization
+from liemef.systems._file import format_schema, load_system_file, log_schema
 
 USER_FILE = '''
 import numpy as np

@@ -6,8 +6,8 @@ import jax
 import numpy as np
 import pytest
 
-from liemef.experiments import get_experiment, tse2
 from liemef.simulation import SensorLog
+from liemef.studies.experiments import get_experiment, tse2
 from liemef.systems import PlanarRigidBody
 
 

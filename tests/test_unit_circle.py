@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 
 import liemef
 import paper_forms as pf
-from liemef.experiments import get_experiment, unit_circle
+from liemef.studies.experiments import get_experiment, unit_circle
 from liemef.systems import UnitCircleBias
 from liemef.systems.unit_circle import B_BIAS, B_OMEGA, DEG
 from test_zamani import _cases, _engine_rhs, circle_system

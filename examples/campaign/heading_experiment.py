@@ -21,11 +21,11 @@ import numpy as np
 
 from liemef import MinimumEnergyFilter
 from liemef.connections import CARTAN_SCHOUTEN
-from liemef.experiments import Experiment, TrialSpec, evaluate
-from liemef.filter import ORDERS
+from liemef.filters import ORDERS
 from liemef.groups import SO2
 from liemef.metrics import FULL, Window, state_error, state_labels
 from liemef.simulation import simulate_core
+from liemef.studies.experiments import Experiment, TrialSpec, evaluate
 from liemef.systems import System
 
 

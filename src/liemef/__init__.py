@@ -1,10 +1,19 @@
 """liemef: second-order-optimal minimum-energy filtering on matrix Lie groups.
 
-The public surface: :class:`MinimumEnergyFilter`, the groups (:mod:`liemef.groups`), connections
-(:mod:`liemef.connections`), ready systems (:mod:`liemef.systems`), :func:`simulate` and the metrics
-(:mod:`liemef.metrics`). The baselines (:mod:`liemef.baselines`), the exact minimum-energy estimate
-(:mod:`liemef.optimum`) and the comparisons (:mod:`liemef.compare`) sit beside the filter; experiments, I/O, plots
-and the CLI on top (:mod:`liemef.experiments`).
+The package is layered, and each layer imports only the ones below it (``tests/test_layers.py`` checks it):
+
+* :mod:`liemef.groups`, :mod:`liemef.connections` and :mod:`liemef.integrators`: the Lie groups, the
+  Cartan-Schouten connections and the Lie-group integrators;
+* :mod:`liemef.systems` (models and their sensors) and :mod:`liemef.simulation` (truth and noisy samples);
+* :mod:`liemef.filters`: the mathematics of one sample interval, the minimum-energy filter
+  (:class:`MinimumEnergyFilter`) and the baselines (:mod:`liemef.filters.baselines`), with no engine and no I/O;
+* :mod:`liemef.codegen` and :mod:`liemef.engines`: what runs a filter's interval over a log, a batch of trials
+  or one online step, by XLA or by a compiled C kernel;
+* :mod:`liemef.metrics`: errors on the group, statistics and NEES;
+* :mod:`liemef.studies`: the papers' experiments, Monte Carlo, the comparisons, campaigns, the exact
+  minimum-energy estimate and the real data sets;
+* :mod:`liemef.reports`: files and figures;
+* :mod:`liemef.cli`: the command line.
 
 Importing the package is cheap: JAX and the submodules load on first use (``liemef.MinimumEnergyFilter``,
 ``from liemef import simulate``, ``import liemef.groups``, ...), so ``liemef --help`` answers without JAX.
@@ -20,38 +29,38 @@ import sys
 from typing import TYPE_CHECKING
 
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
-           "SensorLog", "Truth", "groups", "systems", "connections", "simulation", "metrics"]
+           "SensorLog", "Truth", "groups", "systems", "connections", "integrators", "simulation", "filters",
+           "engines", "metrics", "studies", "reports"]
 __version__ = "0.1.0"
 
 # Public names and the submodule each comes from (None: the name is itself a submodule).
 _ATTRS = {
-    "MinimumEnergyFilter": "filter", "FilterState": "filter", "Trajectory": "filter", "Terms": "filter",
+    "MinimumEnergyFilter": "filters", "FilterState": "filters", "Trajectory": "filters", "Terms": "filters",
     "Connection": "connections", "connection": "connections",
     "simulate": "simulation", "SensorLog": "simulation", "Truth": "simulation",
 }
 # Submodules reachable as attributes of the package without an explicit import.
-_SUBMODULES = frozenset({"groups", "systems", "connections", "simulation", "metrics", "filter", "experiments",
-                         "io", "plots", "baselines", "compare", "optimum"})
+_SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "simulation", "filters", "codegen",
+                         "engines", "metrics", "studies", "reports"})
 # Submodules that load without JAX: importing them does not run _config.
 _JAX_FREE = frozenset({"cli", "_config"})
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
     from . import (  # noqa: F401
-        baselines,
-        compare,
+        codegen,
         connections,
-        experiments,
-        filter,
+        engines,
+        filters,
         groups,
-        io,
+        integrators,
         metrics,
-        optimum,
-        plots,
+        reports,
         simulation,
+        studies,
         systems,
     )
     from .connections import Connection, connection
-    from .filter import FilterState, MinimumEnergyFilter, Terms, Trajectory
+    from .filters import FilterState, MinimumEnergyFilter, Terms, Trajectory
     from .simulation import SensorLog, Truth, simulate
 
 

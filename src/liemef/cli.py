@@ -11,7 +11,7 @@
   [--set KEY=VALUE ...]``: N seeded trials batched with ``vmap``; prints the statistics table and, with
   ``--out``, writes ``montecarlo.{npz,json,md,csv}``.
 * ``liemef run --system NAME|--system-file FILE.py --log FILE --out DIR``: filter a recorded log (CSV or
-  NPZ, see :mod:`liemef.io`) and write the estimates with K's diagonal (``estimates.csv``), the innovations
+  NPZ, see :mod:`liemef.reports.io`) and write the estimates with K's diagonal (``estimates.csv``), the innovations
   (``innovations.csv``), ``arrays.npz``, ``metrics.json`` and a figure; a failed run writes only
   ``failure.json`` and exits with status 1.
 * ``liemef export-c --system NAME|--system-file FILE.py --out DIR [--name PREFIX] [--order ...] [--connection ...]
@@ -22,9 +22,9 @@
 * ``liemef compare localization|heading-basin|attitude-basin|broad|wifibot --out DIR [--runs N] [--seed S]
   [--filters a,b] [--set KEY=VALUE]``:
   every filter (the minimum-energy filter with its connections and orders, and the baselines) on the same
-  trials; writes the study's tables (Markdown, CSV, JSON), ``arrays.npz`` and figures (:mod:`liemef.compare`).
+  trials; writes the study's tables (Markdown, CSV, JSON), ``arrays.npz`` and figures (:mod:`liemef.studies.compare`).
 * ``liemef campaign run FILE [--out DIR] [--scheduler tcp://HOST:PORT] [--workers N]``: a Monte Carlo campaign
-  over a grid of settings on Dask, resumable (:mod:`liemef.campaign`); ``liemef campaign status FILE``.
+  over a grid of settings on Dask, resumable (:mod:`liemef.studies.campaign`); ``liemef campaign status FILE``.
 """
 
 from __future__ import annotations
@@ -55,22 +55,22 @@ EXPERIMENT_PAPERS = {
     "unit-circle": "Zamani, Hua, Trumpf, Mahony, 'Minimum-Energy Filtering on the Unit Circle Using Velocity "
                    "Measurements with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3",
 }
-"""``liemef.experiments.EXPERIMENTS``: each experiment's name and paper, in the registry's order."""
+"""``liemef.studies.experiments.EXPERIMENTS``: each experiment's name and paper, in the registry's order."""
 SYSTEM_NAMES = ("attitude", "attitude-bias", "chaplygin", "chaplygin-gps", "localization", "tse2", "tse2-velocity",
                 "unit-circle")
-"""``sorted(liemef.experiments.SYSTEMS)``."""
+"""``sorted(liemef.studies.experiments.SYSTEMS)``."""
 CONNECTIONS = ("minus", "zero", "plus")
 """``tuple(liemef.connections.CARTAN_SCHOUTEN)``."""
 ORDERS = ("second", "first")
-"""``liemef.filter.ORDERS``."""
+"""``liemef.filters.ORDERS``."""
 DEFAULT_BATCH_SIZE = 8
-"""``liemef.experiments.DEFAULT_BATCH_SIZE``."""
+"""``liemef.studies.experiments.DEFAULT_BATCH_SIZE``."""
 COMPARE_STUDIES = ("localization", "heading-basin", "attitude-basin", "broad", "wifibot")
-"""``tuple(liemef.compare.STUDIES)``."""
+"""``tuple(liemef.studies.compare.STUDIES)``."""
 
 
 def _out_dir(out: Path) -> Path:
-    from . import io
+    from .reports import io
 
     try:
         return io.ensure_dir(out)
@@ -163,7 +163,7 @@ def _config(exp, quick: bool, options: dict, settings: tuple[str, ...]):
 
 
 def _list_experiments() -> str:
-    from .experiments import EXPERIMENTS
+    from .studies.experiments import EXPERIMENTS
 
     lines = []
     for e in EXPERIMENTS.values():
@@ -213,8 +213,8 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
         raise click.UsageError("Missing argument 'EXPERIMENT|all' (or --list).")
     if out is None:
         raise click.UsageError("Missing option '--out'.")
-    from .experiments import Failure, get_experiment, reproduce_all
-    from .experiments._reproduce import INDEX_FILE
+    from .studies.experiments import Failure, get_experiment, reproduce_all
+    from .studies.experiments._reproduce import INDEX_FILE
 
     options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
     if experiment == "all":
@@ -258,7 +258,7 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
 def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, settings, progress):
     """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
     and rms over time of each error component, then across trials their mean, spread and percentiles."""
-    from .experiments import EXPERIMENTS, get_experiment, montecarlo
+    from .studies.experiments import EXPERIMENTS, get_experiment, montecarlo
 
     exp = get_experiment(experiment)
     if exp.trial_fn is None:
@@ -287,8 +287,8 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 def _resolve_system(system_name, system_file):
     """The system and what the command needs to start it: (system, label, description, measured_fn or None,
     user file or None)."""
-    from . import _system_file
-    from .experiments import get_system
+    from .studies.experiments import get_system
+    from .systems import _file as _system_file
 
     if (system_name is None) == (system_file is None):
         raise click.UsageError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py "
@@ -321,8 +321,9 @@ def _run_chunked(flt, state, log, gap, chunk, progress):
     import jax
     import jax.numpy as jnp
 
-    from .experiments import ProgressLine
-    from .filter import LogGapWarning, Trajectory
+    from .engines import LogGapWarning
+    from .filters import Trajectory
+    from .studies.experiments import ProgressLine
 
     N = log.ts.shape[0]
     show = ProgressLine("filtering (samples)") if progress and N - 1 > chunk else None
@@ -406,10 +407,10 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     import jax
     import numpy as np
 
-    from . import io, plots
-    from .experiments import SCHEMA
-    from .filter import CAUSES, MinimumEnergyFilter
+    from .filters import CAUSES, MinimumEnergyFilter
     from .metrics import angle_mask, continuous_angles, gain_stats, state_labels
+    from .reports import io, plots
+    from .studies.experiments import SCHEMA
 
     system, label, description, measured, user = _resolve_system(system_name, system_file)
     n, c = system.group.tangent_dim, system.group.coords_dim
@@ -533,7 +534,7 @@ def _c_api_summary(exported, system) -> str:
     """The exported C API with its sizes, the state's members, the status codes and the order of u and y."""
     import re
 
-    from .filter import CAUSES
+    from .filters import CAUSES
 
     P, U = exported.prefix, exported.prefix.upper()
     n, m, p = exported.n, exported.input_dim, exported.output_dim
@@ -605,7 +606,7 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
     d = _out_dir(out)
     system, label, _, _, _ = _resolve_system(system_name, system_file)
     from .codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
-    from .filter import MinimumEnergyFilter
+    from .filters import MinimumEnergyFilter
 
     try:
         flt = MinimumEnergyFilter(system, connection=connection, order=order, integrator=integrator, alpha=alpha,
@@ -632,7 +633,7 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
 def schema(system_name, system_file):
     """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
     sensors' noise levels, and the CSV header that `liemef run` expects."""
-    from ._system_file import format_schema
+    from .systems._file import format_schema
 
     system, label, description, _, _ = _resolve_system(system_name, system_file)
     click.echo(f"{label}: {description}")
@@ -655,8 +656,9 @@ def dataset(kind, path, out, truth, seconds, gps_std):
     localization)."""
     import numpy as np
 
-    from . import datasets, io
-    from .experiments import get_system
+    from .reports import io
+    from .studies import datasets
+    from .studies.experiments import get_system
 
     try:
         if kind == "broad":
@@ -726,7 +728,7 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
     --runs seeds; writes wifibot.md, wifibot.csv, wifibot.json and arrays.npz.
 
     Trials where a filter fails are counted and named, and left out of the statistics."""
-    from .compare import STUDIES
+    from .studies.compare import STUDIES
 
     spec = STUDIES[study]
     d = _out_dir(out)
@@ -796,7 +798,7 @@ def campaign_group():
 
 
 def _load_campaign(path: Path, out: Path | None):
-    from .campaign import Campaign, CampaignError
+    from .studies.campaign import Campaign, CampaignError
 
     try:
         return Campaign.load(path, out=None if out is None else str(out.resolve()))
@@ -824,7 +826,7 @@ def campaign_run(file, out, scheduler, workers, progress):
     SIGTERM): run the same command again to resume."""
     import signal
 
-    from .campaign import CampaignError, run_campaign
+    from .studies.campaign import CampaignError, run_campaign
 
     c = _load_campaign(file, out)
 
@@ -857,7 +859,7 @@ def campaign_run(file, out, scheduler, workers, progress):
 def campaign_status(file, out):
     """How far the campaign FILE has come: finished tasks per setting (verified against their checksums),
     and whether its results are complete. Runs nothing."""
-    from .campaign import CAMPAIGN_FILE, RESULT_FILE, CampaignError, Store
+    from .studies.campaign import CAMPAIGN_FILE, RESULT_FILE, CampaignError, Store
 
     c = _load_campaign(file, out)
     if not (c.out / CAMPAIGN_FILE).exists():

@@ -1,7 +1,7 @@
 r"""``liemef export-c``: a standalone C99 filter (header + source) from a liemef filter, and a ctypes loader.
 
 The C is the translation (:mod:`liemef.codegen._jaxpr_c`) of the jaxpr of one online step, the very
-computation :meth:`liemef.filter.AbstractFilter.step` compiles: Theorem 4.1's terms with their derivatives as
+computation :meth:`liemef.filters.AbstractFilter.step` compiles: Theorem 4.1's terms with their derivatives as
 traced (``jacfwd`` for the Jacobians, forward-over-forward for the Hessian), the integrator with its adaptive
 sub-steps, the sensor screening and the health checks. The filter's weights, connection and parameters are
 constants of the source (export again for new ones: it takes seconds). No heap, no library but libm.
@@ -27,8 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..filter._driver import AbstractFilter, FilterState
-from ..filter._status import CAUSES, DEFINITE_TOL
+from ..filters._base import AbstractFilter, FilterState
+from ..filters._status import CAUSES, DEFINITE_TOL
 from ._jaxpr_c import HELPERS, Translator, ctype, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
@@ -38,7 +38,7 @@ CFLAGS = ("-std=c99", "-O2", "-Wall", "-Werror")
 
 @dataclass(frozen=True)
 class Field:
-    """A member of the exported state struct: a leaf of :class:`~liemef.filter.FilterState`."""
+    """A member of the exported state struct: a leaf of :class:`~liemef.filters.FilterState`."""
 
     name: str
     shape: tuple
@@ -373,7 +373,7 @@ class CFilter:
     """An exported filter loaded with ctypes: the C ``init``/``step``/``run`` on NumPy arrays.
 
     ``CFilter(exported)`` compiles it (:func:`build_shared`) unless ``library`` is given. ``state`` is the
-    live C struct; :meth:`leaves` reads it as :class:`~liemef.filter.FilterState` leaves, in order.
+    live C struct; :meth:`leaves` reads it as :class:`~liemef.filters.FilterState` leaves, in order.
     """
 
     def __init__(self, exported: ExportedC, library: str | os.PathLike | None = None, flags=CFLAGS):
@@ -411,7 +411,7 @@ class CFilter:
         return int(self._init(ctypes.byref(self.state), self._ptr(g0), self._ptr(K0)))
 
     def set_leaves(self, leaves) -> None:
-        """Set the C state from :class:`~liemef.filter.FilterState` leaves (in order)."""
+        """Set the C state from :class:`~liemef.filters.FilterState` leaves (in order)."""
         for f, x in zip(self.exported.fields, leaves, strict=True):
             x = np.asarray(x)
             if f.scalar:

@@ -9,11 +9,11 @@ weight, of a connection on a torus, of ``alpha = 0``), and reads every other ele
 serves a filter structure (its static fields) and zero pattern; a weight set with other zeros builds a second
 one, once.
 
-Each interval is the very computation :meth:`~liemef.filter.AbstractFilter.step` compiles with XLA (the same
+Each interval is the very computation :meth:`~liemef.filters.AbstractFilter.step` compiles with XLA (the same
 jaxpr: terms, derivatives as traced, adaptive sub-steps, screening, health checks), in C straight-line code:
 20-40 times faster than XLA's per-operation dispatch for these small matrices. The kernel's C functions:
 
-* ``kernel_advance``: one interval on a packed state (every leaf of :class:`~liemef.filter.FilterState` as
+* ``kernel_advance``: one interval on a packed state (every leaf of :class:`~liemef.filters.FilterState` as
   doubles, integers exactly), and ``kernel_step``, the same with the samples packed in one vector (the
   online step, infinite samples rejected);
 * ``kernel_scan``: a whole log, keeping every M-th state, stopping at the first failure (a failed state is
@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
-from ..filter._driver import TRACES, AbstractFilter, FilterState, check_samples
+from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples
 from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c

@@ -9,9 +9,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .. import _validate
-from ..filter import AbstractIntegrator
-from ..filter import integrator as make_integrator
 from ..groups import LieGroup
+from ..integrators import AbstractIntegrator
+from ..integrators import integrator as make_integrator
 from ..systems import AbstractSystem
 
 InputFn = Callable[[Float[Array, ""]], Float[Array, " m"]]
@@ -34,7 +34,7 @@ class Truth(eqx.Module):
 class SensorLog(eqx.Module):
     """What a filter sees: measured inputs ``us[k]`` and measurements ``ys[k]`` at ``ts[k]``.
 
-    The same layout as a recorded log (:func:`liemef.io.read_log`) and as the arguments of
+    The same layout as a recorded log (:func:`liemef.reports.io.read_log`) and as the arguments of
     :meth:`liemef.MinimumEnergyFilter.run`.
     """
 

@@ -1,0 +1,79 @@
+"""Which engine computes a call: ``engine``, ``$LIEMEF_ENGINE`` or ``"auto"``, and the C kernel it gives."""
+
+from __future__ import annotations
+
+import functools
+import os
+import warnings
+
+import jax
+
+from .. import _side
+from ..codegen import _kernel as kmod
+from ..codegen._export import compiler
+
+ENGINES = ("auto", "c", "xla")
+"""How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
+the interval, :mod:`liemef.codegen`), ``"xla"`` (jitted JAX) or ``"auto"`` (C for the minimum-energy
+filter where a C compiler is found, else XLA with an :class:`EngineWarning`)."""
+
+
+def engine_of(engine: str | None) -> str:
+    """The engine a call uses: ``engine``, else ``$LIEMEF_ENGINE``, else ``"auto"`` (ValueError naming the
+    argument if unknown); ``"auto"`` without a C compiler is ``"xla"``."""
+    if engine is None:
+        engine = os.environ.get("LIEMEF_ENGINE") or "auto"
+        where = "LIEMEF_ENGINE"
+    else:
+        where = "engine"
+    if engine not in ENGINES:
+        raise ValueError(f"{where}: expected one of {list(ENGINES)}, got {engine!r}")
+    if engine == "auto" and _no_compiler():
+        return "xla"
+    return engine
+
+
+@functools.cache
+def _no_compiler() -> bool:
+    return compiler() is None
+
+
+class EngineWarning(UserWarning):
+    """The C engine was asked for by ``"auto"`` but could not be built; the filter runs with XLA."""
+
+
+def kernel(flt, engine: str | None):
+    """The C kernel the engine choice gives ``flt`` (None: XLA), kept beside the instance (liemef._side)."""
+    engine = engine_of(engine)
+    if engine == "xla" or (engine == "auto" and not type(flt)._c_engine):
+        return None
+    cached = _side.get(flt, "kernel")
+    if cached is not None:
+        if cached[0] is None and engine == "c":
+            raise cached[3]  # "auto" fell back earlier: "c" says why, as on a first call
+        return cached[0]
+    error = None
+    try:
+        kern = kmod.kernel_for(flt)
+    except Exception as err:  # noqa: BLE001 - auto falls back to XLA, saying why; "c" raises
+        if engine == "c":
+            raise
+        warnings.warn(f"the C engine is not available for {type(flt).__name__} ({type(err).__name__}: "
+                      f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
+                      stacklevel=4)
+        kern, error = None, err
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(flt)):
+        return kern  # a traced filter (scan under a transformation): its parameters come as data
+    theta = kern.theta(flt) if kern is not None else None
+    _side.put(flt, "kernel", (kern, theta, theta.ctypes.data if kern is not None else None, error))
+    return kern
+
+
+def theta(flt):
+    """The packed parameters of ``flt`` for its C kernel (after :func:`kernel`)."""
+    return _side.get(flt, "kernel")[1]
+
+
+def theta_address(flt) -> int:
+    """The address of :func:`theta`'s vector, for the C step."""
+    return _side.get(flt, "kernel")[2]

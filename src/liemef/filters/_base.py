@@ -1,0 +1,375 @@
+r"""What every filter of the library shares: its state, its trajectory, the sample conventions and the health
+checks of one interval.
+
+A filter is an :class:`AbstractFilter` that says how one sample interval ``[t, t + dt]`` advances its state
+(``_interval``), from :meth:`~AbstractFilter.init`'s state. The minimum-energy filter
+(:class:`~liemef.MinimumEnergyFilter`) and the baselines (:mod:`liemef.filters.baselines`) are such filters: they
+share the sample conventions (a sample at ``ts[k]`` is used over ``[ts[k], ts[k+1])``, NaN is missing), the
+status and the outputs. What loops over intervals (a log, a batch, a robot's loop) is an engine's
+(:mod:`liemef.engines`): the methods ``run``, ``run_batch``, ``scan``, ``step`` and ``online`` call it.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import functools
+import importlib
+import math
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from .. import _validate
+from ..groups import LieGroup
+from ._riccati import information_in_force
+from ._status import ASYMMETRIC, DEFINITE_TOL, GATE, INDEFINITE, NONFINITE, OK, SYMMETRY_TOL, Status
+
+
+class FilterState(eqx.Module):
+    """The filter's state: the estimate $\\hat g$, the gain K (n x n), the last input (held over missing input
+    samples) and the :class:`~liemef.filters.Status` of the run so far."""
+
+    g_hat: LieGroup
+    K: Float[Array, "n n"]
+    u_last: Float[Array, " m"]
+    status: Status
+
+
+class Trajectory(eqx.Module):
+    """A filter run: ``g_hat[k]`` and ``K[k]`` at ``ts[k]`` (``g_hat`` has batch shape (N,)).
+
+    ``status`` says whether the run failed, where, when and why (:class:`~liemef.filters.Status`); the states
+    after a failure are NaN, so that nothing downstream can mistake them for estimates, and ``final`` is the
+    last good state (the state at ``ts[-1]`` when the run is healthy), from which a run can continue.
+    With ``keep_every = M`` the history holds every M-th sample (``ts = log ts[::M]``).
+    """
+
+    ts: Float[Array, " N"]
+    g_hat: LieGroup
+    K: Float[Array, "N n n"]
+    status: Status
+    final: FilterState
+
+    @property
+    def finite(self) -> Bool[Array, ""]:
+        """True if the run did not fail (kept under its old name: a failed run has NaN states)."""
+        return self.status.code == OK
+
+    def coords(self) -> Float[Array, "N c"]:
+        """The estimate in the group's coordinates (e.g. theta, x, y, omega, vx, vy for TSE(2))."""
+        return self.g_hat.coords()
+
+
+
+TRACES: collections.Counter = collections.Counter()
+"""How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
+
+
+def positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
+    """Whether the symmetric ``S`` has a Cholesky factor, by an unrolled factorization: on the CPU a LAPACK call
+    costs more than the whole filter step for these small matrices."""
+    n = S.shape[0]
+    L = [[None] * n for _ in range(n)]
+    ok = jnp.asarray(True)
+    for j in range(n):
+        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.asarray(0.0))
+        ok = ok & (d > 0)
+        L[j][j] = jnp.sqrt(jnp.where(d > 0, d, 1.0))
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.asarray(0.0))) / L[j][j]
+    return ok
+
+
+def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
+    """The sensor layout a filter needs: the system's blocks, per output component whether it has sample
+    meaning, and whether the information matrix ``Wy`` is diagonal (a missing component is then dropped by
+    zeroing its row and column; otherwise the filter forms the marginal information, DESIGN.md §6)."""
+    blocks = system.blocks()
+    sample = [False] * system.output_dim
+    for b in blocks:
+        sample[b.start:b.stop] = [b.sample] * b.dim
+    Wy = np.asarray(Wy)
+    return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
+
+
+class _hot_path:
+    """A method read off a filter as a plain ``functools.partial``: equinox builds a bound-method Module at each
+    read of an ordinary method (tens of microseconds), too slow for :meth:`AbstractFilter.step` in a robot's
+    loop."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, cls=None):
+        return self.fn if obj is None else functools.partial(self.fn, obj)
+
+
+class AbstractFilter(eqx.Module):
+    """A filter on a liemef system: :meth:`init`, :meth:`step`, :meth:`run` and :meth:`scan` over the
+    sample intervals of a log, with the status of the run (:class:`~liemef.filters.Status`).
+
+    A concrete filter holds ``system``, ``weights`` (the system's nominal :class:`~liemef.filters.Weights`),
+    ``blocks``, ``sample`` and ``diagonal`` (the sensor layout, see :func:`sensor_layout`) and ``symmetric``
+    (whether K must stay symmetric), and implements ``_interval(state, t, dt, u0, u1, y0, y1, gap)``: advance
+    over ``[t, t + dt]`` from the samples at its two ends (NaN = missing), with :meth:`_samples` and
+    :meth:`_finish` for the shared conventions.
+    """
+
+    @abc.abstractmethod
+    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        """Advance over ``[t, t + dt]``."""
+
+    def __hash__(self) -> int:
+        # The structure only (static fields and non-array leaves), never the arrays: filters equal as pytrees
+        # hash equal, and ``jax.jit(flt.vector_field)`` works (equality still compares the arrays).
+        leaves, treedef = jax.tree_util.tree_flatten(self)
+        return hash((treedef, tuple(x for x in leaves if not eqx.is_array(x))))
+
+
+    @property
+    def n(self) -> int:
+        """The dimension n of the group's algebra (K is n x n)."""
+        return self.system.group.tangent_dim
+
+    # --- initialisation -----------------------------------------------------------------------------------
+    def init(self, g0: LieGroup, K0: ArrayLike | None = None, *, X0: ArrayLike | None = None,
+             u0: ArrayLike | None = None) -> FilterState:
+        """Initial state: ``g_hat = g0`` (argmin of m0) and ``K = K0``, or ``K = X0^{-1}`` with X0 the
+        left-trivialized Hessian of m0. K0 may be singular (positive semidefinite), as in Rigo et al. 2023,
+        eq. (63). ``u0`` is the input held until the first present input sample (default zeros)."""
+        self._check_element("g0", g0)
+        n, m = self.n, self.system.input_dim
+        if (K0 is None) == (X0 is None):
+            raise ValueError("init: expected exactly one of K0 (initial gain) or X0 (Hessian of m0), got "
+                             f"{'both' if K0 is not None else 'neither'}")
+        if K0 is not None:
+            K = _validate.symmetric_psd("K0", K0, n, definite=False)
+        else:
+            K = np.linalg.inv(_validate.symmetric_psd("X0", X0, n))
+        u = np.zeros(m) if u0 is None else _validate.array("u0", u0, (m,))
+        return FilterState(g_hat=g0, K=jnp.asarray(K), u_last=jnp.asarray(u), status=Status.initial(len(self.blocks)))
+
+
+    def _samples(self, state: FilterState, dt, u0, u1, y0, y1, gap):
+        """The interval's data under the shared conventions: a missing input sample holds the last one; a missing
+        measurement component has no weight; density samples are not held across a gap. Returns the inputs
+        ``u0, u1``, whether ``u0`` was present, the measurements ``y0, y1`` (zeros where missing), the mask of
+        present components of ``y0``, the information in force ``Wy`` and whether the interval is a gap."""
+        sample = jnp.asarray(self.sample, dtype=bool)
+        u_ok = jnp.isfinite(u0)
+        u0 = jnp.where(u_ok, u0, state.u_last)
+        u1 = jnp.where(jnp.isfinite(u1), u1, u0)
+        is_gap = dt > gap
+        mask = jnp.isfinite(y0) & ~(is_gap & ~sample)
+        dense = mask & jnp.isfinite(y1) & ~sample
+        y0 = jnp.where(mask, y0, 0.0)
+        y1 = jnp.where(dense, y1, y0)
+        Wy = information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal)
+        return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
+
+    def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
+                n_sub=1, capped=False, asymmetric=None) -> FilterState:
+        """The state after an interval: checks ``(g1, K1)`` (:meth:`_health`) and updates the status; a failing
+        interval keeps the state before it, and a state that had failed stays as it was. ``asymmetric``: the
+        filter's own verdict that K cannot stay symmetric (in place of checking K1's symmetry)."""
+        st = state.status
+        code = self._health(g1, K1, consecutive, asymmetric)
+        new_fail = code != OK
+        g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
+        K_out = jnp.where(new_fail, state.K, K1)
+        n_sub = jnp.asarray(n_sub, jnp.int32)
+        status = Status(
+            code=code, index=jnp.where(new_fail, st.steps, st.index), time=jnp.where(new_fail, t, st.time),
+            steps=st.steps + 1, rejected=rejected, consecutive=consecutive,
+            substeps_max=jnp.maximum(st.substeps_max, n_sub), substeps_total=st.substeps_total + n_sub,
+            substeps_capped=st.substeps_capped + capped, gaps=st.gaps + is_gap,
+            longest_gap=jnp.maximum(st.longest_gap, dt), inputs_held=st.inputs_held + jnp.any(~u_ok))
+        out = FilterState(g_hat=g_out, K=K_out, u_last=jnp.where(new_fail, state.u_last, u0), status=status)
+        # A failed state is final: later intervals leave all of it unchanged (estimate, gain, held input and the
+        # status with its counters, which describe the run up to and including the failing interval).
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != OK, a, b), state, out)
+
+    @property
+    def _screens_samples(self) -> bool:
+        """Whether a sensor has a gate, a robust loss or a time-varying weight (static)."""
+        return any(b.gate_threshold is not None or b.robust is not None or b.weight_fn is not None
+                   for b in self.blocks)
+
+    def _sensor_scale(self, nu, HKH, t, dt, mask, Wy, st):
+        """Per-component weight factors from the sensors' gates, robust losses and time-varying weights, and
+        the updated rejection counters, from the innovation ``nu = y - h(g_hat)`` and its covariance from the
+        state, ``HKH`` = Dh K Dh^T (the sample's own covariance is added here)."""
+        p = self.system.output_dim
+        rejected, consecutive = st.rejected, st.consecutive
+        if not self._screens_samples:
+            return jnp.ones((p,)), rejected, consecutive
+        # per block: its factor, its rejection and its run of rejections, stacked at the end (whole arrays, no
+        # scatter: the same program in XLA and in the C kernel)
+        factors, new_rejected, new_consecutive = [], [], []
+        for i, b in enumerate(self.blocks):
+            sl = slice(b.start, b.stop)
+            factor = jnp.asarray(1.0)
+            rej, cons = rejected[i], consecutive[i]
+            if b.gate_threshold is not None or b.robust is not None:
+                present = jnp.all(mask[sl])
+                # the sample's covariance: its information over the interval, times the interval
+                info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(b.dim))
+                S = HKH[sl, sl] + jnp.linalg.inv(info)
+                d2 = nu[sl] @ jnp.linalg.solve(S, nu[sl])
+                d2 = jnp.where(jnp.isfinite(d2), d2, jnp.inf)
+                if b.gate_threshold is not None:
+                    reject = present & (d2 > b.gate_threshold)
+                    factor = jnp.where(reject, 0.0, factor)
+                    rej = rej + reject.astype(rej.dtype)
+                    cons = jnp.where(reject, cons + 1, jnp.where(present, 0, cons))
+                if b.robust is not None:
+                    d = jnp.sqrt(jnp.maximum(d2, 1e-300))
+                    c = b.robust_scale
+                    w = jnp.minimum(1.0, c / d) if b.robust == "huber" else 1.0 / (1.0 + (d / c) ** 2)
+                    factor = factor * jnp.where(present, w, 1.0)
+            if b.weight_fn is not None:
+                factor = factor * jnp.asarray(b.weight_fn(t), dtype=jnp.float64)
+            factors.append(factor)
+            new_rejected.append(rej)
+            new_consecutive.append(cons)
+        owner = np.full(p, len(self.blocks))  # the block of each component (none: factor 1)
+        for i, b in enumerate(self.blocks):
+            owner[b.start:b.stop] = i
+        scale = jnp.stack([*factors, jnp.asarray(1.0)])[owner]
+        return (scale, jnp.stack(new_rejected).astype(rejected.dtype),
+                jnp.stack(new_consecutive).astype(consecutive.dtype))
+
+    def _health(self, g, K, consecutive, asymmetric=None):
+        """The cause code of a state just computed (:data:`~liemef.filters.CAUSES`)."""
+        finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves((g, K))]))
+        Kf = jnp.where(finite, K, jnp.eye(K.shape[0]))
+        big = jnp.max(jnp.abs(Kf))
+        asym = jnp.max(jnp.abs(Kf - Kf.T)) > SYMMETRY_TOL * jnp.maximum(1.0, big) if asymmetric is None \
+            else asymmetric
+        Ks = 0.5 * (Kf + Kf.T) + DEFINITE_TOL * jnp.maximum(big, 1e-300) * jnp.eye(K.shape[0])
+        definite = positive_definite(Ks)
+        gate = jnp.asarray(False)
+        for i, b in enumerate(self.blocks):
+            if b.max_rejections is not None:
+                gate = gate | (consecutive[i] > b.max_rejections)
+        code = jnp.where(~finite, NONFINITE, jnp.where(asym & self.symmetric, ASYMMETRIC,
+                                                        jnp.where(~definite, INDEFINITE, jnp.where(gate, GATE, OK))))
+        return code.astype(jnp.int32)
+
+    # --- drivers ------------------------------------------------------------------------------------------
+    # --- running: by the engines (liemef.engines), which this layer does not import -------------------------
+    def run(self, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
+            gap: float | None = None, keep_every: int = 1, engine: str | None = None) -> Trajectory:
+        """Filter a whole log: :func:`liemef.engines.run` (``ts`` (N,), ``us`` (N, m), ``ys`` (N, p); sample k
+        used over ``[ts[k], ts[k+1])``; ``engine``: ``"auto"``, ``"c"`` or ``"xla"``)."""
+        return _engines().run(self, state, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine)
+
+    def run_batch(self, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
+                  gap: float | None = None, keep_every: int = 1, engine: str | None = None,
+                  threads: int | None = None) -> Trajectory:
+        """Filter B logs on one time grid: :func:`liemef.engines.run_batch` (``states`` with a leading trial
+        axis, ``us`` (B, N, m), ``ys`` (B, N, p))."""
+        return _engines().run_batch(self, states, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine,
+                                    threads=threads)
+
+    def scan(self, state: FilterState, ts, us, ys, *, gap=jnp.inf, n_valid=None, keep_every: int = 1,
+             engine: str | None = "xla") -> Trajectory:
+        """Traceable core of :meth:`run` (no checks): :func:`liemef.engines.scan`."""
+        return _engines().scan(self, state, ts, us, ys, gap=gap, n_valid=n_valid, keep_every=keep_every,
+                               engine=engine)
+
+    @_hot_path
+    def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
+             u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf,
+             engine: str | None = None) -> FilterState:
+        """Advance one sample interval ``[t, t + dt]`` (online use): :func:`liemef.engines.step`."""
+        return _engines().step(self, state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap, engine=engine)
+
+    def online(self, state: FilterState, *, engine: str | None = None):
+        """The online filter of a robot's loop: :func:`liemef.engines.online`."""
+        return _engines().online(self, state, engine=engine)
+
+    # --- the C engine -------------------------------------------------------------------------------------
+    _c_engine = False
+    """Whether ``engine="auto"`` runs this filter class by the C kernel (the minimum-energy filter does; other
+    filters run by C only when asked, ``engine="c"``)."""
+
+    # --- checks -------------------------------------------------------------------------------------------
+    def _check_state(self, state):
+        # cheap structural checks only: step() is the online hot path
+        if not isinstance(state, FilterState):
+            raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
+        G = self.system.group
+        n = G.tangent_dim
+        if type(state.g_hat) is not G or getattr(state.K, "shape", None) != (n, n):
+            raise ValueError(f"state: expected g_hat in {G.__name__} and K of shape ({n}, {n}), got "
+                             f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
+
+    def _check_element(self, name, g):
+        check_element(self.system.group, name, g)
+
+    @staticmethod
+    def _check_dt(dt) -> float:
+        return check_dt(dt)
+
+    @staticmethod
+    def _check_sample(name, v, n, missing: bool = False) -> np.ndarray:
+        return _validate.array(name, np.zeros(0) if v is None and n == 0 else v, (n,), missing=missing)
+
+
+
+def check_element(G: type[LieGroup], name: str, g) -> None:
+    """``g`` is a single element of ``G`` with finite parameters (ValueError naming ``name`` otherwise): the
+    boundary check of every filter's initial and given states."""
+    if not isinstance(g, G):
+        raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
+    if g.batch_shape != ():
+        raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
+    for leaf in jax.tree_util.tree_leaves(g):
+        _validate.array(name, leaf)
+
+
+def check_dt(dt) -> float:
+    """A finite time step > 0, as a float (ValueError naming ``dt`` otherwise, also for a non-number)."""
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"dt: expected a finite time step > 0, got {dt}")
+    return value
+
+
+def check_time(t, dt) -> tuple[float, float]:
+    """An online step's finite time ``t`` and time step ``dt`` > 0, as floats (ValueError naming either)."""
+    dt = check_dt(dt)
+    if not math.isfinite(t):
+        raise ValueError(f"t: expected a finite time, got {t}")
+    return float(t), dt
+
+
+def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.ndarray, ...]:
+    """One interval's samples ``u``, ``y``, ``u_next``, ``y_next`` (None: held) as float64 arrays of shapes
+    (m,), (p,), (m,), (p,), checked in that order, each for its shape and then for infinities (NaN: missing;
+    None for an input of dimension 0): the one check of both engines, so that they name the same sample."""
+    return tuple(AbstractFilter._check_sample(name, v, n, missing=True) for name, v, n in (
+        ("u", u, m), ("y", y, p), ("u_next", u if u_next is None else u_next, m),
+        ("y_next", y if y_next is None else y_next, p)))
+
+
+
+_ENGINES = "liemef.engines"
+
+
+def _engines():
+    """The engines layer, loaded by name where a filter is run: a filter says how one interval advances and
+    knows nothing of what loops over intervals (as diffrax's ``Euler.step`` knows nothing of ``diffeqsolve``),
+    so this layer imports no engine; the methods above call the engines' functions of the same names."""
+    module = sys.modules.get(_ENGINES)
+    return module if module is not None else importlib.import_module(_ENGINES)

@@ -1,0 +1,240 @@
+r"""The minimum-energy filter of Saccon et al. 2016, Theorem 4.1: the terms at a state and one sample interval,
+integrated on the group; the driver (init, step, run, scan, status) is :mod:`liemef.filters._base`'s."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .. import _validate
+from .._linalg import mm, mv
+from ..connections import Connection, ConnectionFunction
+from ..connections import connection as make_connection
+from ..groups import LieGroup
+from ..integrators import AbstractIntegrator
+from ..integrators import integrator as make_integrator
+from ..systems import AbstractSystem
+from ._base import TRACES, AbstractFilter, FilterState, sensor_layout
+from ._derivatives import left_jacobian
+from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
+from ._status import SYMMETRY_TOL
+
+ORDERS = ("second", "first")
+"""The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (without the Hessian
+term of E and W: the continuous-time left-invariant EKF)."""
+INTERPOLATIONS = ("hold", "linear")
+"""How inputs and density measurements vary inside a sample interval: held (zero-order hold, the papers') or
+linear between the interval's two samples (first-order hold, so that RKMK4's inner stages see current data)."""
+
+# Sub-step budget per unit of stiffness (DESIGN.md §6): ||K E|| h, ||A|| h and the group step ||xi|| h.
+_KE_BUDGET, _A_BUDGET, _XI_BUDGET = 0.5, 0.5, 0.5
+
+
+
+class MinimumEnergyFilter(AbstractFilter):
+    r"""Second-order-optimal minimum-energy filter on a matrix Lie group (Saccon et al. 2016, Theorem 4.1).
+
+    Args:
+        system: the model (group, dynamics, output, B, D, Q, R), e.g. :class:`liemef.systems.PlanarRigidBody`,
+            or a :class:`liemef.systems.SensorSystem` whose weights come from sensor noise levels.
+        connection: ``"zero"`` (c = 1/2, torsion-free, the papers' default), ``"minus"`` (c = 0), ``"plus"``
+            (c = 1), a Cartan-Schouten coefficient c, or a bilinear function ``omega(X, Y)``.
+        order: ``"second"`` (the paper filter) or ``"first"`` (no Hessian term in E, W = 0: the continuous-time
+            left-invariant EKF on the group).
+        integrator: ``"rkmk4"`` (4th-order Runge-Kutta-Munthe-Kaas) or ``"lie-euler"``.
+        alpha: forgetting factor, >= 0.
+        interpolation: ``"hold"`` (inputs and density measurements held over each sample interval, the
+            papers' zero-order hold) or ``"linear"`` (interpolated between the interval's two samples where
+            both are present).
+        substeps: ``"auto"`` (default): each sample interval is integrated in adaptive steps, each of size
+            $h = \min(\text{rest}, 1/\rho)$ with the stiffness rate
+            $\rho = \max(\|K E\|/0.5, \|A\|/0.5, \|\lambda + K r\|/0.5)$ (Frobenius norms) at the step's start,
+            so that an impulsive sample or a large K0 does not make the explicit step unstable (K shrinks
+            during an update, so the steps grow: their number is logarithmic in $\|K E\| \Delta$); an interval
+            that is not stiff takes one step. Or a fixed number of equal steps per interval (1: the papers'
+            scheme).
+        max_substeps: the most steps ``"auto"`` takes in one interval (the last one finishes it).
+
+    Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
+    a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
+    (:mod:`liemef.systems`). The filter is an immutable pytree: every weight, noise level and parameter is an
+    array leaf, so a new weight set reuses the compiled code. :meth:`init`, :meth:`step` and :meth:`run`
+    return new states; :meth:`scan` is the traceable, unchecked core of ``run`` for your own ``jit``/``vmap``.
+    """
+
+    system: AbstractSystem
+    connection: Connection
+    integrator: AbstractIntegrator
+    alpha: Float[Array, ""]
+    weights: Weights
+    order: str = eqx.field(static=True)
+    interpolation: str = eqx.field(static=True)
+    substeps: str | int = eqx.field(static=True)
+    max_substeps: int = eqx.field(static=True)
+    symmetric: bool = eqx.field(static=True)
+    sample: tuple[bool, ...] = eqx.field(static=True)
+    blocks: tuple = eqx.field(static=True)
+    diagonal: bool = eqx.field(static=True)
+
+    def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
+                 order: Literal["second", "first"] = "second", integrator: str | AbstractIntegrator = "rkmk4",
+                 alpha: float = 0.0, *, interpolation: Literal["hold", "linear"] = "hold",
+                 substeps: Literal["auto"] | int = "auto", max_substeps: int = 256):
+        if not isinstance(system, AbstractSystem):
+            raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
+        _validate.choice("order", order, set(ORDERS))
+        _validate.choice("interpolation", interpolation, set(INTERPOLATIONS))
+        if substeps != "auto" and not (isinstance(substeps, int) and substeps >= 1):
+            raise ValueError(f"substeps: expected 'auto' or an integer >= 1, got {substeps!r}")
+        if not (isinstance(max_substeps, int) and max_substeps >= 1):
+            raise ValueError(f"max_substeps: expected an integer >= 1, got {max_substeps!r}")
+        self.system = system
+        self.connection = make_connection(connection, system.group)
+        self.order = order
+        self.integrator = make_integrator(integrator)
+        self.alpha = jnp.asarray(_validate.nonnegative("alpha", alpha))
+        self.weights = Weights.of(system)
+        self.interpolation, self.substeps, self.max_substeps = interpolation, substeps, max_substeps
+        self.blocks, self.sample, self.diagonal = sensor_layout(system, self.weights.Wy)
+        # K stays symmetric when E is (first order, or a torsion-free connection) (DESIGN.md §1).
+        torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
+        self.symmetric = order == "first" or bool(np.allclose(torsion, 0.0, atol=1e-12))
+
+
+
+    _c_engine = True  # engine="auto" runs it by its C kernel (AbstractFilter.run)
+
+    def __repr__(self) -> str:
+        return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
+                f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)})")
+
+    # --- the mathematics ----------------------------------------------------------------------------------
+    def _terms(self, weights: Weights, g_hat, K, u, y, t) -> Terms:
+        return _terms_call(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
+
+    def _riccati(self, tm: Terms, K):
+        """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
+        the other triangle is not computed where the compiler can see it (exported C) (DESIGN.md §1)."""
+        Kd = riccati_rhs(tm, K, self.alpha)
+        return jnp.triu(Kd) + jnp.triu(Kd, 1).T if self.symmetric else Kd
+
+    def terms(self, g_hat: LieGroup, K: ArrayLike, u: ArrayLike, y: ArrayLike, t: float = 0.0, *,
+              dt: float | None = None) -> Terms:
+        """r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
+
+        A NaN in ``y`` is a missing component; sample-meaning sensors need the interval ``dt`` their sample is
+        spread over."""
+        self._check_element("g_hat", g_hat)
+        K = _validate.square("K", K, self.n)
+        u = self._check_sample("u", u, self.system.input_dim)
+        y = self._check_sample("y", y, self.system.output_dim, missing=True)
+        if any(self.sample) and dt is None:
+            raise ValueError("dt: expected the sample interval (sample-meaning sensors spread a sample over it), "
+                             "got None")
+        dt = 1.0 if dt is None else self._check_dt(dt)
+        mask = np.isfinite(y)
+        weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
+                                                  diagonal=self.diagonal),
+                          BRB=self.weights.BRB)
+        return _terms_jit(self, weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(float(t)))
+
+    def vector_field(self, g_hat: LieGroup, K, u, y, t):
+        r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;
+        traceable)."""
+        tm = self._terms(self.weights, g_hat, K, u, y, t)
+        return tm.lam + mv(K, tm.r), riccati_rhs(tm, K, self.alpha)
+
+    # --- one sample interval --------------------------------------------------------------------------------
+    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing); checks the result."""
+        st, g, K = state.status, state.g_hat, state.K
+        u0, u1, u_ok, y0, y1, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
+        if self._screens_samples:
+            h0, Dh = left_jacobian(lambda gg: self.system.output(gg, t), g)
+            HKH = mm(Dh, mm(0.5 * (K + K.T), Dh.T))
+            scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, Wy, st)
+            Wy = Wy * jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+        else:
+            rejected, consecutive = st.rejected, st.consecutive
+        weights = Weights(Wy=Wy, BRB=self.weights.BRB)
+
+        def data(tau):
+            if self.interpolation == "hold":
+                return u0, y0
+            s = (tau - t) / dt
+            return u0 + s * (u1 - u0), y0 + s * (y1 - y0)
+
+        def f(gg, KK, tau):
+            u, y = data(tau)
+            tm = self._terms(weights, gg, KK, u, y, tau)
+            return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
+
+        def field_and_rate(gg, KK, tau):
+            # the vector field at a point, and its stiffness rate: the step h is budgeted so that
+            # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
+            u, y = data(tau)
+            tm = self._terms(weights, gg, KK, u, y, tau)
+            xi = tm.lam + mv(KK, tm.r)
+            fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
+            # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
+            rate = jnp.maximum(jnp.maximum(fro(mm(tm.E, KK)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
+                               jnp.linalg.norm(xi) / _XI_BUDGET)
+            # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from a
+            # broken system, is a failure ("K not symmetric"), checked at each interval's start
+            big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
+            skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
+            return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
+
+        if self.substeps == "auto":
+            # Adaptive sub-steps: each step's size comes from the stiffness where it starts, so an impulsive
+            # sample with a large K takes small steps while K shrinks, then larger ones (a number of steps
+            # logarithmic, not linear, in ||K E|| dt). The last allowed step finishes the interval.
+            def sub(c):
+                gg, KK, done, j, _, skew = c
+                first, rate, skew_here = field_and_rate(gg, KK, t + done)
+                left = dt - done
+                forced = (j + 1 >= self.max_substeps) & (rate * left > 1.0)  # the cap: finish, though stiff
+                last = forced | (rate * left <= 1.0)
+                h = jnp.where(last, left, 1.0 / rate)
+                g2, K2 = self.integrator.step(f, gg, KK, t + done, h, first=first)
+                return g2, K2, jnp.where(last, dt, done + h), j + 1, forced, jnp.where(j == 0, skew_here, skew)
+
+            def more(c):
+                return c[2] < dt
+
+            # one integrator step in the program, in the loop (which runs once where the interval is not stiff):
+            # half the code of a first step taken outside it, for XLA to compile and in exported C
+            g1, K1, _, n_sub, capped, skew = jax.lax.while_loop(
+                more, sub, (g, K, jnp.zeros_like(dt), jnp.asarray(0, jnp.int32), jnp.asarray(False),
+                            jnp.asarray(False)))
+        else:
+            n_sub, capped = jnp.asarray(self.substeps, jnp.int32), jnp.asarray(False)
+            h = dt / self.substeps
+            first, _, skew = field_and_rate(g, K, t)
+            g1, K1 = self.integrator.step(f, g, K, t, h, first=first)
+            if self.substeps > 1:
+                g1, K1 = jax.lax.fori_loop(1, self.substeps, lambda j, gK: self.integrator.step(f, *gK, t + j * h, h),
+                                           (g1, K1))
+
+        return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
+                            consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
+
+
+
+
+# One call per evaluation of the terms: traced once per interval structure (not once per RK stage), and one
+# function in the exported C (liemef.codegen); XLA inlines it.
+_terms_call = eqx.filter_jit(terms)
+
+
+@eqx.filter_jit
+def _terms_jit(flt, weights, g, K, u, y, t):
+    TRACES["terms"] += 1
+    return flt._terms(weights, g, K, u, y, t)
+
+

@@ -1,0 +1,6 @@
+"""The reports: what a study writes, apart from what it computes.
+
+* :mod:`liemef.reports.io`: logs in (CSV, NPZ) and results out (JSON, NPZ, CSV), each file written whole or
+  not at all;
+* :mod:`liemef.reports.plots`: the figures (the only module that imports matplotlib here).
+"""

@@ -1,0 +1,281 @@
+r"""``liemef compare broad``: every attitude filter on the BROAD recordings (Laidig et al. 2021, CC BY 4.0).
+
+BROAD (Berlin Robust Orientation Estimation Assessment Dataset) records an IMU (gyro, accelerometer and
+magnetometer at 285.7 Hz) with optical motion-capture attitude as the truth. The trials are the ones present in
+the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filter gets:
+
+- the same log (:func:`liemef.studies.datasets.broad_to_log`);
+- the same initial estimate, TRIAD from the first 50 samples at rest, with zero bias;
+- for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
+
+The weights are **one set for all trials**: the defaults of :func:`liemef.systems.attitude_gyro_bias`. The
+magnetic dip is measured at rest in each trial. The metrics are the dataset's own: the total, heading and
+inclination rms of the error $q_{est} \otimes q_{ref}^{-1}$ (world frame) over BROAD's movement mask, where
+the optical truth is present (the dataset README's formulas).
+
+Filters (:data:`BROAD_FILTERS`):
+
+- the MEF (both orders, the three connections);
+- ``mef-robust``: Huber losses on the accelerometer (fast translation, tapping) and on the magnetometer
+  (magnetic disturbances);
+- the invariant EKF and the left UKF-M. On SO(3) x R^3 the local EKF is the invariant one (a multiplicative
+  rotation error, an additive bias), so it is not run twice;
+- ahrs's Madgwick and Mahony (:mod:`liemef.filters.baselines`), with ahrs's default gains and with the gains published
+  with the dataset (Madgwick beta = 0.12; Mahony Kp = 0.74, Ki = 0.0012).
+
+Beside them are the published per-trial figures of BROAD's own Madgwick and Mahony. A recording is one trial:
+there is no Monte Carlo spread. The reference itself is accurate to about 0.35 deg (the dataset README: at
+rest, the accelerometer agrees with the optical attitude within a median of 0.35 deg). A lead below that is
+called *within the reference's accuracy*.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...filters import MinimumEnergyFilter
+from ...filters.baselines import Madgwick, Mahony, invariant_ekf, ukf_m
+from ...reports import io
+from ...systems import attitude_gyro_bias
+from ...systems.attitude_bias import initial_estimate, magnetic_dip
+from .. import datasets
+from ._common import fmt, parse_names, realdata_present
+
+REFERENCE_ACCURACY_DEG = 0.35
+"""The optical truth's accuracy (the dataset README's median agreement of the accelerometer at rest)."""
+BROAD_FILTERS = {
+    "mef": ("minimum-energy filter, second order, (0)-connection", lambda dip: MinimumEnergyFilter(
+        attitude_gyro_bias(dip=dip))),
+    "mef-first": ("first-order minimum-energy filter", lambda dip: MinimumEnergyFilter(
+        attitude_gyro_bias(dip=dip), order="first")),
+    "mef-minus": ("minimum-energy filter, (-)-connection", lambda dip: MinimumEnergyFilter(
+        attitude_gyro_bias(dip=dip), connection="minus")),
+    "mef-plus": ("minimum-energy filter, (+)-connection", lambda dip: MinimumEnergyFilter(
+        attitude_gyro_bias(dip=dip), connection="plus")),
+    "mef-robust": ("minimum-energy filter with Huber losses on the accelerometer and the magnetometer",
+                   lambda dip: MinimumEnergyFilter(attitude_gyro_bias(dip=dip, acc_robust="huber",
+                                                                      mag_robust="huber"))),
+    "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda dip: invariant_ekf(attitude_gyro_bias(dip=dip))),
+    "ukf-left": ("UKF-M, left retraction", lambda dip: ukf_m(attitude_gyro_bias(dip=dip))),
+    "madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041", lambda dip: Madgwick(attitude_gyro_bias(dip=dip))),
+    "madgwick-broad": ("ahrs Madgwick, BROAD's beta = 0.12", lambda dip: Madgwick(attitude_gyro_bias(dip=dip),
+                                                                                   gain=0.12)),
+    "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3", lambda dip: Mahony(attitude_gyro_bias(dip=dip))),
+    "mahony-broad": ("ahrs Mahony, BROAD's Kp = 0.74, Ki = 0.0012",
+                     lambda dip: Mahony(attitude_gyro_bias(dip=dip), k_P=0.74, k_I=0.0012)),
+}
+"""The filters of the BROAD study: a description and a factory from the trial's magnetic dip."""
+PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
+             "24": {"madgwick": 1.8, "mahony": 2.1}}
+"""Total rms (deg) of BROAD's own Madgwick (beta = 0.12) and Mahony (Kp = 0.74, Ki = 0.0012) per trial, one
+parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
+METRICS = ("total", "heading", "inclination")
+K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
+
+
+@dataclass(frozen=True)
+class BroadComparison:
+    """The study's settings: ``trials`` (ids of :data:`liemef.studies.datasets.BROAD_TRIALS`; default: every one
+    present), ``seconds`` (the head of each trial; default: whole trials), ``filters``, ``realdata`` (the folder;
+    default :func:`liemef.studies.datasets.realdata_dir`)."""
+
+    trials: tuple[str, ...] | str | None = None
+    seconds: float | None = None
+    filters: tuple[str, ...] | str | None = None
+    realdata: str | None = None
+
+    def __post_init__(self):
+        folder, present = realdata_present(self.realdata, datasets.BROAD_TRIALS)
+        trials = self.trials
+        if trials is None:
+            trials = present
+        elif isinstance(trials, str | int):
+            trials = tuple(t.strip() for t in str(trials).split(","))
+        # ids are two digits ("07"); a number given on the command line (7, 24) means the same trial
+        trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
+        unknown = [t for t in trials if t not in present]
+        if not trials or unknown:
+            raise ValueError(f"trials: expected BROAD trials present in {folder} from {list(present)}, got "
+                             f"{list(trials)}")
+        names = parse_names("filters", self.filters, BROAD_FILTERS, tuple(BROAD_FILTERS))
+        if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
+                                             and self.seconds > 0):
+            raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
+        object.__setattr__(self, "trials", tuple(trials))
+        object.__setattr__(self, "filters", names)
+        object.__setattr__(self, "realdata", str(folder))
+
+
+def broad_errors(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """BROAD's total, heading and inclination rms (deg) of the error ``q_est * q_ref^-1`` (world frame) over
+    ``mask`` where the reference is present; quaternions (w, x, y, z), body -> world (the dataset README). None
+    when no sample qualifies."""
+    from scipy.spatial.transform import Rotation
+
+    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
+    e = (Rotation.from_quat(quat_est[ok][:, [1, 2, 3, 0]]) * Rotation.from_quat(quat_ref[ok][:, [1, 2, 3, 0]]).inv()
+         ).as_quat()
+    w, z = np.abs(e[:, 3]), e[:, 2]
+    total = 2 * np.arccos(np.clip(w, 0, 1))
+    heading = 2 * np.arctan(np.abs(z) / np.maximum(w, 1e-12))
+    incl = 2 * np.arccos(np.clip(np.hypot(w, z), 0, 1))
+    if not ok.any():
+        return dict.fromkeys(METRICS)
+    return {k: float(np.degrees(np.sqrt(np.mean(x**2)))) for k, x in zip(METRICS, (total, heading, incl),
+                                                                          strict=True)}
+
+
+def error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The total attitude error (deg) as its rms over each whole second (NaN where the second has no sample in
+    the movement mask with a reference), for the figure."""
+    from scipy.spatial.transform import Rotation
+
+    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
+    err = np.full(ts.shape, np.nan)
+    e = (Rotation.from_quat(quat_est[ok][:, [1, 2, 3, 0]]) * Rotation.from_quat(quat_ref[ok][:, [1, 2, 3, 0]]).inv())
+    err[ok] = np.degrees(e.magnitude())
+    sec = np.floor(ts - ts[0]).astype(int)
+    out = np.full(sec[-1] + 1, np.nan)
+    for k in np.unique(sec[ok]):
+        x = err[(sec == k) & ok]
+        out[k] = np.sqrt(np.mean(x**2))
+    return out
+
+
+def error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
+    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for i, n in enumerate(names):
+        e = arrays[f"{trial}/{n}/error_1s"]
+        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
+    ax.set_yscale("log")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("total attitude error, rms per second [deg]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize="small", ncol=3)
+    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
+    return fig
+
+
+def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
+    """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
+    st = BroadComparison() if study is None else study
+    folder = Path(st.realdata)
+    per_trial, winners, arrays = {}, {}, {}
+    for tid in st.trials:
+        trial = datasets.broad(folder / datasets.BROAD_TRIALS[tid])
+        if st.seconds is not None:
+            trial = trial.head(st.seconds)
+        dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
+        log = datasets.broad_to_log(trial)
+        g0 = initial_estimate(trial.acc[:50], trial.mag[:50])
+        rows = {}
+        for name in st.filters:
+            t0 = time.perf_counter()
+            flt = BROAD_FILTERS[name][1](dip)
+            state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
+            traj = flt.run(state, log.ts, log.us, log.ys)
+            q = np.asarray(traj.g_hat.factors[0].wxyz)
+            status = traj.status
+            arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
+            ok = bool(int(status.code) == 0)
+            # a failed run has no error figures: its states before the failure are not the whole trial's
+            errors = broad_errors(q, trial.quat_true, trial.movement) if ok else dict.fromkeys(METRICS)
+            rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": ok,
+                          "status": status.message(log.ts) if not ok else "ok", **errors,
+                          "elapsed_s": time.perf_counter() - t0}
+            arrays[f"{tid}/{name}"] = np.array([np.nan if rows[name][m] is None else rows[name][m] for m in METRICS])
+            if progress:
+                r = rows[name]
+                print(f"  trial {tid} {name:15s} total {fmt(r['total'])}, heading {fmt(r['heading'])}, inclination "
+                      f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", flush=True)
+        per_trial[tid] = {"file": trial.name, "seconds": float(trial.ts[-1] - trial.ts[0]),
+                          "dip_deg": math.degrees(dip), "filters": rows,
+                          "published": PUBLISHED.get(tid) if st.seconds is None else None}
+        winners[tid] = {}
+        for m in METRICS:
+            ranked = sorted((r[m], n) for n, r in rows.items() if r["ok"] and r[m] is not None)
+            if not ranked:
+                winners[tid][m] = {"winner": None}
+                continue
+            (best, w), rest = ranked[0], ranked[1:]
+            lead = rest[0][0] - best if rest else None
+            winners[tid][m] = {"winner": w, "value": best, "runner_up": rest[0][1] if rest else None,
+                               "lead": lead, "beyond_reference_accuracy": None if lead is None else
+                               bool(lead > REFERENCE_ACCURACY_DEG)}
+    def mean(n, m):
+        v = [per_trial[t]["filters"][n][m] for t in st.trials]
+        return None if any(x is None for x in v) else float(np.mean(v))
+
+    means = {n: {m: mean(n, m) for m in METRICS} for n in st.filters}
+    return {"study": {**dataclasses.asdict(st), "weights": "attitude_gyro_bias() defaults for every trial, dip "
+                      "measured at rest per trial", "K0": "diag(0.05^2 I3, 0.01^2 I3)",
+                      "initial": "TRIAD of the first 50 samples, zero bias"},
+            "trials": per_trial, "means": means, "winners": winners, "arrays": arrays}
+
+
+def markdown(result: dict) -> str:
+    """Per trial: every filter's total, heading and inclination rms, the published figures, and the winners."""
+    st = result["study"]
+    lines = ["# Attitude filters on BROAD (Laidig et al. 2021, CC BY 4.0)", "",
+             f"Weights: {st['weights']}; K0 = {st['K0']}; initial estimate: {st['initial']}. Metrics: BROAD's "
+             "total, heading and inclination rms [deg] over its movement mask where the optical truth is present. "
+             "One recording per trial: no Monte Carlo spread; the optical truth is accurate to about "
+             f"{REFERENCE_ACCURACY_DEG} deg.", ""]
+    names = st["filters"]
+    lines += ["| filter | " + " | ".join(f"{t} total / heading / incl." for t in st["trials"]) + " | mean total |",
+              "|---|" + "---:|" * (len(st["trials"]) + 1)]
+    for n in names:
+        cells = []
+        for t in st["trials"]:
+            r = result["trials"][t]["filters"][n]
+            cells.append(f"{fmt(r['total'])} / {fmt(r['heading'])} / {fmt(r['inclination'])}"
+                         + ("" if r["ok"] else f" ({r['status']})"))
+        lines.append(f"| {n} | " + " | ".join(cells) + f" | {fmt(result['means'][n]['total'])} |")
+    pub = [result["trials"][t]["published"] for t in st["trials"]]
+    if all(p is not None for p in pub):
+        for who in ("madgwick", "mahony"):
+            lines.append(f"| BROAD's own {who} (published) | " + " | ".join(f"{p[who]:g} / - / -" for p in pub)
+                         + f" | {np.mean([p[who] for p in pub]):.3f} |")
+    lines += ["", "## Winners", "", "| trial | metric | winner | rms [deg] | runner-up | lead [deg] | beyond the "
+              "reference's accuracy? |", "|---|---|---|---:|---|---:|---|"]
+    for t, per in result["winners"].items():
+        for m, w in per.items():
+            if w["winner"] is None:
+                continue
+            beyond = "-" if w["beyond_reference_accuracy"] is None else ("yes" if w["beyond_reference_accuracy"]
+                                                                         else "no")
+            lines.append(f"| {t} | {m} | {w['winner']} | {w['value']:.3f} | {w['runner_up'] or '-'} | "
+                         f"{fmt(w['lead'], 3)} | {beyond} |")
+    return "\n".join(lines + [""])
+
+
+def save(result: dict, out: str | Path) -> list[Path]:
+    """Write ``broad.json``, ``broad.md``, ``broad.csv``, ``arrays.npz`` and per trial ``fig_errors_<id>.png``
+    (each filter's attitude error over time) to ``out``."""
+    from ...reports import plots
+
+    out = io.ensure_dir(out)
+    rows = [[t, n, r["ok"], r["total"], r["heading"], r["inclination"]]
+            for t, per in result["trials"].items() for n, r in per["filters"].items()]
+    written = [io.write_npz(out / "arrays.npz", result["arrays"]),
+               io.write_json(out / "broad.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_text(out / "broad.md", markdown(result)),
+               io.write_rows(out / "broad.csv", ["trial", "filter", "ok", "total_deg", "heading_deg",
+                                                 "inclination_deg"], rows)]
+    a = io.read_arrays(out / "arrays.npz")
+    for tid, per in result["trials"].items():
+        fig = error_figure(a, tid, list(result["study"]["filters"]), f"BROAD trial {tid} ({per['file']})")
+        written.append(plots.save_figure(fig, out / f"fig_errors_{tid}.png"))
+    return written

@@ -1,0 +1,167 @@
+"""What every comparison shares: the filters by name, paired statistics across filters run on the same trials,
+and the tables and figures of a study."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ... import _validate
+from ...filters import AbstractFilter, MinimumEnergyFilter
+from ...filters.baselines import invariant_ekf, local_ekf, ukf_m
+from ...metrics._stats import json_number
+
+FILTERS = {
+    "mef": ("minimum-energy filter, second order, (0)-connection (the default)",
+            lambda s: MinimumEnergyFilter(s)),
+    "mef-minus": ("minimum-energy filter, second order, (-)-connection",
+                  lambda s: MinimumEnergyFilter(s, connection="minus")),
+    "mef-plus": ("minimum-energy filter, second order, (+)-connection",
+                 lambda s: MinimumEnergyFilter(s, connection="plus")),
+    "mef-first": ("first-order minimum-energy filter (continuous-time left-invariant EKF)",
+                  lambda s: MinimumEnergyFilter(s, order="first")),
+    "iekf": ("invariant EKF (left-invariant error), discrete", invariant_ekf),
+    "ekf": ("EKF in local coordinates (rotation multiplicative, position additive), discrete", local_ekf),
+    "ukf-left": ("UKF-M with the left retraction (ukfm's ukf_left), discrete", ukf_m),
+}
+"""Filter names of the comparisons: a description and a factory from a system."""
+
+
+def make_filter(name: str, system) -> AbstractFilter:
+    """The filter ``name`` (:data:`FILTERS`) on ``system``."""
+    _validate.choice("filter", name, set(FILTERS))
+    return FILTERS[name][1](system)
+
+
+def parse_names(what: str, names: str | Sequence[str] | None, options, default: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list or a sequence of names from ``options``, each once (default ``default``); a
+    ValueError names the setting ``what``."""
+    if names is None:
+        return tuple(default)
+    items = [n.strip() for n in names.split(",")] if isinstance(names, str) else list(names)
+    if not items or any(not n for n in items):
+        raise ValueError(f"{what}: expected a comma-separated list of names from {sorted(options)}, got {names!r}")
+    for n in items:
+        _validate.choice(what, n, set(options))
+    if len(set(items)) != len(items):
+        raise ValueError(f"{what}: expected each name once, got {names!r}")
+    return tuple(items)
+
+
+def parse_filters(names: str | Sequence[str] | None, default: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list or a sequence of filter names of :data:`FILTERS`, checked (:func:`parse_names`)."""
+    return parse_names("filters", names, FILTERS, default)
+
+
+def check_counts(settings, *names: str) -> None:
+    """Each named field of ``settings`` is an integer >= 1 (runs, batch sizes)."""
+    for name in names:
+        v = getattr(settings, name)
+        if not (isinstance(v, int) and v >= 1):
+            raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+
+
+def realdata_present(realdata: str | None, table: Mapping[str, str]) -> tuple[Path, tuple[str, ...]]:
+    """The real-data folder (``realdata``, else :func:`liemef.studies.datasets.realdata_dir`) and the ids of ``table``
+    (id -> path inside it) whose files are present."""
+    from .. import datasets
+
+    folder = Path(realdata) if realdata is not None else datasets.realdata_dir()
+    if folder is None or not folder.is_dir():
+        raise ValueError(f"realdata: expected the real-data folder (set {datasets.ENV_VAR} or give realdata=PATH), "
+                         f"got {realdata or 'none found'}")
+    return folder, tuple(k for k, rel in table.items() if (folder / rel).is_file())
+
+
+def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> dict:
+    """Which filter has the lowest mean of a per-trial metric, and whether its lead is outside the Monte Carlo
+    spread. A failed trial is NaN.
+
+    The winner is chosen among the filters healthy on the most trials (a filter that failed where another did
+    not cannot win), by the lowest mean over its healthy trials. The filters ran on the same trials, so each
+    other filter is compared with it by the paired differences d_i = x_i - x_winner,i over the trials where
+    both are finite, with the interval mean(d) +- t sd(d)/sqrt(n) (Student's t quantile of ``prob``, n - 1
+    degrees of freedom: honest for the few trials of a distance-to-optimum study).
+
+    Returns ``winner``, ``means`` and ``healthy`` (per filter), ``versus`` (per other filter: mean difference,
+    its interval, n and ``significant``: the interval excludes 0) and ``level`` (the filters whose interval
+    includes 0, and the winner); a filter with fewer than 2 trials in common with the winner is not compared."""
+    from scipy.stats import t as student_t
+
+    arrays = {k: np.asarray(v, float) for k, v in values.items()}
+    healthy = {k: int(np.isfinite(v).sum()) for k, v in arrays.items()}
+    means = {k: float(np.nanmean(v)) if healthy[k] else math.nan for k, v in arrays.items()}
+    most = max(healthy.values(), default=0)
+    if most == 0:
+        return {"winner": None, "means": {k: None for k in means}, "healthy": healthy, "versus": {}, "level": []}
+    winner = min((k for k in arrays if healthy[k] == most), key=lambda k: means[k])
+    versus, level = {}, [winner]
+    w = arrays[winner]
+    for k, v in arrays.items():
+        if k == winner:
+            continue
+        ok = np.isfinite(v) & np.isfinite(w)
+        d = v[ok] - w[ok]
+        n = d.size
+        if n < 2:
+            versus[k] = {"diff": None, "ci": [None, None], "n": int(n), "significant": False}
+            continue
+        mean = float(d.mean())
+        half = float(student_t.ppf(0.5 + prob / 2, n - 1) * d.std(ddof=1) / math.sqrt(n))
+        sig = bool(mean - half > 0)
+        versus[k] = {"diff": mean, "ci": [mean - half, mean + half], "n": int(n), "significant": sig}
+        if not sig:
+            level.append(k)
+    return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "healthy": healthy,
+            "versus": versus, "level": level}
+
+
+def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float = 0.95, seed: int = 0):
+    """A percentile bootstrap interval of ``stat(x)`` over the trials (fixed seed, so reports are reproducible)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)] if x.ndim == 1 else x[np.all(np.isfinite(x), axis=tuple(range(1, x.ndim)))]
+    if x.shape[0] < 2:
+        return [None, None]
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, x.shape[0], size=(n_boot, x.shape[0]))
+    s = np.array([stat(x[i]) for i in idx])
+    lo, hi = np.percentile(s, [50 * (1 - prob), 50 * (1 + prob)])
+    return [float(lo), float(hi)]
+
+
+def fmt(v, digits: int = 4) -> str:
+    """A table cell: ``-`` for None or NaN."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    return f"{v:.{digits}g}"
+
+
+def winners_markdown(rows: Mapping[str, dict], units: Mapping[str, str]) -> list[str]:
+    """Lines of a table: per metric, the winner, its lead over the runner-up (paired mean difference and 95 %
+    interval) and the filters level with it."""
+    lines = ["| metric | winner | mean | runner-up | lead (95 % interval) | outside the spread? | "
+             "level with the winner |", "|---|---|---:|---|---:|---|---|"]
+    for metric, cmp in rows.items():
+        w = cmp["winner"]
+        if w is None:
+            lines.append(f"| {metric} | - | - | - | - | - | - |")
+            continue
+        others = {k: v for k, v in cmp["versus"].items() if v["diff"] is not None}
+        if others:
+            r = min(others, key=lambda k: others[k]["diff"])
+            v = others[r]
+            lead = f"{fmt(v['diff'], 3)} ({fmt(v['ci'][0], 3)} to {fmt(v['ci'][1], 3)}) {units.get(metric, '')}"
+            sig = "yes" if v["significant"] else "no"
+        else:
+            r, lead, sig = "-", "-", "-"
+        level = ", ".join(k for k in cmp["level"] if k != w) or "none"
+        apart = [f"{k} (n = {v['n']})" for k, v in cmp["versus"].items() if v["diff"] is None]
+        if apart:
+            level += "; not comparable: " + ", ".join(apart)
+        lines.append(f"| {metric} | {w} | {fmt(cmp['means'][w])} | {r} | {lead} | {sig} | {level} |")
+    return lines

@@ -1,0 +1,215 @@
+"""Loaders for the real sensor logs with ground truth in ``../shared/realdata`` (read in place, never copied),
+and their conversion to liemef logs.
+
+* BROAD (Laidig, Caruso, Cereatti, Seel, "BROAD - A Benchmark for Robust Inertial Orientation Estimation",
+  Data 6(7):72, 2021, CC BY 4.0): IMU gyro + accelerometer + magnetometer at 285.714 Hz with OptiTrack attitude
+  ground truth; :func:`broad`, :func:`broad_to_log` (for :func:`liemef.systems.attitude_gyro_bias`).
+* Wifibot (Brossard, Barrau, Bonnabel, "A Code for Unscented Kalman Filtering on Manifolds (UKF-M)", ICRA
+  2020, BSD-3-Clause): wheel odometry at about 50 Hz with OptiTrack planar pose; :func:`wifibot`,
+  :func:`wifibot_to_log` (for :func:`liemef.systems.planar_localization`, with synthetic GPS fixes as UKF-M
+  makes them).
+
+Where the data are: :func:`realdata_dir` (the environment variable ``LIEMEF_REALDATA``, else
+``<repo>/../shared/realdata`` beside a source checkout). Cite the dataset authors in anything that reports
+results on them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..reports import io
+
+ENV_VAR = "LIEMEF_REALDATA"
+"""Environment variable naming the real-data folder (the one holding ``broad/`` and ``ukfm_wifibot/``)."""
+
+BROAD_TRIALS = {
+    "01": "broad/01_undisturbed_slow_rotation_A.mat",
+    "07": "broad/07_undisturbed_fast_rotation_B.mat",
+    "24": "broad/24_disturbed_tapping_A.mat",
+}
+"""The BROAD trials in the real-data folder, by number, relative to :func:`realdata_dir`."""
+WIFIBOT_RUNS = {"1": "ukfm_wifibot/wifibot1.txt", "4": "ukfm_wifibot/wifibot4.txt"}
+"""The Wifibot runs in the real-data folder, by number, relative to :func:`realdata_dir`."""
+
+
+def realdata_dir() -> Path | None:
+    """The real-data folder, or None when it is absent.
+
+    In order: the folder named by the environment variable ``LIEMEF_REALDATA`` (None if it is set but is not a
+    directory: a wrong setting is never silently replaced by another folder); else ``../shared/realdata``
+    beside the repository checkout that holds this package (``<repo>/src/liemef/datasets.py``); else
+    ``../shared/realdata`` beside the current working directory or one of its parents (a checkout run from
+    inside, e.g. ``<repo>/tests``).
+    """
+    env = os.environ.get(ENV_VAR)
+    if env:
+        p = Path(env).expanduser()
+        return p.resolve() if p.is_dir() else None
+    here = Path(__file__).resolve()
+    candidates = [here.parents[2] / ".." / "shared" / "realdata"] if len(here.parents) > 2 else []
+    cwd = Path.cwd().resolve()
+    candidates += [d / ".." / "shared" / "realdata" for d in (cwd, *cwd.parents)]
+    for c in candidates:
+        if c.is_dir():
+            return c.resolve()
+    return None
+
+
+# --- BROAD ------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BroadTrial:
+    """One BROAD trial (N samples at ``rate`` Hz; every vector in the IMU body frame).
+
+    Attributes:
+        ts: (N,) s, ``k / rate`` (BROAD's clock is uniform and has no time column).
+        gyr: (N, 3) gyroscope, rad/s.
+        acc: (N, 3) accelerometer (specific force, +9.81 along the body axis pointing up at rest), m/s^2.
+        mag: (N, 3) magnetometer, uT.
+        quat_true: (N, 4) OptiTrack attitude, unit quaternion (w, x, y, z) body -> ENU; NaN rows where the
+            optical tracking dropped out.
+        movement: (N,) bool, BROAD's evaluation mask (the authors' metrics use only these samples).
+        rate: sample rate, Hz.
+        name: the file's stem.
+    """
+
+    ts: np.ndarray
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray
+    quat_true: np.ndarray
+    movement: np.ndarray
+    rate: float
+    name: str
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(N,) bool: the initial rest phase, the samples before the first movement."""
+        k = int(np.argmax(self.movement)) if self.movement.any() else self.movement.shape[0]
+        return np.arange(self.movement.shape[0]) < k
+
+    def head(self, seconds: float) -> BroadTrial:
+        """The first ``seconds`` of the trial."""
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"seconds: expected a duration > 0, got {seconds}")
+        k = max(2, int(round(seconds * self.rate)))
+        return BroadTrial(self.ts[:k], self.gyr[:k], self.acc[:k], self.mag[:k], self.quat_true[:k],
+                          self.movement[:k], self.rate, self.name)
+
+
+def broad(path: str | os.PathLike) -> BroadTrial:
+    """A BROAD trial from its ``.mat`` file (MATLAB v5, read with scipy), as :class:`BroadTrial`.
+
+    ValueError naming ``path`` if the file is missing or is not a BROAD trial.
+    """
+    import scipy.io
+
+    p = io._existing_file(path, "path")
+    try:
+        d = scipy.io.loadmat(p, squeeze_me=True)
+    except Exception as err:  # scipy raises several types on a file that is not a .mat
+        raise ValueError(f"path: cannot read {str(p)!r} as a MATLAB .mat file ({err})") from err
+    keys = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
+    missing = [k for k in keys if k not in d]
+    if missing:
+        raise ValueError(f"path: expected a BROAD trial with variables {list(keys)}, got {str(p)!r} without "
+                         f"{missing}")
+    rate = float(np.asarray(d["sampling_rate"]).reshape(()))
+    gyr, acc, mag, quat = (np.asarray(d[k], dtype=np.float64) for k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat"))
+    N = gyr.shape[0]
+    for k, a, w in (("imu_gyr", gyr, 3), ("imu_acc", acc, 3), ("imu_mag", mag, 3), ("opt_quat", quat, 4)):
+        if a.shape != (N, w):
+            raise ValueError(f"path: {str(p)!r}: expected {k} of shape ({N}, {w}), got {a.shape}")
+    movement = np.asarray(d["movement"]).astype(bool).reshape(-1)
+    if movement.shape != (N,) or not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"path: {str(p)!r}: expected movement of shape ({N},) and a rate > 0, got "
+                         f"{movement.shape} and {rate}")
+    return BroadTrial(ts=np.arange(N) / rate, gyr=gyr, acc=acc, mag=mag, quat_true=quat, movement=movement,
+                      rate=rate, name=p.stem)
+
+
+def broad_to_log(trial: BroadTrial) -> io.RecordedLog:
+    """The liemef log of a BROAD trial for :func:`liemef.systems.attitude_gyro_bias`: ``us`` the gyro (N, 3),
+    ``ys`` the normalized accelerometer and magnetometer (N, 6)."""
+    from ..systems.attitude_bias import imu_log
+
+    if not isinstance(trial, BroadTrial):
+        raise ValueError(f"trial: expected a BroadTrial (from broad()), got {type(trial).__name__}")
+    ts, us, ys = imu_log(trial.gyr, trial.acc, trial.mag, trial.rate, t0=float(trial.ts[0]))
+    return io.RecordedLog(ts=ts, us=us, ys=ys)
+
+
+# --- Wifibot ----------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class WifibotRun:
+    """One Wifibot run of UKF-M (rows at about 50 Hz, irregular: always use ``ts``).
+
+    Attributes:
+        ts: (N,) s.
+        v: (N,) forward body speed from wheel odometry, m/s (the lateral speed is 0: nonholonomic).
+        omega: (N,) yaw rate from differential odometry, rad/s.
+        truth: (N, 3) OptiTrack planar pose (theta rad, x m, y m), relative to the start pose.
+        name: the file's stem.
+    """
+
+    ts: np.ndarray
+    v: np.ndarray
+    omega: np.ndarray
+    truth: np.ndarray
+    name: str
+
+
+def wifibot(path: str | os.PathLike) -> WifibotRun:
+    """A Wifibot run from its text file (header ``t gyro vx vy theta px py``), as :class:`WifibotRun`.
+
+    ValueError naming ``path`` if the file is missing or is not such a run.
+    """
+    p = io._existing_file(path, "path")
+    try:
+        with p.open(encoding="utf-8") as f:
+            header = f.readline().split()
+        data = np.loadtxt(p, skiprows=1, ndmin=2)
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise ValueError(f"path: cannot read {str(p)!r} as a Wifibot run ({err})") from err
+    want = ["t", "gyro", "vx", "vy", "theta", "px", "py"]
+    if header != want or data.shape[1] != len(want) or data.shape[0] < 2:
+        raise ValueError(f"path: expected a Wifibot run with the header {' '.join(want)} and 7 numeric columns, "
+                         f"got {str(p)!r} with header {header} and data of shape {data.shape}")
+    t, w, vx, _, th, px, py = data.T
+    if not np.all(np.isfinite(data)) or not np.all(np.diff(t) > 0):
+        raise ValueError(f"path: {str(p)!r}: expected finite values and strictly increasing times")
+    return WifibotRun(ts=t, v=vx, omega=w, truth=np.stack([th, px, py], axis=1), name=p.stem)
+
+
+def synthetic_gps(run: WifibotRun, rate: float = 1.0, std: float = 0.1, seed: int = 0) -> tuple[np.ndarray,
+                                                                                                  np.ndarray]:
+    """UKF-M's synthetic GPS: at times ``t0 + k / rate`` the first row at or after it, whose true position
+    plus N(0, std^2 I) (numpy ``default_rng(seed)``) is the fix. Returns the rows (K,) and the fixes (K, 2)."""
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"rate: expected a GPS rate > 0 in Hz, got {rate}")
+    if not (math.isfinite(std) and std >= 0):
+        raise ValueError(f"std: expected a GPS std >= 0 in m, got {std}")
+    rng = np.random.default_rng(seed)
+    tg = np.arange(run.ts[0], run.ts[-1], 1.0 / rate)
+    idx = np.unique(np.searchsorted(run.ts, tg))
+    idx = idx[idx < run.ts.shape[0]]
+    return idx, run.truth[idx, 1:3] + std * rng.standard_normal((idx.shape[0], 2))
+
+
+def wifibot_to_log(run: WifibotRun, gps_rate: float = 1.0, gps_std: float = 0.1, seed: int = 0) -> io.RecordedLog:
+    """The liemef log of a Wifibot run for :func:`liemef.systems.planar_localization`: ``us = (v_x, v_y = 0,
+    omega)`` (N, 3), ``ys`` = synthetic GPS fixes (N, 2) at ``gps_rate`` Hz (:func:`synthetic_gps`), NaN
+    between fixes."""
+    if not isinstance(run, WifibotRun):
+        raise ValueError(f"run: expected a WifibotRun (from wifibot()), got {type(run).__name__}")
+    idx, fixes = synthetic_gps(run, gps_rate, gps_std, seed)
+    N = run.ts.shape[0]
+    ys = np.full((N, 2), np.nan)
+    ys[idx] = fixes
+    us = np.stack([run.v, np.zeros(N), run.omega], axis=1)
+    return io.RecordedLog(ts=run.ts.copy(), us=us, ys=ys)
