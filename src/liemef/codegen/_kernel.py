@@ -56,12 +56,14 @@ from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
 
-NATIVE = ("-march=native", "-mno-fma") if platform.machine().lower() in ("x86_64", "amd64", "i386", "i686") \
-    else ("-march=native",)
+NATIVE = ("-march=native", "-mno-fma", "-mno-avx512f") \
+    if platform.machine().lower() in ("x86_64", "amd64", "i386", "i686") else ("-march=native",)
 """Flags for the host's instruction set, without fused multiply-adds: ISO C contracts none across statements,
 but GCC 12's SLP vectorizer emits ``vfmaddsub`` for pairs like ``a * b - c * d`` and ``a * b + c * d`` even
 with ``-ffp-contract=off`` (the Chaplygin sleigh's kernel then differed from its -O0 build in the 12th digit).
-A compiler that refuses them builds without them."""
+On a CPU with AVX-512 (an AMD EPYC here), ``-mno-fma`` leaves AVX-512F's own fused multiply-adds to the
+vectorizer, and the Chaplygin sleigh's kernel again differed from its -O0 build: AVX-512 is off too (the
+kernels' lanes are AVX2-wide). A compiler that refuses them builds without them."""
 
 KERNEL_CFLAGS = ("-std=c99", "-O2", *NATIVE, "-fno-math-errno")
 """The kernel's compiler flags: -O2 (as the tested export) for the host's instruction set (on x86-64 with AVX,
