@@ -75,7 +75,7 @@ def time_run(flt, state, log, repeats=3, engine=None):
     t0 = time.perf_counter()
     jax.block_until_ready(flt.run(*args, engine=engine))  # compile + first run
     first = time.perf_counter() - t0
-    kern = flt._kernel(engine)
+    kern = liemef.engines.kernel(flt, engine)
     if kern is not None:  # the C engine's first build is quick (-O0): time runs by its -O2 build
         kern.wait()
     built = time.perf_counter() - t0
@@ -99,7 +99,7 @@ def time_step(flt, state, log, calls, engine=None):
     dt = float(ts[1] - ts[0])
     st = jax.block_until_ready(flt.step(state, float(ts[0]), us[0], ys[0], dt, engine=engine))  # compile
     # XLA dispatches asynchronously: its latency includes the wait for the result; the C engine returns NumPy
-    wait = jax.block_until_ready if flt._kernel(engine) is None else (lambda x: x)
+    wait = jax.block_until_ready if liemef.engines.kernel(flt, engine) is None else (lambda x: x)
     lat, cpu = np.empty(calls), np.empty(calls)
     for k in range(calls):
         c0, t0 = time.process_time(), time.perf_counter()

@@ -233,9 +233,9 @@ def test_auto_falls_back_to_xla_saying_why(no_kernel):
 
 
 def test_without_a_compiler_auto_is_xla(monkeypatch):
-    from liemef.filters import _driver
+    from liemef.engines import _select
 
-    monkeypatch.setattr(_driver, "_no_compiler", lambda: True)
+    monkeypatch.setattr(_select, "_no_compiler", lambda: True)
     assert liemef.engines.engine_of("auto") == "xla" and liemef.engines.engine_of("c") == "c"
 
 
@@ -433,7 +433,7 @@ def test_online_states_are_values():
         flt.step(state, 0.0, u_int, "seven", 1e-3, engine="c")
     with pytest.raises(ValueError, match=r"y_next: expected finite values or NaN \(missing\), got -inf at index \(2,"):
         flt.step(state, 0.0, u_int, ys[0], 1e-3, engine="c", y_next=np.where(np.arange(7) == 2, -np.inf, 0.0))
-    kern = flt._kernel("c")
+    kern = liemef.engines.kernel(flt, "c")
     x = kern.packed(ref)
     assert kern._read.__name__ == "read"  # the generated reader, not the fallback
     _assert_same(kern._read(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)

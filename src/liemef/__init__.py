@@ -29,8 +29,7 @@ import sys
 from typing import TYPE_CHECKING
 
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
-           "SensorLog", "Truth", "groups", "systems", "connections", "integrators", "simulation", "filters",
-           "engines", "metrics", "studies", "reports"]
+           "SensorLog", "Truth", "groups", "systems", "connections", "simulation", "metrics"]
 __version__ = "0.1.0"
 
 # Public names and the submodule each comes from (None: the name is itself a submodule).
