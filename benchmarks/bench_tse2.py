@@ -85,7 +85,7 @@ def time_run(flt, state, log, repeats=3, engine=None):
         traj = jax.block_until_ready(flt.run(*args, engine=engine))
         runs.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
-    assert bool(traj.finite), "the benchmark run diverged"
+    assert bool(traj.ok), "the benchmark run diverged"
     run_s = float(np.median(runs))
     steps = len(log.ts) - 1
     return {"compile_s": round(first - run_s, 3), "optimized_build_s": round(built - run_s, 3) if kern else None,

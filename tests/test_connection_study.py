@@ -115,7 +115,7 @@ def _run(connection: str, duration: float = 10.0):
     draws = jax_draws(config, jax.random.key(3))._replace(theta0=jnp.asarray(THETA0))
     run = jax.jit(lambda d: trial(s, d)).lower(draws).compile(compiler_options=_FAST_COMPILE)
     truth, log, traj = run(draws)
-    assert bool(traj.finite)
+    assert bool(traj.ok)
     return config, truth, log, traj
 
 

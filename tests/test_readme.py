@@ -15,7 +15,7 @@ def test_readme_examples_run():
     for block in blocks:
         exec(compile(block, str(README), "exec"), namespace)  # noqa: S102
     traj, truth = namespace["traj"], namespace["truth"]
-    assert bool(traj.finite) and traj.coords().shape == (5001, 6)
+    assert bool(traj.ok) and traj.coords().shape == (5001, 6)
     # the example is a working filter: after 5 s the position error is well below the 0.5 m antenna noise
     err = namespace["liemef"].metrics.state_error(truth.g, traj.g_hat)
     assert float(abs(err[-1, 1:3]).max()) < 0.1

@@ -183,7 +183,7 @@ def test_run_matches_printed_filter_trajectory():
     fine = np.linspace(0.0, ts[-1], SUBSTEPS * (ts.size - 1) + 1)
     hold = np.minimum(np.arange(fine.size) // SUBSTEPS, ts.size - 1)
     traj = flt.run(flt.init(state(0.0, 0.0), np.diag([K1, K2])), fine, us[hold, None], ys[hold])
-    assert bool(traj.finite)
+    assert bool(traj.ok)
     coords = np.asarray(traj.coords())[::SUBSTEPS]
     P = np.linalg.inv(np.asarray(traj.K)[::SUBSTEPS])
     engine = np.column_stack([coords, P[:, 0, 0], P[:, 0, 1], P[:, 1, 1]])

@@ -56,8 +56,8 @@ class Trajectory(eqx.Module):
     final: FilterState
 
     @property
-    def finite(self) -> Bool[Array, ""]:
-        """True if the run did not fail (kept under its old name: a failed run has NaN states)."""
+    def ok(self) -> Bool[Array, ""]:
+        """True if the run did not fail (its status is ok; a failed run has NaN states after the failure)."""
         return self.status.code == OK
 
     def coords(self) -> Float[Array, "N c"]:

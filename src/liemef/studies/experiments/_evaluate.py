@@ -56,7 +56,7 @@ def evaluate(experiment: Experiment, config, flt: MinimumEnergyFilter, truth: Tr
         "errors": {"definition": ERROR_DEFINITION, "components": table.to_dict()},
         "group_errors": {"definition": "log(g_hat^-1 g), body frame", "components": gtable.to_dict()},
         "gain": gain_stats(K),
-        "run": {"finite": bool(traj.finite), "samples": int(ts.shape[0]), "liemef_version": __version__,
+        "run": {"finite": bool(traj.ok), "samples": int(ts.shape[0]), "liemef_version": __version__,
                 "filter": repr(flt)},
         "figures": [f.to_dict() for f in experiment.figures],
         **(extra_metrics or {}),
