@@ -28,6 +28,7 @@ rounding (libm's ``sin``/``cos`` against XLA's own, summation order in reduction
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import jax
@@ -134,7 +135,16 @@ static inline double lm_max(double a, double b) { return (a != a || b != b) ? a 
 static inline double lm_min(double a, double b) { return (a != a || b != b) ? a + b : (a < b ? a : b); }
 static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
 """
-"""Static inline functions every generated source starts with (XLA's NaN-propagating max and min, sign)."""
+"""Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign)."""
+
+
+def helpers_used(*texts: str) -> str:
+    """The lines of :data:`HELPERS` whose function ``texts`` call: an unused static function is a warning
+    (``-Wunused-function``) in clang, even when inline, and the exported C compiles with ``-Wall -Werror``."""
+    body = "\n".join(texts)
+    lines = [ln for ln in HELPERS.strip().splitlines()
+             if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", ln).group(1) + r"\(", body)]
+    return "\n".join(lines)
 
 
 def _subjaxpr(params: dict, *keys):
