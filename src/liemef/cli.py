@@ -407,7 +407,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     import jax
     import numpy as np
 
-    from .filters import CAUSES, MinimumEnergyFilter
+    from .filters import MinimumEnergyFilter
     from .metrics import angle_mask, continuous_angles, gain_stats, state_labels
     from .reports import io, plots
     from .studies.experiments import SCHEMA
@@ -474,7 +474,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                                        "K_diag": [float(v) for v in np.diagonal(np.asarray(traj.final.K))]},
                    "log": str(log_path), "filter": repr(flt), "liemef_version": __version__}
         io.write_json(d / "failure.json", failure)
-        raise click.ClickException(f"{status.message(log.ts)} (cause: {CAUSES[int(status.code)]}). No estimates "
+        raise click.ClickException(f"{status.message(log.ts)} (cause: {status.cause}). No estimates "
                                    f"were written; see {d / 'failure.json'}")
 
     names, units = state_labels(system)

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..filters import Trajectory
-from ..filters._status import OK
+from ..filters._status import CAUSES
 from ._select import theta
 
 
@@ -37,7 +37,7 @@ def trajectory(kern, ts, rows, xf, keep_every, lead=()) -> Trajectory:
     """The Trajectory of the kernel's kept rows (lead + (R, S)) and final packed states (lead + (S,)): NaN
     after a failure, as the XLA engine emits."""
     hist = jax.tree_util.tree_unflatten(kern.sdef, kern.unpack(rows, rows.shape[:-1]))
-    bad = np.asarray(hist.status.code) != OK
+    bad = np.asarray(hist.status.code) != CAUSES.OK.code
     bad[..., 0] = False  # the first state is the one given, as in scan
     any_bad = bool(bad.any())
 
@@ -73,7 +73,7 @@ def scan(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajectory:
         return [v[..., s.offset:s.offset + s.size].reshape(lead + s.shape).astype(s.dtype) for s in kern.sslots]
 
     hist = jax.tree_util.tree_unflatten(kern.sdef, unpack(rows, (R,)))
-    bad = (hist.status.code != OK).at[0].set(False)  # the first state is the one given
+    bad = (hist.status.code != CAUSES.OK.code).at[0].set(False)  # the first state is the one given
 
     def nan(a):
         return jnp.where(bad.reshape((R,) + (1,) * (a.ndim - 1)), jnp.nan, a)

@@ -27,7 +27,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .. import _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
-from ._status import ASYMMETRIC, DEFINITE_TOL, GATE, INDEFINITE, NONFINITE, OK, SYMMETRY_TOL, Status
+from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status
 
 
 class FilterState(eqx.Module):
@@ -58,7 +58,7 @@ class Trajectory(eqx.Module):
     @property
     def ok(self) -> Bool[Array, ""]:
         """True if the run did not fail (its status is ok; a failed run has NaN states after the failure)."""
-        return self.status.code == OK
+        return self.status.code == CAUSES.OK.code
 
     def coords(self) -> Float[Array, "N c"]:
         """The estimate in the group's coordinates (e.g. theta, x, y, omega, vx, vy for TSE(2))."""
@@ -180,7 +180,7 @@ class AbstractFilter(eqx.Module):
         filter's own verdict that K cannot stay symmetric (in place of checking K1's symmetry)."""
         st = state.status
         code = self._health(g1, K1, consecutive, asymmetric)
-        new_fail = code != OK
+        new_fail = code != CAUSES.OK.code
         g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
         K_out = jnp.where(new_fail, state.K, K1)
         n_sub = jnp.asarray(n_sub, jnp.int32)
@@ -193,7 +193,7 @@ class AbstractFilter(eqx.Module):
         out = FilterState(g_hat=g_out, K=K_out, u_last=jnp.where(new_fail, state.u_last, u0), status=status)
         # A failed state is final: later intervals leave all of it unchanged (estimate, gain, held input and the
         # status with its counters, which describe the run up to and including the failing interval).
-        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != OK, a, b), state, out)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != CAUSES.OK.code, a, b), state, out)
 
     @property
     def _screens_samples(self) -> bool:
@@ -258,8 +258,10 @@ class AbstractFilter(eqx.Module):
         for i, b in enumerate(self.blocks):
             if b.max_rejections is not None:
                 gate = gate | (consecutive[i] > b.max_rejections)
-        code = jnp.where(~finite, NONFINITE, jnp.where(asym & self.symmetric, ASYMMETRIC,
-                                                        jnp.where(~definite, INDEFINITE, jnp.where(gate, GATE, OK))))
+        code = jnp.where(~finite, CAUSES.NONFINITE.code,
+                         jnp.where(asym & self.symmetric, CAUSES.ASYMMETRIC.code,
+                                   jnp.where(~definite, CAUSES.INDEFINITE.code,
+                                             jnp.where(gate, CAUSES.GATE.code, CAUSES.OK.code))))
         return code.astype(jnp.int32)
 
     # --- drivers ------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ magnetometer-only update; ahrs's Mahony itself would integrate the raw gyro with
 directly: ahrs skips the whole update (correction included) when a gyro sample is exactly zero; a zero gyro is
 passed as $10^{-150}$ rad/s instead, so that noise-free synthetic logs at rest are still corrected. And the state
 is frozen at the first quaternion that is not finite or lost its unit norm (an overflow): ``status`` records it
-(code ``NONFINITE``, the interval's index and start time) and the later states of a run are NaN, as in
+(cause ``CAUSES.NONFINITE``, the interval's index and start time) and the later states of a run are NaN, as in
 :meth:`~liemef.filters.MinimumEnergyFilter.run`.
 
 BROAD (Laidig et al. 2021; ``tests/test_baselines_ahrs.py``): ahrs's Mahony is step for step the C code of
@@ -73,7 +73,7 @@ from ...groups import R3, SO3, TSO3, LieGroup
 from ...systems import AbstractSystem
 from .. import FilterState, Trajectory
 from .._base import check_dt, check_element, check_time
-from .._status import NONFINITE, OK, Status
+from .._status import CAUSES, Status
 
 MADGWICK_GAIN = 0.041
 """ahrs's default Madgwick gain with a magnetometer (``gain_marg``; its IMU-only default is 0.033)."""
@@ -211,14 +211,15 @@ class _AhrsFilter(eqx.Module):
         y = _validate.array("y", y, (self.system.output_dim,), missing=True)
         t, dt = check_time(t, dt)
         st = state.status
-        if int(st.code) != OK:
+        if int(st.code) != CAUSES.OK.code:
             return state
         q, b = self._split(state.g_hat)
         q1, b1, ok = self._interval(self._engine(), q, b, u, y, dt)
         i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
         steps = int(st.steps)
         status = Status(
-            code=i32(OK if ok else NONFINITE), index=i32(-1 if ok else steps), time=jnp.asarray(math.nan if ok else t),
+            code=i32(CAUSES.OK.code if ok else CAUSES.NONFINITE.code), index=i32(-1 if ok else steps),
+            time=jnp.asarray(math.nan if ok else t),
             steps=i32(steps + 1), rejected=st.rejected, consecutive=st.consecutive, substeps_max=i32(1),
             substeps_total=i32(int(st.substeps_total) + 1), substeps_capped=st.substeps_capped, gaps=st.gaps,
             longest_gap=jnp.asarray(max(float(st.longest_gap), dt)), inputs_held=st.inputs_held)
@@ -247,7 +248,7 @@ class _AhrsFilter(eqx.Module):
         Q, B = np.full((N, 4), np.nan), np.full((N, 3), np.nan)
         Q[0], B[0] = q, b
         dts = np.diff(ts)
-        failed, k_fail, done = int(st.code) != OK, -1, 0
+        failed, k_fail, done = int(st.code) != CAUSES.OK.code, -1, 0
         u_last = np.asarray(state.u_last)
         engine, update = self._engine(), type(self)._update
         A, M = ys[:, slice(*self.acc)], ys[:, slice(*self.mag)]
@@ -264,7 +265,7 @@ class _AhrsFilter(eqx.Module):
             Q[k + 1], B[k + 1], u_last = q, b, us[k]
         steps = int(st.steps) + done
         if k_fail >= 0:
-            code, index, time = NONFINITE, int(st.steps) + k_fail, float(ts[k_fail])
+            code, index, time = CAUSES.NONFINITE.code, int(st.steps) + k_fail, float(ts[k_fail])
         else:
             code, index, time = int(st.code), int(st.index), float(st.time)
         status = Status(
