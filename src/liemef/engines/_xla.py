@@ -11,8 +11,7 @@ import numpy as np
 
 from .. import _side
 from ..filters import FilterState, Status, Trajectory
-from ..filters._base import TRACES
-from ..filters._status import CAUSES
+from ..filters._base import TRACES, nan_after_failure
 
 
 def bucket(n: int) -> int:
@@ -34,9 +33,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
                             lambda s: s, st)
 
     def emit(st):
-        bad = st.status.code != CAUSES.OK.code
-        nan = lambda a: jnp.where(bad, jnp.nan, a)  # noqa: E731
-        return jax.tree_util.tree_map(nan, st.g_hat), nan(st.K)
+        return st.g_hat, st.K, st.status.code
 
     M = keep_every
     if M == 1:
@@ -44,7 +41,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
             st = advance(st, x)
             return st, emit(st)
 
-        final, (g_tr, K_tr) = jax.lax.scan(body, state, xs)
+        final, (g_tr, K_tr, codes) = jax.lax.scan(body, state, xs)
     else:
         n_chunks = -(-(N - 1) // M)
         pad = n_chunks * M - (N - 1)
@@ -56,9 +53,10 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
             st = jax.lax.scan(lambda s, x: (advance(s, x), None), st, xc)[0]
             return st, emit(st)
 
-        final, (g_tr, K_tr) = jax.lax.scan(chunk, state, xs)
-    g_all = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), state.g_hat, g_tr)
-    K_all = jnp.concatenate([state.K[None], K_tr])
+        final, (g_tr, K_tr, codes) = jax.lax.scan(chunk, state, xs)
+    g_all, K_all = nan_after_failure(jnp.concatenate([state.status.code[None], codes]),
+                                     jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]),
+                                                            (state.g_hat, state.K), (g_tr, K_tr)))
     return Trajectory(ts=ts[::M], g_hat=g_all, K=K_all, status=final.status, final=final)
 
 

@@ -65,6 +65,21 @@ class Trajectory(eqx.Module):
         return self.g_hat.coords()
 
 
+def nan_after_failure(codes, history):
+    """The rule of a :class:`Trajectory`: ``history`` (a pytree of states along a time axis, lead + (R, ...))
+    with NaN at every state whose status ``codes`` (lead + (R,)) is not ok, except the first state (the one
+    given). NumPy histories (the C engine's rows) stay NumPy, and are returned as they are when no state failed;
+    JAX ones stay JAX (traceable, under ``vmap`` too)."""
+    xp = np if isinstance(codes, np.ndarray) else jnp
+    bad = (codes != CAUSES.OK.code) & (xp.arange(codes.shape[-1]) > 0)
+    if xp is np and not bad.any():
+        return history
+
+    def nan(a):
+        return xp.where(bad.reshape(bad.shape + (1,) * (a.ndim - bad.ndim)), xp.nan, a)
+
+    return jax.tree_util.tree_map(nan, history)
+
 
 TRACES: collections.Counter = collections.Counter()
 """How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
@@ -364,6 +379,35 @@ def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.nd
         ("u", u, m), ("y", y, p), ("u_next", u if u_next is None else u_next, m),
         ("y_next", y if y_next is None else y_next, p)))
 
+
+
+def check_log(flt, ts, us, ys, lead=(), gap=None, keep_every=1, *, threads=None, g_hat=None,
+              missing_inputs: bool = True):
+    """A log's boundary checks, the one check of every filter's run, for one trial (``lead = ()``) or B of them
+    (``lead = (B,)``): the times, the samples' shapes (NaN in ``ys`` missing; in ``us`` held, or refused with
+    ``missing_inputs=False``), ``keep_every``, ``threads``, the states' ``g_hat`` and the gap threshold
+    (default: 10 times the median interval; ``math.inf``: no interval is a gap). Returns ``ts``, ``us``,
+    ``ys`` as float64 arrays and the gap."""
+    ts = _validate.sorted_times("ts", ts)
+    N = ts.shape[0]
+    if N < 2:
+        raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
+    m, p = flt.system.input_dim, flt.system.output_dim
+    us = np.zeros((*lead, N, 0)) if us is None and m == 0 else _validate.array("us", us, (*lead, N, m),
+                                                                                missing=missing_inputs)
+    ys = _validate.array("ys", ys, (*lead, N, p), missing=True)
+    if not (isinstance(keep_every, int) and not isinstance(keep_every, bool) and keep_every >= 1):
+        raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
+    if threads is not None and not (isinstance(threads, int) and threads >= 1):
+        raise ValueError(f"threads: expected an integer >= 1 (or None: every CPU), got {threads!r}")
+    if g_hat is not None:
+        for leaf in jax.tree_util.tree_leaves(g_hat):
+            _validate.array("states.g_hat", leaf)
+    if gap is None:
+        gap = 10.0 * float(np.median(np.diff(ts)))
+    elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
+        gap = float(_validate.nonnegative("gap", gap))
+    return ts, us, ys, gap
 
 
 _ENGINES = "liemef.engines"

@@ -72,7 +72,7 @@ from ... import _validate
 from ...groups import R3, SO3, TSO3, LieGroup
 from ...systems import AbstractSystem
 from .. import FilterState, Trajectory
-from .._base import check_dt, check_element, check_time
+from .._base import check_dt, check_element, check_log, check_time
 from .._status import CAUSES, Status
 
 MADGWICK_GAIN = 0.041
@@ -235,14 +235,8 @@ class _AhrsFilter(eqx.Module):
         are NaN and ``final`` is the last good state (module docstring)."""
         self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
-        ts = _validate.sorted_times("ts", ts)
+        ts, us, ys, _ = check_log(self, ts, us, ys, gap=math.inf, keep_every=keep_every, missing_inputs=False)
         N = ts.shape[0]
-        if N < 2:
-            raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
-        us = _validate.array("us", us, (N, 3))
-        ys = _validate.array("ys", ys, (N, self.system.output_dim), missing=True)
-        if not (isinstance(keep_every, int) and not isinstance(keep_every, bool) and keep_every >= 1):
-            raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
         n, st = self.n, state.status
         q, b = self._split(state.g_hat)
         Q, B = np.full((N, 4), np.nan), np.full((N, 3), np.nan)
