@@ -591,7 +591,9 @@ class Kernel:
         batch.argtypes = [_dp, ctypes.c_int, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp,
                           ctypes.c_double, ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
         batch.restype = None
-        self.lib, self._scan, self._step, self._batch, self.path = lib, scan, step, batch, lib_path
+        # c_step: the C kernel_step on addresses, (theta, x, xo, t, dt, gap, z) -> status code (-2: an infinite
+        # sample, xo untouched), for an engine that keeps packed states of its own (liemef.engines.OnlineFilter)
+        self.lib, self._scan, self.c_step, self._batch, self.path = lib, scan, step, batch, lib_path
 
     def _optimize(self, source: str) -> None:
         """Build ``source`` with :data:`KERNEL_CFLAGS` in a thread (the compiler runs on another core) and load
@@ -702,7 +704,7 @@ class Kernel:
         row, address = self._row()
         S = self.n_state
         fill_samples(row[S:], self.m, self.p, u, y, u_next, y_next)
-        if self._step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
+        if self.c_step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
             reject_infinite(row[S:], self.m, self.p)
         return self.state(row[:S], address)
 

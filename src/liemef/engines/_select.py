@@ -14,8 +14,9 @@ from ..codegen._export import compiler
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
-the interval, :mod:`liemef.codegen`), ``"xla"`` (jitted JAX) or ``"auto"`` (C for the minimum-energy
-filter where a C compiler is found, else XLA with an :class:`EngineWarning`)."""
+the interval, :mod:`liemef.codegen`), ``"xla"`` (jitted JAX) or ``"auto"``: C for every filter (the
+minimum-energy filter and the baselines alike) where a C compiler is found and the filter's interval
+translates, else XLA (with an :class:`EngineWarning` saying why)."""
 
 
 def engine_of(engine: str | None) -> str:
@@ -43,9 +44,11 @@ class EngineWarning(UserWarning):
 
 
 def kernel(flt, engine: str | None):
-    """The C kernel the engine choice gives ``flt`` (None: XLA), kept beside the instance (liemef._side)."""
+    """The C kernel the engine choice gives ``flt`` (None: XLA), kept beside the instance (liemef._side): the
+    engine's decision alone, the same for every filter (a filter says how its interval advances, not what runs
+    it)."""
     engine = engine_of(engine)
-    if engine == "xla" or (engine == "auto" and not type(flt)._c_engine):
+    if engine == "xla":
         return None
     cached = _side.get(flt, "kernel")
     if cached is not None:

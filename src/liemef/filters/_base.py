@@ -312,11 +312,6 @@ class AbstractFilter(eqx.Module):
         """The online filter of a robot's loop: :func:`liemef.engines.online`."""
         return _engines().online(self, state, engine=engine)
 
-    # --- the C engine -------------------------------------------------------------------------------------
-    _c_engine = False
-    """Whether ``engine="auto"`` runs this filter class by the C kernel (the minimum-energy filter does; other
-    filters run by C only when asked, ``engine="c"``)."""
-
     # --- checks -------------------------------------------------------------------------------------------
     def _check_state(self, state):
         # cheap structural checks only: step() is the online hot path

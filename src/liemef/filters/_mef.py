@@ -105,10 +105,6 @@ class MinimumEnergyFilter(AbstractFilter):
         torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
         self.symmetric = order == "first" or bool(np.allclose(torsion, 0.0, atol=1e-12))
 
-
-
-    _c_engine = True  # engine="auto" runs it by its C kernel (AbstractFilter.run)
-
     def __repr__(self) -> str:
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
                 f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)})")
