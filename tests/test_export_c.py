@@ -52,7 +52,7 @@ CONNECTIONS = ("zero", "minus", "plus")
 STATES = 100
 KLO, KHI = -2, 3
 Y_NOISE = 0.3
-NONFINITE = CAUSES.NONFINITE.code
+NONFINITE = CAUSES.index("non-finite")
 BAD_ARGUMENT = -1
 
 # The default suite: both orders and all three connections on TSE(2) (the (+)- and (-)-connections share one

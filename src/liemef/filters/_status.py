@@ -35,6 +35,19 @@ class _Enumeration(enum.EnumType):
         return tuple(cls)[operator.index(key)]  # the members in the order of their codes
 
 
+class _ClassMethodOnClass:
+    """A method that is a classmethod when read off the class and the ``str`` method of the same name when read
+    off a member (a member of :data:`CAUSES` is a string)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __get__(self, obj, cls=None):
+        if obj is None:
+            return self.fn.__get__(cls, type(cls))
+        return getattr(str, self.fn.__name__).__get__(obj, cls)
+
+
 class CAUSES(enum.StrEnum, metaclass=_Enumeration):
     """Why a run failed, one member per cause with its message (the shape of diffrax's ``RESULTS``).
 
@@ -48,6 +61,12 @@ class CAUSES(enum.StrEnum, metaclass=_Enumeration):
     ASYMMETRIC = 2, "K not symmetric", f"the gain K lost its symmetry (beyond {SYMMETRY_TOL:g} relative)"
     INDEFINITE = 3, "K not positive definite", "the gain K lost positive definiteness"
     GATE = 4, "gate", "a sensor's gate rejected more consecutive samples than its max_rejections"
+
+    @_ClassMethodOnClass
+    def index(cls, label: str) -> int:
+        """The code of the cause labelled ``label`` (``CAUSES.index("non-finite") == 1``, as on the tuple of labels
+        CAUSES once was); on a member, ``str.index``."""
+        return cls(label).code
 
     def __new__(cls, code: int, label: str, message: str):
         member = str.__new__(cls, label)
