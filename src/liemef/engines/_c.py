@@ -37,8 +37,8 @@ def trajectory(kern, ts, rows, xf, keep_every, lead=()) -> Trajectory:
     """The Trajectory of the kernel's kept rows (lead + (R, S)) and final packed states (lead + (S,)): NaN
     after a failure, as the XLA engine emits."""
     hist = jax.tree_util.tree_unflatten(kern.sdef, kern.unpack(rows, rows.shape[:-1]))
-    g_hat, K = jax.tree_util.tree_map(lambda a: _to_jax(_contiguous(a)),
-                                      nan_after_failure(np.asarray(hist.status.code), (hist.g_hat, hist.K)))
+    states = nan_after_failure(np.asarray(hist.status.code), (hist.g_hat, hist.K), first_given=True)
+    g_hat, K = jax.tree_util.tree_map(lambda a: _to_jax(_contiguous(a)), states)
     final = jax.tree_util.tree_unflatten(kern.sdef, [_to_jax(_contiguous(a)) for a in kern.unpack(xf, lead)])
     return Trajectory(ts=_to_jax(_contiguous(ts[::keep_every])), g_hat=g_hat, K=K, status=final.status,
                       final=final)
@@ -65,7 +65,7 @@ def scan(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajectory:
         return [v[..., s.offset:s.offset + s.size].reshape(lead + s.shape).astype(s.dtype) for s in kern.sslots]
 
     hist = jax.tree_util.tree_unflatten(kern.sdef, unpack(rows, (R,)))
-    g_hat, K = nan_after_failure(hist.status.code, (hist.g_hat, hist.K))
+    g_hat, K = nan_after_failure(hist.status.code, (hist.g_hat, hist.K), first_given=True)
     final = jax.tree_util.tree_unflatten(kern.sdef, unpack(xf, ()))
     return Trajectory(ts=ts[::M], g_hat=g_hat, K=K, status=final.status, final=final)
 

@@ -33,7 +33,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
                             lambda s: s, st)
 
     def emit(st):
-        return st.g_hat, st.K, st.status.code
+        return nan_after_failure(st.status.code, (st.g_hat, st.K), first_given=False)
 
     M = keep_every
     if M == 1:
@@ -41,7 +41,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
             st = advance(st, x)
             return st, emit(st)
 
-        final, (g_tr, K_tr, codes) = jax.lax.scan(body, state, xs)
+        final, (g_tr, K_tr) = jax.lax.scan(body, state, xs)
     else:
         n_chunks = -(-(N - 1) // M)
         pad = n_chunks * M - (N - 1)
@@ -53,10 +53,9 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
             st = jax.lax.scan(lambda s, x: (advance(s, x), None), st, xc)[0]
             return st, emit(st)
 
-        final, (g_tr, K_tr, codes) = jax.lax.scan(chunk, state, xs)
-    g_all, K_all = nan_after_failure(jnp.concatenate([state.status.code[None], codes]),
-                                     jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]),
-                                                            (state.g_hat, state.K), (g_tr, K_tr)))
+        final, (g_tr, K_tr) = jax.lax.scan(chunk, state, xs)
+    g_all = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), state.g_hat, g_tr)
+    K_all = jnp.concatenate([state.K[None], K_tr])
     return Trajectory(ts=ts[::M], g_hat=g_all, K=K_all, status=final.status, final=final)
 
 

@@ -65,20 +65,23 @@ class Trajectory(eqx.Module):
         return self.g_hat.coords()
 
 
-def nan_after_failure(codes, history):
-    """The rule of a :class:`Trajectory`: ``history`` (a pytree of states along a time axis, lead + (R, ...))
-    with NaN at every state whose status ``codes`` (lead + (R,)) is not ok, except the first state (the one
-    given). NumPy histories (the C engine's rows) stay NumPy, and are returned as they are when no state failed;
-    JAX ones stay JAX (traceable, under ``vmap`` too)."""
+def nan_after_failure(codes, states, *, first_given: bool):
+    """The rule of a :class:`Trajectory`: ``states`` (a pytree whose leaves have the shape of ``codes`` in front)
+    with NaN wherever their status ``codes`` is not ok, except, with ``first_given``, the first state along the
+    last axis of ``codes`` (a history's time axis: the state given, never NaN). One state (``codes`` 0-d, as the
+    XLA scan emits them) or a history (the C engine's rows). NumPy states stay NumPy, returned as they are when
+    none failed; JAX ones stay JAX (traceable, under ``vmap`` too)."""
     xp = np if isinstance(codes, np.ndarray) else jnp
-    bad = (codes != CAUSES.OK.code) & (xp.arange(codes.shape[-1]) > 0)
+    bad = codes != CAUSES.OK.code
+    if first_given:
+        bad = bad & (xp.arange(codes.shape[-1]) > 0)
     if xp is np and not bad.any():
-        return history
+        return states
 
     def nan(a):
-        return xp.where(bad.reshape(bad.shape + (1,) * (a.ndim - bad.ndim)), xp.nan, a)
+        return xp.where(bad if bad.ndim == 0 else bad.reshape(bad.shape + (1,) * (a.ndim - bad.ndim)), xp.nan, a)
 
-    return jax.tree_util.tree_map(nan, history)
+    return jax.tree_util.tree_map(nan, states)
 
 
 TRACES: collections.Counter = collections.Counter()
