@@ -19,7 +19,7 @@ from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
 from ..systems import AbstractSystem
-from ._base import TRACES, AbstractFilter, FilterState, sensor_layout
+from ._base import AbstractFilter, FilterState, sensor_layout
 from ._derivatives import left_jacobian
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
@@ -59,6 +59,9 @@ class MinimumEnergyFilter(AbstractFilter):
             that is not stiff takes one step. Or a fixed number of equal steps per interval (1: the papers'
             scheme).
         max_substeps: the most steps ``"auto"`` takes in one interval (the last one finishes it).
+        constant_E: ``"weighted"`` (the theorem: E's constant part is $Dh^\top D^{-\top} Q D^{-1} Dh$) or
+            ``"unit"`` ($Dh^\top Dh$, as Rigo et al. 2022/2023 print it, right only for $Q = D^\top D$: the
+            reproduction of a misprint, DESIGN.md §3).
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -80,15 +83,18 @@ class MinimumEnergyFilter(AbstractFilter):
     sample: tuple[bool, ...] = eqx.field(static=True)
     blocks: tuple = eqx.field(static=True)
     diagonal: bool = eqx.field(static=True)
+    constant_E: str = eqx.field(static=True)
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
                  order: Literal["second", "first"] = "second", integrator: str | AbstractIntegrator = "rkmk4",
                  alpha: float = 0.0, *, interpolation: Literal["hold", "linear"] = "hold",
-                 substeps: Literal["auto"] | int = "auto", max_substeps: int = 256):
+                 substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
+                 constant_E: Literal["weighted", "unit"] = "weighted"):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
         _validate.choice("interpolation", interpolation, set(INTERPOLATIONS))
+        _validate.choice("constant_E", constant_E, {"weighted", "unit"})
         if substeps != "auto" and not (isinstance(substeps, int) and substeps >= 1):
             raise ValueError(f"substeps: expected 'auto' or an integer >= 1, got {substeps!r}")
         if not (isinstance(max_substeps, int) and max_substeps >= 1):
@@ -100,6 +106,7 @@ class MinimumEnergyFilter(AbstractFilter):
         self.alpha = jnp.asarray(_validate.nonnegative("alpha", alpha))
         self.weights = Weights.of(system)
         self.interpolation, self.substeps, self.max_substeps = interpolation, substeps, max_substeps
+        self.constant_E = constant_E
         self.blocks, self.sample, self.diagonal = sensor_layout(system, self.weights.Wy)
         # K stays symmetric when E is (first order, or a torsion-free connection) (DESIGN.md §1).
         torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
@@ -107,11 +114,16 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def __repr__(self) -> str:
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
-                f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)})")
+                f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)}"
+                + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))
 
     # --- the mathematics ----------------------------------------------------------------------------------
     def _terms(self, weights: Weights, g_hat, K, u, y, t) -> Terms:
-        return _terms_call(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
+        tm = terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
+        if self.constant_E == "weighted":
+            return tm
+        unit = tm.Dh.T @ (weights.Wy - jnp.eye(weights.Wy.shape[0])) @ tm.Dh  # E's constant part as Dh^T Dh
+        return eqx.tree_at(lambda x: x.E, tm, tm.E - unit)
 
     def _riccati(self, tm: Terms, K):
         """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
@@ -137,7 +149,7 @@ class MinimumEnergyFilter(AbstractFilter):
         weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
                                                   diagonal=self.diagonal),
                           BRB=self.weights.BRB)
-        return _terms_jit(self, weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(float(t)))
+        return self._terms(weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(float(t)))
 
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;
@@ -219,18 +231,3 @@ class MinimumEnergyFilter(AbstractFilter):
 
         return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
                             consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
-
-
-
-
-# One call per evaluation of the terms: traced once per interval structure (not once per RK stage), and one
-# function in the exported C (liemef.codegen); XLA inlines it.
-_terms_call = eqx.filter_jit(terms)
-
-
-@eqx.filter_jit
-def _terms_jit(flt, weights, g, K, u, y, t):
-    TRACES["terms"] += 1
-    return flt._terms(weights, g, K, u, y, t)
-
-

@@ -77,6 +77,8 @@ def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Flo
     return W * s[:, None] * s[None, :]
 
 
+@eqx.filter_jit  # one call per evaluation: traced once per interval structure (not once per RK stage), one
+# function in the exported C (liemef.codegen); XLA inlines it
 def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,
           g: LieGroup, K, u, y, t) -> Terms:
     """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``."""

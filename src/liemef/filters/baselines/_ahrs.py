@@ -119,39 +119,43 @@ def _interval(update, engine, q, b, u, a, m, dt):
     return (q1, b1, True) if ok else (q, b, False)
 
 
-class _AhrsFilter(eqx.Module):
-    """The shared driver of the ahrs filters (abstract): validation, frames, missing samples, status, runs."""
+def _attitude_sensors(system: AbstractSystem) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The output slices of the ``acc`` and ``mag`` sensors of an attitude system on SO3 or TSO3 with the gyro as
+    its input, whose sensors read up and a northern field at the identity (ValueError naming ``system``
+    otherwise): the checks of every ahrs baseline's constructor."""
+    if not isinstance(system, AbstractSystem):
+        raise ValueError(f"system: expected a liemef attitude system (AbstractSystem), got "
+                         f"{type(system).__name__}")
+    if system.group not in (SO3, TSO3):
+        raise ValueError(f"system: expected an attitude system on SO3 or TSO3, got one on "
+                         f"{system.group.__name__}")
+    if system.input_dim != 3:
+        raise ValueError(f"system: expected the gyro as the input (3 components), got {system.input_dim} inputs")
+    blocks = {b.name: b for b in system.blocks()}
+    for s in ("acc", "mag"):
+        if s not in blocks or blocks[s].dim != 3:
+            got = [f"{b.name} ({b.dim})" for b in system.blocks()]
+            raise ValueError(f"system: expected sensors 'acc' and 'mag' of 3 components each, got sensors {got}")
+    acc, mag = (blocks["acc"].start, blocks["acc"].stop), (blocks["mag"].start, blocks["mag"].stop)
+    # The frames of the conversion hold only if the system's sensors read up and a northern (+y) field.
+    h = np.asarray(system.output(system.group.identity(), jnp.asarray(0.0)))
+    a, m = h[slice(*acc)], h[slice(*mag)]
+    if not (np.allclose(a, [0.0, 0.0, 1.0], atol=1e-9) and abs(m[0]) < 1e-9 and m[1] > 0):
+        raise ValueError("system: expected 'acc' to read the world up (0, 0, 1) and 'mag' a field pointing north "
+                         f"(+y, ENU) at the identity attitude, got acc {a.tolist()} and mag {m.tolist()}")
+    return acc, mag
 
-    system: AbstractSystem
+
+class _AhrsFilter(eqx.Module):
+    """The shared driver of the ahrs filters (abstract; its final classes hold the fields): frames, missing
+    samples, status, runs."""
+
+    system: eqx.AbstractVar[AbstractSystem]
+    acc: eqx.AbstractVar[tuple[int, int]]  # the output slices of the sensors (_attitude_sensors)
+    mag: eqx.AbstractVar[tuple[int, int]]
     has_covariance: ClassVar[bool] = False
     name: ClassVar[str]
     _frame: ClassVar[np.ndarray]  # q_c with q_liemef = q_c (x) q_ahrs
-    acc: tuple[int, int] = eqx.field(static=True)
-    mag: tuple[int, int] = eqx.field(static=True)
-
-    def __init__(self, system: AbstractSystem):
-        if not isinstance(system, AbstractSystem):
-            raise ValueError(f"system: expected a liemef attitude system (AbstractSystem), got "
-                             f"{type(system).__name__}")
-        if system.group not in (SO3, TSO3):
-            raise ValueError(f"system: expected an attitude system on SO3 or TSO3, got one on "
-                             f"{system.group.__name__}")
-        if system.input_dim != 3:
-            raise ValueError(f"system: expected the gyro as the input (3 components), got {system.input_dim} inputs")
-        blocks = {b.name: b for b in system.blocks()}
-        for s in ("acc", "mag"):
-            if s not in blocks or blocks[s].dim != 3:
-                got = [f"{b.name} ({b.dim})" for b in system.blocks()]
-                raise ValueError(f"system: expected sensors 'acc' and 'mag' of 3 components each, got sensors {got}")
-        self.system = system
-        self.acc = (blocks["acc"].start, blocks["acc"].stop)
-        self.mag = (blocks["mag"].start, blocks["mag"].stop)
-        # The frames of the conversion hold only if the system's sensors read up and a northern (+y) field.
-        h = np.asarray(system.output(system.group.identity(), jnp.asarray(0.0)))
-        a, m = h[slice(*self.acc)], h[slice(*self.mag)]
-        if not (np.allclose(a, [0.0, 0.0, 1.0], atol=1e-9) and abs(m[0]) < 1e-9 and m[1] > 0):
-            raise ValueError("system: expected 'acc' to read the world up (0, 0, 1) and 'mag' a field pointing north "
-                             f"(+y, ENU) at the identity attitude, got acc {a.tolist()} and mag {m.tolist()}")
 
     @property
     def n(self) -> int:
@@ -321,10 +325,14 @@ class Madgwick(_AhrsFilter):
 
     name: ClassVar[str] = "madgwick"
     _frame: ClassVar[np.ndarray] = _Q_NWU_TO_ENU
+    system: AbstractSystem
+    acc: tuple[int, int] = eqx.field(static=True)
+    mag: tuple[int, int] = eqx.field(static=True)
     gain: float = eqx.field(static=True)
 
     def __init__(self, system: AbstractSystem, gain: float = MADGWICK_GAIN):
-        super().__init__(system)
+        self.acc, self.mag = _attitude_sensors(system)
+        self.system = system
         self.gain = _positive("gain", gain)
 
     def __repr__(self) -> str:
@@ -357,11 +365,15 @@ class Mahony(_AhrsFilter):
 
     name: ClassVar[str] = "mahony"
     _frame: ClassVar[np.ndarray] = _Q_IDENTITY
+    system: AbstractSystem
+    acc: tuple[int, int] = eqx.field(static=True)
+    mag: tuple[int, int] = eqx.field(static=True)
     k_P: float = eqx.field(static=True)
     k_I: float = eqx.field(static=True)
 
     def __init__(self, system: AbstractSystem, k_P: float = MAHONY_K_P, k_I: float = MAHONY_K_I):
-        super().__init__(system)
+        self.acc, self.mag = _attitude_sensors(system)
+        self.system = system
         self.k_P = _positive("k_P", k_P)
         self.k_I = _positive("k_I", k_I, zero=True)
         if system.group is SO3 and self.k_I != 0:
