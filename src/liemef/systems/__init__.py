@@ -9,11 +9,13 @@ from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
 from .attitude_bias import attitude_gyro_bias
 from .chaplygin import ChaplyginSleigh
+from .inertial import inertial_navigation
 from .localization import planar_localization
 from .planar_rigid_body import PlanarRigidBody, tse2_state
+from .rigid_body_3d import pose3d
 from .unit_circle import UnitCircleBias
 
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
-           "attitude_gyro_bias",
+           "attitude_gyro_bias", "pose3d", "inertial_navigation",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state"]
