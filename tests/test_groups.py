@@ -902,3 +902,14 @@ def test_matrix_group_rejects_bad_bases(basis, match):
         MatrixGroup.from_basis("Bad", basis)
     with pytest.raises(ValueError, match=r"name: expected a class name"):
         MatrixGroup.from_basis("no name", np.eye(2)[None])
+
+
+@pytest.mark.slow  # 65 s on a busy 2-core machine: compiling a filter on SL(3)
+def test_adding_a_group_page_runs_and_prints_what_it_shows(tmp_path, monkeypatch):
+    # The worked example of docs/adding-a-group.md: a MatrixGroup from a basis, used as the group of a filter.
+    from pathlib import Path
+
+    from test_tutorial import check_page
+
+    ns = check_page(Path(__file__).resolve().parents[1] / "docs" / "adding-a-group.md", tmp_path, monkeypatch)
+    assert bool(ns["traj"].ok)

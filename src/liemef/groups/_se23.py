@@ -12,7 +12,7 @@ class SE23(SEK3):
     r"""Extended poses, $SE_2(3)$ = ``SEK3[2]``: attitude R (body to world), velocity v and position p (world
     frame), the state of inertial navigation (Barrau & Bonnabel 2017).
 
-    se_2(3) = $(\omega, \nu_v, \nu_p)$, the rotation first: $\hat\xi = \begin{bmatrix}[\omega]_\times & \nu_v &
+    se_2(3) = $(\omega, \nu_v, \nu_p)$, the rotation first: $\hat\xi = \begin{bmatrix} {[\omega]_\times} & \nu_v &
     \nu_p \\ 0 & 0 & 0\end{bmatrix}$; the matrix is ``[[R, v, p], [0, 1, 0], [0, 0, 1]]``. Stored as
     ``(w, x, y, z, vx, vy, vz, px, py, pz)``; coordinates are the rotation vector, v, p.
     """

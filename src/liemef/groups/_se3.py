@@ -12,7 +12,7 @@ class SE3(SEK3):
     r"""Rigid motions in space, SE(3) = ``SEK3[1]``: rotation R (body to world) and translation p (world frame).
 
     se(3) = $(\omega, v)$: the rotation rate first, as se(2) = $(\omega, v_x, v_y)$; $\hat\xi =
-    \begin{bmatrix}[\omega]_\times & v \\ 0 & 0\end{bmatrix}$ and the matrix is ``[[R, p], [0, 1]]``.
+    \begin{bmatrix} {[\omega]_\times} & v \\ 0 & 0\end{bmatrix}$ and the matrix is ``[[R, p], [0, 1]]``.
     Stored as ``(w, x, y, z, px, py, pz)``; coordinates are the rotation vector and p. A body twist
     $(\omega, v)$ held for a time $t$ moves the pose to $g \exp(t\,(\omega, v))$.
     """

@@ -67,14 +67,14 @@ class SEK3(LieGroup):
 
     ``SEK3[K]`` is the group for a given $K$ (static): ``SEK3[1]`` is :class:`SE3`, ``SEK3[2]`` is
     :class:`SE23`; larger $K$ holds e.g. landmarks in the state. The algebra order is the rotation first,
-    $(\omega;\ \nu_1; \ldots; \nu_K)$, with $\hat\xi = \begin{bmatrix}[\omega]_\times & \nu_1 & \cdots & \nu_K
+    $(\omega;\ \nu_1; \ldots; \nu_K)$, with $\hat\xi = \begin{bmatrix} {[\omega]_\times} & \nu_1 & \cdots & \nu_K
     \\ 0 & 0\end{bmatrix}$. An element is stored as the unit quaternion of $R$ and the $K$ vectors,
     ``(w, x, y, z, p_1, ..., p_K)``; coordinates are the rotation vector then the vectors (world frame).
 
     Closed forms: $\exp(\omega, \nu_k) = (\exp\omega,\ J_l(\omega)\nu_k)$ and $\log$ its inverse, with the SO(3)
     left Jacobian $J_l$ (Taylor branches near 0; finite at $\pi$);
     $\mathrm{Ad}_g = \begin{bmatrix} R & 0 \\ [p_k]_\times R & R \end{bmatrix}$ (block rows $k$),
-    $\mathrm{ad}_\xi = \begin{bmatrix} [\omega]_\times & 0 \\ [\nu_k]_\times & [\omega]_\times \end{bmatrix}$.
+    $\mathrm{ad}_\xi = \begin{bmatrix} {[\omega]_\times} & 0 \\ [\nu_k]_\times & [\omega]_\times \end{bmatrix}$.
     """
 
     wxyz_p: jnp.ndarray
@@ -190,7 +190,7 @@ class SEK3(LieGroup):
 
     @classmethod
     def hat(cls, xi):
-        r"""$(\omega; \nu_k)$ to $\begin{bmatrix}[\omega]_\times & \nu_1 \cdots \nu_K \\ 0 & 0\end{bmatrix}$."""
+        r"""$(\omega; \nu_k)$ to $\begin{bmatrix} {[\omega]_\times} & \nu_1 \cdots \nu_K \\ 0 & 0\end{bmatrix}$."""
         xi = as_float_array(xi)
         K = cls.K
         nu = xi[..., 3:].reshape(*xi.shape[:-1], K, 3)
@@ -207,7 +207,7 @@ class SEK3(LieGroup):
 
     @classmethod
     def ad(cls, xi):
-        r"""$\begin{bmatrix} [\omega]_\times & 0 \\ [\nu_k]_\times & [\omega]_\times \end{bmatrix}$."""
+        r"""$\begin{bmatrix} {[\omega]_\times} & 0 \\ [\nu_k]_\times & [\omega]_\times \end{bmatrix}$."""
         xi = as_float_array(xi)
         K = cls.K
         W = _skew(xi[..., :3])
