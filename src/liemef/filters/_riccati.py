@@ -78,9 +78,17 @@ def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Flo
 
 
 def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,
-          g: LieGroup, K, u, y, t) -> Terms:
-    """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``."""
+          g: LieGroup, K, u, y, t, outputs: bool = True) -> Terms:
+    """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``. ``outputs=False``
+    (static): no output carries weight (the hybrid filter's prediction with sample sensors only), so r, E, W and
+    the innovation are zero and the output's derivatives are not computed."""
     G = type(g)
+    if not outputs:
+        lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
+        A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
+        p, n = weights.Wy.shape[0], lam.shape[0]
+        return Terms(r=jnp.zeros(n), A=A, E=jnp.zeros((n, n)), W=jnp.zeros((n, n)), BRB=weights.BRB, lam=lam,
+                     y_tilde=jnp.zeros(p), Dh=jnp.zeros((p, n)), Dlam=Dlam)
     h0, Dh = left_jacobian(lambda gg: system.output(gg, t), g)
     y_tilde = mv(weights.Wy, y - h0)
     r = mv(Dh.T, y_tilde)
