@@ -483,7 +483,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     filt = continuous_angles(coords, angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(log.ys - jax.vmap(system.output)(traj.g_hat, log.ts))
+    innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
     onames, ounits = system.output_names, system.output_units
     table_text, table = _innovation_table(log.ts, innov, onames, ounits)
     comps = [f"e{k}" for k in range(n)]
@@ -498,7 +498,8 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
         "config": {"x0": [float(v) for v in q0], "K0_diag": [float(v) for v in np.diagonal(K0)],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "substeps": substeps, "gap": gap},
-        "innovation": {"definition": "y - h(g_hat) at each present sample (before the update of that sample)",
+        "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
+                       "sample (before the update of that sample)",
                        "components": table},
         "gain": gain_stats(K),
         "status": report,

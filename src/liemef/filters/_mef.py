@@ -187,7 +187,7 @@ class MinimumEnergyFilter(AbstractFilter):
             W_sample = information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal)
             Wy = information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal)
         if self._screens_samples:
-            h0, Dh = left_jacobian(lambda gg: self.system.output(gg, t), g)
+            h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), g)
             HKH = mm(Dh, mm(0.5 * (K + K.T), Dh.T))
             W_all = Wy + W_sample / dt if discrete else Wy  # the information in force, as the gate reads it
             scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, W_all, st)
@@ -198,7 +198,7 @@ class MinimumEnergyFilter(AbstractFilter):
         else:
             rejected, consecutive = st.rejected, st.consecutive
         if discrete:
-            g, K = sample_update(lambda gg: self.system.output(gg, t), g, K, y0, W_sample,
+            g, K = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), g, K, y0, W_sample,
                                  iterations=self.iterations, newton=self.order == "second")
             K = jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
