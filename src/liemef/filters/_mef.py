@@ -75,7 +75,8 @@ class MinimumEnergyFilter(AbstractFilter):
             of the held sample. Recommended for a user system with sample sensors. Density sensors are
             continuous in either mode.
         iterations: the number of Newton steps (``order="second"``, the output's second-order term kept) or
-            Gauss-Newton steps (``order="first"``: one step is the invariant EKF's update) of a discrete update.
+            Gauss-Newton steps (``order="first"``: one step is the invariant EKF's update) of a discrete update
+            (default 1; K+ comes from the Hessian at the last iterate, docs/theorem.md).
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -98,13 +99,13 @@ class MinimumEnergyFilter(AbstractFilter):
     blocks: tuple = eqx.field(static=True)
     diagonal: bool = eqx.field(static=True)
     updates: str = eqx.field(static=True, default="hold")
-    iterations: int = eqx.field(static=True, default=2)
+    iterations: int = eqx.field(static=True, default=1)
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
                  order: Literal["second", "first"] = "second", integrator: str | AbstractIntegrator = "rkmk4",
                  alpha: float = 0.0, *, interpolation: Literal["hold", "linear"] = "hold",
                  substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
-                 updates: Literal["hold", "discrete"] = "hold", iterations: int = 2):
+                 updates: Literal["hold", "discrete"] = "hold", iterations: int = 1):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
