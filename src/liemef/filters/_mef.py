@@ -203,7 +203,12 @@ class MinimumEnergyFilter(AbstractFilter):
                                  iterations=self.iterations, newton=self.order == "second")
             K = jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
-        continuous_outputs = not (discrete and all(self.sample))  # static: whether an output acts over the interval
+        if discrete and all(self.sample):  # static: no output acts over the interval, so none is differentiated
+            def terms_at(gg, KK, u, y, tau):
+                return self._terms(weights, gg, KK, u, y, tau, outputs=False)
+        else:
+            def terms_at(gg, KK, u, y, tau):
+                return self._terms(weights, gg, KK, u, y, tau)
 
         def data(tau):
             if self.interpolation == "hold":
@@ -213,14 +218,14 @@ class MinimumEnergyFilter(AbstractFilter):
 
         def f(gg, KK, tau):
             u, y = data(tau)
-            tm = self._terms(weights, gg, KK, u, y, tau, continuous_outputs)
+            tm = terms_at(gg, KK, u, y, tau)
             return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
 
         def field_and_rate(gg, KK, tau):
             # the vector field at a point, and its stiffness rate: the step h is budgeted so that
             # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
             u, y = data(tau)
-            tm = self._terms(weights, gg, KK, u, y, tau, continuous_outputs)
+            tm = terms_at(gg, KK, u, y, tau)
             xi = tm.lam + mv(KK, tm.r)
             fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
             # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
