@@ -392,6 +392,9 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 @click.option("--interpolation", type=click.Choice(("hold", "linear")), default="hold", show_default=True,
               help="Inputs and dense measurements held over each interval, or linear between samples.")
+@click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
+              help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
+              "at their own time (the hybrid filter: recommended for sample sensors).")
 @click.option("--substeps", default="auto", show_default=True,
               help="Integrator steps per sample interval: auto (by stiffness) or a number.")
 @click.option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
@@ -400,7 +403,7 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
               help="Samples per compiled chunk (progress is shown between chunks).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress on stderr.")
 def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection, order, alpha, interpolation,
-            substeps, gap, chunk, progress):
+            updates, substeps, gap, chunk, progress):
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
@@ -443,7 +446,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     d = _out_dir(out)
     try:
         flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha,
-                                  interpolation=interpolation, substeps=substeps)
+                                  interpolation=interpolation, substeps=substeps, updates=updates)
         state = flt.init(system.group.from_coords(q0), K0)
         if gap is None:
             gap = 10.0 * float(np.median(np.diff(log.ts)))
@@ -483,7 +486,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     filt = continuous_angles(coords, angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(log.ys - jax.vmap(system.output)(traj.g_hat, log.ts))
+    innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
     onames, ounits = system.output_names, system.output_units
     table_text, table = _innovation_table(log.ts, innov, onames, ounits)
     comps = [f"e{k}" for k in range(n)]
@@ -497,8 +500,10 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                 "t1": float(log.ts[-1])},
         "config": {"x0": [float(v) for v in q0], "K0_diag": [float(v) for v in np.diagonal(K0)],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
+                   "updates": updates,
                    "substeps": substeps, "gap": gap},
-        "innovation": {"definition": "y - h(g_hat) at each present sample (before the update of that sample)",
+        "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
+                       "sample (before the update of that sample)",
                        "components": table},
         "gain": gain_stats(K),
         "status": report,

@@ -92,6 +92,21 @@ class AbstractSystem(eqx.Module):
         """The output's sensor blocks as the filter engine sees them: one density block ``y`` by default."""
         return (Block("y", 0, self.output_dim, sample=False),)
 
+    @property
+    def manifold_residuals(self) -> bool:
+        """Whether an output component has a residual other than ``y - h`` (:meth:`residual`)."""
+        return False
+
+    def residual(self, y: Float[Array, "... p"], h: Float[Array, "... p"], t=None) -> Float[Array, "... p"]:
+        r"""The residual $y \ominus h$ of a sample against an output (DESIGN.md §8): ``y - h`` unless a sensor
+        declares its own (angles, directions, rotations: :mod:`liemef.systems._residuals`)."""
+        return y - h
+
+    def output_seen_from(self, y: Float[Array, " p"], g: LieGroup, t) -> Float[Array, " p"]:
+        r"""$\tilde h_y(g) = y - (y \ominus h(g))$, the output as the filters see it against the sample ``y``:
+        its derivatives are the residual's. :meth:`output` itself where every residual is ``y - h``."""
+        return self.output(g, t) if not self.manifold_residuals else y - self.residual(y, self.output(g, t), t)
+
     def information(self) -> Float[Array, "p p"]:
         r"""Measurement information $D^{-\top} Q D^{-1}$: per unit time for density blocks, per sample for
         sample blocks (:mod:`liemef.systems._sensors`)."""
