@@ -431,7 +431,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     q0 = _floats(x0, c, "'--x0'")
     if q0 is None and user is not None:
         q0 = user.x0 if user.x0 is not None else (
-            np.asarray(user.initial_guess(y_first), dtype=np.float64) if user.initial_guess else np.zeros(c))
+            user.guess(y_first) if user.initial_guess else np.zeros(c))
     if q0 is None:
         q = measured(y_first[None, :])[0]
         q0 = np.where(np.isfinite(q), q, 0.0)

@@ -342,12 +342,7 @@ class AbstractFilter(eqx.Module):
 def check_element(G: type[LieGroup], name: str, g) -> None:
     """``g`` is a single element of ``G`` with finite parameters (ValueError naming ``name`` otherwise): the
     boundary check of every filter's initial and given states."""
-    if not isinstance(g, G):
-        raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
-    if g.batch_shape != ():
-        raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
-    for leaf in jax.tree_util.tree_leaves(g):
-        _validate.array(name, leaf)
+    _validate.element(name, g, G)
 
 
 def check_dt(dt) -> float:

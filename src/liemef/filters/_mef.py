@@ -116,10 +116,10 @@ class MinimumEnergyFilter(AbstractFilter):
         _validate.choice("order", order, set(ORDERS))
         _validate.choice("interpolation", interpolation, set(INTERPOLATIONS))
         _validate.choice("constant_E", constant_E, {"weighted", "unit"})
-        if substeps != "auto" and not (isinstance(substeps, int) and substeps >= 1):
-            raise ValueError(f"substeps: expected 'auto' or an integer >= 1, got {substeps!r}")
-        if not (isinstance(max_substeps, int) and max_substeps >= 1):
-            raise ValueError(f"max_substeps: expected an integer >= 1, got {max_substeps!r}")
+        if substeps != "auto" and not (isinstance(substeps, int) and 1 <= substeps <= _validate.INT_MAX):
+            raise ValueError(f"substeps: expected 'auto' or an integer >= 1 and <= {_validate.INT_MAX}, "
+                             f"got {substeps!r}")
+        _validate.integer("max_substeps", max_substeps, 1)
         _validate.choice("updates", updates, set(UPDATES))
         if not (isinstance(iterations, int) and not isinstance(iterations, bool) and iterations >= 1):
             raise ValueError(f"iterations: expected an integer >= 1 (Newton or Gauss-Newton steps), got {iterations!r}")
@@ -162,9 +162,11 @@ class MinimumEnergyFilter(AbstractFilter):
         """r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
 
         A NaN in ``y`` is a missing component; sample-meaning sensors need the interval ``dt`` their sample is
-        spread over."""
+        spread over. ``K`` may be any finite n x n matrix (not only a gain a run can reach: the closed-form tests
+        evaluate the terms at random K); ``t`` and ``dt`` must be finite."""
         self._check_element("g_hat", g_hat)
-        K = _validate.square("K", K, self.n)
+        K = _validate.square("K", K, self.n)  # any finite K: the terms are polynomials in it
+        t = _validate.real("t", t)
         u = self._check_sample("u", u, self.system.input_dim)
         y = self._check_sample("y", y, self.system.output_dim, missing=True)
         if any(self.sample) and dt is None:
@@ -175,7 +177,7 @@ class MinimumEnergyFilter(AbstractFilter):
         weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
                                                   diagonal=self.diagonal),
                           BRB=self.weights.BRB)
-        return self._terms(weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(float(t)))
+        return self._terms(weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(t))
 
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .. import _validate
@@ -14,7 +15,14 @@ from ..groups import LieGroup
 
 
 def matrix(x) -> Array:
-    """Field converter: a float64 JAX array."""
+    """Field converter: a float64 JAX array; complex values and objects are kept as they are, for the
+    system's check to refuse them by name (a cast would truncate them)."""
+    if isinstance(x, jax.core.Tracer):
+        return jnp.asarray(x, dtype=jnp.float64)
+    kind = getattr(x, "dtype", None)
+    kind = np.asarray(x).dtype.kind if kind is None and x is not None else getattr(kind, "kind", None)
+    if kind is not None and kind not in "biuf":
+        return np.asarray(x)
     return jnp.asarray(x, dtype=jnp.float64)
 
 
@@ -136,6 +144,8 @@ class AbstractSystem(eqx.Module):
     def __check_init__(self):
         G = self.group
         n = G.tangent_dim
+        for name in ("D", "Q"):
+            _validate.numeric(name, getattr(self, name))
         B = _validate.array("B", self.B, (n, None))
         d = B.shape[1]
         _validate.symmetric_psd("R", self.R, d)
@@ -169,6 +179,16 @@ class System(AbstractSystem):
     R: Float[Array, "d d"] = eqx.field(converter=matrix)
     n_inputs: int = eqx.field(static=True, default=0)
     names: tuple[str, ...] | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        _validate.integer("n_inputs", self.n_inputs, 0)
+        G = self.group_type
+        for name, fn, args in (("dynamics", self.dynamics_fn, (G.identity(), jnp.zeros((self.n_inputs,)), 0.0)),
+                               ("output", self.output_fn, (G.identity(), 0.0))):
+            for leaf in jax.tree_util.tree_leaves(jax.eval_shape(fn, *args)):
+                dtype = getattr(leaf, "dtype", None)
+                if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
+                    raise ValueError(f"{name}: expected a function returning real values, got dtype {dtype}")
 
     @property
     def group(self) -> type[LieGroup]:

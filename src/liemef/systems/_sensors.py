@@ -42,7 +42,7 @@ ROBUST = ("huber", "cauchy")
 
 
 def _positive_vector(name: str, value) -> Array:
-    a = _validate.array(name, np.atleast_1d(np.asarray(value, dtype=np.float64)), (None,))
+    a = _validate.array(name, np.atleast_1d(_validate.numeric(name, value)), (None,))
     if a.size == 0 or np.any(a <= 0):
         raise ValueError(f"{name}: expected standard deviations > 0, got {a.tolist()}")
     return jnp.asarray(a)

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ... import __version__
+from ... import __version__, _validate
 from ...filters import CAUSES, Status
 from ...metrics import Window, error_stats, window_mask
 from ...metrics._stats import format_number, json_number
@@ -65,8 +65,10 @@ ProgressFn = Callable[[int, int, float, "float | None"], None]
 
 
 def trial_keys(seed: int, runs: int) -> jax.Array:
-    """The key of every trial: ``jax.random.split(jax.random.key(seed), runs)``."""
-    return jax.random.split(jax.random.key(seed), runs)
+    """The key of every trial: ``jax.random.split(jax.random.key(seed), runs)`` (ValueError naming ``seed`` or
+    ``runs`` out of range: a seed in [0, 2**63 - 1], at least one run)."""
+    seed = _validate.integer("seed", seed, 0, _validate.SEED_MAX)
+    return jax.random.split(jax.random.key(seed), _validate.integer("runs", runs, 1))
 
 
 # --- progress ----------------------------------------------------------------------------------------------
