@@ -24,7 +24,7 @@ from liemef.filters.baselines import (
 )
 from liemef.groups import SE2, TSE2, TSO3, Rn
 from liemef.systems import Noise, Sensor, SensorSystem
-from tolerances import ENGINES
+from trees import assert_trees_close
 
 R3 = Rn[3]
 A = np.array([[0.0, 1.0, 0.0], [-0.5, -0.2, 0.3], [0.0, 0.0, -0.1]])
@@ -220,22 +220,6 @@ def test_bad_arguments_are_named():
         flt.run(flt.init(R3(np.zeros(3)), np.eye(3)), ts, bad, ys)
 
 
-def _assert_engines_agree(a, b):
-    """Every leaf of two runs (trajectory, final state, status) equal to ENGINES relative, integers exactly."""
-    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
-    assert len(la) == len(lb)
-    for x, y in zip(la, lb, strict=True):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.shape == y.shape and x.dtype == y.dtype
-        if x.dtype.kind in "iub":
-            np.testing.assert_array_equal(x, y)
-        else:
-            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
-            ok = ~np.isnan(x)
-            scale = max(1.0, float(np.abs(y[ok]).max(initial=0)))
-            np.testing.assert_allclose(x[ok], y[ok], rtol=0, atol=ENGINES * scale)
-
-
 BASELINES = {"iekf": invariant_ekf, "ekf": local_ekf, "ukf-left": ukf_m}
 
 
@@ -258,8 +242,8 @@ def test_auto_runs_every_baseline_by_its_c_kernel_as_xla_does(make):
         warnings.simplefilter("ignore", LogGapWarning)
         auto, c, xla = (flt.run(state, ts, us, ys, engine=e) for e in ("auto", "c", "xla"))
     assert int(xla.status.code) == 0 and int(xla.status.rejected[0]) >= 1 and int(xla.status.gaps) == 1
-    _assert_engines_agree(c, xla)
-    _assert_engines_agree(auto, c)
+    assert_trees_close(c, xla)
+    assert_trees_close(auto, c)
 
 
 @pytest.mark.slow  # three XLA compilations on SE(2): over a minute
@@ -272,10 +256,10 @@ def test_on_the_localization_the_c_engine_runs_the_baselines_as_xla_does():
     args = (np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys))
     for flt in (invariant_ekf(s.system), local_ekf(s.system), ukf_m(s.system)):
         state = flt.init(g0, K0)
-        _assert_engines_agree(flt.run(state, *args, engine="c"), flt.run(state, *args, engine="xla"))
+        assert_trees_close(flt.run(state, *args, engine="c"), flt.run(state, *args, engine="xla"))
         ts, us, ys = args
         st = state
         for k in range(3):
             st = flt.step(st, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="c")
         run = flt.run(state, ts[:4], us[:4], ys[:4], engine="c")
-        _assert_engines_agree(st, run.final)
+        assert_trees_close(st, run.final)

@@ -25,7 +25,7 @@ from liemef.filters import CAUSES, TRACES
 from liemef.groups import Rn
 from liemef.studies.experiments import SYSTEMS
 from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
-from tolerances import ENGINES
+from trees import assert_trees_close
 
 pytestmark = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC, cc, gcc or clang)")
 
@@ -51,20 +51,6 @@ def _log(flt, n=120, seed=0, dt=0.01):
     return flt.init(g0, np.eye(flt.n)), ts, us, ys
 
 
-def _assert_same(a, b, tol=ENGINES):
-    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
-    assert len(la) == len(lb)
-    for x, y in zip(la, lb, strict=True):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.shape == y.shape and x.dtype == y.dtype
-        if x.dtype.kind in "iub":
-            np.testing.assert_array_equal(x, y)
-        else:
-            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
-            ok = ~np.isnan(x)
-            np.testing.assert_allclose(x[ok], y[ok], rtol=0, atol=tol * max(1.0, float(np.abs(y[ok]).max(initial=0))))
-
-
 def _runs(flt, *args, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LogGapWarning)
@@ -78,7 +64,7 @@ def test_run_equals_xla_on_every_ready_system(system):
     flt = liemef.MinimumEnergyFilter(SYSTEMS[system].make())
     c, x = _runs(flt, *_log(flt))
     assert x.status.ok and int(x.status.gaps) == 1
-    _assert_same(c, x)
+    assert_trees_close(c, x)
 
 
 @pytest.mark.parametrize("options", [dict(order="first", connection="plus"), dict(connection="minus"),
@@ -90,7 +76,7 @@ def test_run_equals_xla_for_every_option(options):
     flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make(), **options)
     c, x = _runs(flt, *_log(flt, seed=1))
     assert x.status.ok
-    _assert_same(c, x)
+    assert_trees_close(c, x)
 
 
 def test_keep_every_and_gap_threshold():
@@ -98,7 +84,7 @@ def test_keep_every_and_gap_threshold():
     state, ts, us, ys = _log(flt, n=100, seed=2)
     c, x = _runs(flt, state, ts, us, ys, keep_every=7, gap=np.inf)
     assert c.K.shape == (15, 3, 3) and int(x.status.gaps) == 0
-    _assert_same(c, x)
+    assert_trees_close(c, x)
     with pytest.warns(LogGapWarning, match="1 sample interval"):
         flt.run(state, ts, us, ys, engine="c")
 
@@ -112,13 +98,13 @@ def test_a_failure_is_the_same_value():
     c, x = _runs(flt, state, ts, us, ys)
     assert not c.status.ok and c.status.cause == "non-finite" and int(c.status.index) == 40
     assert np.isnan(np.asarray(c.K)[41:]).all() and np.isfinite(np.asarray(c.K)[:41]).all()
-    _assert_same(c, x)
+    assert_trees_close(c, x)
     # a failed state stays failed: running on from it changes nothing
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LogGapWarning)  # the counters of the failed state: the gap of the first run
         again = flt.run(c.final, ts[40:], us[40:], ys[40:], engine="c", gap=np.inf)
     assert int(again.status.code) == CAUSES.index("non-finite")
-    _assert_same(again.final, c.final, tol=0.0)
+    assert_trees_close(again.final, c.final, tol=0.0)
 
 
 def test_step_equals_xla_and_chains():
@@ -131,9 +117,9 @@ def test_step_equals_xla_and_chains():
         sc = flt.step(sc, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="c")
         sx = flt.step(sx, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="xla")
     assert isinstance(sc.K, np.ndarray) and int(sc.status.steps) == 20
-    _assert_same(sc, sx)
+    assert_trees_close(sc, sx)
     # a C state fed to XLA and back: the same next state either way
-    _assert_same(flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="xla"),
+    assert_trees_close(flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="xla"),
                  flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="c"))
 
 
@@ -155,9 +141,9 @@ def test_run_batch_equals_single_runs(system):
         for b, (state, _, u, y) in enumerate(logs):
             one = flt.run(state, ts, u, y, engine="c")
             mine = jax.tree_util.tree_map(lambda a, b=b: a[b], (batch.g_hat, batch.K, batch.status, batch.final))
-            _assert_same(mine, (one.g_hat, one.K, one.status, one.final))
+            assert_trees_close(mine, (one.g_hat, one.K, one.status, one.final))
     assert [int(c) for c in batch.status.code] == [0] * 5 + [CAUSES.index("non-finite")] + [0] * 3
-    _assert_same(batch, xla)
+    assert_trees_close(batch, xla)
     kern = _kernel.kernel_for(flt)
     if system == "attitude":
         assert kern.lanes() is None and "no lane form" in kern.lanes_error
@@ -195,7 +181,7 @@ def test_new_weights_reuse_the_kernel():
     for _ in range(2):
         flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]), alpha=0.2)  # alpha 0 -> 0.2: a new pattern
         c, x = _runs(flt, flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), ts, us, ys)
-        _assert_same(c, x)  # alpha is read, not folded to the 0 of the first pattern
+        assert_trees_close(c, x)  # alpha is read, not folded to the 0 of the first pattern
     assert TRACES["kernel"] - mid <= 1
 
 
@@ -229,7 +215,7 @@ def test_auto_falls_back_to_xla_saying_why(no_kernel):
     flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
     with pytest.warns(EngineWarning, match="UnsupportedPrimitive: primitive 'fft'.*running with XLA"):
         auto = flt.run(*args, engine="auto")
-    _assert_same(auto, flt.run(*args, engine="xla"), tol=0.0)
+    assert_trees_close(auto, flt.run(*args, engine="xla"), tol=0.0)
 
 
 def test_without_a_compiler_auto_is_xla(monkeypatch):
@@ -288,7 +274,7 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
     for n_valid in (None, 30):
         c, x = batch("c", n_valid), batch("xla", n_valid)
         assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
-        _assert_same(c, x)
+        assert_trees_close(c, x)
     # weights as traced data: vmap over two filters' parameters through the same kernel
     both, static = _two_weight_sets(flt)
 
@@ -297,7 +283,7 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
         return f.scan(jax.tree_util.tree_map(lambda a: a[0], states), ts, us[0], ys[0], engine=engine).K
 
     per = [jax.jit(jax.vmap(lambda p_, e=e: run_with(p_, e)))(both) for e in ("c", "xla")]
-    _assert_same(per[0], per[1])
+    assert_trees_close(per[0], per[1])
     assert np.abs(np.asarray(per[0][0] - per[0][1])).max() > 1e-6
 
 
@@ -314,7 +300,7 @@ def test_gates_and_robust_losses_are_the_same_in_c():
             ys[60] += 1e4
         c, x = _runs(flt, state, ts, us, ys)
         assert c.status.cause == cause and int(np.asarray(c.status.rejected).sum()) >= 1
-        _assert_same(c, x)
+        assert_trees_close(c, x)
 
 
 def test_online_filter_is_the_step():
@@ -328,9 +314,9 @@ def test_online_filter_is_the_step():
             code = online.step(ts[k], us[k], ys[k], ts[k + 1] - ts[k])
             st = flt.step(st, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine=engine)
             assert code == 0
-        _assert_same(online.state, st, tol=0.0)
+        assert_trees_close(online.state, st, tol=0.0)
         np.testing.assert_array_equal(online.K, np.asarray(st.K))
-    _assert_same(flt.online(state).state, jax.tree_util.tree_map(np.asarray, state), tol=0.0)
+    assert_trees_close(flt.online(state).state, jax.tree_util.tree_map(np.asarray, state), tol=0.0)
     online = flt.online(state, engine="c")
     with pytest.raises(ValueError, match=r"y: expected shape \(7,\), got \(6,\)"):
         online.step(0.0, us[0], ys[0][:6], 0.01)
@@ -340,7 +326,7 @@ def test_online_filter_is_the_step():
         online.step(0.0, us[0], ys[0], 0)
     before = online.state
     assert online.step(0.0, us[0], np.full(7, 1e200), 0.01) == CAUSES.index("non-finite") == online.code
-    _assert_same(online.state.g_hat, before.g_hat, tol=0.0)
+    assert_trees_close(online.state.g_hat, before.g_hat, tol=0.0)
     assert online.step(0.01, us[1], ys[1], 0.01) == online.code != 0
 
 
@@ -361,7 +347,7 @@ def test_a_state_of_another_filter_is_refused():
                     engine="c")
     # b has no inputs: u may be None, in step, online and run alike
     state_b = b.init(Rn[2](jnp.zeros(2)), np.eye(2))
-    _assert_same(b.step(state_b, 0.0, None, [1.0, 1.0], 0.1, engine="c"),
+    assert_trees_close(b.step(state_b, 0.0, None, [1.0, 1.0], 0.1, engine="c"),
                  b.step(state_b, 0.0, None, [1.0, 1.0], 0.1, engine="xla"))
     online = b.online(state_b)
     assert online.step(0.0, None, [1.0, 1.0], 0.1) == 0
@@ -388,7 +374,7 @@ def test_scan_by_c_alone_nested_and_per_trial():
     state = logs[0][0]
     u0, y0 = jnp.asarray(logs[0][2]), jnp.asarray(logs[0][3])
     for kw in (dict(gap=0.1, n_valid=35, keep_every=3), dict()):
-        _assert_same(jax.jit(lambda u, y, kw=kw: flt.scan(state, ts, u, y, engine="c", **kw))(u0, y0),
+        assert_trees_close(jax.jit(lambda u, y, kw=kw: flt.scan(state, ts, u, y, engine="c", **kw))(u0, y0),
                      jax.jit(lambda u, y, kw=kw: flt.scan(state, ts, u, y, engine="xla", **kw))(u0, y0))
     us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
     nvs = jnp.asarray([41, 30, 12])
@@ -396,7 +382,7 @@ def test_scan_by_c_alone_nested_and_per_trial():
     def per_trial(engine):
         return jax.jit(jax.vmap(lambda u, y, n: flt.scan(state, ts, u, y, n_valid=n, engine=engine)))(us, ys, nvs)
 
-    _assert_same(per_trial("c"), per_trial("xla"))
+    assert_trees_close(per_trial("c"), per_trial("xla"))
     both, static = _two_weight_sets(flt)
 
     def nested(engine):
@@ -406,7 +392,7 @@ def test_scan_by_c_alone_nested_and_per_trial():
 
     got = nested("c")
     assert got.shape[:2] == (2, 3)
-    _assert_same(got, nested("xla"))
+    assert_trees_close(got, nested("xla"))
 
 
 def test_online_states_are_values():
@@ -422,13 +408,13 @@ def test_online_states_are_values():
         kept.append(st)
         copies.append(jax.tree_util.tree_map(np.copy, st))
     for a, b in zip(kept, copies, strict=True):
-        _assert_same(a, b, tol=0.0)
+        assert_trees_close(a, b, tol=0.0)
     assert int(kept[-1].status.steps) == 3 * _kernel.ROWS_PER_BLOCK + 5
     u_int = np.array([1, 2])
     ref = flt.step(state, 0.0, u_int.astype(float), ys[0], 1e-3, engine="c")
     for u, y, kw in ((u_int, ys[0], {}), (list(u_int), list(ys[0]), {}),
                      (u_int, ys[0], dict(u_next=u_int, y_next=ys[0]))):
-        _assert_same(flt.step(state, 0.0, u, y, 1e-3, engine="c", **kw), ref, tol=0.0)
+        assert_trees_close(flt.step(state, 0.0, u, y, 1e-3, engine="c", **kw), ref, tol=0.0)
     with pytest.raises(ValueError, match="y: expected a numeric array, got str"):
         flt.step(state, 0.0, u_int, "seven", 1e-3, engine="c")
     with pytest.raises(ValueError, match=r"y_next: expected finite values or NaN \(missing\), got -inf at index \(2,"):
@@ -436,7 +422,7 @@ def test_online_states_are_values():
     kern = liemef.engines.kernel(flt, "c")
     x = kern.packed(ref)
     assert kern._read.__name__ == "read"  # the generated reader, not the fallback
-    _assert_same(kern._read(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)
+    assert_trees_close(kern._read(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)
 
 
 def test_state_reader_falls_back_on_static_fields():

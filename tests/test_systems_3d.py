@@ -24,7 +24,8 @@ from liemef.groups import SE3, SE23, SO3, Product, Rn
 from liemef.simulation import simulate
 from liemef.systems import inertial_navigation, pose3d
 from liemef.systems import rigid_body_3d as pose3d_module
-from tolerances import ENGINES, FINITE_DIFF, ROUNDOFF
+from tolerances import FINITE_DIFF, ROUNDOFF
+from trees import assert_trees_close
 
 W0 = np.array([0.05, -0.03, 0.2])  # the closed-form trajectories' constant body rate (rad/s)
 
@@ -289,18 +290,6 @@ def test_pose3d_converges_from_a_wrong_start(fixes):
 
 
 # --- both engines --------------------------------------------------------------------------------------------
-def _assert_same(a, b, tol=ENGINES):
-    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.shape == y.shape and x.dtype == y.dtype
-        if x.dtype.kind in "iub":
-            np.testing.assert_array_equal(x, y)
-        else:
-            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
-            ok = ~np.isnan(x)
-            np.testing.assert_allclose(x[ok], y[ok], rtol=0, atol=tol * max(1.0, float(np.abs(y[ok]).max(initial=0))))
-
-
 SYSTEMS_3D = {
     "pose3d-position": lambda: pose3d(),
     "pose3d-pose": lambda: pose3d(fixes="pose"),
@@ -332,4 +321,4 @@ def test_c_engine_equals_xla(name):
     state = flt.init(g0, np.eye(flt.n))
     c, x = _run(flt, state, ts, us, ys, engine="c"), _run(flt, state, ts, us, ys, engine="xla")
     assert bool(x.ok)
-    _assert_same(c, x)
+    assert_trees_close(c, x)
