@@ -27,26 +27,19 @@ import json
 import os
 import platform
 import sys
-import tempfile
-import time
 
-# One core, before JAX starts its thread pools.
-if hasattr(os, "sched_setaffinity"):
-    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
-                           " --xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1").strip()
-# a fresh kernel cache: each filter's first C call is a first build (trace, translation, C compiler)
-os.environ["LIEMEF_CACHE_DIR"] = tempfile.mkdtemp(prefix="liemef-bench-kernels-")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import one_core, time_run  # noqa: E402
+
+one_core()  # before JAX starts its thread pools; each filter's first C call is a first build
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
+from _provenance import source_version  # noqa: E402
 
 import liemef  # noqa: E402
 from liemef.filters.baselines import invariant_ekf, local_ekf, ukf_m  # noqa: E402
 from liemef.studies.experiments import localization as L  # noqa: E402
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _provenance import source_version  # noqa: E402
 
 jax.config.update("jax_enable_compilation_cache", False)  # XLA's first call compiles
 
@@ -54,25 +47,6 @@ FILTERS = {"mef": liemef.MinimumEnergyFilter, "iekf": invariant_ekf, "ekf": loca
 ENGINES = ("c", "xla")
 MAX_RATIO, MAX_FIRST_S = 2.0, 5.0
 """Issue 18's targets: a baseline's C ``run`` within 2x of the MEF's us/step, its first call under 5 s."""
-
-
-def time_run(flt, args, engine, repeats):
-    """First call (s) and the median us per step of ``repeats`` more runs."""
-    t0 = time.perf_counter()
-    traj = jax.block_until_ready(flt.run(*args, engine=engine))
-    first = time.perf_counter() - t0
-    assert bool(traj.ok), f"{flt!r} by {engine} failed: {traj.status.message()}"
-    kern = liemef.engines.kernel(flt, engine)
-    if kern is not None:
-        kern.wait()  # time the -O2 build
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(flt.run(*args, engine=engine))
-        runs.append(time.perf_counter() - t0)
-    steps = len(args[1]) - 1
-    return {"first_call_s": round(first, 3), "us_per_step": round(float(np.median(runs)) / steps * 1e6, 3),
-            "steps": steps}
 
 
 def main(argv=None):
