@@ -18,6 +18,7 @@ import pytest
 
 import liemef
 from liemef import codegen
+from liemef.codegen import _kernel
 from liemef.engines import EngineWarning, LogGapWarning
 from liemef.groups import SE2, Rn
 from liemef.systems import Noise, Sensor, SensorSystem
@@ -190,3 +191,26 @@ def test_an_unsupported_primitive_is_named_with_the_users_file_and_line():
     assert "running with XLA" in text
     with pytest.raises(codegen.UnsupportedPrimitive, match=rf"test_user_systems_c\.py:{line} "):
         flt.run(flt.init(g0, np.eye(2)), ts, us, ys, engine="c")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["interp_over_t", "sort"])
+def test_user_system_batch_in_simd_equals_single_runs(name):
+    """Five trials on the batch kernel (one SIMD group of 4 and a remainder): its lane code has the selects,
+    comparisons and unsigned indices of interp's and sort's derivatives, and each trial equals its own run
+    (slow: 40 s, the -O3 batch build on top of the kernel)."""
+    system = USER_SYSTEMS[name]()
+    flt = liemef.MinimumEnergyFilter(system)
+    logs = [_log(system, n=30, seed=s) for s in range(5)]
+    ts = logs[0][1]
+    states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[flt.init(lg[0], np.eye(flt.n)) for lg in logs])
+    us, ys = np.stack([lg[2] for lg in logs]), np.stack([lg[3] for lg in logs])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        warnings.simplefilter("error", EngineWarning)
+        batch = flt.run_batch(states, ts, us, ys, engine="c", threads=1)
+        assert _kernel.kernel_for(flt).lanes() is not None, _kernel.kernel_for(flt).lanes_error
+        for b, (g0, _, u, y) in enumerate(logs):
+            one = flt.run(flt.init(g0, np.eye(flt.n)), ts, u, y, engine="c")
+            mine = jax.tree_util.tree_map(lambda a, b=b: a[b], (batch.g_hat, batch.K, batch.final))
+            _assert_close(mine, (one.g_hat, one.K, one.final), f"{name} trial {b}")

@@ -1185,10 +1185,11 @@ def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: 
 
 
 LANE_TYPES = {np.dtype(np.float64): "lane_f64", np.dtype(np.int32): "lane_i32", np.dtype(np.int64): "lane_i64",
+              np.dtype(np.uint32): "lane_u32",
               np.dtype(np.bool_): "lane_i64"}
 """The lane vector type of each dtype; a boolean is a mask of -1 (true) and 0, as vector comparisons give."""
 LANE_SUFFIX = {np.dtype(np.float64).str: "F64", np.dtype(np.int32).str: "I32", np.dtype(np.int64).str: "I64",
-               np.dtype(np.bool_).str: "I64"}
+               np.dtype(np.bool_).str: "I64", np.dtype(np.uint32).str: "U32"}
 
 
 def lane_typedefs(lanes: int) -> str:
@@ -1197,6 +1198,7 @@ def lane_typedefs(lanes: int) -> str:
     return f"""#define LANES {lanes}
 typedef double lane_f64 __attribute__((vector_size({8 * lanes})));
 typedef int32_t lane_i32 __attribute__((vector_size({4 * lanes})));
+typedef uint32_t lane_u32 __attribute__((vector_size({4 * lanes})));
 typedef int64_t lane_i64 __attribute__((vector_size({8 * lanes})));
 #define LANE_MASK(b) (((lane_i64){{0}}) - (int64_t)((b) != 0))
 #define LANE_SEL_I64(c, a, b) (((c) & (a)) | (~(c) & (b)))
@@ -1204,6 +1206,8 @@ static inline lane_f64 LANE_SEL_F64(lane_i64 c, lane_f64 a, lane_f64 b)
 {{ return (lane_f64)((c & (lane_i64)a) | (~c & (lane_i64)b)); }}
 static inline lane_i32 LANE_SEL_I32(lane_i64 c, lane_i32 a, lane_i32 b)
 {{ const lane_i32 m = __builtin_convertvector(c, lane_i32); return (m & a) | (~m & b); }}
+static inline lane_u32 LANE_SEL_U32(lane_i64 c, lane_u32 a, lane_u32 b)
+{{ const lane_u32 m = __builtin_convertvector(c, lane_u32); return (m & a) | (~m & b); }}
 static inline lane_f64 lane_max(lane_f64 a, lane_f64 b)
 {{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a > b, a, b)); }}
 static inline lane_f64 lane_min(lane_f64 a, lane_f64 b)
