@@ -12,6 +12,7 @@ called through ctypes at random inputs. The same source compiles warning-free wi
 from __future__ import annotations
 
 import ctypes
+import re
 import shutil
 import subprocess
 
@@ -21,7 +22,7 @@ import numpy as np
 import pytest
 
 from liemef import codegen
-from liemef.codegen._jaxpr_c import helpers_used
+from liemef.codegen._jaxpr_c import Translator, helpers_used, jaxpr_to_c
 from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 from tolerances import PRIMITIVE_C
 
@@ -219,3 +220,36 @@ def test_the_source_builds_warning_free(kernels, cc, tmp_path):
     proc = subprocess.run([cc, *flags, "-c", "-o", str(tmp_path / "k.o"), str(source)], capture_output=True,
                           text=True)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr[:4000]
+
+
+def test_array_backend_takes_at_run_time_as_xla(tmp_path):
+    """The array translator (``export_c(backend="array")``) has run-time gathers along one axis only; there too
+    an index out of range gives the fill value (NaN) of ``jnp.take``'s mode, as XLA, not a clamped element."""
+    tr = Translator()
+    texts, sizes = [], {}
+    pairs = [("take_fill", "value"), ("take_fill", "jacfwd"), ("take_out_of_range", "value")]
+    for case, form in pairs:
+        f, n, _ = CASES[case]
+        closed = jax.make_jaxpr(_form(f, form))(jnp.zeros(n))
+        text, tr = jaxpr_to_c(f"{case}_{form}", closed, ["x"], ["o"], translator=tr)
+        sizes[f"{case}_{form}"] = int(np.prod(closed.jaxpr.outvars[0].aval.shape, dtype=np.int64))
+        texts.append(text + f"void call_{case}_{form}(const double *x, double *o);\n"
+                     f"void call_{case}_{form}(const double *x, double *o) {{ {case}_{form}(x, o); }}\n")
+    body = "\n".join(tr.function_texts + texts)
+    tables = [ln for ln in tr.table_lines if re.search(rf"\b{ln.split()[3].split('[')[0]}\b", body)]  # as export_c
+    code = "\n".join(tables) + "\n" + body
+    (tmp_path / "a.c").write_text("#include <math.h>\n#include <stdint.h>\n" + helpers_used(code) + "\n" + code)
+    proc = subprocess.run([codegen.compiler(), *FLAGS, "-shared", "-fPIC", "-o", str(tmp_path / "a.so"),
+                           str(tmp_path / "a.c")], capture_output=True, text=True)
+    assert proc.returncode == 0 and not proc.stderr, proc.stderr[:4000]
+    lib = ctypes.CDLL(str(tmp_path / "a.so"))
+    rng = np.random.default_rng(7)
+    nan_seen = False
+    for case, form in pairs:
+        for _ in range(8):
+            x = 1.5 * rng.normal(size=CASES[case][1])
+            want = np.asarray(jax.jit(_form(CASES[case][0], form))(jnp.asarray(x)), np.float64).ravel()
+            got = _call(lib, f"{case}_{form}", x, sizes[f"{case}_{form}"])
+            np.testing.assert_allclose(got, want, rtol=PRIMITIVE_C, atol=PRIMITIVE_C, equal_nan=True)
+            nan_seen |= bool(np.isnan(want).any())
+    assert nan_seen  # some index was out of range

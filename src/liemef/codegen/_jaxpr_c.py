@@ -339,6 +339,32 @@ def _size(jaxpr) -> int:
     return sum(1 + sum(_size(s) for s in _subjaxprs(e.params)) for e in jaxpr.eqns)
 
 
+def _mode(params) -> str:
+    """A gather's or scatter's out-of-range rule: ``"clip"`` (clamped; also XLA's own rule for a gather that
+    promises in-range indices) or ``"fill"`` (a gather fills, a scatter drops: ``FILL_OR_DROP``, and XLA's own
+    rule for a scatter that promises)."""
+    mode = str(params.get("mode", "")).rsplit(".", 1)[-1]
+    if mode == "CLIP":
+        return "clip"
+    if mode == "FILL_OR_DROP":
+        return "fill"
+    if mode in ("PROMISE_IN_BOUNDS", ""):
+        return "fill" if "update_jaxpr" in params else "clip"
+    raise UnsupportedPrimitive(f"gather/scatter mode {mode}")
+
+
+def _fill_value(fill, dtype):
+    """A filling gather's value (jax's default for None: NaN, the most negative or the largest integer, True)."""
+    dt = np.dtype(dtype)
+    if fill is not None:
+        return np.asarray(fill, dt).item()
+    if dt.kind == "f":
+        return np.nan
+    if dt == np.bool_:
+        return True
+    return np.iinfo(dt).min if dt.kind == "i" else np.iinfo(dt).max
+
+
 def take_layout(params, x_shape, idx_shape, shape):
     """The layout of a gather with indices known at run time along one axis (``jnp.take``, ``x[idx]``, the
     pivoting in ``linalg.solve``, also batched by ``vmap``/``jacfwd``), the one form both translators take:
@@ -842,6 +868,9 @@ class Translator:
         hi = x.shape[a] - 1
         self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
         self.emit(f"    int {r} = (int)({self.elem(idx, f'{ti}[{o}]')});")
+        if _mode(params) == "fill":  # out of range: the fill value (NaN for floats), as XLA's FILL_OR_DROP
+            fill = literal(_fill_value(params.get("fill_value"), dtype), dtype)
+            self.emit(f"    if ({r} < 0 || {r} > {hi}) {{ {out.name}[{o}] = {fill}; continue; }}")
         self.emit(f"    {r} = {r} < 0 ? 0 : ({r} > {hi} ? {hi} : {r});")
         self.emit(f"    {out.name}[{o}] = {self.elem(x, f'{tb}[{o}] + {r} * {int(strides[a])}')};")
         self.emit("}")

@@ -51,6 +51,8 @@ from ._jaxpr_c import (
     Translator,
     UnsupportedPrimitive,
     Val,
+    _fill_value,
+    _mode,
     _np_eval,
     _size,
     ctype,
@@ -64,32 +66,6 @@ from ._jaxpr_c import (
 _SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
                 "exp", "log", "eq", "ne", "lt", "le", "gt", "ge", "and", "or", "not", "is_finite",
                 "stop_gradient"}
-
-
-def _mode(params) -> str:
-    """A gather's or scatter's out-of-range rule: ``"clip"`` (clamped; also XLA's own rule for a gather that
-    promises in-range indices) or ``"fill"`` (a gather fills, a scatter drops: ``FILL_OR_DROP``, and XLA's own
-    rule for a scatter that promises)."""
-    mode = str(params.get("mode", "")).rsplit(".", 1)[-1]
-    if mode == "CLIP":
-        return "clip"
-    if mode == "FILL_OR_DROP":
-        return "fill"
-    if mode in ("PROMISE_IN_BOUNDS", ""):
-        return "fill" if "update_jaxpr" in params else "clip"
-    raise UnsupportedPrimitive(f"gather/scatter mode {mode}")
-
-
-def _fill_value(fill, dtype):
-    """A filling gather's value (jax's default for None: NaN, the most negative or the largest integer, True)."""
-    dt = np.dtype(dtype)
-    if fill is not None:
-        return np.asarray(fill, dt).item()
-    if dt.kind == "f":
-        return np.nan
-    if dt == np.bool_:
-        return True
-    return np.iinfo(dt).min if dt.kind == "i" else np.iinfo(dt).max
 
 
 UNROLL_MAX = 20000
