@@ -30,6 +30,7 @@ pytestmark = pytest.mark.skipif(codegen.compiler() is None, reason="no C compile
 
 FLAGS = ("-std=c99", "-O0", "-Wall", "-Wextra", "-Werror", "-pedantic")
 TABLE = jnp.array([0.3, -1.2, 2.5, 0.7, 1.1, -0.4])
+LONG_TABLE = jnp.sin(jnp.arange(40.0)) * jnp.arange(40.0)  # read as a C array (LOOKUP_MIN)
 GRID = jnp.linspace(0.0, 2.0, 7)
 
 
@@ -50,6 +51,8 @@ def _scan_body(c, a):
 # name: (f, n, primitives that must be in the jaxprs of f, jacfwd(f) and hessian(f) together)
 CASES = {
     "table_by_traced_int": (lambda x: TABLE[_index(x[0], 6)] * x[1] ** 2 + x[0], 2, {"dynamic_slice"}),
+    "long_table": (lambda x: LONG_TABLE[_index(x[0], 40)] * x[1] + jnp.take(LONG_TABLE, _index(x[1], 45) - 2) * x[0],
+                   2, {"dynamic_slice", "gather"}),
     "index_traced": (lambda x: x[_index(x[0], 4)] * x[1] + x[_index(x[2], 4)] ** 2, 4, {"dynamic_slice"}),
     "take_fill": (lambda x: jnp.take(x, jnp.stack([_index(x[0], 4), _index(x[1], 4)])) * x[2], 4,
                   {"gather", "scatter-add"}),

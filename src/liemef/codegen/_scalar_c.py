@@ -68,6 +68,8 @@ _SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin
                 "stop_gradient"}
 
 
+LOOKUP_MIN = 8
+"""A run-time index into a constant operand over more places than this reads a C array (fewer: selects)."""
 UNROLL_MAX = 20000
 """The most equations an unrolled ``scan`` (:meth:`ScalarTranslator.unrolled_scan`) may copy."""
 _CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
@@ -99,6 +101,7 @@ class ScalarTranslator:
         self.lanes = False  # writing lane code (emit_lanes): every non-shared value is a vector of trials
         self.shared: set[int] = set()  # values with one value for every lane (parameters, times, and from them)
         self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
+        self.lookups: dict = {}  # constant operands read at run-time indices: their C arrays, by node ids
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -263,6 +266,9 @@ class ScalarTranslator:
             return f"1.0 / ({prod})" if p < 0 else prod
         if op == "ref":
             return self.value[i]
+        if op == "lookup":
+            table, off = self.value[i]
+            return f"{table}[{e[0]} + {off}]"
         kind = self.dtype[a[0]].kind
         table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                  "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
@@ -486,7 +492,17 @@ class ScalarTranslator:
         return (self.const(0, np.int32) if base is None else base), values, inb
 
     def _pick(self, flat, base, values, off: int, dtype):
-        """``flat[base + off]`` for a run-time ``base`` among ``values``: a chain of selects."""
+        """``flat[base + off]`` for a run-time ``base`` among ``values``: a chain of selects, or, from a
+        constant operand (a user's table) over more than :data:`LOOKUP_MIN` places, a read of a
+        ``static const`` C array at the run-time index."""
+        if len(values) > LOOKUP_MIN and all(self.is_const(n) for n in flat):
+            key = tuple(int(n) for n in flat)
+            if key not in self.lookups:
+                name = self.fresh("tab")
+                body = ", ".join(literal(self.cval(n), dtype) for n in flat)
+                self.table_lines.append(f"static const {ctype(dtype)} {name}[{len(flat)}] = {{{body}}};")
+                self.lookups[key] = name
+            return self.node("lookup", (base,), dtype, (self.lookups[key], off))
         acc = None
         for v in reversed(values):
             cand = flat[v + off]
