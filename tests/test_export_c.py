@@ -457,14 +457,17 @@ def test_export_c_of_a_system_file_is_named_after_it_and_compiles(tmp_path):
 
 
 def test_export_c_names_an_unsupported_primitive(tmp_path):
-    if "eigh" in codegen.PRIMITIVES:
-        pytest.skip("eigh is translated now: pick another primitive the translator does not cover")
-    path = tmp_path / "eig.py"
-    path.write_text(SYSTEM_FILE.replace("0.0 * cs", "0.0 * jnp.linalg.eigvalsh(jnp.diag(cs))"))
+    """A singular value decomposition (``svd``, which the translator does not cover) in a system file: the
+    export fails naming the primitive and the system file's line, and writes nothing."""
+    assert "svd" not in codegen.PRIMITIVES
+    path = tmp_path / "svd.py"
+    path.write_text(SYSTEM_FILE.replace("0.0 * cs", "0.0 * jnp.linalg.svd(jnp.diag(cs), compute_uv=False)"))
+    line = next(i + 1 for i, ln in enumerate(path.read_text().splitlines()) if "EXTRA = " in ln)
     res = CliRunner().invoke(cli, ["export-c", "--system-file", str(path), "--out", str(tmp_path / "c")])
     assert res.exit_code == 1, res.output
-    assert "eigh" in res.output and "docs/export-c.md" in res.output
-    assert not list((tmp_path / "c").glob("eig.*"))  # nothing written
+    assert "'svd'" in res.output and "docs/export-c.md" in res.output
+    assert f"svd.py:{line}" in res.output.replace("\n", ""), res.output
+    assert not list((tmp_path / "c").glob("svd.*"))  # nothing written
 
 
 @pytest.mark.parametrize(("args", "words"), [

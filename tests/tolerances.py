@@ -42,3 +42,9 @@ ENGINES = 1e-10
 """The C engine's run against the XLA engine's over a log of about a hundred intervals, relative to max(1, |value|):
 the same operations, libm against XLA's sin/cos/sqrt and other summation orders, carried along a trajectory the
 filter contracts (measured <= 1e-13)."""
+PRIMITIVE_C = 1e-10
+"""A small function's value, Jacobian and Hessian in C (tests/test_jaxpr_c_primitives.py) against XLA's, relative
+to max(1, |value|): the same operations in another order (sums, Pade and squaring in expm, pivots in LU); measured
+<= 1e-13 on all but expm's Hessian (~1e-12)."""
+USER_SYSTEM_C = 1e-10
+"""A user's system run by the C engine against the XLA engine over a short log, relative to max(1, |value|)."""

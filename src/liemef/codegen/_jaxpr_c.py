@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -41,8 +42,50 @@ _CTYPES = {np.dtype(np.float64): "double", np.dtype(np.float32): "float", np.dty
 
 
 class UnsupportedPrimitive(NotImplementedError):
-    """A primitive (or a use of one, e.g. a gather with indices known only at run time) the translator has no C
-    for."""
+    """A primitive (or a use of one, e.g. a ``while`` under reverse-mode differentiation) the translator has no
+    C for. Its text ends with where the user's code traced it: the innermost frame outside liemef and JAX
+    (``frames``, innermost first, gathered from the equation and every call around it as the error rises)."""
+
+    def __init__(self, message: str, frames=()):
+        super().__init__(message)
+        self.message = message
+        self.frames = list(frames)
+
+    def __str__(self) -> str:
+        where = user_frame(self.frames)
+        return f"{self.message} (traced at {where})" if where else self.message
+
+    def __reduce__(self):
+        return (type(self), (self.message, self.frames))
+
+
+_LIEMEF_DIR = str(Path(__file__).resolve().parents[1])
+_JAX_DIRS = tuple(str(Path(m.__file__).resolve().parent) for m in (jax, np))
+
+
+def eqn_frames(eqn) -> list[tuple[str, int, str]]:
+    """The Python frames (file, line, function), innermost first, that traced ``eqn`` (within its own trace:
+    a call's frames continue in the equation that calls it)."""
+    tb = eqn.source_info.traceback if eqn.source_info is not None else None
+    if tb is None:
+        return []
+    return [(f.file_name, int(f.line_num), f.function_name) for f in tb.frames]
+
+
+def user_frame(frames) -> str:
+    """``file:line (function)`` of the innermost frame outside liemef, JAX and NumPy (the user's own code);
+    else the innermost liemef frame; else ""."""
+    def inside(path, dirs):
+        try:
+            real = str(Path(path).resolve())
+        except (OSError, ValueError):
+            return False
+        return any(real == d or real.startswith(d + "/") for d in dirs)
+    outside = [f for f in frames if not inside(f[0], _JAX_DIRS) and "site-packages" not in f[0]
+               and not f[0].startswith("<frozen")]
+    user = [f for f in outside if not inside(f[0], (_LIEMEF_DIR,))]
+    pick = (user or outside or [None])[0]
+    return "" if pick is None else f"{pick[0]}:{pick[1]} ({pick[2]})"
 
 
 def ctype(dtype) -> str:
@@ -96,8 +139,9 @@ _FLOAT_UNARY = {
     "ceil": "ceil({a})", "is_finite": "isfinite({a})", "logistic": "(1.0 / (1.0 + exp(-({a}))))",
     "square": "(({a}) * ({a}))", "erf": "erf({a})", "erfc": "erfc({a})", "lgamma": "lgamma({a})",
     "sign": "lm_sign({a})", "stop_gradient": "{a}", "copy": "{a}", "copy_p": "{a}", "real": "{a}",
-    "reduce_precision": "{a}", "optimization_barrier": "{a}",
+    "reduce_precision": "{a}", "optimization_barrier": "{a}", "round": "round({a})",
 }
+_ROUND_EVEN = {"rint": "rint({a})"}  # ``round`` to nearest even (rounding_method 1), in the default rounding mode
 _INT_UNARY = {"neg": "-({a})", "abs": "(({a}) < 0 ? -({a}) : ({a}))", "not": "~({a})", "stop_gradient": "{a}",
               "copy": "{a}", "copy_p": "{a}", "sign": "((({a}) > 0) - (({a}) < 0))", "square": "(({a}) * ({a}))"}
 _BOOL_UNARY = {"not": "!({a})", "stop_gradient": "{a}", "copy": "{a}", "copy_p": "{a}"}
@@ -107,6 +151,7 @@ _BINARY = {
     "ge": "({a}) >= ({b})", "eq": "({a}) == ({b})", "ne": "({a}) != ({b})",
 }
 _FLOAT_BINARY = {"max": "lm_max({a}, {b})", "min": "lm_min({a}, {b})", "pow": "pow({a}, {b})",
+                 "lt_to": "lm_lt_to({a}, {b})", "le_to": "!lm_lt_to({b}, {a})", "eq_to": "lm_eq_to({a}, {b})",
                  "atan2": "atan2({a}, {b})", "rem": "fmod({a}, {b})", "nextafter": "nextafter({a}, {b})"}
 _INT_BINARY = {"max": "(({a}) > ({b}) ? ({a}) : ({b}))", "min": "(({a}) < ({b}) ? ({a}) : ({b}))",
                "rem": "({a}) % ({b})", "and": "({a}) & ({b})", "or": "({a}) | ({b})", "xor": "({a}) ^ ({b})",
@@ -123,28 +168,43 @@ _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_
           "checkpoint", "remat", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
 _LINALG = {"dot_general", "lu", "triangular_solve", "eigh", "custom_linear_solve", "select_n", "clamp",
-           "convert_element_type", "integer_pow", "iota", "sort"}
+           "convert_element_type", "integer_pow", "iota", "sort", "cholesky"}
+_CUMULATIVE = {"cumsum", "cumprod", "cummax", "cummin"}
 
 PRIMITIVES: frozenset[str] = frozenset(
     set(_FLOAT_UNARY) | set(_INT_UNARY) | set(_BOOL_UNARY) | set(_BINARY) | set(_FLOAT_BINARY) | set(_INT_BINARY)
-    | _STRUCTURAL | set(_REDUCE) | _CALLS | _CONTROL | _LINALG)
-"""The primitives :func:`jaxpr_to_c` translates (``sort`` only when its inputs are known constants)."""
+    | _STRUCTURAL | set(_REDUCE) | _CALLS | _CONTROL | _LINALG | _CUMULATIVE)
+"""The primitives the translators cover, in every form (run-time indices, run-time data) by the scalar
+translator (:mod:`._scalar_c`, the engine's and the default export's). The array translator
+(:func:`jaxpr_to_c`) covers those of :data:`SCALAR_ONLY` only on known constants, gathers with run-time
+indices only along one axis and ``scan`` only in ``fori_loop``'s form."""
+
+SCALAR_ONLY: frozenset[str] = frozenset({"sort", "argmax", "argmin", "cholesky", "lt_to", "le_to", "eq_to",
+                                         "dynamic_slice", "dynamic_update_slice", "scatter", "scatter-add",
+                                         "scatter_add"} | _CUMULATIVE)
+"""Primitives that the array translator takes only where their data (or indices) are known constants."""
 
 HELPERS = r"""
 static inline double lm_max(double a, double b) { return (a != a || b != b) ? a + b : (a > b ? a : b); }
 static inline double lm_min(double a, double b) { return (a != a || b != b) ? a + b : (a < b ? a : b); }
 static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
+static inline _Bool lm_lt_to(double a, double b)
+{ union { double d; int64_t i; } x, y; x.d = a; y.d = b; /* lax.sort's total order: flip the negatives */
+  x.i ^= (int64_t)((uint64_t)(x.i >> 63) >> 1); y.i ^= (int64_t)((uint64_t)(y.i >> 63) >> 1); return x.i < y.i; }
+static inline _Bool lm_eq_to(double a, double b)
+{ union { double d; int64_t i; } x, y; x.d = a; y.d = b; return x.i == y.i; }
 """
-"""Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign)."""
+"""Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign, the
+total order of floats that ``lax.sort`` and ``searchsorted`` compare by)."""
 
 
 def helpers_used(*texts: str) -> str:
     """The lines of :data:`HELPERS` whose function ``texts`` call: an unused static function is a warning
     (``-Wunused-function``) in clang, even when inline, and the exported C compiles with ``-Wall -Werror``."""
     body = "\n".join(texts)
-    lines = [ln for ln in HELPERS.strip().splitlines()
-             if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", ln).group(1) + r"\(", body)]
-    return "\n".join(lines)
+    functions = re.split(r"\n(?=static inline)", HELPERS.strip())
+    return "\n".join(fn for fn in functions
+                     if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", fn).group(1) + r"\(", body))
 
 
 def _subjaxpr(params: dict, *keys):
@@ -279,6 +339,32 @@ def _size(jaxpr) -> int:
     return sum(1 + sum(_size(s) for s in _subjaxprs(e.params)) for e in jaxpr.eqns)
 
 
+def _mode(params) -> str:
+    """A gather's or scatter's out-of-range rule: ``"clip"`` (clamped; also XLA's own rule for a gather that
+    promises in-range indices) or ``"fill"`` (a gather fills, a scatter drops: ``FILL_OR_DROP``, and XLA's own
+    rule for a scatter that promises)."""
+    mode = str(params.get("mode", "")).rsplit(".", 1)[-1]
+    if mode == "CLIP":
+        return "clip"
+    if mode == "FILL_OR_DROP":
+        return "fill"
+    if mode in ("PROMISE_IN_BOUNDS", ""):
+        return "fill" if "update_jaxpr" in params else "clip"
+    raise UnsupportedPrimitive(f"gather/scatter mode {mode}")
+
+
+def _fill_value(fill, dtype):
+    """A filling gather's value (jax's default for None: NaN, the most negative or the largest integer, True)."""
+    dt = np.dtype(dtype)
+    if fill is not None:
+        return np.asarray(fill, dt).item()
+    if dt.kind == "f":
+        return np.nan
+    if dt == np.bool_:
+        return True
+    return np.iinfo(dt).min if dt.kind == "i" else np.iinfo(dt).max
+
+
 def take_layout(params, x_shape, idx_shape, shape):
     """The layout of a gather with indices known at run time along one axis (``jnp.take``, ``x[idx]``, the
     pivoting in ``linalg.solve``, also batched by ``vmap``/``jacfwd``), the one form both translators take:
@@ -320,14 +406,6 @@ def inlined(name: str, params: dict, ins: list):
     else:
         jaxpr, consts = _subjaxpr(params, "jaxpr", "call_jaxpr")
     return jaxpr, consts, list(ins[len(ins) - len(jaxpr.invars):])
-
-
-def _where(eqn) -> str:
-    tb = eqn.source_info.traceback if eqn.source_info is not None else None
-    if tb is None:
-        return ""
-    frames = [ln.strip() for ln in str(tb).splitlines() if "site-packages" not in ln]
-    return f" (traced at {frames[-1]})" if frames else ""
 
 
 def element_ids(eqn, ins) -> tuple[list[int], dict, list[np.ndarray], bool]:
@@ -516,7 +594,8 @@ class Translator:
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
-                raise UnsupportedPrimitive(f"{e}{_where(eqn)}") from None
+                e.frames.extend(eqn_frames(eqn))
+                raise
             finally:
                 if leaf:
                     self.end()
@@ -563,6 +642,8 @@ class Translator:
             return [self.convert(ins[0], *avals[0])]
         if name == "iota":
             return self.fold(eqn, ins)
+        if name == "round" and int(params.get("rounding_method", 0)) == 1:
+            return [self.elementwise("rint", ins, *avals[0])]
         if name in ("select_n", "clamp") or name in _BINARY or name in _FLOAT_BINARY or name in _INT_BINARY \
                 or name in _BOOL_BINARY or name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY:
             return [self.elementwise(name, ins, *avals[0])]
@@ -643,7 +724,7 @@ class Translator:
                     return f"lm_min(lm_max({es[1]}, {es[0]}), {es[2]})"
                 return f"(({es[1]}) < ({es[0]}) ? ({es[0]}) : (({es[1]}) > ({es[2]}) ? ({es[2]}) : ({es[1]})))"
         else:
-            table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY},
+            table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                      "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(
                          kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
             if name not in table:
@@ -787,6 +868,9 @@ class Translator:
         hi = x.shape[a] - 1
         self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
         self.emit(f"    int {r} = (int)({self.elem(idx, f'{ti}[{o}]')});")
+        if _mode(params) == "fill":  # out of range: the fill value (NaN for floats), as XLA's FILL_OR_DROP
+            fill = literal(_fill_value(params.get("fill_value"), dtype), dtype)
+            self.emit(f"    if ({r} < 0 || {r} > {hi}) {{ {out.name}[{o}] = {fill}; continue; }}")
         self.emit(f"    {r} = {r} < 0 ? 0 : ({r} > {hi} ? {hi} : {r});")
         self.emit(f"    {out.name}[{o}] = {self.elem(x, f'{tb}[{o}] + {r} * {int(strides[a])}')};")
         self.emit("}")

@@ -14,8 +14,17 @@ structure is still visible:
   transposes, slices, gathers with known indices) is free: it only rearranges node ids.
 * **dead code** is never emitted: only the nodes the outputs (and loop tests) need are written.
 
+Data known only at run time is handled by selects, which every backend (the lane code too) has: a gather, a
+scatter or a dynamic slice at run-time indices is a chain of selects over the places the index can take
+(clamped, or filled and dropped, as XLA's ``mode`` says); ``argmax``/``argmin`` a chain of comparisons;
+``sort`` an odd-even transposition network (stable, in ``lax.sort``'s total order of floats); ``cumsum`` and
+its kin running sums; ``cholesky`` the unrolled factorization, NaN where XLA's is.
+
 Control flow keeps its shape: a ``while`` is a C loop over carry variables, with its test and body in their
-own scopes, and a ``cond`` a ``switch``. Calls are inlined, so that their constants fold and the zeros of
+own scopes, and a ``cond`` a ``switch`` (writing only the results that are read). A ``scan`` without
+per-iteration inputs or outputs (``fori_loop``'s) is a counted C loop; one with them (``lax.scan``, a
+``fori_loop`` under reverse-mode differentiation, ``expm``'s squarings) is unrolled, up to
+:data:`UNROLL_MAX` equations. Calls are inlined, so that their constants fold and the zeros of
 their results (the structural zeros of E, A, W) reach the caller. What has no scalar form here (an LU
 factorization of a matrix known only at run time, a triangular solve) is a block of the array translator's
 C, fed and read by nodes. The code grows with the number of scalar operations (n^3 for the Riccati
@@ -37,14 +46,18 @@ from ._jaxpr_c import (
     _INT_BINARY,
     _INT_UNARY,
     _REDUCE,
+    _ROUND_EVEN,
     _STRUCTURAL,
     Translator,
     UnsupportedPrimitive,
     Val,
+    _fill_value,
+    _mode,
     _np_eval,
-    _where,
+    _size,
     ctype,
     element_ids,
+    eqn_frames,
     inlined,
     literal,
     take_layout,
@@ -53,6 +66,13 @@ from ._jaxpr_c import (
 _SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
                 "exp", "log", "eq", "ne", "lt", "le", "gt", "ge", "and", "or", "not", "is_finite",
                 "stop_gradient"}
+
+
+LOOKUP_MIN = 8
+"""A run-time index into a constant operand over more places than this reads a C array (fewer: selects)."""
+UNROLL_MAX = 20000
+"""The most equations an unrolled ``scan`` (:meth:`ScalarTranslator.unrolled_scan`) may copy."""
+_CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
 
 
 class Scope:
@@ -81,6 +101,7 @@ class ScalarTranslator:
         self.lanes = False  # writing lane code (emit_lanes): every non-shared value is a vector of trials
         self.shared: set[int] = set()  # values with one value for every lane (parameters, times, and from them)
         self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
+        self.lookups: dict = {}  # constant operands read at run-time indices: their C arrays, by node ids
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -245,8 +266,11 @@ class ScalarTranslator:
             return f"1.0 / ({prod})" if p < 0 else prod
         if op == "ref":
             return self.value[i]
+        if op == "lookup":
+            table, off = self.value[i]
+            return f"{table}[{e[0]} + {off}]"
         kind = self.dtype[a[0]].kind
-        table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY},
+        table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                  "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
         if op not in table:
             raise UnsupportedPrimitive(f"primitive {op!r} on {self.dtype[a[0]]}")
@@ -271,7 +295,8 @@ class ScalarTranslator:
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
-                raise UnsupportedPrimitive(f"{e}{_where(eqn)}") from None
+                e.frames.extend(eqn_frames(eqn))
+                raise
             for var, o in zip(eqn.outvars, outs, strict=True):
                 env[var] = np.asarray(o, dtype=object).reshape(var.aval.shape)
         return [read(a) for a in jaxpr.outvars]
@@ -306,14 +331,33 @@ class ScalarTranslator:
                 outs = outs if eqn.primitive.multiple_results else [outs]
             return [self.const_array(np.asarray(o), d) for o, d in zip(outs, odt, strict=True)]
         if name == "gather" and not self._known(ins[1]):
-            try:
-                return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
-            except UnsupportedPrimitive:
-                return [self.gather_by_cases(eqn, ins, idt, oshape[0], odt[0])]
+            if _mode(params) != "fill":
+                try:
+                    return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
+                except UnsupportedPrimitive:
+                    pass
+            return [self.gather(ins[0], ins[1], params, oshape[0], odt[0])]
+        if name in ("scatter", "scatter-add", "scatter_add") and (
+                not self._known(ins[1]) or (name != "scatter" and not params.get("unique_indices", False))):
+            # run-time indices, or known ones that may repeat (their updates add up: the selects fold)
+            return [self.scatter(ins[0], ins[1], ins[2], params, name != "scatter", odt[0])]
+        if name == "dynamic_slice" and not all(self._known(x) for x in ins[1:]):
+            return [self.dynamic_slice(ins[0], ins[1:], params["slice_sizes"], oshape[0], odt[0])]
+        if name == "dynamic_update_slice" and not all(self._known(x) for x in ins[2:]):
+            return [self.dynamic_update_slice(ins[0], ins[1], ins[2:], odt[0])]
         if name in _STRUCTURAL:
             return self.structural(eqn, ins, idt, oshape)
         if name in _REDUCE:
             return [self.reduce(_REDUCE[name], ins[0], params["axes"], oshape[0], odt[0])]
+        if name == "sort":
+            return self.sort(ins, int(params["dimension"]), int(params["num_keys"]), idt)
+        if name in _CUMULATIVE:
+            return [self.cumulative(_CUMULATIVE[name], ins[0], int(params["axis"]), bool(params["reverse"]), odt[0])]
+        if name == "round":
+            op = "rint" if int(params.get("rounding_method", 0)) == 1 else "round"
+            return [self.map1(lambda x: self.node(op, (x,), odt[0]), ins[0], oshape[0])]
+        if name == "cholesky":
+            return [self.cholesky(ins[0], odt[0])]
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
         if name in ("lu", "triangular_solve", "eigh"):
@@ -333,8 +377,6 @@ class ScalarTranslator:
             f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(ins), 1)
             out = np.asarray(f(*ins), dtype=object)  # frompyfunc broadcasts a scalar operand itself
             return [np.broadcast_to(out, oshape[0]).copy() if out.shape != oshape[0] else out]
-        if name == "sort":
-            raise UnsupportedPrimitive("sort of values known only at run time")
         raise UnsupportedPrimitive(f"primitive {name!r} has no C translation (supported: liemef.codegen.PRIMITIVES)")
 
     def map1(self, f, x, shape):
@@ -419,6 +461,156 @@ class ScalarTranslator:
             out[o] = acc
         return out.reshape(shape)
 
+    # --- indices known only at run time: gathers, scatters and dynamic slices of any form ---------------------
+    def _start(self, starts, op_shape, sizes, clip: bool):
+        """One window's place in an operand: ``starts`` maps operand axes to the (run-time) start index nodes,
+        ``sizes`` is the window's size per axis. Returns the node of the flat offset of the window's first
+        element (starts clamped into range, as XLA does), the values that offset can take, and the node
+        saying whether the unclamped starts are in range (None where ``clip``: no test is needed)."""
+        strides = np.cumprod((1,) + tuple(op_shape)[::-1])[::-1][1:]
+        base, values, inb = None, [0], None
+        for d, s in starts.items():
+            hi = int(op_shape[d]) - int(sizes[d])
+            if hi < 0:
+                raise UnsupportedPrimitive(f"a window of {sizes[d]} on an axis of {op_shape[d]}")
+            dt = self.dtype[s]
+            signed = dt.kind != "u"  # an unsigned index is never below 0 (and a test of it a C warning)
+            c = self.node("min", (self.node("max", (s, self.const(0, dt)), dt) if signed else s, self.const(hi, dt)),
+                          dt)
+            if not clip:
+                ok = self.node("le", (s, self.const(hi, dt)), np.bool_)
+                if signed:
+                    ok = self.node("and", (self.node("ge", (s, self.const(0, dt)), np.bool_), ok), np.bool_)
+                inb = ok if inb is None else self.node("and", (inb, ok), np.bool_)
+            term = self.node("mul", (self.node("convert", (c,), np.int32), self.const(int(strides[d]), np.int32)),
+                             np.int32)
+            base = term if base is None else self.node("add", (base, term), np.int32)
+            vals = [int(self.cval(c))] if self.is_const(c) else range(hi + 1)
+            values = sorted({v + k * int(strides[d]) for v in values for k in vals})
+            if len(values) > 4096:
+                raise UnsupportedPrimitive(f"a run-time index over more than 4096 places of an operand {op_shape}")
+        return (self.const(0, np.int32) if base is None else base), values, inb
+
+    def _pick(self, flat, base, values, off: int, dtype):
+        """``flat[base + off]`` for a run-time ``base`` among ``values``: a chain of selects, or, from a
+        constant operand (a user's table) over more than :data:`LOOKUP_MIN` places, a read of a
+        ``static const`` C array at the run-time index."""
+        if len(values) > LOOKUP_MIN and all(self.is_const(n) for n in flat):
+            key = tuple(int(n) for n in flat)
+            if key not in self.lookups:
+                name = self.fresh("tab")
+                body = ", ".join(literal(self.cval(n), dtype) for n in flat)
+                self.table_lines.append(f"static const {ctype(dtype)} {name}[{len(flat)}] = {{{body}}};")
+                self.lookups[key] = name
+            return self.node("lookup", (base,), dtype, (self.lookups[key], off))
+        acc = None
+        for v in reversed(values):
+            cand = flat[v + off]
+            acc = cand if acc is None else self.node(
+                "sel", (self.node("le", (base, self.const(v, np.int32)), np.bool_), cand, acc), dtype)
+        return acc
+
+    @staticmethod
+    def _windows(shape, window_pos, op_dims, op_shape):
+        """For each element of a gather's output (a scatter's updates), row-major: its batch multi-index (the
+        positions not in ``window_pos``) and its flat offset in the operand within the window (``op_dims``:
+        the operand axis of each window position)."""
+        strides = np.cumprod((1,) + tuple(op_shape)[::-1])[::-1][1:]
+        batch_pos = [k for k in range(len(shape)) if k not in window_pos]
+        out = []
+        for e in np.ndindex(*shape):
+            off = sum(int(e[p]) * int(strides[d]) for p, d in zip(window_pos, op_dims, strict=True))
+            out.append((tuple(e[k] for k in batch_pos), off))
+        return out
+
+    def _batching(self, op_dims, idx_dims, idx_dtype):
+        """For a batch multi-index of the indices, the (known) starts on the operand's batching axes: an
+        operand batching axis is indexed by the position along its paired index batch axis
+        (``take_along_axis``)."""
+        dt = np.int32
+        return lambda b: {int(d): self.const(int(b[int(j)]), dt) for d, j in zip(op_dims, idx_dims, strict=True)}
+
+    def gather(self, x, idx, params, shape, dtype):
+        """Any gather with indices known only at run time (``x[i]``, ``jnp.take``, ``take_along_axis``, an
+        interpolation's bracket, the permutations of a sort's or an LU's derivative), clamped into range or
+        filled (``mode``) as XLA does: each output element is a chain of selects over the places its window
+        can start."""
+        dn = params["dimension_numbers"]
+        sizes = tuple(int(v) for v in params["slice_sizes"])
+        smap = tuple(int(v) for v in dn.start_index_map)
+        collapsed = tuple(int(v) for v in dn.collapsed_slice_dims) + tuple(int(v) for v in dn.operand_batching_dims)
+        op_dims = [d for d in range(x.ndim) if d not in collapsed]
+        paired = self._batching(dn.operand_batching_dims, dn.start_indices_batching_dims, idx.dtype)
+        mode = _mode(params)
+        fill = params.get("fill_value")
+        if mode == "fill":
+            fill = _fill_value(fill, dtype)
+        flat = x.ravel()
+        starts = {}
+        out = np.empty(int(np.prod(shape, dtype=np.int64)), dtype=object)
+        for o, (b, off) in enumerate(self._windows(shape, tuple(int(v) for v in dn.offset_dims), op_dims, x.shape)):
+            if b not in starts:
+                starts[b] = self._start({**paired(b), **{d: idx[b + (k,)] for k, d in enumerate(smap)}}, x.shape,
+                                        sizes, clip=mode != "fill")
+            base, values, inb = starts[b]
+            val = self._pick(flat, base, values, off, dtype)
+            out[o] = val if inb is None else self.node("sel", (inb, val, self.const(fill, dtype)), dtype)
+        return out.reshape(shape)
+
+    def scatter(self, x, idx, upd, params, add: bool, dtype):
+        """A scatter (or scatter-add) with indices known only at run time: each update lands where its window
+        starts (clamped, or dropped when out of range, ``mode``, as XLA does); updates in order, the last
+        write winning."""
+        dn = params["dimension_numbers"]
+        wpos = tuple(int(v) for v in dn.update_window_dims)
+        inserted = tuple(int(v) for v in dn.inserted_window_dims) + tuple(int(v) for v in dn.operand_batching_dims)
+        paired = self._batching(dn.operand_batching_dims, dn.scatter_indices_batching_dims, idx.dtype)
+        op_dims = [d for d in range(x.ndim) if d not in inserted]
+        sizes = [1] * x.ndim
+        for p, d in zip(wpos, op_dims, strict=True):
+            sizes[d] = upd.shape[p]
+        smap = tuple(int(v) for v in dn.scatter_dims_to_operand_dims)
+        clip = _mode(params) == "clip"
+        out = x.ravel().copy()
+        ups = upd.ravel()
+        starts = {}
+        for u, (b, off) in enumerate(self._windows(upd.shape, wpos, op_dims, x.shape)):
+            if b not in starts:
+                starts[b] = self._start({**paired(b), **{d: idx[b + (k,)] for k, d in enumerate(smap)}}, x.shape,
+                                        sizes, clip=clip)
+            base, values, inb = starts[b]
+            for v in values:
+                hit = self.node("eq", (base, self.const(v, np.int32)), np.bool_)
+                if inb is not None:
+                    hit = self.node("and", (hit, inb), np.bool_)
+                p = v + off
+                if add:
+                    out[p] = self.node("add", (out[p], self.node("sel", (hit, ups[u], self.const(0, dtype)), dtype)),
+                                       dtype)
+                else:
+                    out[p] = self.node("sel", (hit, ups[u], out[p]), dtype)
+        return out.reshape(x.shape)
+
+    def dynamic_slice(self, x, starts, sizes, shape, dtype):
+        """``lax.dynamic_slice`` at run-time starts (clamped so that the window fits, as XLA does)."""
+        base, values, _ = self._start({d: s.ravel()[0] for d, s in enumerate(starts)}, x.shape, sizes, clip=True)
+        flat = x.ravel()
+        wins = self._windows(shape, tuple(range(x.ndim)), tuple(range(x.ndim)), x.shape)
+        return np.array([self._pick(flat, base, values, off, dtype) for _, off in wins],
+                        dtype=object).reshape(shape)
+
+    def dynamic_update_slice(self, x, upd, starts, dtype):
+        """``lax.dynamic_update_slice`` at run-time starts (clamped so that the update fits, as XLA does)."""
+        base, values, _ = self._start({d: s.ravel()[0] for d, s in enumerate(starts)}, x.shape, upd.shape,
+                                      clip=True)
+        out = x.ravel().copy()
+        ups = upd.ravel()
+        for u, (_, off) in enumerate(self._windows(upd.shape, tuple(range(x.ndim)), tuple(range(x.ndim)), x.shape)):
+            for v in values:
+                hit = self.node("eq", (base, self.const(v, np.int32)), np.bool_)
+                out[v + off] = self.node("sel", (hit, ups[u], out[v + off]), dtype)
+        return out.reshape(x.shape)
+
     def take(self, x, idx, params, shape, dtype):
         """A gather along one axis with indices known at run time (:func:`take_layout`): a chain of selects on
         the (clamped) index."""
@@ -455,13 +647,105 @@ class ScalarTranslator:
         return terms[0]
 
     def reduce(self, op, x, axes, shape, dtype):
-        if op in ("argmax", "argmin"):
-            raise UnsupportedPrimitive(f"{op} of values known only at run time")
         axes = tuple(int(a) for a in axes)
+        if op in ("argmax", "argmin"):
+            return self.argbest(op, x, axes, shape, dtype)
         keep = [d for d in range(x.ndim) if d not in axes]
         n_out = int(np.prod(shape, dtype=np.int64))
         rows = x.transpose(keep + list(axes)).reshape(n_out, -1)
         return np.array([self.total(list(r), dtype, op) for r in rows], dtype=object).reshape(shape)
+
+    def argbest(self, op, x, axes, shape, dtype):
+        """``argmax``/``argmin`` along one axis, as XLA: the first index of the largest (smallest) value, a NaN
+        counting as larger (smaller) than any number (the first NaN wins)."""
+        (ax,) = axes
+        keep = [d for d in range(x.ndim) if d != ax]
+        rows = x.transpose(keep + [ax]).reshape(-1, x.shape[ax])
+        xdt = self.dtype[rows[0, 0]] if rows.size else np.dtype(np.float64)
+        better = "gt" if op == "argmax" else "lt"
+        out = []
+        for r in rows:
+            best, at = r[0], self.const(0, dtype)
+            for j in range(1, len(r)):
+                take = self.node(better, (r[j], best), np.bool_)
+                if xdt.kind == "f":  # a NaN beats a number; the first NaN stays
+                    nan_j = self.node("ne", (r[j], r[j]), np.bool_)
+                    num_best = self.node("eq", (best, best), np.bool_)
+                    take = self.node("or", (take, self.node("and", (nan_j, num_best), np.bool_)), np.bool_)
+                best = self.node("sel", (take, r[j], best), xdt)
+                at = self.node("sel", (take, self.const(j, dtype), at), dtype)
+            out.append(at)
+        return np.array(out, dtype=object).reshape(shape)
+
+    def _less(self, a, b, dts):
+        """Whether key tuple ``a`` sorts before ``b`` (lexicographic; floats in the total order of ``lax.sort``:
+        -NaN < -inf < ... < -0 < 0 < ... < inf < NaN)."""
+        less = None
+        for x, y, dt in zip(reversed(a), reversed(b), reversed(dts), strict=True):
+            lt = self.node("lt_to" if dt.kind == "f" else "lt", (x, y), np.bool_)
+            if less is None:
+                less = lt
+            else:
+                eq = self.node("eq_to" if dt.kind == "f" else "eq", (x, y), np.bool_)
+                less = self.node("or", (lt, self.node("and", (eq, less), np.bool_)), np.bool_)
+        return less
+
+    def sort(self, ins, dim, num_keys, dts):
+        """``lax.sort`` of run-time values along ``dim`` (the first ``num_keys`` operands the keys, the others
+        carried along: ``argsort``, a sort's derivative): an odd-even transposition network of n rounds, which
+        exchanges only strictly out-of-order neighbours and so is stable, as ``lax.sort``."""
+        n = ins[0].shape[dim]
+        moved = [np.moveaxis(x, dim, -1).copy() for x in ins]
+        for idx in np.ndindex(*moved[0].shape[:-1]):
+            cols = [[m[idx + (j,)] for j in range(n)] for m in moved]
+            for rnd in range(n):
+                for j in range(rnd % 2, n - 1, 2):
+                    swap = self._less([c[j + 1] for c in cols[:num_keys]], [c[j] for c in cols[:num_keys]],
+                                      dts[:num_keys])
+                    for c, dt in zip(cols, dts, strict=True):
+                        lo, hi = c[j], c[j + 1]
+                        c[j] = self.node("sel", (swap, hi, lo), dt)
+                        c[j + 1] = self.node("sel", (swap, lo, hi), dt)
+            for m, c in zip(moved, cols, strict=True):
+                for j in range(n):
+                    m[idx + (j,)] = c[j]
+        return [np.moveaxis(m, -1, dim) for m in moved]
+
+    def cumulative(self, op, x, axis, reverse, dtype):
+        """``cumsum``, ``cumprod``, ``cummax``, ``cummin`` along ``axis`` (from the end if ``reverse``)."""
+        out = np.moveaxis(x, axis, -1).copy()
+        n = out.shape[-1]
+        order = range(n - 1, -1, -1) if reverse else range(n)
+        for idx in np.ndindex(*out.shape[:-1]):
+            acc = None
+            for j in order:
+                acc = out[idx + (j,)] if acc is None else self.node(op, (acc, out[idx + (j,)]), dtype)
+                out[idx + (j,)] = acc
+        return np.moveaxis(out, -1, axis)
+
+    def cholesky(self, a, dtype):
+        """The lower Cholesky factor of a run-time matrix (its lower triangle read, as LAPACK's ``potrf``),
+        zeros above the diagonal; a matrix that is not positive definite gives NaN everywhere, as XLA's."""
+        if a.ndim != 2 or a.shape[0] != a.shape[1] or np.dtype(dtype) != np.float64:
+            raise UnsupportedPrimitive(f"cholesky of shape {a.shape} (only square float64, unbatched)")
+        n = a.shape[0]
+        L = np.empty((n, n), dtype=object)
+        zero = self.const(0.0, dtype)
+        ok = None
+        for j in range(n):
+            d = self.node("sub", (a[j, j], self.total([self.node("mul", (L[j, k], L[j, k]), dtype)
+                                                         for k in range(j)], dtype)), dtype)
+            pos = self.node("gt", (d, zero), np.bool_)
+            ok = pos if ok is None else self.node("and", (ok, pos), np.bool_)
+            L[j, j] = self.node("sqrt", (d,), dtype)
+            for i in range(j + 1, n):
+                s = self.total([self.node("mul", (L[i, k], L[j, k]), dtype) for k in range(j)], dtype)
+                L[i, j] = self.node("div", (self.node("sub", (a[i, j], s), dtype), L[j, j]), dtype)
+            for i in range(j):
+                L[i, j] = zero
+        nan = self.const(np.nan, dtype)
+        return np.array([[self.node("sel", (ok, L[i, j], nan), dtype) for j in range(n)] for i in range(n)],
+                        dtype=object)
 
     def dot_general(self, a, b, dims, shape, dtype):
         (ca, cb), (ba, bb) = dims
@@ -562,7 +846,7 @@ class ScalarTranslator:
         nc, ncar, length = params["num_consts"], params["num_carry"], int(params["length"])
         jaxpr = params["jaxpr"]
         if len(ins) != nc + ncar or len(jaxpr.jaxpr.outvars) != ncar:
-            raise UnsupportedPrimitive("scan with per-iteration inputs or outputs (only fori_loop's form)")
+            return self.unrolled_scan(params, ins)
         consts, init = ins[:nc], ins[nc:]
         names, leaves = self._carry(init)
         outer = self.scope
@@ -575,6 +859,26 @@ class ScalarTranslator:
         self.scope.stmts.append(("for", flat(zip(names, init, strict=True)), length, body,
                                  flat(zip(names, new, strict=True)), dts))
         return [np.array([self.leaf(nm, dts[nm]) for nm in a.ravel()], dtype=object).reshape(a.shape) for a in names]
+
+    def unrolled_scan(self, params, ins):
+        """A ``scan`` with inputs or outputs per iteration (``lax.scan`` over a fixed sequence, a ``fori_loop``
+        under reverse-mode differentiation, ``expm``'s squarings), unrolled: its length is fixed, and each
+        copy of the body folds its own constants. Refused above :data:`UNROLL_MAX` equations in all."""
+        nc, ncar, length = params["num_consts"], params["num_carry"], int(params["length"])
+        jaxpr = params["jaxpr"]
+        if length * max(_size(jaxpr.jaxpr), 1) > UNROLL_MAX:
+            raise UnsupportedPrimitive(f"scan with per-iteration inputs or outputs over {length} iterations of "
+                                       f"{_size(jaxpr.jaxpr)} equations (unrolled up to {UNROLL_MAX} in all)")
+        consts, carry, xs = ins[:nc], list(ins[nc:nc + ncar]), ins[nc + ncar:]
+        ys = [None] * length
+        for i in (range(length - 1, -1, -1) if params.get("reverse", False) else range(length)):
+            outs = self.run(jaxpr.jaxpr, jaxpr.consts, consts + carry + [x[i:i + 1].reshape(x.shape[1:]) for x in xs])
+            carry, ys[i] = list(outs[:ncar]), outs[ncar:]
+        n_ys = len(jaxpr.jaxpr.outvars) - ncar
+        stacked = [np.stack([ys[i][k] for i in range(length)]) if length else
+                   np.empty((0,) + tuple(jaxpr.jaxpr.outvars[ncar + k].aval.shape), dtype=object)
+                   for k in range(n_ys)]
+        return carry + stacked
 
     def cond(self, params, ins):
         index, ops = ins[0], ins[1:]
@@ -596,9 +900,12 @@ class ScalarTranslator:
             arms.append((sc, [(nm, n) for arr, r in zip(names, res, strict=True)
                               for nm, n in zip(arr.ravel(), r.ravel(), strict=True)]))
         self.scope = outer
-        self.scope.stmts.append(("cond", i0, arms, dts))
-        return [np.array([self.leaf(nm, dts[nm]) for nm in arr.ravel()], dtype=object).reshape(arr.shape)
+        outs = [np.array([self.leaf(nm, dts[nm]) for nm in arr.ravel()], dtype=object).reshape(arr.shape)
                 for arr in names]
+        leaves = {nm: int(lf) for arr, o in zip(names, outs, strict=True)
+                  for nm, lf in zip(arr.ravel(), o.ravel(), strict=True)}
+        self.scope.stmts.append(("cond", i0, arms, dts, leaves))
+        return outs
 
     # --- writing C ------------------------------------------------------------------------------------------
     def _live(self, roots: list[int]) -> set[int]:
@@ -612,20 +919,30 @@ class ScalarTranslator:
             stack.extend(self.args[i] if isinstance(self.args[i], tuple) else ())
         return live
 
-    def _stmt_roots(self, scope: Scope) -> list[int]:
+    def _live_all(self, outputs: list[int], root_scope: Scope) -> set[int]:
+        """The nodes the outputs need, with what loops and switches read: a fixpoint, as a ``cond``'s result
+        that nothing reads is neither declared nor computed in its branches."""
+        live: set[int] = set()
+        while True:
+            new = self._live(outputs + self._stmt_roots(root_scope, live))
+            if new == live:
+                return live
+            live = new
+
+    def _stmt_roots(self, scope: Scope, live: set[int]) -> list[int]:
         roots = []
         for st in scope.stmts:
             if st[0] == "while":
                 _, inits, cs, pred, bs, assigns, _ = st
                 roots += [n for _, n in inits] + [pred] + [n for _, n in assigns]
-                roots += self._stmt_roots(cs) + self._stmt_roots(bs)
+                roots += self._stmt_roots(cs, live) + self._stmt_roots(bs, live)
             elif st[0] == "for":
                 _, inits, _, bs, assigns, _ = st
-                roots += [n for _, n in inits] + [n for _, n in assigns] + self._stmt_roots(bs)
+                roots += [n for _, n in inits] + [n for _, n in assigns] + self._stmt_roots(bs, live)
             elif st[0] == "cond":
                 roots.append(st[1])
                 for sc, asg in st[2]:
-                    roots += [n for _, n in asg] + self._stmt_roots(sc)
+                    roots += [n for nm, n in asg if st[4][nm] in live] + self._stmt_roots(sc, live)
         return roots
 
     def emit_body(self, outputs: list[tuple[str, int]]) -> str:
@@ -633,7 +950,7 @@ class ScalarTranslator:
         root_scope = self.scope
         while root_scope.parent is not None:
             root_scope = root_scope.parent
-        live = self._live([n for _, n in outputs] + self._stmt_roots(root_scope))
+        live = self._live_all([n for _, n in outputs], root_scope)
         lines: list[str] = []
         self._write(root_scope, live, lines, 1)
         for lv, n in outputs:
@@ -652,7 +969,7 @@ class ScalarTranslator:
         root_scope = self.scope
         while root_scope.parent is not None:
             root_scope = root_scope.parent
-        live = self._live([n for _, n in outputs] + self._stmt_roots(root_scope))
+        live = self._live_all([n for _, n in outputs], root_scope)
         lines: list[str] = []
         self.lanes = True
         try:
@@ -800,15 +1117,19 @@ class ScalarTranslator:
                     lines.append(f"{pad}    {nm} = {nm}_next;")
                 lines.append(f"{pad}}}")
             elif kind == "cond":
-                _, i0, arms, dts = st
+                _, i0, arms, dts, leaves = st
+                if not any(leaves[nm] in live for nm in dts):
+                    continue
                 for nm, dt in dts.items():
-                    lines.append(f"{pad}{ctype(dt)} {nm};")
+                    if leaves[nm] in live:
+                        lines.append(f"{pad}{ctype(dt)} {nm};")
                 lines.append(f"{pad}switch ((int)({self.expr(i0)})) {{")
                 for k, (sc, asg) in enumerate(arms):
                     lines.append(f"{pad}{'default' if k == len(arms) - 1 else f'case {k}'}: {{")
                     self._write(sc, live, lines, depth + 1)
                     for nm, n in asg:
-                        lines.append(f"{pad}    {nm} = {self.expr(n)};")
+                        if leaves[nm] in live:
+                            lines.append(f"{pad}    {nm} = {self.expr(n)};")
                     lines.append(f"{pad}    break;")
                     lines.append(f"{pad}}}")
                 lines.append(f"{pad}}}")
@@ -856,10 +1177,11 @@ def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: 
 
 
 LANE_TYPES = {np.dtype(np.float64): "lane_f64", np.dtype(np.int32): "lane_i32", np.dtype(np.int64): "lane_i64",
+              np.dtype(np.uint32): "lane_u32",
               np.dtype(np.bool_): "lane_i64"}
 """The lane vector type of each dtype; a boolean is a mask of -1 (true) and 0, as vector comparisons give."""
 LANE_SUFFIX = {np.dtype(np.float64).str: "F64", np.dtype(np.int32).str: "I32", np.dtype(np.int64).str: "I64",
-               np.dtype(np.bool_).str: "I64"}
+               np.dtype(np.bool_).str: "I64", np.dtype(np.uint32).str: "U32"}
 
 
 def lane_typedefs(lanes: int) -> str:
@@ -868,6 +1190,7 @@ def lane_typedefs(lanes: int) -> str:
     return f"""#define LANES {lanes}
 typedef double lane_f64 __attribute__((vector_size({8 * lanes})));
 typedef int32_t lane_i32 __attribute__((vector_size({4 * lanes})));
+typedef uint32_t lane_u32 __attribute__((vector_size({4 * lanes})));
 typedef int64_t lane_i64 __attribute__((vector_size({8 * lanes})));
 #define LANE_MASK(b) (((lane_i64){{0}}) - (int64_t)((b) != 0))
 #define LANE_SEL_I64(c, a, b) (((c) & (a)) | (~(c) & (b)))
@@ -875,6 +1198,8 @@ static inline lane_f64 LANE_SEL_F64(lane_i64 c, lane_f64 a, lane_f64 b)
 {{ return (lane_f64)((c & (lane_i64)a) | (~c & (lane_i64)b)); }}
 static inline lane_i32 LANE_SEL_I32(lane_i64 c, lane_i32 a, lane_i32 b)
 {{ const lane_i32 m = __builtin_convertvector(c, lane_i32); return (m & a) | (~m & b); }}
+static inline lane_u32 LANE_SEL_U32(lane_i64 c, lane_u32 a, lane_u32 b)
+{{ const lane_u32 m = __builtin_convertvector(c, lane_u32); return (m & a) | (~m & b); }}
 static inline lane_f64 lane_max(lane_f64 a, lane_f64 b)
 {{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a > b, a, b)); }}
 static inline lane_f64 lane_min(lane_f64 a, lane_f64 b)
