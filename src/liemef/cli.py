@@ -19,7 +19,8 @@
   C99, ``PREFIX.h`` and ``PREFIX.c`` (:func:`liemef.codegen.export_c`); prints the files and the C API.
 * ``liemef schema SYSTEM|--system-file FILE.py``: the log columns a system expects, with units and noise.
 * ``liemef dataset broad|wifibot PATH --out LOG``: a real recording (BROAD, Wifibot) as a log for ``run``.
-* ``liemef compare localization|heading-basin|attitude-basin|broad|wifibot --out DIR [--runs N] [--seed S]
+* ``liemef compare localization|heading-basin|attitude-basin|inertial-navigation|inertial-basin|broad|wifibot
+  --out DIR [--runs N] [--seed S]
   [--filters a,b] [--set KEY=VALUE]``:
   every filter (the minimum-energy filter with its connections and orders, and the baselines) on the same
   trials; writes the study's tables (Markdown, CSV, JSON), ``arrays.npz`` and figures (:mod:`liemef.studies.compare`).
@@ -65,7 +66,8 @@ ORDERS = ("second", "first")
 """``liemef.filters.ORDERS``."""
 DEFAULT_BATCH_SIZE = 8
 """``liemef.studies.experiments.DEFAULT_BATCH_SIZE``."""
-COMPARE_STUDIES = ("localization", "heading-basin", "attitude-basin", "broad", "wifibot")
+COMPARE_STUDIES = ("localization", "heading-basin", "attitude-basin", "inertial-navigation", "inertial-basin", "broad",
+                   "wifibot")
 """``tuple(liemef.studies.compare.STUDIES)``."""
 
 
@@ -696,20 +698,23 @@ def dataset(kind, path, out, truth, seconds, gps_std):
 @click.option("--runs", type=click.IntRange(min=1), help="Trials (the same for every filter; default: the study's).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="First seed: trial i uses split(key(seed), runs)[i] (localization with --set rng=numpy: ukfm's "
-                   "stream seeded seed + i; wifibot: the GPS noise of seed + i).")
+                   "stream seeded seed + i, as inertial-navigation; wifibot: the GPS noise of seed + i).")
 @click.option("--filters", metavar="A,B,...", help="Filters to compare (default: all of the study's).")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Any other setting of the study (repeatable). localization: duration, steady, "
                    "optimum_runs, rng (jax or numpy), batch_size. heading-basin: duration, angles_deg "
                    "(comma-separated), prior_std_deg, tolerance_deg, batch_size. attitude-basin: duration, "
                    "angles_deg, tolerance_deg, systems (rigid-body,gyro-bias), rigid_body_dt, imu_rate, "
-                   "prior_std_deg, batch_size, optimum_runs, optimum_every. broad: trials (comma-separated ids), "
+                   "prior_std_deg, batch_size, optimum_runs, optimum_every. inertial-navigation: duration, steady, "
+                   "rng (jax or numpy), batch_size. inertial-basin: duration, angles_deg, prior_std_deg, "
+                   "tolerance_deg, batch_size. broad: trials (comma-separated ids), "
                    "seconds, realdata. wifibot: recordings (comma-separated ids), gps_rate, gps_std, realdata.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, progress):
     """Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.
 
-    Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left.
+    Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left; and
+    iekf-right, ukf-right, ukf-local (the inertial-navigation studies' defaults, with ekf and ukf-left).
 
     localization: ukfm's 2D localization benchmark (odometry 100 Hz, GPS 1 Hz, 45 deg initial heading error);
     writes comparison.md (per filter the rms, pooled rms with its bootstrap interval, NEES, the published
@@ -723,6 +728,15 @@ def compare_cmd(study, out, runs, seed, filters, settings, progress):
     and attitude + gyro bias from a synthetic IMU (filters: mef, mef-first, mef-minus, mef-plus, iekf, ukf-left;
     madgwick and mahony on request, gyro bias only); writes attitude_basin.md, attitude_basin.csv,
     attitude_basin.json, arrays.npz and fig_basin_<system>.png.
+
+    inertial-navigation: ukfm's inertial-navigation benchmark on SE_2(3) (IMU 100 Hz, three landmarks at 1 Hz,
+    15 deg / 1 m initial error); writes inertial.md (per filter the attitude and position rms, NEES, ukfm's own
+    figures beside ours, the winners with their paired lead), inertial.csv, inertial.json, arrays.npz and
+    fig_errors.png. With --set rng=numpy the trials are ukfm's own runs (seeds 0-19: per-seed differences).
+
+    inertial-basin: the convergence basin in the initial attitude error (0-179 deg about random axes) on the same
+    scenario; writes inertial_basin.md, inertial_basin.csv, inertial_basin.json, arrays.npz and
+    fig_basin_inertial_navigation.png.
 
     broad: the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer
     with optical truth), with the MEF, a robust MEF, the invariant EKF, the UKF-M and ahrs's Madgwick and

@@ -9,8 +9,12 @@ a retraction $g = \varphi(\hat g, e)$ (:data:`ERRORS`):
 * ``"right"``: $g = \exp(e)\,\hat g$, the right-invariant error;
 * ``"local"``: the chart practitioners write: rotations multiplicative, $R = \hat R \exp(e_R)$, and every
   translation or vector part additive in the world frame, $p = \hat p + e_p$ (SE(2) as SO(2) x R^2, ukfm's
-  ``ekf``/``ukf_so2xr2``; an MEKF with additive bias on SO(3) x R^3). Groups without a translation part have
-  the left error.
+  ``ekf``/``ukf_so2xr2``; SE(3), SE_2(3) and SE_K(3) as SO(3) x R^{3K}, ukfm's ``ekf``/``ukf_so3xr6`` of inertial
+  navigation; an MEKF with additive bias on SO(3) x R^3). Groups without a translation part have the left
+  error. ukfm writes the SO(3) x R^{3K} rotation error in the world frame, $R = \exp(e_R)\hat R$; the two charts
+  differ by the orthogonal map $e_R^{world} = \hat R e_R$ at the mean, which carries the covariance, the
+  Jacobians and the update of one onto the other: the EKF is the same filter in either, the UKF-M too up to the
+  choice of the square root of P (ukfm: Cholesky; here: an eigendecomposition).
 
 Whatever its coordinates, a filter's state holds $K = J P J^\top$, the covariance of the **left** error $\xi$
 with $g = \hat g \exp\xi$ ($J = \partial\xi/\partial e$ at the mean), as the minimum-energy filter's K: so NEES
@@ -50,7 +54,7 @@ from jaxtyping import Array, Float
 
 from ... import _validate
 from ..._linalg import mm, mv
-from ...groups import SE2, SO2, LieGroup, Product
+from ...groups import SE2, SEK3, SO2, SO3, LieGroup, Product
 from ...systems import AbstractSystem
 from .. import AbstractFilter, FilterState, Weights, sensor_layout
 
@@ -68,6 +72,9 @@ def _local_plus(g: LieGroup, e):
                                                                             strict=True)))
     if isinstance(g, SE2):
         return SE2.from_rotation_translation(g.rotation() @ SO2.exp(e[:1]), g.translation() + e[1:])
+    if isinstance(g, SEK3):
+        vectors = g.vectors() + e[3:].reshape(g.K, 3)
+        return type(g).from_rotation_vectors(g.rotation() @ SO3.exp(e[:3]), vectors)
     return g.rplus(e)
 
 
@@ -77,6 +84,8 @@ def _local_minus(g2: LieGroup, g: LieGroup):
         return jnp.concatenate([_local_minus(a, b) for a, b in zip(g2.factors, g.factors, strict=True)])
     if isinstance(g, SE2):
         return jnp.concatenate([g2.rotation().rminus(g.rotation()), g2.translation() - g.translation()])
+    if isinstance(g, SEK3):
+        return jnp.concatenate([g2.rotation().rminus(g.rotation()), (g2.vectors() - g.vectors()).reshape(-1)])
     return g2.rminus(g)
 
 

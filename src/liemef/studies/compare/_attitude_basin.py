@@ -364,7 +364,7 @@ def markdown(result: dict) -> str:
         with_nees = {n: e for n, e in sysr["filters"].items() if any(r["nees_per_dof"] is not None
                                                                      for r in e["angles"])}
         if with_nees:
-            dof = 6
+            dof = sysr.get("dof", 6)  # TSO(3): 6
             lo, hi = chi2_bounds(dof, st["runs"], 0.95, per_dof=True)
             lines += ["", f"NEES per degree of freedom over the last quarter, mean over the trials that converge "
                       f"(K as the covariance of the left error; 1 for a consistent filter; 95 % chi-square bounds "
@@ -401,17 +401,17 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     return header, rows
 
 
-def save(result: dict, out: str | Path) -> list[Path]:
-    """Write ``attitude_basin.json``, ``attitude_basin.md``, ``attitude_basin.csv``, ``arrays.npz`` and
-    ``fig_basin_<system>.png`` to ``out``."""
+def save(result: dict, out: str | Path, stem: str = "attitude_basin") -> list[Path]:
+    """Write ``<stem>.json``, ``<stem>.md``, ``<stem>.csv``, ``arrays.npz`` and ``fig_basin_<system>.png`` to
+    ``out`` (``stem``: ``attitude_basin``; ``inertial_basin`` for ``liemef compare inertial-basin``)."""
     from ...reports import plots
 
     out = io.ensure_dir(out)
     header, rows = csv_rows(result)
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / "attitude_basin.json", {k: v for k, v in result.items() if k != "arrays"}),
-               io.write_text(out / "attitude_basin.md", markdown(result)),
-               io.write_rows(out / "attitude_basin.csv", header, rows)]
+               io.write_json(out / f"{stem}.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_text(out / f"{stem}.md", markdown(result)),
+               io.write_rows(out / f"{stem}.csv", header, rows)]
     arrays = io.read_arrays(out / "arrays.npz")
     for sname in (str(s) for s in arrays["systems"]):
         key = sname.replace("-", "_")

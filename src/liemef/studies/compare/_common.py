@@ -11,7 +11,7 @@ import numpy as np
 
 from ... import _validate
 from ...filters import AbstractFilter, MinimumEnergyFilter
-from ...filters.baselines import invariant_ekf, local_ekf, ukf_m
+from ...filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_ekf, ukf_m
 from ...metrics._stats import json_number
 
 FILTERS = {
@@ -24,8 +24,13 @@ FILTERS = {
     "mef-first": ("first-order minimum-energy filter (continuous-time left-invariant EKF)",
                   lambda s: MinimumEnergyFilter(s, order="first")),
     "iekf": ("invariant EKF (left-invariant error), discrete", invariant_ekf),
+    "iekf-right": ("invariant EKF with the right-invariant error (ukfm's iekf of inertial navigation), discrete",
+                   lambda s: ExtendedKalmanFilter(s, "right")),
     "ekf": ("EKF in local coordinates (rotation multiplicative, position additive), discrete", local_ekf),
     "ukf-left": ("UKF-M with the left retraction (ukfm's ukf_left), discrete", ukf_m),
+    "ukf-right": ("UKF-M with the right retraction (ukfm's ukf_right), discrete", lambda s: ukf_m(s, "right")),
+    "ukf-local": ("UKF-M in local coordinates (rotation multiplicative, position additive; ukfm's ukf_so3xr6), "
+                  "discrete", lambda s: ukf_m(s, "local")),
 }
 """Filter names of the comparisons: a description and a factory from a system."""
 
@@ -117,6 +122,26 @@ def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> d
             level.append(k)
     return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "healthy": healthy,
             "versus": versus, "level": level}
+
+
+def versus_published(ours: float | None, interval, n: int, published: float, published_runs: int,
+                     independent: bool) -> dict:
+    """Our Monte Carlo figure ``ours`` (over ``n`` trials, with the 95 % bootstrap ``interval``) against a
+    published one from ``published_runs`` runs: ``difference`` (ours - published), and ``z`` and ``within``.
+
+    Both figures are Monte Carlo estimates: the published one's standard error is taken as ours scaled to its
+    number of runs (the same spread across trials), and the two agree within Monte Carlo error when their
+    difference is within 1.96 standard errors of a difference (``z <= 1.96``). Only for ``independent`` trials:
+    on the published runs themselves, or on some of them, the two share their Monte Carlo error and only the
+    difference is reported (z and within None). Without an interval: z and within None, no difference."""
+    lo, hi = interval
+    if lo is None or ours is None:
+        return {"z": None, "within": None}
+    se = (hi - lo) / (2 * 1.96)
+    se_diff = se * np.sqrt(1.0 + n / published_runs)
+    z = None if not independent or se_diff == 0 else abs(ours - published) / se_diff
+    return {"difference": ours - published, "z": None if z is None else json_number(z),
+            "within": None if z is None else bool(z <= 1.96)}
 
 
 def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float = 0.95, seed: int = 0):

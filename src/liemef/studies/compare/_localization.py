@@ -37,6 +37,7 @@ from ._common import (
     make_filter,
     paired_comparison,
     parse_filters,
+    versus_published,
     winners_markdown,
 )
 
@@ -165,28 +166,16 @@ def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, 
     flips = np.flatnonzero(trials["final_heading"] > L.FLIP_DEG)
     entry["heading_flips"] = {"count": int(flips.size), "trials": [int(i) for i in flips]}
     if name in PUBLISHED_OF and config == L.LocalizationConfig(steady=config.steady) and config.steady == 20.0:
-        # Only on the published scenario (40 s, t >= 20 s). Both figures are Monte Carlo estimates, ukfm's from
-        # PUBLISHED_RUNS runs of its own: its standard error is taken as ours scaled to its number of runs (the
-        # same spread across trials), and the two agree within Monte Carlo error when their difference is within
-        # 1.96 standard errors of a difference.
+        # Only on the published scenario (40 s, t >= 20 s), within Monte Carlo error (versus_published).
         pub = L.PUBLISHED[PUBLISHED_OF[name]]
         entry["published"] = {"which": PUBLISHED_OF[name], "runs": PUBLISHED_RUNS, "same_runs": same_runs,
                               "overlapping_runs": overlap}
         for key, pkey in (("heading_rms", "heading_deg"), ("position_rms", "position_m")):
-            lo, hi = entry[key]["pooled_interval"]
-            ours = entry[key]["pooled"]
             entry["published"][pkey] = pub[pkey]
-            if lo is None or ours is None:
-                entry["published"][f"{pkey}_z"], entry["published"][f"{pkey}_within"] = None, None
-                continue
-            entry["published"][f"{pkey}_difference"] = ours - pub[pkey]
-            # on ukfm's own runs the two figures share their Monte Carlo error: only the difference is reported
-            se = (hi - lo) / (2 * 1.96)
-            se_diff = se * np.sqrt(1.0 + n / PUBLISHED_RUNS)
-            # trials that include some of ukfm's are not independent of its figure: no z then either
-            z = None if same_runs or overlap or se_diff == 0 else abs(ours - pub[pkey]) / se_diff
-            entry["published"][f"{pkey}_z"] = None if z is None else json_number(z)
-            entry["published"][f"{pkey}_within"] = None if z is None else bool(z <= 1.96)
+            # trials that include some of ukfm's are not independent of its figure: no z then
+            cmp = versus_published(entry[key]["pooled"], entry[key]["pooled_interval"], n, pub[pkey],
+                                   PUBLISHED_RUNS, independent=not (same_runs or overlap))
+            entry["published"].update({f"{pkey}_{k}": v for k, v in cmp.items()})
     return entry
 
 

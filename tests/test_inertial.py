@@ -1,0 +1,198 @@
+"""ukfm's inertial-navigation benchmark rebuilt (liemef.studies.experiments.inertial) and its two studies,
+``liemef compare inertial-navigation`` and ``inertial-basin``.
+
+* The truth is the scenario's circle: the numbers the scenario file states (speed, lag, last position).
+* The true IMU integrates back to the truth through the system's continuous model (RKMK4 to round-off; Lie-Euler
+  converges at order 1).
+* ukfm's legacy stream gives ukfm's runs: the initial errors of its seeds 0-19.
+* The NEES of a sampled left error is 1, and ukfm's position NEES of a right-invariant filter is its formula.
+* The baselines on ukfm's own runs land on ukfm's per-seed figures; the studies run at tiny sizes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from liemef import cli
+from liemef.groups import SE23
+from liemef.simulation import simulate_core
+from liemef.studies.compare import InertialBasin, InertialComparison
+from liemef.studies.experiments import inertial as I
+from tolerances import ROUNDOFF
+
+
+def test_the_truth_is_ukfms_circle():
+    c = I.InertialConfig()
+    truth, u = I.simulate_truth(c)
+    C = np.asarray(truth.rotation().as_matrix())
+    v, p = np.asarray(truth.velocity()), np.asarray(truth.position())
+    assert np.all(C == np.eye(3))  # the true gyro is zero: no rotation at all
+    assert np.all(u[:, :3] == 0.0) and np.allclose(u[2:, 5], 9.82, atol=1e-9)
+    # scenario §1.3: at rest for two states, then 2 pi 5 / 29.99 m/s around the circle, 1.5 steps late
+    assert np.all(v[:2] == 0.0)
+    np.testing.assert_allclose(np.linalg.norm(v[2:], axis=1), 2 * math.pi * 5 / 29.99, rtol=1e-6)
+    t = np.linspace(0.0, 30.0, 3000)
+    q = 5.0 * np.column_stack([np.sin(2 * np.pi * t / 30), np.cos(2 * np.pi * t / 30), 0 * t])
+    np.testing.assert_allclose(p[2:], 0.5 * (q[1:-1] + q[:-2]), rtol=0, atol=3e-13)
+    np.testing.assert_allclose(p[-1], (-0.0157132, 4.9999726, 0.0), rtol=0, atol=1e-7)
+    assert np.all(p[:, 2] == 0.0)
+    # the launch spike of input 1 and the centripetal acceleration after it
+    np.testing.assert_allclose(u[1, 3:5], (104.7545967, -0.1097354), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(u[3:, 3:5], axis=1), 0.2194708, rtol=1e-5)
+
+
+def _integrate(c: I.InertialConfig, integrator: str, substeps: int):
+    """The system's continuous model driven by the true IMU, held over each interval."""
+    truth, u = I.simulate_truth(c)
+    u = jnp.asarray(np.concatenate([u, u[-1:]]))
+    g0 = jax.tree_util.tree_map(lambda a: a[0], truth)
+    held = lambda t: u[jnp.floor(t / c.dt + 1e-6).astype(int)]  # noqa: E731
+    got, _ = simulate_core(I.system_of(c), g0, held, jnp.asarray(c.ts), jax.random.key(0), substeps=substeps,
+                           integrator=integrator)
+    return float(np.max(np.abs(np.asarray(got.g.position()) - np.asarray(truth.position())))), truth, got
+
+
+def test_the_imu_integrates_back_to_the_truth():
+    c = I.InertialConfig(duration=3.0, steady=0.0)
+    # RKMK4 integrates a constant acceleration exactly: ukfm's step is the exact solution
+    err, truth, got = _integrate(c, "rkmk4", 1)
+    assert err < 1e-11
+    np.testing.assert_allclose(np.asarray(got.g.velocity()), np.asarray(truth.velocity()), rtol=0, atol=1e-11)
+    # Lie-Euler drops a dt^2 / 2 per step: first order, the error halves with the step
+    errs = [_integrate(c, "lie-euler", n)[0] for n in (1, 2, 4)]
+    slopes = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+    np.testing.assert_allclose(slopes, 1.0, atol=0.05)
+    assert 1e-4 < errs[0] < 1e-2
+
+
+def test_ukfms_stream_gives_ukfms_runs():
+    c = I.InertialConfig()
+    for seed, (att, pos) in enumerate(I.PUBLISHED_INITIAL_ERRORS):
+        d = I.numpy_draws(c, seed)
+        assert d.gyro.shape == (2999, 3) and d.obs.shape == (29, 9)
+        assert math.degrees(c.rot0_std * float(np.linalg.norm(d.rot0))) == pytest.approx(att, abs=0.006)
+        assert c.p0_std * float(np.linalg.norm(d.p0)) == pytest.approx(pos, abs=6e-4)
+    # the log: observations only at n = 100, ..., 2900, the estimate's velocity exact
+    truth, u = I.simulate_truth(c)
+    log, g0 = I.sensor_log(c, truth, u, I.numpy_draws(c, 0))
+    present = np.flatnonzero(np.all(np.isfinite(np.asarray(log.ys)), axis=1))
+    assert present.tolist() == list(range(100, 3000, 100))
+    assert np.all(np.asarray(g0.velocity()) == 0.0)
+    assert math.degrees(float(np.linalg.norm(np.asarray(g0.rotation().log())))) == pytest.approx(18.87, abs=0.006)
+    # an observation is each landmark in the body frame plus 0.1 m noise
+    n = 1500
+    rel = np.asarray(I.LANDMARKS) - np.asarray(truth.position())[n]
+    np.testing.assert_allclose(np.asarray(log.ys)[n], rel.reshape(-1) + 0.1 * np.asarray(I.numpy_draws(c, 0).obs)[14],
+                               rtol=0, atol=ROUNDOFF)
+
+
+def test_nees_of_a_sampled_left_error_is_one_and_ukfms_right_nees_is_its_formula():
+    rng = np.random.default_rng(3)
+    g_hat = SE23.exp(jnp.asarray(rng.normal(size=9) * np.array([0.8] * 3 + [1.0] * 3 + [4.0] * 3)))
+    A = rng.normal(size=(9, 9))
+    K = 1e-4 * (A @ A.T + np.eye(9))
+    xi = rng.multivariate_normal(np.zeros(9), K, size=20000)
+    g = g_hat @ SE23.exp(jnp.asarray(xi))
+    gh = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (20000, *a.shape)), g_hat)
+    ser = np.asarray(I.series(g, gh, jnp.broadcast_to(jnp.asarray(K), (20000, 9, 9))))
+    assert ser[:, 3].mean() == pytest.approx(1.0, abs=0.04)  # attitude
+    assert ser[:, 4].mean() == pytest.approx(1.0, abs=0.04)  # position, first-order map
+    np.testing.assert_array_equal(ser[:, 5], ser[:, 4])  # a left filter: ukfm's is the same
+    # a right-invariant filter: ukfm maps its covariance P = Ad K Ad^T with M[p, phi] = +[p_hat]_x
+    right = np.asarray(I.series(g, gh, jnp.broadcast_to(jnp.asarray(K), (20000, 9, 9)), right=True))
+    np.testing.assert_array_equal(right[:, :5], ser[:, :5])
+    Ad = np.asarray(g_hat.Ad())
+    P = Ad @ K @ Ad.T
+    ph = np.asarray(g_hat.position())
+    S = np.array([[0, -ph[2], ph[1]], [ph[2], 0, -ph[0]], [-ph[1], ph[0], 0]])
+    M = np.eye(9)
+    M[6:9, 0:3] = S
+    Pp = (M @ P @ M.T)[6:9, 6:9]  # ukfm's velocity row [v_hat]_x does not enter this block
+    e_p = np.asarray(g.position()) - ph
+    want = np.einsum("ki,ij,kj->k", e_p, np.linalg.inv(Pp), e_p) / 3
+    np.testing.assert_allclose(right[:, 5], want, rtol=1e-9)
+    assert abs(right[:, 5].mean() - 1.0) > 0.1  # the plus sign is not the first-order map
+
+
+def test_bad_settings_are_named():
+    with pytest.raises(ValueError, match="obs_period"):
+        I.InertialConfig(obs_period=0.015)
+    with pytest.raises(ValueError, match="landmarks"):
+        I.InertialConfig(landmarks=((0.0, 1.0),))
+    with pytest.raises(ValueError, match="imu_std"):
+        I.InertialConfig(imu_std=(0.01, -1.0))
+    with pytest.raises(ValueError, match="rng"):
+        InertialComparison(rng="matlab")
+    with pytest.raises(ValueError, match="filters"):
+        InertialComparison(filters="mef,kalman")
+    with pytest.raises(ValueError, match="angles_deg"):
+        InertialBasin(angles_deg=(0.0, 181.0))
+    with pytest.raises(ValueError, match="prior_std_deg"):
+        InertialBasin(prior_std_deg=0.0)
+
+
+@pytest.mark.slow  # about 3 min on a shared core: two compilations of a 300-step scan
+def test_compare_inertial_navigation_at_a_tiny_size(tmp_path):
+    out = tmp_path / "ins"
+    res = CliRunner().invoke(cli.cli, ["compare", "inertial-navigation", "--runs", "2", "--set", "duration=3",
+                                       "--set", "steady=1", "--filters", "iekf-right,ekf", "--out", str(out),
+                                       "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("inertial.md", "inertial.csv", "inertial.json", "arrays.npz", "fig_errors.png"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "inertial.json").read_text())
+    assert list(meta["filters"]) == ["iekf-right", "ekf"]
+    arrays = np.load(out / "arrays.npz")
+    assert arrays["attitude_rms"].shape == (2, 2) and arrays["bands"].shape == (2, 3, 300, 2)
+    for i, (name, e) in enumerate(meta["filters"].items()):
+        assert e["healthy"] == 2 and "published" not in e  # 3 s is not ukfm's scenario
+        assert e["attitude_rms"]["mean"] == pytest.approx(np.mean(arrays["attitude_rms"][i]))
+        # two observations in 3 s bring a 15 deg / 1 m start within a few degrees and decimetres
+        assert e["attitude_rms_steady"]["pooled"] < 10.0 and e["position_rms_steady"]["pooled"] < 1.0, name
+    winner = meta["winners"]["attitude rms, all n"]["winner"]
+    assert winner == min(meta["filters"], key=lambda n: meta["filters"][n]["attitude_rms"]["mean"])
+    md = (out / "inertial.md").read_text()
+    assert "| iekf-right |" in md and "## Winners" in md and "NaN" not in md
+
+
+@pytest.mark.slow  # about 1.5 min on a shared core
+def test_compare_inertial_basin_at_a_tiny_size(tmp_path):
+    out = tmp_path / "insbasin"
+    res = CliRunner().invoke(cli.cli, ["compare", "inertial-basin", "--runs", "3", "--set", "duration=4", "--set",
+                                       "angles_deg=0,179", "--set", "tolerance_deg=10", "--filters", "iekf-right",
+                                       "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("inertial_basin.md", "inertial_basin.csv", "inertial_basin.json", "arrays.npz",
+              "fig_basin_inertial_navigation.png"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "inertial_basin.json").read_text())
+    rows = meta["systems"]["inertial-navigation"]["filters"]["iekf-right"]["angles"]
+    assert [r["angle_deg"] for r in rows] == [0.0, 179.0]
+    assert rows[0]["converged"] == 3 and rows[0]["failed"] == 0
+    for r in rows:
+        assert r["trials"] == 3 and r["wilson95"][0] <= r["fraction"] <= r["wilson95"][1]
+    md = (out / "inertial_basin.md").read_text()
+    assert "| iekf-right |" in md and "NEES per degree of freedom" in md
+
+
+def test_the_local_chart_of_se23_is_so3_times_r6():
+    from liemef.filters.baselines import retraction
+    from liemef.groups import SO3
+
+    plus, minus = retraction("local")
+    rng = np.random.default_rng(5)
+    g = SE23.exp(jnp.asarray(rng.normal(size=9)))
+    e = jnp.asarray(0.3 * rng.normal(size=9))
+    g2 = plus(g, e)
+    np.testing.assert_allclose(np.asarray(g2.rotation().as_matrix()),
+                               np.asarray((g.rotation() @ SO3.exp(e[:3])).as_matrix()), rtol=0, atol=ROUNDOFF)
+    np.testing.assert_allclose(np.asarray(g2.velocity()), np.asarray(g.velocity() + e[3:6]), rtol=0, atol=ROUNDOFF)
+    np.testing.assert_allclose(np.asarray(g2.position()), np.asarray(g.position() + e[6:9]), rtol=0, atol=ROUNDOFF)
+    np.testing.assert_allclose(np.asarray(minus(g2, g)), np.asarray(e), rtol=0, atol=ROUNDOFF)
