@@ -214,3 +214,65 @@ def test_enu_closed_forms():
     north = geodetic_to_enu(52.0 + math.degrees(d), 4.3, 0.0, (52.0, 4.3, 0.0))[0]
     np.testing.assert_allclose(east, [N * math.cos(phi) * d, 0.0, 0.0], atol=1e-6)
     np.testing.assert_allclose(north, [0.0, M * d, 0.0], atol=1e-6)
+
+
+def write_planar_bag(path):
+    """A ROS 2 bag: /odom at 100 Hz driving east at 1 m/s for 0.5 s, /fix at 10 Hz on that line."""
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    V3, Q, P = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Point"]
+
+    def header(ns):
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=T0 + ns // 10**9,
+                                                                               nanosec=ns % 10**9), frame_id="b")
+
+    z9, z36 = np.zeros(9), np.zeros(36)
+    lat0, lon0 = 52.0, 4.3
+    east_deg = math.degrees(1.0 / (WGS84_A * math.cos(math.radians(lat0))))  # about 1 m of longitude
+    with Writer2(path, version=9) as w:
+        odom = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=store)
+        fix = w.add_connection("/fix", "sensor_msgs/msg/NavSatFix", typestore=store)
+        for k in range(50):
+            ns = k * 10_000_000
+            msg = T["nav_msgs/msg/Odometry"](
+                header=header(ns), child_frame_id="b",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=T["geometry_msgs/msg/Pose"](
+                    position=P(0.0, 0.0, 0.0), orientation=Q(0.0, 0.0, 0.0, 1.0)), covariance=z36),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                    linear=V3(1.0, 0.0, 0.0), angular=V3(0.0, 0.0, 0.0)), covariance=z36))
+            w.write(odom, T0 * 10**9 + ns, store.serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+            if k % 10 == 5:
+                msg = T["sensor_msgs/msg/NavSatFix"](
+                    header=header(ns + 1_000_000), status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+                    latitude=lat0, longitude=lon0 + east_deg * (ns + 1_000_000) / 1e9, altitude=0.0,
+                    position_covariance=z9, position_covariance_type=0)
+                w.write(fix, T0 * 10**9 + ns, store.serialize_cdr(msg, "sensor_msgs/msg/NavSatFix"))
+    return path
+
+
+def test_cli_run_filters_a_bag_and_writes_a_tum_trajectory(tmp_path):
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+    from liemef.reports.io import read_tum
+
+    bag = write_planar_bag(tmp_path / "planar")
+    topics = tmp_path / "topics.json"
+    topics.write_text(json.dumps({"/odom": {}, "/fix": {"origin": [52.0, 4.3, 0.0]}}))
+    run = lambda *a: CliRunner().invoke(cli, ["run", "--system", "localization", "--log", str(bag), *a,  # noqa: E731
+                                              "--no-progress"], catch_exceptions=False)
+    res = run("--topics", str(topics), "--tum", "--out", str(tmp_path / "out"))
+    assert res.exit_code == 0, res.output
+    est = np.loadtxt(tmp_path / "out" / "estimates.csv", delimiter=",", skiprows=1)
+    ts, (p, q) = read_tum(tmp_path / "out" / "estimates.tum")
+    assert ts.shape == (55,)  # 50 odometry samples and 5 fixes between them
+    np.testing.assert_array_equal(ts, est[:, 0])
+    np.testing.assert_array_equal(p[:, :2], est[:, 2:4])  # (x, y, 0): SE(2) lifted to 3D
+    np.testing.assert_array_equal(p[:, 2], 0.0)
+    np.testing.assert_allclose(2 * np.arctan2(q[:, 2], q[:, 3]), est[:, 1], atol=ROUNDOFF)  # yaw about z
+    assert abs(p[-1, 0] - 0.49) < 0.05  # 1 m/s for 0.49 s, fixes on the same line
+    res = run("--out", str(tmp_path / "out2"))
+    assert res.exit_code != 0 and "is a ROS bag: give --topics MAPPING.json" in res.output
+    topics.write_text(json.dumps({"/odom": {}, "/gps": {}}))
+    res = run("--topics", str(topics), "--out", str(tmp_path / "out2"))
+    assert res.exit_code != 0 and "'--topics'" in res.output and "expected a topic of the bag" in res.output
