@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
@@ -32,9 +33,9 @@ def rng_values():
             "quat": rng.normal(size=(len(POSE_NS), 4))}
 
 
-def write_bag(path, ros1: bool):
-    """A bag with /imu (Imu), /odom (Odometry) at the IMU times (bag time = stamp + 1 ms), /fix (NavSatFix),
-    /pose (PoseStamped) and /temp (std_msgs/Float64, no header)."""
+def write_bag(path, ros1: bool, mcap: bool = False):
+    """A bag (ROS 1, or ROS 2 in SQLite or MCAP storage) with /imu (Imu), /odom (Odometry) at the IMU times (bag
+    time = stamp + 1 ms), /fix (NavSatFix), /pose (PoseStamped) and /temp (std_msgs/Float64, no header)."""
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     T = store.types
     V3, Q, P = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Point"]
@@ -69,7 +70,8 @@ def write_bag(path, ros1: bool):
     for k, ns in enumerate(POSE_NS):
         msgs["/pose"].append((ns, T["geometry_msgs/msg/PoseStamped"](
             header=header(ns), pose=Pose(position=P(*v["pos"][k]), orientation=Q(*v["quat"][k])))))
-    writer = Writer1(path) if ros1 else Writer2(path, version=9)
+    plugin = StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3
+    writer = Writer1(path) if ros1 else Writer2(path, version=9, storage_plugin=plugin)
     with writer as w:
         for topic, items in msgs.items():
             typ = items[0][1].__msgtype__
@@ -80,10 +82,11 @@ def write_bag(path, ros1: bool):
     return path
 
 
-@pytest.fixture(scope="module", params=["ros1", "ros2"])
+@pytest.fixture(scope="module", params=["ros1", "ros2", "ros2-mcap"])
 def bag(request, tmp_path_factory):
     ros1 = request.param == "ros1"
-    return write_bag(tmp_path_factory.mktemp("bags") / ("test.bag" if ros1 else "test_ros2"), ros1)
+    return write_bag(tmp_path_factory.mktemp("bags") / ("test.bag" if ros1 else request.param), ros1,
+                     mcap=request.param == "ros2-mcap")
 
 
 def test_imu_and_fixes_fill_inertial_navigation_on_the_union_of_their_times(bag):
