@@ -177,6 +177,8 @@ def test_the_log_starts_when_every_input_has_a_sample(bag):
     ({"/fix": {}}, r"mapping: expected every input column filled by a topic, got no topic for \['gyro_x'"),
     ({"/imu": {}, "/odom": {"columns": {"gyro_x": "twist.twist.angular.x"}}}, r"column 'gyro_x' is filled by "
                                                                               r"topic '/imu' already"),
+    ({"/imu": {}, "/fix": {"columns": {"gnss_x": "orientation.r11"}}}, r"\['gnss_x'\]: expected a field of the "
+                                                                         r"message, got 'orientation'"),
     ({"/imu": {"stamp": "now"}}, r"\['stamp'\]: expected 'header' or 'bag', got 'now'"),
     ({"/imu": {}, "/fix": {"origin": [52.0, 4.3]}}, r"\['origin'\]: expected \[latitude_deg, longitude_deg, "
                                                     r"altitude_m\], got \[52.0, 4.3\]"),
@@ -279,3 +281,24 @@ def test_cli_run_filters_a_bag_and_writes_a_tum_trajectory(tmp_path):
     topics.write_text(json.dumps({"/odom": {}, "/gps": {}}))
     res = run("--topics", str(topics), "--out", str(tmp_path / "out2"))
     assert res.exit_code != 0 and "'--topics'" in res.output and "expected a topic of the bag" in res.output
+
+
+def test_a_zero_quaternion_is_named(tmp_path):
+    # The test bag's /imu orientation is the identity; a bag whose IMU sends no orientation (all zeros) is refused
+    # with the topic, the column and the field when that orientation is mapped.
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+    with Writer2(tmp_path / "zero", version=9) as w:
+        conn = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
+        for k in range(2):
+            msg = T["sensor_msgs/msg/Imu"](
+                header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=k, nanosec=0), frame_id="b"),
+                orientation=Q(0.0, 0.0, 0.0, 0.0), orientation_covariance=np.zeros(9), angular_velocity=V3(0, 0, 0),
+                angular_velocity_covariance=np.zeros(9), linear_acceleration=V3(0, 0, 0),
+                linear_acceleration_covariance=np.zeros(9))
+            w.write(conn, k * 10**9, store.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+    with pytest.raises(ValueError, match=r"mapping\['/imu'\]\['columns'\]\['y1'\]: orientation: expected a nonzero "
+                                         r"quaternion, got .* at 'orientation'"):
+        read_bag(tmp_path / "zero", {"/imu": {"columns": {"u1": "angular_velocity.x", "y1": "orientation.r11"}}},
+                 1, 1)

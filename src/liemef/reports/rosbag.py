@@ -251,7 +251,10 @@ def _value(msg, path: str, where: str, enu: np.ndarray | None) -> float:
         q = _field(msg, head, where)
         if all(hasattr(q, a) for a in ("x", "y", "z", "w")):
             i, j = int(last[1]) - 1, int(last[2]) - 1
-            return float(quaternion_matrix(q.x, q.y, q.z, q.w)[i, j])
+            try:
+                return float(quaternion_matrix(q.x, q.y, q.z, q.w)[i, j])
+            except ValueError as err:  # e.g. an IMU without an orientation estimate sends zeros
+                raise ValueError(f"{where}: {err} at {head!r}") from err
     v = _field(msg, path, where)
     if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
         raise ValueError(f"{where}: expected a number at {path!r}, got {type(v).__name__}")
