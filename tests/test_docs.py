@@ -69,6 +69,7 @@ def test_site_builds_strict_with_every_page(site):
     ("codegen", "codegen", ["export_c", "CFilter", "state_leaves", "PRIMITIVES", "UnsupportedPrimitive"]),
     ("io", "reports.io", ["read_log"]),
     ("plots", "reports.plots", ["write_figures"]),
+    ("rosbag", "reports.rosbag", ["read_bag", "geodetic_to_enu", "DEFAULT_COLUMNS"]),
 ])
 def test_reference_pages_document_the_public_names(site, page, module, names):
     html = (site / "reference" / page / "index.html").read_text()

@@ -383,6 +383,9 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--log", "log_path", required=True, type=click.Path(path_type=Path),
               help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
                    "missing sample) or NPZ with ts, us, ys (or one time vector per sensor).")
+@click.option("--topics", type=click.Path(path_type=Path), help="With a ROS 1 .bag or a ROS 2 bag folder as "
+              "--log: the JSON/TOML mapping from topics to the system's columns (liemef.reports.rosbag).")
+@click.option("--tum/--no-tum", default=False, help="Also write the estimates as a TUM trajectory, estimates.tum.")
 @click.option("--out", required=True, type=click.Path(path_type=Path),
               help="Output folder (created if missing).")
 @click.option("--x0", help="Initial estimate in coordinates, comma separated (default: the system file's x0, "
@@ -404,8 +407,8 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--chunk", type=click.IntRange(min=16), default=65536, show_default=True,
               help="Samples per compiled chunk (progress is shown between chunks).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress on stderr.")
-def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection, order, alpha, interpolation,
-            updates, substeps, gap, chunk, progress):
+def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_diag, connection, order, alpha,
+            interpolation, updates, substeps, gap, chunk, progress):
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
@@ -419,10 +422,15 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
 
     system, label, description, measured, user = _resolve_system(system_name, system_file)
     n, c = system.group.tangent_dim, system.group.coords_dim
+    if topics is None and (log_path.is_dir() or log_path.suffix.lower() == ".bag"):
+        raise click.BadParameter(f"{log_path} is a ROS bag: give --topics MAPPING.json", param_hint="'--topics'")
     try:
-        log = io.read_log(log_path, system)
+        if tum:
+            from .metrics import pose_parts
+            pose_parts(system.group.identity((1,)))
+        log = io.read_log(log_path, system) if topics is None else _read_bag(log_path, topics, system)
     except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--log'") from err
+        raise click.BadParameter(str(err), param_hint="'--tum'" if err.args[0].startswith("g:") else "'--log'") from err
     if substeps != "auto":
         try:
             substeps = int(substeps)
@@ -522,13 +530,26 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                   [[float(t), *("" if math.isnan(v) else float(v) for v in row)] for t, row in zip(log.ts, innov,
                                                                                                     strict=True)])
     io.write_result(d, metrics, arrays)
+    if tum:
+        io.write_tum(d / io.TUM_FILE, log.ts, traj.g_hat)
     figs = plots.write_figures(d)
     click.echo("Innovation y - h(g_hat) over the present samples:")
     click.echo(table_text)
     click.echo(f"Sub-steps: {report['substeps_total']} over {report['steps']} intervals (at most "
                f"{report['substeps_max']} in one)")
     click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
-               f"{io.ARRAYS_FILE}, {', '.join(p.name for p in figs)} to {d}")
+               f"{io.ARRAYS_FILE}, {', '.join([p.name for p in figs] + [io.TUM_FILE] * tum)} to {d}")
+
+
+def _read_bag(path, topics, system):
+    from .reports.rosbag import read_bag
+
+    try:
+        return read_bag(path, topics, system)
+    except ValueError as err:
+        if err.args[0].startswith("mapping"):
+            raise click.BadParameter(str(err), param_hint="'--topics'") from err
+        raise
 
 
 C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"

@@ -11,7 +11,8 @@ Two error measures:
 :class:`ErrorTable` that prints and serializes itself. :func:`gain_stats` summarizes the symmetry and
 definiteness of a gain over a run; :func:`continuous_angles` prepares angle time series for figures.
 Consistency: :func:`left_error` (the error K is the covariance of), :func:`nees` and :func:`chi2_bounds`;
-:func:`wilson_interval` for a fraction of trials.
+:func:`wilson_interval` for a fraction of trials. Trajectories: :func:`pose_parts` (a position and a quaternion off
+any pose-like state) and :func:`ape_rpe`, the absolute and relative pose errors by evo's library.
 """
 
 from ._consistency import chi2_bounds, left_error, nees, wilson_interval
@@ -19,8 +20,9 @@ from ._errors import angle_mask, continuous_angles, coordinate_error, group_erro
 from ._gain import gain_stats
 from ._labels import group_error_labels, state_labels
 from ._stats import FULL, ErrorTable, Window, error_stats, error_table, window_mask
+from ._trajectory import ape_rpe, pose_parts
 
 __all__ = ["wrap_angle", "angle_mask", "coordinate_error", "state_error", "group_error", "state_labels",
            "group_error_labels", "Window", "FULL", "window_mask", "error_stats", "error_table", "ErrorTable",
            "continuous_angles", "gain_stats", "left_error", "nees", "chi2_bounds",
-           "wilson_interval"]
+           "wilson_interval", "pose_parts", "ape_rpe"]

@@ -2,5 +2,6 @@
 
 * :mod:`liemef.reports.io`: logs in (CSV, NPZ) and results out (JSON, NPZ, CSV), each file written whole or
   not at all;
+* :mod:`liemef.reports.rosbag`: ROS 1 and ROS 2 bags in, by a mapping from topics to the system's columns;
 * :mod:`liemef.reports.plots`: the figures (the only module that imports matplotlib here).
 """

@@ -21,6 +21,10 @@ Recorded logs (``liemef run``, :func:`read_log`):
   is one), or, with a time vector per sensor, ``ts``/``us`` for the inputs and ``NAME`` (N_s, k) with
   ``t_NAME`` (N_s,) for each sensor block NAME, merged onto the union of the times
   (:func:`merge_sensor_times`).
+* ROS 1 and ROS 2 bags: :func:`liemef.reports.rosbag.read_bag`.
+
+Trajectories out (and back in): :func:`write_tum` and :func:`read_tum`, the TUM RGB-D format
+``timestamp tx ty tz qx qy qz qw`` that evo, the TUM and EuRoC tools and most SLAM benchmarks read.
 """
 
 from __future__ import annotations
@@ -421,3 +425,56 @@ def write_log(path: str | os.PathLike, system, ts, us, ys) -> Path:
         w.writerow(layout.header)
         w.writerows([cell(v) for v in row] for row in np.column_stack([ts, us, ys]))
     return Path(path)
+
+
+# --- trajectories (TUM) --------------------------------------------------------------------------------------
+TUM_FILE = "estimates.tum"
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+
+
+def write_tum(path: str | os.PathLike, ts, g_hat) -> Path:
+    """Estimates ``g_hat`` (batch shape (N,)) at times ``ts`` (N,) in the TUM trajectory format, one line
+    ``timestamp tx ty tz qx qy qz qw`` per sample (full float64 precision, a ``#`` header line), written
+    atomically. The pose is read off by :func:`liemef.metrics.pose_parts`: SE(3) and SE_2(3) (its position),
+    SO(3) attitude states with a zero position, SE(2) and SO(2) lifted to 3D (a rotation about z, z = 0), or
+    the first factor of a product. ValueError (naming the argument) for another group, a shape mismatch or
+    non-finite values."""
+    from ..metrics import pose_parts
+
+    p, q = pose_parts(g_hat)
+    ts = np.asarray(ts, dtype=np.float64)
+    if ts.shape != (p.shape[0],):
+        raise ValueError(f"ts: expected shape ({p.shape[0]},) (one time per estimate), got {ts.shape}")
+    if not (np.isfinite(ts).all() and np.isfinite(p).all() and np.isfinite(q).all()):
+        raise ValueError("ts, g_hat: expected finite times and poses, got NaN or inf")
+    lines = [TUM_HEADER, *(" ".join(repr(float(v)) for v in row) for row in np.column_stack([ts, p, q]))]
+    return write_text(path, "\n".join(lines) + "\n")
+
+
+def read_tum(path: str | os.PathLike, name: str = "trajectory") -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """A TUM trajectory file: ``(ts (N,), (positions (N, 3), quaternions (N, 4) as x, y, z, w))``, the pair
+    :func:`liemef.metrics.ape_rpe` takes. Blank lines and lines starting with ``#`` are skipped; values may be
+    separated by spaces or commas. ValueError naming ``name``, the line and what it holds otherwise."""
+    p = _existing_file(path, name)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise ValueError(f"{name}: cannot read {str(p)!r} as text ({err})") from err
+    rows = []
+    for i, line in enumerate(text.splitlines()):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.replace(",", " ").split()
+        try:
+            row = [float(f) for f in fields]
+        except ValueError:
+            row = []
+        if len(row) != 8 or not all(np.isfinite(row)):
+            raise ValueError(f"{name}: expected 8 finite numbers 'timestamp tx ty tz qx qy qz qw' on line {i + 1} "
+                             f"of {str(p)!r}, got {line!r}")
+        rows.append(row)
+    if not rows:
+        raise ValueError(f"{name}: expected at least one pose line in {str(p)!r}, got none")
+    a = np.array(rows)
+    return a[:, 0], (a[:, 1:4], a[:, 4:8])
