@@ -48,15 +48,13 @@ from ...filters import CAUSES, Status
 from ...metrics import Window, error_stats, window_mask
 from ...metrics._stats import format_number, json_number
 from ...reports import io
+from ..registry import DEFAULT_BATCH_SIZE
 from ._base import EXPERIMENTS, Experiment, TrialSpec, config_dict, get_experiment
 
 STATS = ("mean", "std", "rms")
 """The per-trial statistics over time, in the order of the last axis of :attr:`MonteCarloResult.stats`."""
 PERCENTILES = (5, 25, 50, 75, 95)
 """The percentiles across trials that tables report."""
-DEFAULT_BATCH_SIZE = 8
-"""Trials per compiled batch. On a 2-core CPU, TSE(2) at 1 ms ran 8, 13, 21, 14 and 8 trials/s with batches
-of 1, 4, 8, 16 and 32 (larger batches also compile longer)."""
 SCHEMA = "liemef.montecarlo/1"
 """Version tag of the ``<stem>.json`` layout."""
 

@@ -44,6 +44,7 @@ from ...integrators import INTEGRATORS
 from ...metrics import FULL, Window, error_table, gain_stats, group_error, wilson_interval
 from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import RigidBodyAttitude
+from .. import registry
 from ._base import (
     PAPER_SUBSTEPS,
     Experiment,
@@ -471,9 +472,7 @@ QUICK = AttitudeConfig(duration=20.0, steady=(10.0, 20.0))
 """Reduced config for ``liemef reproduce all``: 20 s (the (0)-filter's transient is over by 10 s) at 1 ms."""
 
 ATTITUDE = register(Experiment(
-    name="attitude",
-    title="Rigid-body attitude on TSO(3) with two direction sensors, (0)- and (-)-connection filters",
-    paper="Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3",
+    **registry.card("attitude"),
     default_config=AttitudeConfig(),
     run_fn=run,
     trial_fn=trial_spec,

@@ -45,6 +45,7 @@ from ...reports import io
 from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import ChaplyginSleigh
 from ...systems.chaplygin import SENSORS, constraint_K0, se2r2_state
+from .. import registry
 from ._base import (
     PAPER_SUBSTEPS,
     Experiment,
@@ -736,9 +737,7 @@ _POSE = ("theta", "x", "y")
 _VEL = ("omega", "v")
 
 CHAPLYGIN = register(Experiment(
-    name="chaplygin",
-    title="Chaplygin sleigh on SE(2) x R^2, GPS (+ INS), (0)- and (-)-connections",
-    paper="Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6",
+    **registry.card("chaplygin"),
     default_config=ChaplyginConfig(),
     run_fn=run,
     trial_fn=trial_spec,

@@ -57,6 +57,7 @@ from ...metrics._stats import json_number
 from ...reports import io
 from ...simulation import SensorLog, Truth
 from ...systems import planar_localization
+from .. import registry
 from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 from ._montecarlo import MonteCarloResult, montecarlo
@@ -495,9 +496,7 @@ def reproduce(config: LocalizationConfig, out: Path, runs: int = 100, progress: 
 
 
 LOCALIZATION = register(Experiment(
-    name="localization",
-    title="Planar localization on SE(2): odometry at 100 Hz, GPS at 1 Hz, 45 deg initial heading error",
-    paper="ukfm 2D localization benchmark (Brossard, Barrau, Bonnabel); Barrau & Bonnabel 2017, Sec. IV",
+    **registry.card("localization"),
     default_config=LocalizationConfig(),
     run_fn=run,
     trial_fn=trial_spec,
