@@ -87,8 +87,9 @@ def format_progress(label: str, done: int, total: int, elapsed: float, eta: floa
 
 
 class ProgressLine:
-    """A progress display on a text stream (default stderr): on a terminal one line rewritten in place, else
-    (logs, pipes) one line at the first report, then at most every ``interval`` seconds, and at the end."""
+    """A progress display on a text stream (default stderr): on a terminal one line rewritten in place (drawn
+    by tqdm), else (logs, pipes) one line at the first report, then at most every ``interval`` seconds, and at
+    the end. The command line passes ``progress=True`` only when stderr is a terminal."""
 
     def __init__(self, label: str, stream: TextIO | None = None, interval: float = 5.0):
         self.label = label
@@ -97,7 +98,7 @@ class ProgressLine:
         isatty = getattr(self.stream, "isatty", None)
         self.tty = bool(isatty()) if callable(isatty) else False
         self._last: float | None = None
-        self._width = 0
+        self._bar = None
 
     def __call__(self, done: int, total: int, elapsed: float, eta: float | None) -> None:
         self.show(format_progress(self.label, done, total, elapsed, eta), elapsed, done >= total)
@@ -106,8 +107,15 @@ class ProgressLine:
         """Display ``line`` (rewritten in place on a terminal; elsewhere at most every ``interval`` s, and
         always when ``final``)."""
         if self.tty:
-            self.stream.write("\r" + line.ljust(self._width) + ("\n" if final else ""))
-            self._width = len(line)
+            from tqdm import tqdm
+
+            if self._bar is None:
+                self._bar = tqdm(file=self.stream, bar_format="{desc}", desc=line, leave=True, mininterval=0)
+            else:
+                self._bar.set_description_str(line, refresh=True)
+            if final:
+                self._bar.close()
+                self._bar = None
         elif final or self._last is None or elapsed - self._last >= self.interval:
             self.stream.write(line + "\n")
             self._last = elapsed
