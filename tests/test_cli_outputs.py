@@ -213,9 +213,31 @@ def test_python_m_liemef_is_the_command_line():
     assert res.returncode == 0 and res.stdout.startswith("liemef, version ")
 
 
-def test_a_bad_choice_is_reported_before_jax_is_imported():
-    code = ("import sys\nfrom liemef.cli import main\ntry:\n    main(['run', '--system', 'nope', '--log', 'x.csv', "
-            "'--out', 'o'])\nexcept SystemExit as e:\n    print('exit', e.code, 'jax' in sys.modules)\n")
+@pytest.mark.parametrize(("case", "shown"), [
+    ("bad choice", "'tse2'"),
+    ("missing log", "file not found"),
+    ("empty log", "an empty file"),
+    ("text as log", "expected a .csv or .npz file"),
+    ("missing system file", "'--system-file'"),
+    ("foreign --out", "files liemef did not write"),
+])
+def test_bad_input_is_reported_before_jax_is_imported(case, shown, tmp_path):
+    (tmp_path / "empty.csv").write_text("")
+    (tmp_path / "log.txt").write_text("t,v\n")
+    (tmp_path / "log.csv").write_text("t,v_x,v_y,omega,gps_x,gps_y\n0,1,0,0,,\n")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "mine.txt").write_text("")
+    args = {"bad choice": ["--system", "nope", "--log", tmp_path / "log.csv"],
+            "missing log": ["--system", "localization", "--log", tmp_path / "no.csv"],
+            "empty log": ["--system", "localization", "--log", tmp_path / "empty.csv"],
+            "text as log": ["--system", "localization", "--log", tmp_path / "log.txt"],
+            "missing system file": ["--system-file", tmp_path / "no.py", "--log", tmp_path / "log.csv"],
+            "foreign --out": ["--system", "localization", "--log", tmp_path / "log.csv"]}[case]
+    out = tmp_path / ("out" if case == "foreign --out" else "new")
+    argv = [str(a) for a in ["run", *args, "--out", out]]
+    code = (f"import sys\nfrom liemef.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit as e:\n"
+            "    print('exit', e.code, 'jax' in sys.modules)\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.stdout.strip() == "exit 2 False", res.stdout + res.stderr
-    assert "'tse2'" in res.stderr and "Traceback" not in res.stderr
+    assert shown in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "new").exists() and sorted(p.name for p in (tmp_path / "out").iterdir()) == ["mine.txt"]

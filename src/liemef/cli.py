@@ -278,6 +278,11 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     substeps = _substeps(substeps)
     if k0 is not None and not (math.isfinite(k0) and k0 >= 0):
         raise click.BadParameter(f"expected a number >= 0, got {k0}", param_hint="'--k0'")
+    _check_log_file(log_path)
+    if system_file is not None and not system_file.is_file():
+        raise click.BadParameter(f"expected a Python file defining `system`, got {str(system_file)!r} (not found)",
+                                 param_hint="'--system-file'")
+    target = outputs.claim(out, "run", force)
     from .reports import io
     from .studies import logs
 
@@ -289,7 +294,6 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
         raise click.BadParameter(str(err), param_hint="'--log'") from err
     q0 = _floats(x0, c, "'--x0'")
     K0 = _floats(k0_diag, n, "'--k0-diag'") if k0_diag is not None else k0
-    target = outputs.claim(out, "run", force)
     run = logs.filter_log(source, log, x0=q0, K0=K0, connection=connection, order=order, alpha=alpha,
                           interpolation=interpolation, updates=updates, substeps=substeps, gap=gap, chunk=chunk,
                           progress=progress, log_file=log_path)
@@ -309,6 +313,19 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                f"{run.report['substeps_max']} in one)")
     click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
                f"{io.ARRAYS_FILE}, {', '.join(p.name for p in written[4:])} to {target.path}")
+
+
+def _check_log_file(path: Path) -> None:
+    """What can be said of ``--log`` before JAX loads: that it is an existing .csv or .npz file, not empty."""
+    if not path.exists():
+        raise click.BadParameter(f"log: file not found: {str(path)!r}", param_hint="'--log'")
+    if not path.is_file():
+        raise click.BadParameter(f"log: expected a file, got a directory {str(path)!r}", param_hint="'--log'")
+    if path.suffix.lower() not in (".csv", ".npz"):
+        raise click.BadParameter(f"log: expected a .csv or .npz file, got {str(path)!r}", param_hint="'--log'")
+    if path.stat().st_size == 0:
+        raise click.BadParameter(f"log: expected a CSV or NPZ log, got an empty file {str(path)!r}",
+                                 param_hint="'--log'")
 
 
 @cli.command("export-c")
