@@ -114,12 +114,16 @@ def test_the_same_command_replaces_its_folder_and_another_is_refused_unless_forc
     assert "notes.txt" not in {p.name for p in mine.iterdir()} and outputs.verify(mine) == []
 
 
-def test_force_never_clears_the_working_folder(toy, tmp_path, monkeypatch):
-    (tmp_path / "x.txt").write_text("")
-    monkeypatch.chdir(tmp_path)
-    res = montecarlo(tmp_path, "--force")
-    assert res.exit_code == 2 and "refusing to clear" in res.output
-    assert (tmp_path / "x.txt").is_file()
+@pytest.mark.parametrize("content", [[], ["x.txt"]])
+def test_the_working_folder_is_never_replaced_even_with_force(toy, tmp_path, monkeypatch, content):
+    for name in content:
+        (tmp_path / name).write_text("")
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    for out in (tmp_path / "sub", tmp_path):  # the working folder and its parent
+        res = montecarlo(out, "--force")
+        assert res.exit_code == 2 and "give a folder of its own" in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*content, "sub"])
 
 
 @pytest.mark.parametrize("writer", ["write_npz", "write_text"])

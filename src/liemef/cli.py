@@ -47,7 +47,7 @@ class _Commands(click.Group):
         try:
             return super().invoke(ctx)
         except KeyboardInterrupt:
-            click.echo("Interrupted: nothing was written for the unfinished command.", err=True)
+            click.echo("Interrupted (exit status 130).", err=True)
             ctx.exit(EXIT_INTERRUPTED)
         except outputs.OutputRefused as err:
             raise click.BadParameter(str(err).removeprefix("--out: "), param_hint="'--out'") from err

@@ -90,6 +90,9 @@ def claim(out: str | os.PathLike, command: str, force: bool = False, name: str =
         raise OutputRefused(f"{name}: expected a directory, got an existing file {str(p)!r}")
     if not p.exists():
         return Target(p, command, replace=False)
+    if _protected(p):  # replaced by a rename: never the folder a shell or the user's files live in
+        raise OutputRefused(f"{name}: {str(p)!r} is the root, home or working folder (or one of its parents), which a "
+                            "command does not replace; give a folder of its own")
     entries = sorted(e.name for e in p.iterdir())
     if not entries:
         return Target(p, command, replace=True)
@@ -97,9 +100,6 @@ def claim(out: str | os.PathLike, command: str, force: bool = False, name: str =
     if owner == command:
         return Target(p, command, replace=True)
     if force:
-        if _protected(p):
-            raise OutputRefused(f"{name}: refusing to clear {str(p)!r} (the root, home or working folder or one of "
-                                "its parents), even with --force; give a folder of its own")
         return Target(p, command, replace=True)
     what = f"the output of `liemef {owner}`" if owner else \
         f"files liemef did not write for `{command}` ({', '.join(entries[:5])}{', ...' if len(entries) > 5 else ''})"
