@@ -61,6 +61,9 @@ from ..experiments import attitude as A
 from ._basins import basin_figure, convergence
 from ._common import FILTERS, check_counts, fmt, parse_names
 
+SCHEMA = "liemef.compare.attitude-basin/1"
+"""Version tag of ``attitude_basin.json``."""
+
 SYSTEMS = {
     "rigid-body": "Saccon et al. 2016's rigid body on TSO(3) (attitude, angular velocity; torque input, two "
                   "directions)",
@@ -409,7 +412,8 @@ def save(result: dict, out: str | Path) -> list[Path]:
     out = io.ensure_dir(out)
     header, rows = csv_rows(result)
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / "attitude_basin.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_json(out / "attitude_basin.json",
+                             {"schema": SCHEMA, **{k: v for k, v in result.items() if k != "arrays"}}),
                io.write_text(out / "attitude_basin.md", markdown(result)),
                io.write_rows(out / "attitude_basin.csv", header, rows)]
     arrays = io.read_arrays(out / "arrays.npz")
