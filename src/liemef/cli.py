@@ -278,6 +278,9 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     substeps = _substeps(substeps)
     if k0 is not None and not (math.isfinite(k0) and k0 >= 0):
         raise click.BadParameter(f"expected a number >= 0, got {k0}", param_hint="'--k0'")
+    if (system_name is None) == (system_file is None):
+        raise click.UsageError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
+                               f"own), got {'both' if system_name else 'neither'}")
     _check_log_file(log_path)
     if system_file is not None and not system_file.is_file():
         raise click.BadParameter(f"expected a Python file defining `system`, got {str(system_file)!r} (not found)",
