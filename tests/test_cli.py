@@ -244,7 +244,7 @@ def test_montecarlo_option_errors_are_click_errors(tmp_path):
 
 
 def test_set_values_take_the_type_of_the_config_field():
-    from liemef.cli import _settings
+    from liemef.studies.settings import parse_settings as _settings
 
     base = tse2.TSE2Config()
     got = _settings(("dt=0.01", "seed=4", "connection=minus", "K0_diag=1, 1, 1, 2,2,2", "steady=5 20"), base)

@@ -4,6 +4,7 @@ The startup time itself is measured (``time liemef --help``), not asserted; thes
 modules the help and version paths import.
 """
 
+import dataclasses
 import subprocess
 import sys
 import sysconfig
@@ -14,8 +15,11 @@ import pytest
 
 import liemef
 from liemef import cli
+from liemef.codegen import BACKENDS
 from liemef.connections import CARTAN_SCHOUTEN
-from liemef.filters import ORDERS
+from liemef.filters import INTERPOLATIONS, ORDERS, UPDATES
+from liemef.studies import registry
+from liemef.studies.compare import STUDIES
 from liemef.studies.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
 
 HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.studies.experiments", "liemef.reports.plots",
@@ -59,9 +63,9 @@ def test_help_and_version_answer_without_jax():
     assert "liemef, version " + liemef.__version__ in out
     for command in COMMANDS:
         assert f"  {command} " in out
-    for name, paper in cli.EXPERIMENT_PAPERS.items():  # the reproduce help lists every experiment with its paper
-        assert f"  {name:<14} {paper.split(',')[0]}" in out
-    assert "[" + "|".join(cli.SYSTEM_NAMES) + "]" in out  # run --system's choices
+    for name, study in registry.STUDIES["experiment"].items():  # the reproduce help lists every experiment
+        assert f"  {name:<14} {study.paper.split(',')[0]}" in out
+    assert "[" + "|".join(sorted(registry.SYSTEMS)) + "]" in out  # run --system's choices
 
 
 def _console_script() -> list[str]:
@@ -81,27 +85,59 @@ def test_the_console_script_lists_the_commands_without_importing_jax():
     assert not [m for m in imported if m.split(".")[0] in ("jax", "jaxlib") or m in HEAVY]
 
 
-def test_the_static_names_of_the_cli_match_the_registries():
-    """The help texts and choices come from tables in cli.py, so that they need no JAX: they are the registries'.
+def test_the_registry_is_what_the_library_registers():
+    """The JAX-free registry names and describes the studies and systems the library loads: the same names in
+    the same order, the same titles and papers, each entry's ``load()`` the library's object."""
+    experiments = registry.STUDIES["experiment"]
+    assert list(experiments) == [name for name in EXPERIMENTS if name in experiments] == list(EXPERIMENTS)[:6]
+    for name, study in experiments.items():
+        assert (study.title, study.paper) == (EXPERIMENTS[name].title, EXPERIMENTS[name].paper)
+        assert study.load() is EXPERIMENTS[name]
+    comparisons = registry.STUDIES["comparison"]
+    assert list(comparisons) == list(STUDIES)
+    for name, study in comparisons.items():
+        assert study.load() is STUDIES[name] and study.title == STUDIES[name].description
+        fields = {f.name for f in dataclasses.fields(STUDIES[name].settings)}
+        assert set(study.settings) <= fields - {"seed", "runs", "filters"}, name  # --set's help names real keys
+    assert sorted(registry.SYSTEMS) == sorted(SYSTEMS)
+    for name, description in registry.SYSTEMS.items():
+        assert SYSTEMS[name].description == description
+    assert registry.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
 
-    A new experiment or system needs its row in ``liemef.cli.EXPERIMENT_PAPERS`` / ``SYSTEM_NAMES``; the message
-    prints the tables to paste.
-    """
-    papers = {e.name: e.paper for e in EXPERIMENTS.values()}
-    assert list(cli.EXPERIMENT_PAPERS.items()) == list(papers.items()), f"update cli.EXPERIMENT_PAPERS = {papers!r}"
-    assert cli.SYSTEM_NAMES == tuple(sorted(SYSTEMS)), f"update cli.SYSTEM_NAMES = {tuple(sorted(SYSTEMS))!r}"
-    assert cli.CONNECTIONS == tuple(CARTAN_SCHOUTEN)
-    assert cli.ORDERS == tuple(ORDERS)
-    assert cli.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
-    from liemef.studies.compare import STUDIES
 
-    assert cli.COMPARE_STUDIES == tuple(STUDIES), f"update cli.COMPARE_STUDIES = {tuple(STUDIES)!r}"
-    params = {cmd: {p.name: p for p in cli.cli.commands[cmd].params} for cmd in COMMANDS}
-    assert list(params["reproduce"]["experiment"].type.choices) == [*sorted(EXPERIMENTS), "all"]
+def test_a_registered_experiment_must_agree_with_the_registry():
+    from liemef.studies.experiments import register
+
+    saved = dict(EXPERIMENTS)
+    with pytest.raises(ValueError, match="already registered"):
+        register(EXPERIMENTS["tse2"])
+    try:
+        del EXPERIMENTS["tse2"]
+        with pytest.raises(ValueError, match="expected the registry's title and paper"):
+            register(dataclasses.replace(saved["tse2-velocity"], name="tse2"))
+    finally:
+        EXPERIMENTS.clear()
+        EXPERIMENTS.update(saved)
+
+
+def test_the_choices_of_the_cli_are_the_registry():
+    """Every choice of the command line is generated from the registry and the library's names: nothing to copy
+    by hand when a study, a system or a connection is added."""
+    params = {cmd: {p.name: p for p in cli.cli.commands[cmd].params}
+              for cmd in (*COMMANDS, "compare", "schema", "dataset")}
+    assert list(params["reproduce"]["experiment"].type.choices) == [*sorted(registry.names("experiment")), "all"]
     assert list(params["montecarlo"]["experiment"].type.choices) == sorted(EXPERIMENTS)
-    assert list(params["run"]["system_name"].type.choices) == sorted(SYSTEMS)
-    assert list(params["export-c"]["system_name"].type.choices) == sorted(SYSTEMS)
+    assert list(params["compare"]["study"].type.choices) == list(STUDIES)
+    for cmd in ("run", "export-c", "schema"):
+        assert list(params[cmd]["system_name"].type.choices) == sorted(SYSTEMS)
+    for cmd in ("reproduce", "run", "export-c"):
+        assert list(params[cmd]["connection"].type.choices) == list(CARTAN_SCHOUTEN)
+        assert list(params[cmd]["order"].type.choices) == list(ORDERS)
+    assert list(params["run"]["interpolation"].type.choices) == list(INTERPOLATIONS)
+    assert list(params["run"]["updates"].type.choices) == list(UPDATES)
+    assert list(params["export-c"]["backend"].type.choices) == list(BACKENDS)
     assert params["montecarlo"]["batch_size"].default == DEFAULT_BATCH_SIZE
+    assert list(params["dataset"]["kind"].type.choices) == list(registry.DATASETS)
 
 
 def test_the_lazy_package_keeps_its_public_surface():

@@ -70,6 +70,10 @@ def test_site_builds_strict_with_every_page(site):
     ("io", "reports.io", ["read_log"]),
     ("plots", "reports.plots", ["write_figures"]),
     ("rosbag", "reports.rosbag", ["read_bag", "geodetic_to_enu", "DEFAULT_COLUMNS"]),
+    ("outputs", "reports.outputs", ["claim", "staged", "write_manifest", "verify"]),
+    ("studies", "studies.registry", ["Study", "STUDIES", "SYSTEMS", "declare", "names"]),
+    ("studies", "studies.logs", ["filter_log", "LogRun", "resolve_system"]),
+    ("studies", "studies.settings", ["parse_settings", "OptionError"]),
 ])
 def test_reference_pages_document_the_public_names(site, page, module, names):
     html = (site / "reference" / page / "index.html").read_text()

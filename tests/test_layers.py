@@ -99,7 +99,6 @@ def test_a_lower_layer_imports_no_higher_one(low, high):
     assert not graph.chain_exists(importer=low, imported=high, as_packages=True)
 
 
-@pytest.mark.xfail(strict=True, reason="the studies still draw their own figures: issue 18, reports apart")
 def test_only_the_reports_import_matplotlib():
     importers = set()
     for path in SRC.rglob("*.py"):

@@ -41,8 +41,9 @@ _ATTRS = {
 # Submodules reachable as attributes of the package without an explicit import.
 _SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "simulation", "filters", "codegen",
                          "engines", "metrics", "studies", "reports"})
-# Submodules that load without JAX: importing them does not run _config.
-_JAX_FREE = frozenset({"cli", "_config"})
+# Modules (dotted below the package) that load without JAX: importing them does not run _config.
+_JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "studies", "studies.registry", "reports",
+                        "reports.outputs"})
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
     from . import (  # noqa: F401
@@ -81,7 +82,7 @@ class _Float64First:
     @staticmethod
     def find_spec(fullname, path=None, target=None):
         package, _, rest = fullname.partition(".")
-        if package == __name__ and rest and rest.partition(".")[0] not in _JAX_FREE:
+        if package == __name__ and rest and rest not in _JAX_FREE:
             _enable_float64()
         return None
 

@@ -23,9 +23,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._linalg import mv
+from ._names import CONNECTIONS
 from .groups import LieGroup
 
-CARTAN_SCHOUTEN = {"minus": 0.0, "zero": 0.5, "plus": 1.0}
+CARTAN_SCHOUTEN = dict(zip(CONNECTIONS, (0.0, 0.5, 1.0), strict=True))
 """Named members of the Cartan-Schouten family and their coefficient c."""
 
 ConnectionFunction = Callable[[Float[Array, " n"], Float[Array, " n"]], Float[Array, " n"]]

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._names import C_BACKENDS
 from ..filters._base import AbstractFilter, FilterState
 from ..filters._status import CAUSES, DEFINITE_TOL
 from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
@@ -73,6 +74,33 @@ class ExportedC:
     group_params: int
     coords_dim: int
 
+    def api_summary(self, system) -> str:
+        """The exported C API with its sizes, the state's members, the status codes and the order of u and y
+        (``system``'s input and output names), as ``liemef export-c`` prints it."""
+        P, U = self.prefix, self.prefix.upper()
+        n, m, p = self.n, self.input_dim, self.output_dim
+        members = []
+        for f in self.fields:
+            size = "" if f.scalar else f"[{f.size}]"
+            members.append(f"{f.name}{size}" + (f" ({n} x {n}, row-major)" if f.name == "K" else ""))
+        codes = ", ".join(f"{i} {U}_{re.sub(r'[^A-Z]', '_', cause.upper()).strip('_')} ({cause})"
+                          for i, cause in enumerate(CAUSES))
+        return "\n".join([
+            f"C API ({P}.h; n = {n}, m = {m} inputs, p = {p} outputs, {self.group_params} group parameters, "
+            f"{self.coords_dim} coordinates):",
+            f"  {P}_state s;  /* {', '.join(members)} */",
+            f"  int  {P}_init({P}_state *s, const double *g0, const double *K0);  /* 0, or {U}_BAD_ARGUMENT (-1) */",
+            f"  int  {P}_step({P}_state *s, double t, double dt, const double *u, const double *y, const int *mask);",
+            f"  int  {P}_run({P}_state *s, int n, const double *ts, const double *us, const double *ys, "
+            "double *g_out, double *K_out);",
+            f"  void {P}_from_coords(const double *q, double *g);",
+            f"  void {P}_coords(const double *g, double *q);",
+            f"Status codes ({P}_step, {P}_run, s.code): {codes}",
+            f"u = ({', '.join(system.input_names) or 'none'})",
+            f"y = ({', '.join(system.output_names)}); mask[i] = 0 or a NaN in y: a missing component",
+            f"Build: cc -std=c99 -O2 -c {P}.c (link with -lm); no heap, no library but libm",
+        ])
+
 
 def _field_name(path) -> str:
     parts = []
@@ -101,7 +129,7 @@ def _dce(closed):
     return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
 
 
-BACKENDS = ("auto", "scalar", "array")
+BACKENDS = C_BACKENDS
 """The translators: ``"scalar"`` (straight-line code, with constants folded and zeros and common
 subexpressions removed: the fast one, :mod:`._scalar_c`), ``"array"`` (loops over arrays: compact code whose
 size grows with the number of operations, not of scalar operations, for large state dimensions;

@@ -13,6 +13,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mm, mv
+from .._names import INTERPOLATIONS, ORDERS, UPDATES
 from ..connections import Connection, ConnectionFunction
 from ..connections import connection as make_connection
 from ..groups import LieGroup
@@ -25,21 +26,8 @@ from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
 from ._update import sample_update
 
-ORDERS = ("second", "first")
-"""The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (without the Hessian
-term of E and W: the continuous-time left-invariant EKF)."""
-INTERPOLATIONS = ("hold", "linear")
-"""How inputs and density measurements vary inside a sample interval: held (zero-order hold, the papers') or
-linear between the interval's two samples (first-order hold, so that RKMK4's inner stages see current data)."""
-
-UPDATES = ("hold", "discrete")
-"""How a sample-meaning measurement enters: ``"hold"`` (its information spread over the interval after its time
-stamp, the papers' zero-order hold) or ``"discrete"`` (used at its own time: the hybrid minimum-energy filter's
-update, :mod:`liemef.filters._update`)."""
-
 # Sub-step budget per unit of stiffness (DESIGN.md §6): ||K E|| h, ||A|| h and the group step ||xi|| h.
 _KE_BUDGET, _A_BUDGET, _XI_BUDGET = 0.5, 0.5, 0.5
-
 
 
 class MinimumEnergyFilter(AbstractFilter):

@@ -3,5 +3,9 @@
 * :mod:`liemef.reports.io`: logs in (CSV, NPZ) and results out (JSON, NPZ, CSV), each file written whole or
   not at all;
 * :mod:`liemef.reports.rosbag`: ROS 1 and ROS 2 bags in, by a mapping from topics to the system's columns;
-* :mod:`liemef.reports.plots`: the figures (the only module that imports matplotlib here).
+* :mod:`liemef.reports.plots`: the state figures of a result folder, and saving a figure;
+* :mod:`liemef.reports.figures`: the studies' own figures (comparisons, paper figures), from saved arrays;
+* :mod:`liemef.reports.outputs`: output folders written whole, with a manifest.
+
+Only this layer imports matplotlib (``tests/test_layers.py``).
 """

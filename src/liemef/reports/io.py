@@ -342,8 +342,10 @@ def merge_sensor_times(ts_u, us, streams: Mapping[str, tuple[Any, Any]], layout:
 
 def _read_npz(p: Path, layout: LogLayout) -> RecordedLog:
     z = read_arrays(p, "log")
-    for key, a in z.items():
-        _validate.numeric(f"log {str(p)!r}: array {key!r}", a)
+    names = {"ts", "us", "ys"} | {n for n, _, _ in layout.blocks} | {f"t_{n}" for n, _, _ in layout.blocks}
+    for key, a in z.items():  # the log's own arrays; others (an experiment's names, units) are not read
+        if key in names:
+            _validate.numeric(f"log {str(p)!r}: array {key!r}", a)
     m, pdim = len(layout.inputs), len(layout.outputs)
     per_sensor = "ys" not in z and any(name in z for name, _, _ in layout.blocks)
     need = ["ts"] + (["us"] if m else []) + ([] if per_sensor else ["ys"])

@@ -213,3 +213,32 @@ def wifibot_to_log(run: WifibotRun, gps_rate: float = 1.0, gps_std: float = 0.1,
     ys[idx] = fixes
     us = np.stack([run.v, np.zeros(N), run.omega], axis=1)
     return io.RecordedLog(ts=run.ts.copy(), us=us, ys=ys)
+
+
+def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: str | os.PathLike | None = None,
+            seconds: float | None = None, gps_std: float = 0.1) -> tuple[io.RecordedLog, str, list[Path]]:
+    """A real recording as a log for ``liemef run``: ``kind`` ``"broad"`` (a BROAD ``.mat`` trial, system
+    ``attitude-bias``) or ``"wifibot"`` (a Wifibot ``.txt`` run with synthetic GPS of ``gps_std`` m, system
+    ``localization``), only its first ``seconds`` if given, written to ``out`` (``.csv`` or ``.npz``) and its
+    ground truth to ``truth`` (CSV). Returns the log, the ready system's name and the files written."""
+    from .experiments import get_system
+
+    if kind == "broad":
+        rec = broad(path)
+        rec = rec.head(seconds) if seconds else rec
+        log, name = broad_to_log(rec), "attitude-bias"
+        header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]
+        columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
+    elif kind == "wifibot":
+        rec = wifibot(path)
+        if seconds:
+            k = max(2, int(np.searchsorted(rec.ts, rec.ts[0] + seconds)))
+            rec = WifibotRun(rec.ts[:k], rec.v[:k], rec.omega[:k], rec.truth[:k], rec.name)
+        log, name = wifibot_to_log(rec, gps_std=gps_std), "localization"
+        header, columns = ["t", "theta", "x", "y"], [rec.ts, *rec.truth.T]
+    else:
+        raise ValueError(f"kind: expected 'broad' or 'wifibot', got {kind!r}")
+    written = [io.write_log(out, get_system(name).make(), log.ts, log.us, log.ys)]
+    if truth is not None:
+        written.append(io.write_csv(truth, header, columns))
+    return log, name, written

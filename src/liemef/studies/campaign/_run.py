@@ -59,7 +59,7 @@ class Progress:
     def format(self, name: str) -> str:
         """``"campaign NAME: 12/40 tasks (30%), 384/1280 trials, 2.1e+05 trial-steps/s, 12.3 s elapsed, ETA
         30.0 s"``."""
-        from ..experiments._montecarlo import format_seconds
+        from ..experiments import format_seconds
 
         pct = 100.0 * self.done / self.total if self.total else 100.0
         rate = "--" if self.rate is None else f"{self.rate:.3g}"
@@ -357,7 +357,7 @@ def _assemble(campaign: Campaign, store: Store, exp, points: list[Setting], conf
               elapsed: float) -> tuple[list, list[int]]:
     """Every setting's :class:`~liemef.studies.experiments.MonteCarloResult` from its tasks' files, checked again
     against the manifest: a campaign's result is built from recorded, verified tasks only."""
-    from ..experiments._montecarlo import TrialArrays, result_of
+    from ..experiments import TrialArrays, result_of
 
     done = store.finished()
     missing = [t.id for t in tasks if t.id not in done]

@@ -272,3 +272,23 @@ def _describe(holder: dict) -> str:
         return "a client that has not yet written its pid and host"
     return (f"pid {holder.get('pid', '?')} on host {holder.get('host', '?')}, running since "
             f"{holder.get('started', '?')}")
+
+
+def status_lines(campaign: Campaign) -> list[str]:
+    """How far ``campaign`` has come (``liemef campaign status``): finished tasks per setting, verified against
+    their checksums, any problem found, and whether its results are complete. Runs nothing; CampaignError when
+    the folder is another campaign's."""
+    if not (campaign.out / CAMPAIGN_FILE).exists():
+        return [f"campaign {campaign.name}: not started ({campaign.out} has no {CAMPAIGN_FILE}); "
+                f"{len(campaign.tasks())} tasks to run"]
+    store = Store.open(campaign)
+    done = store.finished()
+    tasks = campaign.tasks()
+    lines = list(store.problems)
+    for s in campaign.points():
+        mine = [t for t in tasks if t.setting == s.index]
+        lines.append(f"setting {s.index} ({s.label}): {sum(t.id in done for t in mine)}/{len(mine)} tasks")
+    complete = len(done) == len(tasks) and (campaign.out / RESULT_FILE).exists()
+    lines.append(f"campaign {campaign.name}: {len(done)}/{len(tasks)} tasks finished; "
+                 + ("complete" if complete else "incomplete: `liemef campaign run` resumes it"))
+    return lines

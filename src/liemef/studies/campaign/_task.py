@@ -76,7 +76,7 @@ def experiment_of(name: str | None, source: str | None, filename: str = "<experi
     """The experiment of a task or campaign: the registered ``name``, or the ``experiment`` defined by the
     file text ``source`` (executed once per process and text). CampaignError unless it has a Monte Carlo
     trial."""
-    from ..experiments._montecarlo import resolve_experiment
+    from ..experiments import resolve_experiment
 
     if source is not None:
         try:
@@ -103,7 +103,7 @@ def config_of(exp, quick: bool, overrides) -> Any:
 def run_task(task: TaskInput) -> TaskOutput:
     """Run one task on this process (a Dask worker, or the caller): its trials through the cached compiled
     batch of its setting (:func:`liemef.studies.experiments._montecarlo.run_trials`)."""
-    from ..experiments._montecarlo import run_trials
+    from ..experiments import run_trials
 
     t0 = time.perf_counter()
     exp = experiment_of(task.experiment, task.source, task.filename)

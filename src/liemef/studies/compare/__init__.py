@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from .. import registry
 from . import _attitude_basin, _basins, _broad, _inertial, _inertial_basin, _localization, _wifibot
 from ._attitude_basin import AttitudeBasin, compare_attitude_basin
 from ._basins import HeadingBasin, compare_heading_basin
@@ -44,27 +45,58 @@ class Study:
     save: Callable[[dict, Any], list]
 
 
-STUDIES = {
-    "localization": Study("ukfm's 2D localization benchmark: every filter on the same trials",
-                          LocalizationComparison, compare_localization, _localization.markdown, _localization.save),
-    "heading-basin": Study("convergence basin in the initial heading error (0-180 deg) on the same scenario",
-                           HeadingBasin, compare_heading_basin, _basins.markdown, _basins.save),
-    "attitude-basin": Study("convergence basin in the initial attitude error (0-180 deg) on TSO(3): rigid body and "
-                            "attitude + gyro bias", AttitudeBasin, compare_attitude_basin, _attitude_basin.markdown,
-                            _attitude_basin.save),
-    "inertial-navigation": Study("ukfm's inertial-navigation benchmark on SE_2(3): every filter on the same trials",
-                                 InertialComparison, compare_inertial, _inertial.markdown, _inertial.save),
-    "inertial-basin": Study("convergence basin in the initial attitude error (0-180 deg) on ukfm's inertial "
-                            "navigation", InertialBasin, compare_inertial_basin, _inertial_basin.markdown,
-                            _inertial_basin.save),
-    "broad": Study("the BROAD attitude recordings: the MEF, the EKF, the UKF-M, Madgwick and Mahony",
-                   BroadComparison, compare_broad, _broad.markdown, _broad.save),
-    "wifibot": Study("UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
-                     WifibotComparison, compare_wifibot, _wifibot.markdown, _wifibot.save),
+_PARTS = {
+    "localization": (LocalizationComparison, compare_localization, _localization.markdown, _localization.save),
+    "heading-basin": (HeadingBasin, compare_heading_basin, _basins.markdown, _basins.save),
+    "attitude-basin": (AttitudeBasin, compare_attitude_basin, _attitude_basin.markdown, _attitude_basin.save),
+    "inertial-navigation": (InertialComparison, compare_inertial, _inertial.markdown, _inertial.save),
+    "inertial-basin": (InertialBasin, compare_inertial_basin, _inertial_basin.markdown, _inertial_basin.save),
+    "broad": (BroadComparison, compare_broad, _broad.markdown, _broad.save),
+    "wifibot": (WifibotComparison, compare_wifibot, _wifibot.markdown, _wifibot.save),
 }
-"""The studies of ``liemef compare``."""
+STUDIES = {name: Study(registry.get("comparison", name).title, *_PARTS[name]) for name in registry.names("comparison")}
+"""The studies of ``liemef compare``, in the order of :mod:`liemef.studies.registry` (which names and
+describes them)."""
 
-__all__ = ["STUDIES", "Study", "FILTERS", "make_filter", "parse_filters", "paired_comparison", "bootstrap_interval",
+def failures(result: dict) -> tuple[list[str], int, int]:
+    """What failed in a comparison's ``result``: one line per filter (and system, recording, trial or angle)
+    that failed somewhere, the number of (filter, trial) pairs that failed and the number run."""
+    lines, failed, total = [], 0, 0
+    for sname, sysr in result.get("systems", {}).items():
+        for name, e in sysr["filters"].items():
+            n = sum(r["failed"] for r in e["angles"])
+            failed, total = failed + n, total + sum(r["trials"] for r in e["angles"])
+            if n:
+                lines.append(f"{sname}: {name} failed in {n} trials (counted as not converged)")
+    for rid, rec in result.get("recordings", {}).items():
+        for name, e in rec["filters"].items():
+            failed, total = failed + e["failed"], total + e["runs"]
+            if e["failed"]:
+                lines.append(f"recording {rid}: {name} failed on {e['failed']} of {e['runs']} seeds; left out of "
+                             "the statistics")
+    for tid, per in result.get("trials", {}).items():
+        for name, r in per["filters"].items():
+            failed, total = failed + (not r["ok"]), total + 1
+            if not r["ok"]:
+                lines.append(f"trial {tid}: {name} failed: {r['status']}; its errors are of the states before")
+    for name, e in result.get("filters", {}).items():
+        n = e.get("diverged", {}).get("count", 0)
+        if "runs" in e:
+            failed, total = failed + n, total + e["runs"]
+        if n:
+            first = e["diverged"]["trials"][0]
+            lines.append(f"{name}: {n} of {e['runs']} trials failed (first: trial {first['trial']}, "
+                         f"{first['cause']} at t = {first['time']:.3f} s); left out of the statistics")
+        for r in e.get("angles", []):
+            failed, total = failed + r["failed"], total + r["trials"]
+            if r["failed"]:
+                lines.append(f"{name}: {r['failed']} of {r['trials']} trials at {r['angle_deg']:g} deg failed "
+                             "(counted as not converged)")
+    return lines, failed, total
+
+
+__all__ = ["STUDIES", "Study", "failures", "FILTERS", "make_filter", "parse_filters", "paired_comparison",
+           "bootstrap_interval",
            "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
            "compare_heading_basin", "AttitudeBasin", "compare_attitude_basin", "BroadComparison", "compare_broad",
            "WifibotComparison", "compare_wifibot", "InertialComparison", "compare_inertial", "InertialBasin",

@@ -61,6 +61,9 @@ from ..experiments import attitude as A
 from ._basins import basin_figure, convergence
 from ._common import FILTERS, check_counts, fmt, parse_names
 
+SCHEMA = "liemef.compare.attitude-basin/1"
+"""Version tag of ``attitude_basin.json``."""
+
 SYSTEMS = {
     "rigid-body": "Saccon et al. 2016's rigid body on TSO(3) (attitude, angular velocity; torque input, two "
                   "directions)",
@@ -409,7 +412,9 @@ def save(result: dict, out: str | Path, stem: str = "attitude_basin") -> list[Pa
     out = io.ensure_dir(out)
     header, rows = csv_rows(result)
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / f"{stem}.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_json(out / f"{stem}.json",  # the inertial basin has the same layout under its own name
+                             {"schema": SCHEMA.replace("attitude-basin", stem.replace("_", "-")),
+                              **{k: v for k, v in result.items() if k != "arrays"}}),
                io.write_text(out / f"{stem}.md", markdown(result)),
                io.write_rows(out / f"{stem}.csv", header, rows)]
     arrays = io.read_arrays(out / "arrays.npz")

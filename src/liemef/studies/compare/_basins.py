@@ -28,8 +28,12 @@ import numpy as np
 from ...metrics import wilson_interval
 from ...metrics._stats import json_number
 from ...reports import io
+from ...reports.figures import basin_figure
 from ..experiments import localization as L
 from ._common import FILTERS, check_counts, fmt, make_filter, parse_filters
+
+SCHEMA = "liemef.compare.heading-basin/1"
+"""Version tag of ``basin.json``."""
 
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 DEFAULT_ANGLES = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 179.0)
@@ -163,29 +167,6 @@ def markdown(result: dict) -> str:
                               "converge.", ""])
 
 
-def basin_figure(arrays: dict, title: str = ""):
-    """Fraction converged and median time to converge against the initial heading error, per filter."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    a, names = arrays["angles_deg"], [str(n) for n in arrays["filters"]]
-    fig = Figure(figsize=(8, 6), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax1, ax2 = fig.subplots(2, 1, sharex=True)
-    for i, name in enumerate(names):
-        ax1.plot(a, arrays["fraction"][i], marker="o", lw=1.1, color=f"C{i}", label=name)
-        ax2.plot(a, arrays["time_median"][i], marker="o", lw=1.1, color=f"C{i}")
-    ax1.set_ylabel("fraction converged")
-    ax1.set_ylim(-0.03, 1.03)
-    ax2.set_ylabel("median time to converge [s]")
-    ax2.set_xlabel("initial heading error [deg]")
-    for ax in (ax1, ax2):
-        ax.grid(True, lw=0.3, alpha=0.5)
-    ax1.legend(fontsize="small", ncol=2)
-    fig.suptitle(title or "convergence basin in the initial heading error", fontsize="medium")
-    return fig
-
-
 def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     """One row per filter and angle."""
     header = ["filter", "angle_deg", "converged", "trials", "fraction", "wilson_lo", "wilson_hi", "failed",
@@ -202,7 +183,8 @@ def save(result: dict, out: str | Path) -> list[Path]:
     out = io.ensure_dir(out)
     header, rows = csv_rows(result)
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / "basin.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_json(out / "basin.json",
+                             {"schema": SCHEMA, **{k: v for k, v in result.items() if k != "arrays"}}),
                io.write_text(out / "basin.md", markdown(result)), io.write_rows(out / "basin.csv", header, rows)]
     written.append(plots.save_figure(basin_figure(io.read_arrays(out / "arrays.npz")), out / "fig_basin.png"))
     return written

@@ -42,10 +42,14 @@ import numpy as np
 from ...filters import MinimumEnergyFilter
 from ...filters.baselines import Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
+from ...reports.figures import broad_error_figure as error_figure
 from ...systems import attitude_gyro_bias
 from ...systems.attitude_bias import initial_estimate, magnetic_dip
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
+
+SCHEMA = "liemef.compare.broad/1"
+"""Version tag of ``broad.json``."""
 
 REFERENCE_ACCURACY_DEG = 0.35
 """The optical truth's accuracy (the dataset README's median agreement of the accelerometer at rest)."""
@@ -146,26 +150,6 @@ def error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray,
         x = err[(sec == k) & ok]
         out[k] = np.sqrt(np.mean(x**2))
     return out
-
-
-def error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
-    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(9, 4.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    for i, n in enumerate(names):
-        e = arrays[f"{trial}/{n}/error_1s"]
-        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
-    ax.set_yscale("log")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("total attitude error, rms per second [deg]")
-    ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.legend(fontsize="small", ncol=3)
-    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
-    return fig
 
 
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
@@ -270,7 +254,8 @@ def save(result: dict, out: str | Path) -> list[Path]:
     rows = [[t, n, r["ok"], r["total"], r["heading"], r["inclination"]]
             for t, per in result["trials"].items() for n, r in per["filters"].items()]
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / "broad.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_json(out / "broad.json",
+                             {"schema": SCHEMA, **{k: v for k, v in result.items() if k != "arrays"}}),
                io.write_text(out / "broad.md", markdown(result)),
                io.write_rows(out / "broad.csv", ["trial", "filter", "ok", "total_deg", "heading_deg",
                                                  "inclination_deg"], rows)]

@@ -28,6 +28,7 @@ from ...filters import CAUSES
 from ...metrics import chi2_bounds
 from ...metrics._stats import json_number
 from ...reports import io
+from ...reports.figures import comparison_band_figure as band_figure
 from ..experiments import localization as L
 from ._common import (
     FILTERS,
@@ -40,6 +41,9 @@ from ._common import (
     versus_published,
     winners_markdown,
 )
+
+SCHEMA = "liemef.compare.localization/1"
+"""Version tag of ``comparison.json``."""
 
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 PUBLISHED_OF = {"iekf": "iekf", "ukf-left": "iekf", "ekf": "ekf"}
@@ -300,30 +304,6 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     return header, rows
 
 
-def band_figure(arrays: dict, title: str = ""):
-    """|heading error| and position error over time: per filter the median and the 5-95 % band across the
-    healthy trials (log scale), from saved arrays."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ts, names, b = arrays["ts"], [str(n) for n in arrays["filters"]], arrays["bands"]
-    fig = Figure(figsize=(9, 6.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(2, 1, sharex=True)
-    colors = [f"C{i}" for i in range(len(names))]
-    for ax, k, label in zip(axes, (0, 1), ("|heading error| [deg]", "position error [m]"), strict=True):
-        for i, name in enumerate(names):
-            ax.fill_between(ts, b[i, 0, :, k], b[i, 2, :, k], color=colors[i], alpha=0.12, lw=0)
-            ax.plot(ts, b[i, 1, :, k], color=colors[i], lw=1.1, label=name)
-        ax.set_yscale("log")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    axes[0].legend(loc="upper right", fontsize="small", ncol=2)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle(title or "median and 5-95 % band across trials", fontsize="medium")
-    return fig
-
-
 def save(result: dict, out: str | Path) -> list[Path]:
     """Write ``comparison.json``, ``comparison.md``, ``comparison.csv``, ``arrays.npz`` and the figures
     (``fig_errors.png``, ``fig_optimum.png`` with the optimum) to ``out``; each file completely or not at all."""
@@ -333,7 +313,8 @@ def save(result: dict, out: str | Path) -> list[Path]:
     arrays = result["arrays"]
     meta = {k: v for k, v in result.items() if k != "arrays"}
     header, rows = csv_rows(result)
-    written = [io.write_npz(out / "arrays.npz", arrays), io.write_json(out / "comparison.json", meta),
+    written = [io.write_npz(out / "arrays.npz", arrays),
+               io.write_json(out / "comparison.json", {"schema": SCHEMA, **meta}),
                io.write_text(out / "comparison.md", markdown(result)),
                io.write_rows(out / "comparison.csv", header, rows)]
     st = result["study"]
@@ -341,7 +322,7 @@ def save(result: dict, out: str | Path) -> list[Path]:
                                                  f"ukfm 2D localization, {st['runs']} trials: median and 5-95 % "
                                                  "band"), out / "fig_errors.png"))
     if result.get("optimum"):
-        from ._optimum import optimum_figure
+        from ...reports.figures import optimum_figure
 
         written.append(plots.save_figure(optimum_figure(io.read_arrays(out / "arrays.npz")), out / "fig_optimum.png"))
     return written

@@ -61,26 +61,3 @@ def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords:
             "arrays": {"optimum_heading_deg": np.stack([np.mean(head[n], axis=0) for n in names]),
                        "optimum_position_m": np.stack([np.mean(pos[n], axis=0) for n in names]),
                        "optimum_filters": np.array(names)}}
-
-
-def optimum_figure(arrays: dict):
-    """Mean distance of each filter's estimate from the exact minimum-energy estimate over time (log scale),
-    from saved arrays."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ts, names = arrays["ts"], [str(n) for n in arrays["optimum_filters"]]
-    fig = Figure(figsize=(9, 6), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(2, 1, sharex=True)
-    for ax, key, label in zip(axes, ("optimum_heading_deg", "optimum_position_m"),
-                              ("heading distance to the MAP [deg]", "position distance to the MAP [m]"), strict=True):
-        for i, name in enumerate(names):
-            ax.plot(ts, np.maximum(arrays[key][i], 1e-12), color=f"C{i}", lw=1.0, label=name)
-        ax.set_yscale("log")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    axes[0].legend(fontsize="small", ncol=2)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle("distance to the exact minimum-energy estimate (mean over the trials)", fontsize="medium")
-    return fig

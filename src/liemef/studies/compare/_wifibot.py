@@ -40,6 +40,9 @@ from ._common import (
     winners_markdown,
 )
 
+SCHEMA = "liemef.compare.wifibot/1"
+"""Version tag of ``wifibot.json``."""
+
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ekf", "ukf-left")
 ODOMETRY_STD = (0.2, 0.05, 0.01)
 """Per-sample std at 50 Hz of (yaw rate rad/s, forward m/s, lateral m/s)."""
@@ -172,7 +175,8 @@ def save(result: dict, out: str | Path) -> list[Path]:
              e["nees_heading"]["mean"], e["nees_position"]["mean"]]
             for rid, rec in result["recordings"].items() for name, e in rec["filters"].items()]
     written = [io.write_npz(out / "arrays.npz", result["arrays"]),
-               io.write_json(out / "wifibot.json", {k: v for k, v in result.items() if k != "arrays"}),
+               io.write_json(out / "wifibot.json",
+                             {"schema": SCHEMA, **{k: v for k, v in result.items() if k != "arrays"}}),
                io.write_text(out / "wifibot.md", markdown(result)),
                io.write_rows(out / "wifibot.csv", ["recording", "filter", "healthy", "runs", "heading_rms_deg",
                                                    "position_rms_m", "nees_heading", "nees_position"], rows)]

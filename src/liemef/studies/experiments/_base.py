@@ -15,6 +15,7 @@ from ... import _validate
 from ...filters import ORDERS
 from ...integrators import INTEGRATORS
 from ...metrics import ErrorTable, Window
+from .. import registry
 
 SCHEMA = "liemef.metrics/1"
 """Version tag of the ``metrics.json`` layout (see :class:`Result`)."""
@@ -248,9 +249,18 @@ EXPERIMENTS: dict[str, Experiment] = {}
 
 
 def register(experiment: Experiment) -> Experiment:
-    """Add ``experiment`` to :data:`EXPERIMENTS` under its name and return it; a ValueError if the name is taken."""
+    """Add ``experiment`` to :data:`EXPERIMENTS` under its name and return it; a ValueError if the name is taken,
+    or if the name is declared in :mod:`liemef.studies.registry` with another title or paper. A name the
+    registry does not know is declared there, loading this object."""
     if experiment.name in EXPERIMENTS:
         raise ValueError(f"experiment {experiment.name!r} is already registered")
+    declared = registry.STUDIES["experiment"].get(experiment.name)
+    if declared is None:
+        registry.declare(registry.Study(experiment.name, "experiment", experiment.title, experiment.paper,
+                                        loader=lambda: experiment))
+    elif (declared.title, declared.paper) != (experiment.title, experiment.paper):
+        raise ValueError(f"experiment {experiment.name!r}: expected the registry's title and paper "
+                         f"{(declared.title, declared.paper)!r}, got {(experiment.title, experiment.paper)!r}")
     EXPERIMENTS[experiment.name] = experiment
     return experiment
 

@@ -48,15 +48,13 @@ from ...filters import CAUSES, Status
 from ...metrics import Window, error_stats, window_mask
 from ...metrics._stats import format_number, json_number
 from ...reports import io
+from ..registry import DEFAULT_BATCH_SIZE
 from ._base import EXPERIMENTS, Experiment, TrialSpec, config_dict, get_experiment
 
 STATS = ("mean", "std", "rms")
 """The per-trial statistics over time, in the order of the last axis of :attr:`MonteCarloResult.stats`."""
 PERCENTILES = (5, 25, 50, 75, 95)
 """The percentiles across trials that tables report."""
-DEFAULT_BATCH_SIZE = 8
-"""Trials per compiled batch. On a 2-core CPU, TSE(2) at 1 ms ran 8, 13, 21, 14 and 8 trials/s with batches
-of 1, 4, 8, 16 and 32 (larger batches also compile longer)."""
 SCHEMA = "liemef.montecarlo/1"
 """Version tag of the ``<stem>.json`` layout."""
 
@@ -89,8 +87,9 @@ def format_progress(label: str, done: int, total: int, elapsed: float, eta: floa
 
 
 class ProgressLine:
-    """A progress display on a text stream (default stderr): on a terminal one line rewritten in place, else
-    (logs, pipes) one line at the first report, then at most every ``interval`` seconds, and at the end."""
+    """A progress display on a text stream (default stderr): on a terminal one line rewritten in place (drawn
+    by tqdm), else (logs, pipes) one line at the first report, then at most every ``interval`` seconds, and at
+    the end. The command line passes ``progress=True`` only when stderr is a terminal."""
 
     def __init__(self, label: str, stream: TextIO | None = None, interval: float = 5.0):
         self.label = label
@@ -99,7 +98,7 @@ class ProgressLine:
         isatty = getattr(self.stream, "isatty", None)
         self.tty = bool(isatty()) if callable(isatty) else False
         self._last: float | None = None
-        self._width = 0
+        self._bar = None
 
     def __call__(self, done: int, total: int, elapsed: float, eta: float | None) -> None:
         self.show(format_progress(self.label, done, total, elapsed, eta), elapsed, done >= total)
@@ -108,8 +107,15 @@ class ProgressLine:
         """Display ``line`` (rewritten in place on a terminal; elsewhere at most every ``interval`` s, and
         always when ``final``)."""
         if self.tty:
-            self.stream.write("\r" + line.ljust(self._width) + ("\n" if final else ""))
-            self._width = len(line)
+            from tqdm import tqdm
+
+            if self._bar is None:
+                self._bar = tqdm(file=self.stream, bar_format="{desc}", desc=line, leave=True, mininterval=0)
+            else:
+                self._bar.set_description_str(line, refresh=True)
+            if final:
+                self._bar.close()
+                self._bar = None
         elif final or self._last is None or elapsed - self._last >= self.interval:
             self.stream.write(line + "\n")
             self._last = elapsed

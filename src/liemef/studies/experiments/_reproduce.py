@@ -118,6 +118,22 @@ class Failure:
     detail: str = ""
 
 
+def listing() -> str:
+    """Every registered experiment with its paper, figures, tables and Monte Carlo (``reproduce --list``)."""
+    lines = []
+    for e in EXPERIMENTS.values():
+        lines += [f"{e.name}: {e.title}", f"    paper:   {e.paper}"]
+        if e.figures:
+            lines.append("    figures: " + "; ".join(f"{f.filename}" + (f" ({f.paper_figure})" if f.paper_figure
+                                                                          else "") for f in e.figures))
+        if e.tables:
+            lines.append("    tables:  " + "; ".join(e.tables))
+        mc = f"yes (liemef montecarlo {e.name} --runs N)" if e.trial_fn is not None else "no"
+        lines.append(f"    Monte Carlo: {mc}; reproduce runs {e.runs} trial(s) by default, {e.quick_runs} with "
+                     "--quick")
+    return "\n".join(lines)
+
+
 def config_changes(config: Any, reference: Any) -> dict[str, tuple[Any, Any]]:
     """``{field: (value, reference value)}`` for the config fields that differ from ``reference``."""
     try:

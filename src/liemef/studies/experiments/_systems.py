@@ -10,6 +10,7 @@ import numpy as np
 
 from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, planar_localization
 from ...systems import attitude_bias as _attitude_bias
+from .. import registry
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
 
@@ -43,43 +44,30 @@ def _gps_state(ys) -> np.ndarray:
 
 SYSTEMS: dict[str, SystemSpec] = {
     "tse2": SystemSpec(
-        "tse2",
-        "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)",
+        "tse2", registry.SYSTEMS["tse2"],
         lambda: PlanarRigidBody(sensor="gps_imu"), lambda ys: measured_state("gps_imu", ys)),
     "tse2-velocity": SystemSpec(
-        "tse2-velocity", "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)",
+        "tse2-velocity", registry.SYSTEMS["tse2-velocity"],
         lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys)),
     "attitude": SystemSpec(
-        "attitude",
-        "rigid-body attitude on TSO(3) (Saccon et al. 2016), two body-frame directions of e3 and e2; input the "
-        "torque (3); the weights of the paper's experiment",
+        "attitude", registry.SYSTEMS["attitude"],
         lambda: attitude.setup(attitude.AttitudeConfig()).system, attitude.measured_state),
     "chaplygin": SystemSpec(
-        "chaplygin",
-        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS (omega, v); input "
-        "(u_omega, u_v); the weights of the paper's experiment",
+        "chaplygin", registry.SYSTEMS["chaplygin"],
         lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps_ins")),
         lambda ys: chaplygin.measured_state("gps_ins", ys)),
     "chaplygin-gps": SystemSpec(
-        "chaplygin-gps",
-        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS only (x1, y1, x2, y2); input (u_omega, u_v)",
+        "chaplygin-gps", registry.SYSTEMS["chaplygin-gps"],
         lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps")),
         lambda ys: chaplygin.measured_state("gps", ys)),
     "unit-circle": SystemSpec(
-        "unit-circle",
-        "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, -sin theta) "
-        "with D = 0.4 I; input the gyro reading (1)",
+        "unit-circle", registry.SYSTEMS["unit-circle"],
         lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, unit_circle.measured_state),
     "attitude-bias": SystemSpec(
-        "attitude-bias",
-        "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, rad/s), "
-        "normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default MEMS noise "
-        "levels and a dip of 68 deg (liemef.systems.attitude_bias)",
+        "attitude-bias", registry.SYSTEMS["attitude-bias"],
         attitude_gyro_bias, _attitude_bias.measured_state),
     "localization": SystemSpec(
-        "localization",
-        "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) with NaN "
-        "between fixes; the default noise levels (liemef.systems.localization)",
+        "localization", registry.SYSTEMS["localization"],
         planar_localization, _gps_state),
 }
 """Systems available to ``liemef run``, by name: each built as in its paper's experiment."""

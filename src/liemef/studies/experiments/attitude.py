@@ -42,8 +42,10 @@ from ...filters import MinimumEnergyFilter, Trajectory
 from ...groups import R3, SO3, TSO3
 from ...integrators import INTEGRATORS
 from ...metrics import FULL, Window, error_table, gain_stats, group_error, wilson_interval
+from ...reports import figures
 from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import RigidBodyAttitude
+from .. import registry
 from ._base import (
     PAPER_SUBSTEPS,
     Experiment,
@@ -381,36 +383,9 @@ def format_comparison(cmp: dict) -> str:
 
 # --- Fig. 3 -----------------------------------------------------------------------------------------------------
 def figure3(arrays: dict, steady: tuple[float, float] | None = None):
-    """Saccon et al. 2016, Fig. 3 from saved arrays: e_R [deg] and |e_Omega| of both connections on the same
-    axes, (0) black and (-) dashed red as in the paper; with ``steady`` a second column zooms on that window."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ts = np.asarray(arrays["ts"])
-    conns = [str(s) for s in arrays["connections"]]
-    styles = [dict(color="black", lw=0.9), dict(color="tab:red", lw=0.9, ls="--")]
-    ncols = 1 if steady is None else 2
-    fig = Figure(figsize=(6.5 * ncols, 5.2), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = np.asarray(fig.subplots(2, ncols, squeeze=False))
-    labels = (r"$e^R$ [deg]", r"$|e^\Omega|$ [rad/s]")
-    for col in range(ncols):
-        sel = np.ones(ts.shape, bool) if col == 0 else (ts >= steady[0]) & (ts <= steady[1])
-        for row in range(2):
-            ax = axes[row, col]
-            for conn, st in zip(conns, styles, strict=False):
-                ax.plot(ts[sel], np.asarray(arrays[f"attitude_error_{conn}"])[sel, row],
-                        label=f"{CONNECTION_LABEL.get(conn, conn)}-connection", **st)
-            ax.set_ylabel(labels[row])
-            ax.grid(True, lw=0.3, alpha=0.5)
-            ax.set_ylim(bottom=0.0)
-        axes[-1, col].set_xlabel("t [s]")
-        axes[0, col].set_title("whole run" if col == 0 else f"after the transient ({steady[0]:g}-{steady[1]:g} s)",
-                               fontsize="medium")
-    axes[0, 0].legend(loc="upper right", fontsize="small")
-    fig.suptitle("Attitude filter errors, both connections on the same data (Saccon et al. 2016, Fig. 3)",
-                 fontsize="medium")
-    return fig
+    """Saccon et al. 2016, Fig. 3 from saved arrays, drawn by :func:`liemef.reports.figures.attitude_figure3` with
+    this study's connection labels."""
+    return figures.attitude_figure3(arrays, steady, connection_labels=CONNECTION_LABEL)
 
 
 def write_figure3(out: str | os.PathLike) -> Path:
@@ -471,9 +446,7 @@ QUICK = AttitudeConfig(duration=20.0, steady=(10.0, 20.0))
 """Reduced config for ``liemef reproduce all``: 20 s (the (0)-filter's transient is over by 10 s) at 1 ms."""
 
 ATTITUDE = register(Experiment(
-    name="attitude",
-    title="Rigid-body attitude on TSO(3) with two direction sensors, (0)- and (-)-connection filters",
-    paper="Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3",
+    **registry.card("attitude"),
     default_config=AttitudeConfig(),
     run_fn=run,
     trial_fn=trial_spec,

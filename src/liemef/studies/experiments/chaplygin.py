@@ -41,10 +41,11 @@ import numpy as np
 from ... import _validate
 from ...filters import AbstractFilter, MinimumEnergyFilter, Trajectory
 from ...metrics import FULL
-from ...reports import io
+from ...reports import figures, io
 from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import ChaplyginSleigh
 from ...systems.chaplygin import SENSORS, constraint_K0, se2r2_state
+from .. import registry
 from ._base import (
     PAPER_SUBSTEPS,
     Experiment,
@@ -534,66 +535,9 @@ def figure_arrays(config: ChaplyginConfig, key, trial_index: int | None = None) 
 
 
 def figure(arrays) -> object:
-    """Figs. 3-6 of Rigo et al. 2023 from saved arrays (:func:`figure_arrays`): for each of theta, x, y, omega,
-    v the nominal (black), measured (blue), (0)-filtered (green) and (-)-filtered (red) trajectories on the left,
-    their errors on the right; the x-y path in the last row."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    ts = np.asarray(arrays["ts"])
-    names = [str(s) for s in arrays["names"]]
-    units = [str(s) for s in arrays["units"]]
-    colors = {"zero": "tab:green", "minus": "tab:red"}
-    sym = {"theta": r"\theta", "omega": r"\omega", "x": "x", "y": "y", "v": "v"}
-    fig = Figure(figsize=(11, 2.0 * (len(names) + 1) + 0.8), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = np.asarray(fig.subplots(len(names) + 1, 2, squeeze=False))
-    truth, meas = np.asarray(arrays["truth"]), np.asarray(arrays["measured"])
-    for k, name in enumerate(names):
-        ax = axes[k, 0]
-        if np.isfinite(meas[:, k]).any():
-            ax.plot(ts, meas[:, k], color="tab:blue", lw=0.3, alpha=0.5, label="measured", zorder=1)
-        ax.plot(ts, truth[:, k], color="black", lw=1.3, label="nominal", zorder=2)
-        for conn in CONNECTIONS:
-            ax.plot(ts, np.asarray(arrays[f"filtered_{conn}"])[:, k], color=colors[conn], lw=0.9, ls="--",
-                    label=f"filtered {LABEL[conn]}", zorder=3)
-        ref = np.concatenate([truth[:, k]] + [np.asarray(arrays[f"filtered_{c}"])[:, k] for c in CONNECTIONS])
-        lo, hi = float(np.nanmin(ref)), float(np.nanmax(ref))
-        pad = 0.25 * max(hi - lo, 1e-3)
-        ax.set_ylim(lo - pad, hi + pad)
-        ax.set_ylabel(f"${sym.get(name, name)}$ [{units[k]}]")
-        ax.grid(True, lw=0.3, alpha=0.5)
-        ax = axes[k, 1]
-        for conn in CONNECTIONS:
-            ax.plot(ts, np.asarray(arrays[f"error_{conn}"])[:, k], color=colors[conn], lw=0.7,
-                    label=f"{LABEL[conn]}")
-        ax.axhline(0.0, color="0.5", lw=0.5)
-        ax.set_ylabel(rf"$\delta {sym.get(name, name)}$ [{units[k]}]")
-        ax.grid(True, lw=0.3, alpha=0.5)
-    for k in (0, 1):
-        axes[-2, k].set_xlabel("t [s]")
-    ax = axes[-1, 0]
-    ax.plot(truth[:, 1], truth[:, 2], color="black", lw=1.3, label="nominal")
-    for conn in CONNECTIONS:
-        f = np.asarray(arrays[f"filtered_{conn}"])
-        ax.plot(f[:, 1], f[:, 2], color=colors[conn], lw=0.9, ls="--", label=f"filtered {LABEL[conn]}")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, lw=0.3, alpha=0.5)
-    ax = axes[-1, 1]
-    for conn in CONNECTIONS:
-        ax.plot(ts, np.asarray(arrays[f"lateral_velocity_{conn}"]), color=colors[conn], lw=0.7, label=LABEL[conn])
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("lateral velocity\nof the estimate [m/s]")
-    ax.grid(True, lw=0.3, alpha=0.5)
-    axes[0, 0].legend(loc="upper left", fontsize="small", ncols=2)
-    axes[0, 1].legend(loc="upper right", fontsize="small", ncols=2)
-    dt, sensor = float(arrays["dt"]), str(arrays["sensor"])
-    trial_note = "" if int(arrays["trial"]) < 0 else f", Monte Carlo trial {int(arrays['trial'])}"
-    fig.suptitle(f"Chaplygin sleigh, {LABEL[sensor]}, Ts = {_ms(dt)} (Rigo et al. 2023, "
-                 f"{FIGURES.get((round(dt, 9), sensor), 'cf. Figs. 3-6')}){trial_note}", fontsize="medium")
-    return fig
+    """Figs. 3-6 of Rigo et al. 2023 from saved arrays (:func:`figure_arrays`), drawn by
+    :func:`liemef.reports.figures.chaplygin_figure` with this study's connections, labels and paper figures."""
+    return figures.chaplygin_figure(arrays, connections=CONNECTIONS, label=LABEL, paper_figures=FIGURES, ms=_ms)
 
 
 def _figure_stem(dt: float, sensor: str) -> str:
@@ -713,7 +657,8 @@ def reproduce(config: ChaplyginConfig, out: Path, runs: int = 100, progress: boo
     tables.append(Output(out / "tables.csv", "Tables 1-2 and alternatives (CSV)"))
     elapsed = time.perf_counter() - t0
     files.append(io.write_json(out / "reproduction.json", {
-        "experiment": CHAPLYGIN.name, "paper": CHAPLYGIN.paper, "config": config_dict(config),
+        "schema": "liemef.reproduction.chaplygin/1", "experiment": CHAPLYGIN.name, "paper": CHAPLYGIN.paper,
+        "config": config_dict(config),
         "runs": runs, "elapsed_s": elapsed, "summary": summary,
         "figures": [{"file": f.path.name, "caption": f.caption} for f in figures]}))
     warnings = []
@@ -736,9 +681,7 @@ _POSE = ("theta", "x", "y")
 _VEL = ("omega", "v")
 
 CHAPLYGIN = register(Experiment(
-    name="chaplygin",
-    title="Chaplygin sleigh on SE(2) x R^2, GPS (+ INS), (0)- and (-)-connections",
-    paper="Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6",
+    **registry.card("chaplygin"),
     default_config=ChaplyginConfig(),
     run_fn=run,
     trial_fn=trial_spec,

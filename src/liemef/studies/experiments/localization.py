@@ -54,9 +54,10 @@ from ...filters import INTERPOLATIONS, MinimumEnergyFilter, Trajectory
 from ...groups import SE2, SO2
 from ...metrics import FULL, Window, chi2_bounds, nees, wrap_angle
 from ...metrics._stats import json_number
-from ...reports import io
+from ...reports import figures, io
 from ...simulation import SensorLog, Truth
 from ...systems import planar_localization
+from .. import registry
 from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate
 from ._montecarlo import MonteCarloResult, montecarlo
@@ -427,30 +428,9 @@ def study_markdown(st: dict, title: str = "") -> str:
 
 
 def band_figure(bands_npz: str | Path):
-    """Heading and position error over time from a saved ``bands.npz``: median and 5-95 % band across the
-    healthy trials (absolute values, log scale)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    a = io.read_arrays(bands_npz)
-    ts, b = a["ts"], a["bands"]  # (3, times, 2): p5, p50, p95 of |heading| [deg], position [m]
-    fig = Figure(figsize=(8.5, 5.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(2, 1, sharex=True)
-    for k, (ax, label, ref) in enumerate(zip(axes, ("|heading error| [deg]", "position error [m]"),
-                                             (PUBLISHED["iekf"]["heading_deg"], PUBLISHED["iekf"]["position_m"]),
-                                             strict=True)):
-        ax.fill_between(ts, b[0, :, k], b[2, :, k], color="tab:green", alpha=0.25, lw=0, label="5-95 %")
-        ax.plot(ts, b[1, :, k], color="tab:green", lw=1.2, label="median")
-        ax.axhline(ref, color="0.3", ls="--", lw=0.8, label="published IEKF rms (t >= 20 s)")
-        ax.set_yscale("log")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    axes[0].legend(loc="upper right", fontsize="small")
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle(f"ukfm 2D localization: {int(a['healthy'])} of {int(a['runs'])} trials, {a['filter']}",
-                 fontsize="medium")
-    return fig
+    """The error bands from a saved ``bands.npz``, drawn by :func:`liemef.reports.figures.localization_band_figure`
+    against the published IEKF figures."""
+    return figures.localization_band_figure(bands_npz, published=PUBLISHED)
 
 
 def reproduce(config: LocalizationConfig, out: Path, runs: int = 100, progress: bool = True) -> Reproduction:
@@ -476,7 +456,7 @@ def reproduce(config: LocalizationConfig, out: Path, runs: int = 100, progress: 
                                                  f"{config.order} order, {config.connection}-connection")})
     fig = plots.save_figure(band_figure(bands), out / "fig_errors.png")
     md = io.write_text(out / "localization.md", study_markdown(st, f"ukfm 2D localization benchmark: {filt}"))
-    js = io.write_json(out / "localization.json", st)
+    js = io.write_json(out / "localization.json", {"schema": "liemef.study.localization/1", **st})
     text = [rep.text, "", mc.format(), "", study_markdown(st, filt)]
     warnings = list(rep.warnings)
     if mc.n_nonfinite:
@@ -495,9 +475,7 @@ def reproduce(config: LocalizationConfig, out: Path, runs: int = 100, progress: 
 
 
 LOCALIZATION = register(Experiment(
-    name="localization",
-    title="Planar localization on SE(2): odometry at 100 Hz, GPS at 1 Hz, 45 deg initial heading error",
-    paper="ukfm 2D localization benchmark (Brossard, Barrau, Bonnabel); Barrau & Bonnabel 2017, Sec. IV",
+    **registry.card("localization"),
     default_config=LocalizationConfig(),
     run_fn=run,
     trial_fn=trial_spec,
@@ -509,4 +487,3 @@ LOCALIZATION = register(Experiment(
                         "arrays.npz (measured)"),),
     reproduce_fn=reproduce,
 ))
-

@@ -31,6 +31,7 @@ from ...metrics import FULL, Window, state_error
 from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import PlanarRigidBody, tse2_state
 from ...systems.planar_rigid_body import SENSORS
+from .. import registry
 from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate, state_error_trial
 
@@ -242,9 +243,7 @@ _POSE = ("theta", "x", "y")
 _VEL = ("omega", "vx", "vy")
 
 TSE2 = register(Experiment(
-    name="tse2",
-    title="Planar rigid body on TSE(2) with two GPS antennas and an IMU",
-    paper="Rigo, Segala, Sansonetto, Muradore 2022, Sec. VI, Figs. 3-4",
+    **registry.card("tse2"),
     default_config=TSE2Config(),
     run_fn=run,
     trial_fn=trial_spec,
@@ -262,9 +261,7 @@ TSE2 = register(Experiment(
 ))
 
 TSE2_VELOCITY = register(Experiment(
-    name="tse2-velocity",
-    title="Planar rigid body on TSE(2) with the velocity sensor only (pose dead-reckoned)",
-    paper="Segala, Sansonetto, Muradore, poster 'Tracking and filtering on SE(2)'; setup of Rigo et al. 2022",
+    **registry.card("tse2-velocity"),
     default_config=TSE2Config(sensor="velocity"),
     run_fn=_run_velocity,
     trial_fn=trial_spec,

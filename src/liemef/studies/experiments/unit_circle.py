@@ -36,6 +36,7 @@ from ...groups import R1, SO2, SO2R1
 from ...metrics import FULL, Window, state_error
 from ...simulation import SensorLog, Truth
 from ...systems.unit_circle import DEG, MEASUREMENTS, UnitCircleBias
+from .. import registry
 from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
 from ._evaluate import evaluate, state_error_trial
 
@@ -264,10 +265,7 @@ QUICK = UnitCircleConfig(dt=0.02)
 """Reduced config for ``liemef reproduce all``: the whole 100 s (the jumps are the point) at 20 ms."""
 
 UNIT_CIRCLE = register(Experiment(
-    name="unit-circle",
-    title="Unit circle with a biased gyro on SO(2) x R: angle and bias tracking through bias jumps",
-    paper="Zamani, Hua, Trumpf, Mahony, 'Minimum-Energy Filtering on the Unit Circle Using Velocity Measurements "
-          "with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3",
+    **registry.card("unit-circle"),
     default_config=UnitCircleConfig(),
     run_fn=run,
     trial_fn=trial_spec,

@@ -1,0 +1,235 @@
+"""The studies' figures, drawn from saved arrays: the reports layer is the only one that imports matplotlib.
+
+Each function takes what a study saved (its ``arrays.npz`` as a dict, or a file) and, where a figure labels
+what the study defines (connections, paper figures, published values), those as arguments; it returns a
+matplotlib :class:`~matplotlib.figure.Figure` that :func:`liemef.reports.plots.save_figure` writes. matplotlib
+loads on the first figure drawn, so that importing a study stays light.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import io
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+
+def optimum_figure(arrays: dict):
+    """Mean distance of each filter's estimate from the exact minimum-energy estimate over time (log scale),
+    from saved arrays."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ts, names = arrays["ts"], [str(n) for n in arrays["optimum_filters"]]
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 1, sharex=True)
+    for ax, key, label in zip(axes, ("optimum_heading_deg", "optimum_position_m"),
+                              ("heading distance to the MAP [deg]", "position distance to the MAP [m]"), strict=True):
+        for i, name in enumerate(names):
+            ax.plot(ts, np.maximum(arrays[key][i], 1e-12), color=f"C{i}", lw=1.0, label=name)
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0].legend(fontsize="small", ncol=2)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("distance to the exact minimum-energy estimate (mean over the trials)", fontsize="medium")
+    return fig
+
+
+def basin_figure(arrays: dict, title: str = ""):
+    """Fraction converged and median time to converge against the initial heading error, per filter."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    a, names = arrays["angles_deg"], [str(n) for n in arrays["filters"]]
+    fig = Figure(figsize=(8, 6), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    for i, name in enumerate(names):
+        ax1.plot(a, arrays["fraction"][i], marker="o", lw=1.1, color=f"C{i}", label=name)
+        ax2.plot(a, arrays["time_median"][i], marker="o", lw=1.1, color=f"C{i}")
+    ax1.set_ylabel("fraction converged")
+    ax1.set_ylim(-0.03, 1.03)
+    ax2.set_ylabel("median time to converge [s]")
+    ax2.set_xlabel("initial heading error [deg]")
+    for ax in (ax1, ax2):
+        ax.grid(True, lw=0.3, alpha=0.5)
+    ax1.legend(fontsize="small", ncol=2)
+    fig.suptitle(title or "convergence basin in the initial heading error", fontsize="medium")
+    return fig
+
+
+def broad_error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
+    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for i, n in enumerate(names):
+        e = arrays[f"{trial}/{n}/error_1s"]
+        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
+    ax.set_yscale("log")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("total attitude error, rms per second [deg]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize="small", ncol=3)
+    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
+    return fig
+
+
+def comparison_band_figure(arrays: dict, title: str = ""):
+    """|heading error| and position error over time: per filter the median and the 5-95 % band across the
+    healthy trials (log scale), from saved arrays."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ts, names, b = arrays["ts"], [str(n) for n in arrays["filters"]], arrays["bands"]
+    fig = Figure(figsize=(9, 6.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 1, sharex=True)
+    colors = [f"C{i}" for i in range(len(names))]
+    for ax, k, label in zip(axes, (0, 1), ("|heading error| [deg]", "position error [m]"), strict=True):
+        for i, name in enumerate(names):
+            ax.fill_between(ts, b[i, 0, :, k], b[i, 2, :, k], color=colors[i], alpha=0.12, lw=0)
+            ax.plot(ts, b[i, 1, :, k], color=colors[i], lw=1.1, label=name)
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0].legend(loc="upper right", fontsize="small", ncol=2)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title or "median and 5-95 % band across trials", fontsize="medium")
+    return fig
+
+
+def attitude_figure3(arrays: dict, steady: tuple[float, float] | None = None, *, connection_labels: Mapping[str, str]):
+    """Saccon et al. 2016, Fig. 3 from saved arrays: e_R [deg] and |e_Omega| of both connections on the same
+    axes, (0) black and (-) dashed red as in the paper; with ``steady`` a second column zooms on that window."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ts = np.asarray(arrays["ts"])
+    conns = [str(s) for s in arrays["connections"]]
+    styles = [dict(color="black", lw=0.9), dict(color="tab:red", lw=0.9, ls="--")]
+    ncols = 1 if steady is None else 2
+    fig = Figure(figsize=(6.5 * ncols, 5.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.asarray(fig.subplots(2, ncols, squeeze=False))
+    labels = (r"$e^R$ [deg]", r"$|e^\Omega|$ [rad/s]")
+    for col in range(ncols):
+        sel = np.ones(ts.shape, bool) if col == 0 else (ts >= steady[0]) & (ts <= steady[1])
+        for row in range(2):
+            ax = axes[row, col]
+            for conn, st in zip(conns, styles, strict=False):
+                ax.plot(ts[sel], np.asarray(arrays[f"attitude_error_{conn}"])[sel, row],
+                        label=f"{connection_labels.get(conn, conn)}-connection", **st)
+            ax.set_ylabel(labels[row])
+            ax.grid(True, lw=0.3, alpha=0.5)
+            ax.set_ylim(bottom=0.0)
+        axes[-1, col].set_xlabel("t [s]")
+        axes[0, col].set_title("whole run" if col == 0 else f"after the transient ({steady[0]:g}-{steady[1]:g} s)",
+                               fontsize="medium")
+    axes[0, 0].legend(loc="upper right", fontsize="small")
+    fig.suptitle("Attitude filter errors, both connections on the same data (Saccon et al. 2016, Fig. 3)",
+                 fontsize="medium")
+    return fig
+
+
+def chaplygin_figure(arrays, *, connections: Sequence[str], label: Mapping[str, str], paper_figures: Mapping,
+                     ms: Callable[[float], str]) -> Figure:
+    """Figs. 3-6 of Rigo et al. 2023 from saved arrays
+    (:func:`liemef.studies.experiments.chaplygin.figure_arrays`): for each of theta, x, y, omega,
+    v the nominal (black), measured (blue), (0)-filtered (green) and (-)-filtered (red) trajectories on the left,
+    their errors on the right; the x-y path in the last row."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ts = np.asarray(arrays["ts"])
+    names = [str(s) for s in arrays["names"]]
+    units = [str(s) for s in arrays["units"]]
+    colors = {"zero": "tab:green", "minus": "tab:red"}
+    sym = {"theta": r"\theta", "omega": r"\omega", "x": "x", "y": "y", "v": "v"}
+    fig = Figure(figsize=(11, 2.0 * (len(names) + 1) + 0.8), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.asarray(fig.subplots(len(names) + 1, 2, squeeze=False))
+    truth, meas = np.asarray(arrays["truth"]), np.asarray(arrays["measured"])
+    for k, name in enumerate(names):
+        ax = axes[k, 0]
+        if np.isfinite(meas[:, k]).any():
+            ax.plot(ts, meas[:, k], color="tab:blue", lw=0.3, alpha=0.5, label="measured", zorder=1)
+        ax.plot(ts, truth[:, k], color="black", lw=1.3, label="nominal", zorder=2)
+        for conn in connections:
+            ax.plot(ts, np.asarray(arrays[f"filtered_{conn}"])[:, k], color=colors[conn], lw=0.9, ls="--",
+                    label=f"filtered {label[conn]}", zorder=3)
+        ref = np.concatenate([truth[:, k]] + [np.asarray(arrays[f"filtered_{c}"])[:, k] for c in connections])
+        lo, hi = float(np.nanmin(ref)), float(np.nanmax(ref))
+        pad = 0.25 * max(hi - lo, 1e-3)
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_ylabel(f"${sym.get(name, name)}$ [{units[k]}]")
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax = axes[k, 1]
+        for conn in connections:
+            ax.plot(ts, np.asarray(arrays[f"error_{conn}"])[:, k], color=colors[conn], lw=0.7,
+                    label=f"{label[conn]}")
+        ax.axhline(0.0, color="0.5", lw=0.5)
+        ax.set_ylabel(rf"$\delta {sym.get(name, name)}$ [{units[k]}]")
+        ax.grid(True, lw=0.3, alpha=0.5)
+    for k in (0, 1):
+        axes[-2, k].set_xlabel("t [s]")
+    ax = axes[-1, 0]
+    ax.plot(truth[:, 1], truth[:, 2], color="black", lw=1.3, label="nominal")
+    for conn in connections:
+        f = np.asarray(arrays[f"filtered_{conn}"])
+        ax.plot(f[:, 1], f[:, 2], color=colors[conn], lw=0.9, ls="--", label=f"filtered {label[conn]}")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax = axes[-1, 1]
+    for conn in connections:
+        ax.plot(ts, np.asarray(arrays[f"lateral_velocity_{conn}"]), color=colors[conn], lw=0.7, label=label[conn])
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("lateral velocity\nof the estimate [m/s]")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    axes[0, 0].legend(loc="upper left", fontsize="small", ncols=2)
+    axes[0, 1].legend(loc="upper right", fontsize="small", ncols=2)
+    dt, sensor = float(arrays["dt"]), str(arrays["sensor"])
+    trial_note = "" if int(arrays["trial"]) < 0 else f", Monte Carlo trial {int(arrays['trial'])}"
+    fig.suptitle(f"Chaplygin sleigh, {label[sensor]}, Ts = {ms(dt)} (Rigo et al. 2023, "
+                 f"{paper_figures.get((round(dt, 9), sensor), 'cf. Figs. 3-6')}){trial_note}", fontsize="medium")
+    return fig
+
+
+def localization_band_figure(bands_npz: str | Path, *, published: Mapping[str, Mapping[str, float]]):
+    """Heading and position error over time from a saved ``bands.npz``: median and 5-95 % band across the
+    healthy trials (absolute values, log scale)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    a = io.read_arrays(bands_npz)
+    ts, b = a["ts"], a["bands"]  # (3, times, 2): p5, p50, p95 of |heading| [deg], position [m]
+    fig = Figure(figsize=(8.5, 5.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 1, sharex=True)
+    for k, (ax, label, ref) in enumerate(zip(axes, ("|heading error| [deg]", "position error [m]"),
+                                             (published["iekf"]["heading_deg"], published["iekf"]["position_m"]),
+                                             strict=True)):
+        ax.fill_between(ts, b[0, :, k], b[2, :, k], color="tab:green", alpha=0.25, lw=0, label="5-95 %")
+        ax.plot(ts, b[1, :, k], color="tab:green", lw=1.2, label="median")
+        ax.axhline(ref, color="0.3", ls="--", lw=0.8, label="published IEKF rms (t >= 20 s)")
+        ax.set_yscale("log")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0].legend(loc="upper right", fontsize="small")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(f"ukfm 2D localization: {int(a['healthy'])} of {int(a['runs'])} trials, {a['filter']}",
+                 fontsize="medium")
+    return fig

@@ -1,0 +1,315 @@
+"""Filtering a recorded log: what ``liemef run`` does, as a function a script calls alike.
+
+>>> from liemef.studies import logs
+>>> source = logs.resolve_system("localization")            # or logs.resolve_system(file="my_system.py")
+>>> run = logs.filter_log(source, "log.csv", K0=0.1)        # doctest: +SKIP
+>>> run.ok, run.message                                     # doctest: +SKIP
+>>> run.save("out")                                         # doctest: +SKIP
+
+:func:`resolve_system` gives a :class:`LogSystem` (a ready system of :data:`liemef.studies.experiments.SYSTEMS` or
+a user's system file, with its default initial estimate and gain); :func:`filter_log` reads the log, starts the
+minimum-energy filter there, runs it over the log in compiled chunks and returns a :class:`LogRun`: the
+trajectory, the status report, the innovations, ``metrics.json``'s content and the arrays. :meth:`LogRun.save`
+writes ``estimates.csv`` (coordinates and K's diagonal), ``innovations.csv``, ``metrics.json``, ``arrays.npz``
+and ``estimate.png``, or for a failed run ``failure.json`` alone.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..reports import io
+
+SCHEMA = "liemef.run/1"
+"""Version tag of ``liemef run``'s ``metrics.json`` layout (system, log, config, innovation, gain, status, run,
+figures)."""
+FAILURE_SCHEMA = "liemef.failure/1"
+"""Version tag of ``failure.json`` (status, message, last good state, log, filter)."""
+DEFAULT_CHUNK = 65536
+"""Samples per compiled chunk of :func:`filter_log` (one compilation per chunk length)."""
+
+
+@dataclass(frozen=True)
+class LogSystem:
+    """A system to filter logs with, and where its defaults come from: ``label`` and ``description`` name it,
+    ``measured(ys)`` reads state coordinates off measurements (a ready system; None for a user's file) and
+    ``user`` is the user's :class:`~liemef.systems._file.UserSystem` (its ``x0``, ``K0``, ``initial_guess``)."""
+
+    system: Any
+    label: str
+    description: str
+    measured: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
+    user: Any = field(default=None, repr=False)
+    spec: Any = field(default=None, repr=False)
+
+    def initial_guess(self, ys0) -> np.ndarray:
+        """The default initial estimate in coordinates from the first present measurement of each component
+        ``ys0`` (p,): the system file's ``x0``, else its ``initial_guess(ys0)``, else zeros; a ready system's
+        :meth:`~liemef.studies.experiments.SystemSpec.initial_guess`."""
+        if self.user is not None:
+            if self.user.x0 is not None:
+                return np.asarray(self.user.x0, dtype=np.float64)
+            if self.user.initial_guess is not None:
+                return self.user.guess(ys0)
+            return np.zeros(self.system.group.coords_dim)
+        return self.spec.initial_guess(ys0)
+
+    def default_K0(self) -> np.ndarray:
+        """The system file's ``K0``, else the identity."""
+        if self.user is not None and self.user.K0 is not None:
+            return np.asarray(self.user.K0, dtype=np.float64)
+        return np.eye(self.system.group.tangent_dim)
+
+
+def resolve_system(name: str | None = None, file: str | os.PathLike | None = None) -> LogSystem:
+    """A ready system by ``name`` (:data:`liemef.studies.registry.SYSTEMS`) or a user's system ``file``
+    (exactly one). ValueError when both or neither are given, the name is unknown or the file fails to load
+    (naming ``--system-file``)."""
+    from ..systems import _file as system_file
+    from .experiments import get_system
+
+    if (name is None) == (file is None):
+        raise ValueError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py "
+                         f"(your own), got {'both' if name else 'neither'}")
+    if name is not None:
+        spec = get_system(name)
+        return LogSystem(spec.make(), spec.name, spec.description, spec.measured, spec=spec)
+    path = Path(file)
+    user = system_file.load_system_file(path)
+    return LogSystem(user.system, path.stem, f"user system from {path}", user=user)
+
+
+def first_present(ys) -> np.ndarray:
+    """Each measurement component's first present (finite) value, NaN where a component never has one."""
+    ys = np.asarray(ys)
+    ok = np.isfinite(ys)
+    first = np.argmax(ok, axis=0)
+    return np.where(ok.any(axis=0), ys[first, np.arange(ys.shape[1])], np.nan)
+
+
+def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progress: bool = False):
+    """``flt.run`` over the log in chunks of ``chunk`` intervals (one compilation per chunk length), each
+    continuing from the previous chunk's final state, with a progress bar (tqdm, on a terminal); stops at the
+    first failure, and the samples after it have NaN estimates."""
+    import jax
+    import jax.numpy as jnp
+    from tqdm.auto import tqdm
+
+    from ..engines import LogGapWarning
+    from ..filters import Trajectory
+
+    N = log.ts.shape[0]
+    bar = tqdm(total=N, desc="filtering", unit="sample", disable=None if progress and N - 1 > chunk else True,
+               leave=False)
+    pieces, start = [], 0
+    try:
+        while start < N - 1:
+            stop = min(start + chunk, N - 1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", LogGapWarning)  # said once, from the final status
+                traj = flt.run(state, log.ts[start:stop + 1], log.us[start:stop + 1], log.ys[start:stop + 1],
+                               gap=gap)
+            pieces.append(traj if start == 0 else jax.tree_util.tree_map(lambda a: a[1:], (traj.g_hat, traj.K)))
+            bar.update(stop + 1 - bar.n)
+            state, start = traj.final, stop
+            if not traj.status.code == 0:
+                break
+    finally:
+        bar.close()
+    if len(pieces) == 1:
+        return pieces[0]
+    first = pieces[0]
+    parts = [(first.g_hat, first.K)] + pieces[1:]
+    g_hat, K = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
+    n = K.shape[0]
+    if n < N:  # stopped at a failure: the rest of the log has no estimate
+        g_hat = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.full((N - n,) + a.shape[1:], jnp.nan)]),
+                                       g_hat)
+        K = jnp.concatenate([K, jnp.full((N - n,) + K.shape[1:], jnp.nan)])
+    return Trajectory(ts=jnp.asarray(log.ts), g_hat=g_hat, K=K, status=traj.status, final=traj.final)
+
+
+def innovation_table(innov, names, units) -> tuple[str, dict]:
+    """Mean, std and rms of each innovation component over its present samples (NaN = no sample): the text
+    table and its JSON-ready form."""
+    from ..metrics._stats import format_number, json_number
+
+    rows, out = [], {}
+    for j, name in enumerate(names):
+        v = innov[:, j][np.isfinite(innov[:, j])]
+        stats = {"count": int(v.size), "mean": float(v.mean()) if v.size else math.nan,
+                 "std": float(v.std(ddof=1)) if v.size > 1 else math.nan,
+                 "rms": float(np.sqrt(np.mean(v ** 2))) if v.size else math.nan}
+        out[name] = {"unit": units[j], **{k: json_number(x) for k, x in stats.items()}}
+        rows.append(f"  {name:<12} {units[j]:<7} {stats['count']:>8d} " + " ".join(
+            f"{format_number(stats[k]):>12}" for k in ("mean", "std", "rms")))
+    head = f"  {'component':<12} {'unit':<7} {'samples':>8} {'mean':>12} {'std':>12} {'rms':>12}"
+    return "\n".join([head, *rows]), out
+
+
+@dataclass(frozen=True)
+class LogRun:
+    """A filtered log: ``trajectory`` (the filter's :class:`~liemef.filters.Trajectory`), ``report`` (the
+    status as a dict), ``filter`` (its repr), ``gap`` (the threshold used, s), ``x0`` and ``K0`` (the start), and
+    either ``metrics``/``arrays``/``innovation_text`` (a good run) or ``failure`` (what ``failure.json`` holds)."""
+
+    source: LogSystem
+    log_file: str
+    log: Any = field(repr=False)
+    trajectory: Any = field(repr=False)
+    filter: str
+    report: dict
+    gap: float
+    x0: np.ndarray = field(repr=False)
+    K0: np.ndarray = field(repr=False)
+    message: str = ""
+    failure: dict | None = None
+    metrics: dict = field(default_factory=dict, repr=False)
+    arrays: dict = field(default_factory=dict, repr=False)
+    innovation_text: str = field(default="", repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """The filter ran over the whole log with status ok."""
+        return self.failure is None
+
+    def warnings(self) -> list[str]:
+        """What the run did that a user should know: gaps predicted through, inputs held."""
+        out = []
+        if self.report["gaps"]:
+            out.append(f"{self.report['gaps']} interval(s) longer than the gap threshold {self.gap:.4g} s (longest "
+                       f"{self.report['longest_gap']:.4g} s) were predicted through")
+        if self.report["inputs_held"]:
+            out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
+        return out
+
+    def rejected(self) -> dict[str, int]:
+        """Samples each gated sensor rejected (only sensors that rejected some)."""
+        return {k: v for k, v in self.report["rejected"].items() if v}
+
+    def save(self, out: str | os.PathLike) -> list[Path]:
+        """Write the run into the folder ``out`` (created if missing): ``failure.json`` alone for a failed run,
+        else ``estimates.csv``, ``innovations.csv``, ``metrics.json``, ``arrays.npz`` and ``estimate.png``."""
+        from ..reports import plots
+
+        d = io.ensure_dir(out)
+        if self.failure is not None:
+            return [io.write_json(d / "failure.json", self.failure)]
+        a = self.arrays
+        n = self.K0.shape[0]
+        comps = [f"e{k}" for k in range(n)]
+        names = [str(v) for v in a["names"]]
+        coords = np.asarray(self.trajectory.coords())
+        written = [io.write_csv(d / "estimates.csv", ["t", *names, *(f"K_{e}{e}" for e in comps)],
+                                [a["ts"], *coords.T, *a["K_diag"].T]),
+                   io.write_rows(d / "innovations.csv", ["t", *(str(v) for v in a["output_names"])],
+                                 # an empty field: no sample, hence no innovation
+                                 [[float(t), *("" if math.isnan(v) else float(v) for v in row)]
+                                  for t, row in zip(a["ts"], a["innovation"], strict=True)])]
+        written += io.write_result(d, self.metrics, a)
+        written += plots.write_figures(d)
+        return written
+
+
+def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
+               alpha: float = 0.0, interpolation: str = "hold", updates: str = "hold", substeps: int | str = "auto",
+               gap: float | None = None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
+               log_file: str | os.PathLike | None = None) -> LogRun:
+    """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
+    log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
+
+    ``x0``: the initial estimate in coordinates (default: :meth:`LogSystem.initial_guess` of the first present
+    measurements); ``K0``: the initial gain, a number (times I), a diagonal or a matrix (default:
+    :meth:`LogSystem.default_K0`); ``gap``: an interval longer than this is predicted through (default: 10 x the
+    median interval); ``log_file``: the file named in the outputs when ``log`` is already read; the other options
+    are those of :class:`~liemef.filters.MinimumEnergyFilter`. ValueError
+    for bad input, before any compile. A failure inside the filter is no exception: see :attr:`LogRun.ok`.
+    """
+    from ..filters import MinimumEnergyFilter
+    from ..metrics import angle_mask, continuous_angles, gain_stats, state_labels
+
+    if isinstance(source, str):
+        source = resolve_system(source)
+    system = source.system
+    n, c = system.group.tangent_dim, system.group.coords_dim
+    if log_file is None:
+        log_file = str(log) if isinstance(log, str | os.PathLike) else "<log>"
+    log_file = str(log_file)
+    if isinstance(log, str | os.PathLike):
+        log = io.read_log(log, system)
+    q0 = source.initial_guess(first_present(log.ys)) if x0 is None else np.asarray(x0, dtype=np.float64)
+    if q0.shape != (c,):
+        raise ValueError(f"x0: expected {c} coordinates, got shape {q0.shape}")
+    K0 = source.default_K0() if K0 is None else np.asarray(K0, dtype=np.float64)
+    K0 = K0 * np.eye(n) if K0.ndim == 0 else np.diag(K0) if K0.shape == (n,) else K0
+    if K0.shape != (n, n):
+        raise ValueError(f"K0: expected a number, {n} diagonal entries or an {n} x {n} matrix, got shape {K0.shape}")
+    flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, interpolation=interpolation,
+                              substeps=substeps, updates=updates)
+    state = flt.init(system.group.from_coords(q0), K0)
+    if gap is None:
+        gap = 10.0 * float(np.median(np.diff(log.ts)))
+    traj = run_chunked(flt, state, log, gap, chunk, progress)
+    status = traj.status
+    report = status.as_dict([b.name for b in system.blocks()])
+    common = {"source": source, "log_file": log_file, "log": log, "trajectory": traj, "filter": repr(flt),
+              "report": report, "gap": gap, "x0": q0, "K0": K0, "message": status.message(log.ts)}
+    names, units = state_labels(system)
+    if not status.ok:
+        k = int(status.index)
+        last = np.asarray(traj.final.g_hat.coords())
+        failure = {"schema": FAILURE_SCHEMA, "status": report, "message": status.message(log.ts),
+                   "last_good_state": {"sample": k, "t": float(log.ts[k]),
+                                       "coords": dict(zip(names, map(float, last), strict=True)),
+                                       "K_diag": [float(v) for v in np.diagonal(np.asarray(traj.final.K))]},
+                   "log": log_file, "filter": repr(flt), "command": "run", "liemef_version": __version__}
+        return LogRun(**common, failure=failure)
+    return _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
+                     updates, substeps, angle_mask, continuous_angles, gain_stats)
+
+
+def _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
+              updates, substeps, angle_mask, continuous_angles, gain_stats) -> LogRun:
+    import jax
+
+    angles = angle_mask(system.group)
+    filt = continuous_angles(np.asarray(traj.coords()), angles)
+    K = np.asarray(traj.K)
+    K_diag = np.diagonal(K, axis1=1, axis2=2)
+    innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
+    onames, ounits = system.output_names, system.output_units
+    text, table = innovation_table(innov, onames, ounits)
+    label, measured = source.label, source.measured
+    figures = [{"file": "estimate.png", "components": list(names),
+                "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) from "
+                         f"{Path(common['log_file']).name}"}]
+    metrics = {
+        "schema": SCHEMA,
+        "system": {"name": label, "description": source.description, "filter": common["filter"]},
+        "log": {"file": common["log_file"], "samples": int(log.ts.shape[0]), "t0": float(log.ts[0]),
+                "t1": float(log.ts[-1])},
+        "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
+                   "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
+                   "updates": updates, "substeps": substeps, "gap": common["gap"]},
+        "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
+                       "sample (before the update of that sample)",
+                       "components": table},
+        "gain": gain_stats(K),
+        "status": common["report"],
+        "run": {"finite": True, "liemef_version": __version__},
+        "figures": figures,
+    }
+    arrays = {"ts": log.ts, "names": np.array(names), "units": np.array(units), "filtered": filt,
+              "K_diag": K_diag, "us": log.us, "ys": log.ys, "innovation": innov, "output_names": np.array(onames)}
+    if measured is not None:
+        arrays["measured"] = continuous_angles(measured(log.ys), angles, reference=filt)
+    return LogRun(**common, metrics=metrics, arrays=arrays, innovation_text=text)

@@ -1,0 +1,179 @@
+"""The one registry of liemef's studies and ready systems, readable without JAX.
+
+A study is a name, a frozen config, a trial or run function, and its tables and figures. Here each study is
+declared once, by what names and describes it (:class:`Study`: name, kind, title, paper, and for a comparison the
+settings it takes); :meth:`Study.load` imports the module that holds the rest and returns the full object:
+
+* an ``"experiment"``: a paper's experiment, :class:`liemef.studies.experiments.Experiment` (default config,
+  ``run``, ``trial_fn``, figures, tables), for ``liemef reproduce``, ``liemef montecarlo`` and campaigns;
+* a ``"comparison"``: :class:`liemef.studies.compare.Study` (settings class, runner, Markdown and files), for
+  ``liemef compare``.
+
+The experiments and comparisons take their name, title and paper from here (``experiments.register`` refuses
+one that disagrees), and the command line builds its choices and help texts from :data:`STUDIES` and
+:data:`SYSTEMS`, so that ``liemef --help`` answers before JAX is imported. A new study is one :func:`declare`
+here plus its module; a new ready system one entry of :data:`SYSTEMS` plus its spec in
+:mod:`liemef.studies.experiments` (``tests/test_cli_startup.py`` checks both sides agree).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+KINDS = ("experiment", "comparison")
+"""What a study is: a paper's ``experiment`` (reproduced, Monte Carlo) or a ``comparison`` of filters."""
+DEFAULT_BATCH_SIZE = 8
+"""Monte Carlo trials per compiled ``vmap`` batch unless told otherwise (the results do not depend on it). On a
+2-core CPU, TSE(2) at 1 ms ran 8, 13, 21, 14 and 8 trials/s with batches of 1, 4, 8, 16 and 32 (larger batches
+also compile longer)."""
+
+
+@dataclass(frozen=True)
+class Study:
+    """A registered study: its name, kind (one of :data:`KINDS`), title, paper (or source), for a comparison
+    the keys of its settings (``liemef compare --set``) and its help paragraph, and ``load()`` giving the full
+    object (an :class:`~liemef.studies.experiments.Experiment` or a :class:`~liemef.studies.compare.Study`)."""
+
+    name: str
+    kind: str
+    title: str
+    paper: str = ""
+    settings: tuple[str, ...] = ()
+    help: str = ""
+    loader: Callable[[], Any] = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {list(KINDS)}, got {self.kind!r}")
+        if not self.name or not isinstance(self.name, str):
+            raise ValueError(f"name: expected a non-empty string, got {self.name!r}")
+
+    def load(self) -> Any:
+        """The full study (imports its module, hence JAX, on first use)."""
+        if self.loader is None:
+            raise ValueError(f"study {self.name!r} has no loader")
+        return self.loader()
+
+
+STUDIES: dict[str, dict[str, Study]] = {kind: {} for kind in KINDS}
+"""Every study by kind, then by name, in the order of declaration."""
+
+
+def declare(study: Study) -> Study:
+    """Add ``study`` to :data:`STUDIES`; a ValueError if its name is taken within its kind."""
+    if study.name in STUDIES[study.kind]:
+        raise ValueError(f"{study.kind} {study.name!r} is already declared")
+    STUDIES[study.kind][study.name] = study
+    return study
+
+
+def names(kind: str) -> tuple[str, ...]:
+    """The names of the studies of ``kind``, in the order of declaration."""
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {list(KINDS)}, got {kind!r}")
+    return tuple(STUDIES[kind])
+
+
+def get(kind: str, name: str) -> Study:
+    """The study ``name`` of ``kind``; a ValueError listing the valid names otherwise."""
+    if name not in STUDIES.get(kind, {}):
+        raise ValueError(f"{kind}: expected one of {sorted(STUDIES.get(kind, {}))}, got {name!r}")
+    return STUDIES[kind][name]
+
+
+def card(name: str) -> dict[str, str]:
+    """The declared ``name``, ``title`` and ``paper`` of the experiment ``name``, as keywords of
+    :class:`~liemef.studies.experiments.Experiment`."""
+    st = get("experiment", name)
+    return {"name": st.name, "title": st.title, "paper": st.paper}
+
+
+def _experiment(name: str) -> Callable[[], Any]:
+    def load():
+        from .experiments import EXPERIMENTS
+
+        return EXPERIMENTS[name]
+    return load
+
+
+def _comparison(name: str) -> Callable[[], Any]:
+    def load():
+        from .compare import STUDIES as COMPARISONS
+
+        return COMPARISONS[name]
+    return load
+
+
+for _name, _title, _paper in (
+    ("attitude", "Rigid-body attitude on TSO(3) with two direction sensors, (0)- and (-)-connection filters",
+     "Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3"),
+    ("chaplygin", "Chaplygin sleigh on SE(2) x R^2, GPS (+ INS), (0)- and (-)-connections",
+     "Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6"),
+    ("localization", "Planar localization on SE(2): odometry at 100 Hz, GPS at 1 Hz, 45 deg initial heading error",
+     "ukfm 2D localization benchmark (Brossard, Barrau, Bonnabel); Barrau & Bonnabel 2017, Sec. IV"),
+    ("tse2", "Planar rigid body on TSE(2) with two GPS antennas and an IMU",
+     "Rigo, Segala, Sansonetto, Muradore 2022, Sec. VI, Figs. 3-4"),
+    ("tse2-velocity", "Planar rigid body on TSE(2) with the velocity sensor only (pose dead-reckoned)",
+     "Segala, Sansonetto, Muradore, poster 'Tracking and filtering on SE(2)'; setup of Rigo et al. 2022"),
+    ("unit-circle", "Unit circle with a biased gyro on SO(2) x R: angle and bias tracking through bias jumps",
+     "Zamani, Hua, Trumpf, Mahony, 'Minimum-Energy Filtering on the Unit Circle Using Velocity Measurements "
+     "with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3"),
+):
+    declare(Study(_name, "experiment", _title, _paper, loader=_experiment(_name)))
+
+for _name, _title, _settings, _help in (
+    ("localization", "ukfm's 2D localization benchmark: every filter on the same trials",
+     ("duration", "steady", "optimum_runs", "rng", "batch_size"),
+     "ukfm's 2D localization benchmark (odometry 100 Hz, GPS 1 Hz, 45 deg initial heading error); writes "
+     "comparison.md (per filter the rms, pooled rms with its bootstrap interval, NEES, the published figures, and "
+     "per metric the winner with its paired lead), comparison.csv, comparison.json, arrays.npz and fig_errors.png "
+     "(and fig_optimum.png with --set optimum_runs=M)."),
+    ("heading-basin", "convergence basin in the initial heading error (0-180 deg) on the same scenario",
+     ("duration", "angles_deg", "prior_std_deg", "tolerance_deg", "batch_size"),
+     "the fraction of trials that converge and the time to converge against the initial heading error; writes "
+     "basin.md, basin.csv, basin.json, arrays.npz and fig_basin.png."),
+    ("attitude-basin", "convergence basin in the initial attitude error (0-180 deg) on TSO(3): rigid body and "
+     "attitude + gyro bias",
+     ("duration", "angles_deg", "tolerance_deg", "systems", "rigid_body_dt", "imu_rate", "prior_std_deg",
+      "batch_size", "optimum_runs", "optimum_every"),
+     "the same against the initial attitude error (0-180 deg) on TSO(3), Saccon et al.'s rigid body and attitude "
+     "+ gyro bias from a synthetic IMU (filters: mef, mef-first, mef-minus, mef-plus, iekf, ukf-left; madgwick "
+     "and mahony on request, gyro bias only); writes attitude_basin.md, attitude_basin.csv, attitude_basin.json, "
+     "arrays.npz and fig_basin_<system>.png."),
+    ("broad", "the BROAD attitude recordings: the MEF, the EKF, the UKF-M, Madgwick and Mahony",
+     ("trials", "seconds", "realdata"),
+     "the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer with "
+     "optical truth), with the MEF, a robust MEF, the invariant EKF, the UKF-M and ahrs's Madgwick and Mahony "
+     "(default and published gains), one weight set for all trials; writes broad.md, broad.csv, broad.json and "
+     "arrays.npz."),
+    ("wifibot", "UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
+     ("recordings", "gps_rate", "gps_std", "realdata"),
+     "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "
+     "seeds; writes wifibot.md, wifibot.csv, wifibot.json and arrays.npz."),
+):
+    declare(Study(_name, "comparison", _title, settings=_settings, help=_help, loader=_comparison(_name)))
+
+SYSTEMS: dict[str, str] = {
+    "tse2": "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)",
+    "tse2-velocity": "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)",
+    "attitude": "rigid-body attitude on TSO(3) (Saccon et al. 2016), two body-frame directions of e3 and e2; input "
+                "the torque (3); the weights of the paper's experiment",
+    "chaplygin": "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS (omega, v); input "
+                 "(u_omega, u_v); the weights of the paper's experiment",
+    "chaplygin-gps": "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS only (x1, y1, x2, y2); input "
+                     "(u_omega, u_v)",
+    "unit-circle": "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, "
+                   "-sin theta) with D = 0.4 I; input the gyro reading (1)",
+    "attitude-bias": "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, "
+                     "rad/s), normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default "
+                     "MEMS noise levels and a dip of 68 deg (liemef.systems.attitude_bias)",
+    "localization": "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
+                    "with NaN between fixes; the default noise levels (liemef.systems.localization)",
+}
+"""The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``) with their descriptions; each
+is built by :data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""
+
+DATASETS = ("broad", "wifibot")
+"""The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""
