@@ -110,3 +110,21 @@ def test_dataset_converts_a_real_recording_for_run(tmp_path):
     assert np.sqrt(np.mean(np.sum((est[:, 2:4] - truth[:, 2:4]) ** 2, axis=1))) < 0.5
     res = invoke("dataset", "broad", tmp_path / "missing.mat", "--out", tmp_path / "x.csv")
     assert res.exit_code == 2 and "path:" in res.output
+
+
+def test_dataset_takes_the_id_of_a_recording_present(tmp_path, monkeypatch):
+    import scipy.io
+
+    root = tmp_path / "realdata"
+    (root / "broad").mkdir(parents=True)
+    N = 30
+    scipy.io.savemat(root / "broad" / "05_new_trial.mat", {
+        "imu_gyr": np.zeros((N, 3)), "imu_acc": np.tile([0.0, 0.0, 9.81], (N, 1)),
+        "imu_mag": np.tile([0.0, 20.0, -40.0], (N, 1)), "opt_quat": np.tile([1.0, 0, 0, 0], (N, 1)),
+        "movement": np.ones(N, np.uint8), "sampling_rate": 100.0})
+    monkeypatch.setenv("LIEMEF_REALDATA", str(root))
+    res = invoke("dataset", "broad", "5", "--out", tmp_path / "log.csv")
+    assert res.exit_code == 0, res.output
+    assert f"{N} samples" in res.output
+    res = invoke("dataset", "broad", "6", "--out", tmp_path / "log.csv")
+    assert res.exit_code == 2 and "path:" in res.output

@@ -138,7 +138,7 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
-    if folder is None or not (folder / datasets.BROAD_TRIALS["07"]).is_file():
+    if folder is None or "07" not in datasets.broad_trials():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
     out = tmp_path / "broad"
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=07", "--set", "seconds=32",
@@ -174,7 +174,7 @@ def test_compare_wifibot_at_a_tiny_size(tmp_path):
     from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
-    if folder is None or not (folder / datasets.WIFIBOT_RUNS["4"]).is_file():
+    if folder is None or "4" not in datasets.wifibot_runs():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
     out = tmp_path / "wifibot"
     res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--runs", "3", "--set", "recordings=4", "--filters",

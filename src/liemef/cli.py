@@ -653,7 +653,8 @@ def dataset(kind, path, out, truth, seconds, gps_std):
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
     `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
     magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
-    localization)."""
+    localization). PATH may also be the id of a recording present in the real-data folder (`broad 16`,
+    `wifibot 4`; found by reading the files)."""
     import numpy as np
 
     from .reports import io
@@ -661,6 +662,10 @@ def dataset(kind, path, out, truth, seconds, gps_std):
     from .studies.experiments import get_system
 
     try:
+        if not path.exists():  # an id of a recording present (datasets.broad_trials / wifibot_runs)
+            found = (datasets.broad_trials if kind == "broad" else datasets.wifibot_runs)()
+            key = f"{int(str(path)):02d}" if kind == "broad" and str(path).isdigit() else str(path)
+            path = found.get(key, path)
         if kind == "broad":
             rec = datasets.broad(path)
             rec = rec.head(seconds) if seconds else rec

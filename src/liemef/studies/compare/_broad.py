@@ -72,7 +72,9 @@ BROAD_FILTERS = {
 }
 """The filters of the BROAD study: a description and a factory from the trial's magnetic dip."""
 PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
-             "24": {"madgwick": 1.8, "mahony": 2.1}}
+             "24": {"madgwick": 1.8, "mahony": 2.1}, "10": {"madgwick": 3.6, "mahony": 2.8},
+             "16": {"madgwick": 4.8, "mahony": 20.3}, "28": {"madgwick": 8.3, "mahony": 6.3},
+             "33": {"madgwick": 7.1, "mahony": 11.0}}
 """Total rms (deg) of BROAD's own Madgwick (beta = 0.12) and Mahony (Kp = 0.74, Ki = 0.0012) per trial, one
 parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
 METRICS = ("total", "heading", "inclination")
@@ -81,8 +83,9 @@ K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
 
 @dataclass(frozen=True)
 class BroadComparison:
-    """The study's settings: ``trials`` (ids of :data:`liemef.studies.datasets.BROAD_TRIALS`; default: every one
-    present), ``seconds`` (the head of each trial; default: whole trials), ``filters``, ``realdata`` (the folder;
+    """The study's settings: ``trials`` (ids of the trials present, read from the files by
+    :func:`liemef.studies.datasets.broad_trials`; default: every one), ``seconds`` (the head of each trial;
+    default: whole trials), ``filters``, ``realdata`` (the folder;
     default :func:`liemef.studies.datasets.realdata_dir`)."""
 
     trials: tuple[str, ...] | str | None = None
@@ -91,10 +94,10 @@ class BroadComparison:
     realdata: str | None = None
 
     def __post_init__(self):
-        folder, present = realdata_present(self.realdata, datasets.BROAD_TRIALS)
+        folder, present = realdata_present(self.realdata, datasets.broad_trials, datasets.BROAD_DIR)
         trials = self.trials
         if trials is None:
-            trials = present
+            trials = tuple(present)
         elif isinstance(trials, str | int):
             trials = tuple(t.strip() for t in str(trials).split(","))
         # ids are two digits ("07"); a number given on the command line (7, 24) means the same trial
@@ -171,10 +174,10 @@ def error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
     """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
     st = BroadComparison() if study is None else study
-    folder = Path(st.realdata)
+    paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
     per_trial, winners, arrays = {}, {}, {}
     for tid in st.trials:
-        trial = datasets.broad(folder / datasets.BROAD_TRIALS[tid])
+        trial = datasets.broad(paths[tid])
         if st.seconds is not None:
             trial = trial.head(st.seconds)
         dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
