@@ -7,13 +7,13 @@ the filter differentiates them by autodiff.
 from ._base import AbstractSystem, Block, System
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
-from .attitude_bias import attitude_gyro_bias
+from .attitude_bias import attitude_gyro_bias, attitude_imu
 from .chaplygin import ChaplyginSleigh
 from .localization import planar_localization
 from .planar_rigid_body import PlanarRigidBody, tse2_state
 from .unit_circle import UnitCircleBias
 
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
-           "attitude_gyro_bias",
+           "attitude_gyro_bias", "attitude_imu",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state"]

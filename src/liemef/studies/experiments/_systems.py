@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, planar_localization
+from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, attitude_imu, planar_localization
 from ...systems import attitude_bias as _attitude_bias
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
@@ -76,6 +76,12 @@ SYSTEMS: dict[str, SystemSpec] = {
         "normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default MEMS noise "
         "levels and a dip of 68 deg (liemef.systems.attitude_bias)",
         attitude_gyro_bias, _attitude_bias.measured_state),
+    "attitude-imu": SystemSpec(
+        "attitude-imu",
+        "attitude and gyro bias on TSO(3) with the IMU noise model (linear acceleration, magnetic disturbance, "
+        "heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and magnetometer directions and "
+        "their raw norms (norm_acc m/s^2, norm_mag uT); defaults of liemef.systems.attitude_imu",
+        attitude_imu, _attitude_bias.measured_state),
     "localization": SystemSpec(
         "localization",
         "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) with NaN "
