@@ -399,8 +399,10 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--chunk", type=click.IntRange(min=16), default=65536, show_default=True,
               help="Samples per compiled chunk (progress is shown between chunks).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Progress on stderr.")
+@click.option("--params", "params_file", type=click.Path(path_type=Path),
+              help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu.")
 def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection, order, alpha, interpolation,
-            substeps, gap, chunk, progress):
+            substeps, gap, chunk, progress, params_file):
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
@@ -413,6 +415,16 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     from .studies.experiments import SCHEMA
 
     system, label, description, measured, user = _resolve_system(system_name, system_file)
+    if params_file is not None:
+        from .studies import tune as _tune
+
+        if system_name != "attitude-imu":
+            raise click.BadParameter(f"expected --system attitude-imu with a tuning file, got {system_name!r}",
+                                     param_hint="'--params'")
+        try:
+            system = _tune.system_from(_tune.params_for(_tune.load(params_file)), {})
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="'--params'") from err
     n, c = system.group.tangent_dim, system.group.coords_dim
     try:
         log = io.read_log(log_path, system)
@@ -649,7 +661,8 @@ def schema(system_name, system_file):
 @click.option("--seconds", type=float, help="Only the first SECONDS of the recording.")
 @click.option("--gps-std", type=float, default=0.1, show_default=True,
               help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0).")
-def dataset(kind, path, out, truth, seconds, gps_std):
+@click.option("--norms", is_flag=True, help="broad: also the raw norms, a log for the system attitude-imu.")
+def dataset(kind, path, out, truth, seconds, gps_std, norms):
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
     `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
     magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
@@ -669,7 +682,8 @@ def dataset(kind, path, out, truth, seconds, gps_std):
         if kind == "broad":
             rec = datasets.broad(path)
             rec = rec.head(seconds) if seconds else rec
-            log, system = datasets.broad_to_log(rec), get_system("attitude-bias").make()
+            log = datasets.broad_to_log(rec, norms=norms)
+            system = get_system("attitude-imu" if norms else "attitude-bias").make()
             header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]
             columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
         else:
@@ -686,8 +700,47 @@ def dataset(kind, path, out, truth, seconds, gps_std):
         raise click.BadParameter(str(err), param_hint="'PATH'") from err
     click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
                f"{', '.join(str(p) for p in written)}")
-    click.echo(f"Filter it with: liemef run --system {'attitude-bias' if kind == 'broad' else 'localization'} "
+    name = ("attitude-imu" if norms else "attitude-bias") if kind == "broad" else "localization"
+    click.echo(f"Filter it with: liemef run --system {name} "
                f"--log {out} --out DIR")
+
+
+@cli.command("tune")
+@click.argument("data", type=click.Choice(("broad",)))
+@click.option("--out", required=True, type=click.Path(path_type=Path),
+              help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md.")
+@click.option("--objective", type=click.Choice(("truth", "nll")), default="truth", show_default=True,
+              help="truth: BROAD's total attitude rms; nll: the innovations' negative log-likelihood (no truth).")
+@click.option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present).")
+@click.option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's).")
+@click.option("--seconds", type=float, default=90.0, show_default=True,
+              help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`.")
+@click.option("--maxfev", type=click.IntRange(min=1), default=40, show_default=True,
+              help="Evaluations of the shared search (each runs every trial).")
+@click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
+              help="Evaluations of each leave-one-out fold's refinement.")
+@click.option("--realdata", type=click.Path(path_type=Path), help="The real-data folder (default: found).")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar on stderr.")
+def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, realdata, progress):
+    """Fit the IMU model's noise levels (system attitude-imu) to the BROAD trials present, by a derivative-free
+    search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
+    set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
+    from .reports import io
+    from .studies import tune as _tune
+
+    try:
+        recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
+                                      None if realdata is None else str(realdata))
+        kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
+        result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
+                            **kw)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from err
+    d = io.ensure_dir(out)
+    _tune.save(result, d / "tune.json")
+    io.write_text(d / "tune.md", _tune.markdown(result))
+    click.echo(_tune.markdown(result))
+    click.echo(f"Wrote tune.json and tune.md to {d}")
 
 
 @cli.command("compare")
