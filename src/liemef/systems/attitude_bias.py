@@ -179,6 +179,10 @@ FIELD = 43.0
 ACC_ADAPT = math.sqrt(2.0)
 r"""Default gain $c_a$ of the accelerometer's noise model (:class:`AccelerationNoise`): $\sqrt 2$, the tilt a
 horizontal linear acceleration causes for the norm it adds."""
+IMU_BIAS_WALK = 1e-5
+"""Default gyro bias random walk of :func:`attitude_imu` (rad/s/sqrt(s)): a MEMS gyro's rate random walk
+(datasheets: 0.5-2e-5 rad/s/sqrt(s)), about 0.008 deg/s over BROAD's 3 minutes. :data:`BIAS_WALK` (1e-4), ten
+times that, let the fast-translation trial's accelerometer errors pull the bias by 0.1-0.3 deg/s within seconds."""
 ACC_NORM_TOL = 0.03
 """Default $e_0$ of :class:`AccelerationNoise`: the accelerometer norm's own relative error (3 % of g: BROAD's
 norm at rest scatters by 0.5 %, and a MEMS accelerometer's scale factors and misalignment add 1-3 %)."""
@@ -283,7 +287,7 @@ class MagneticNoise:
         return jnp.sqrt(f) * (jnp.eye(3) - c * jnp.outer(t2, t2))
 
 
-def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=BIAS_WALK, acc_std=ACC_STD,
+def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK, acc_std=ACC_STD,
                  mag_std=MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
                  acc_adapt: float = ACC_ADAPT, acc_norm_tol: float = ACC_NORM_TOL, mag_adapt: float = MAG_ADAPT,
                  dip_std: float = DIP_STD,
@@ -299,7 +303,8 @@ def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk
     disturbance). This is a measurement model, not a switch: the cost's weight on a sample is the inverse of
     its variance under the model, and every factor is smooth in the sample.
 
-    Args (beyond :func:`attitude_gyro_bias`'s):
+    Args (beyond :func:`attitude_gyro_bias`'s, whose defaults it keeps but ``bias_walk`` =
+    :data:`IMU_BIAS_WALK`):
         gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`).
         field: $B$ (uT), the magnetometer's norm in the undisturbed field (:func:`rest_norms`).
         acc_adapt: $c_a \ge 0$ (0: the plain model).
