@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from liemef.filters import MinimumEnergyFilter
-from liemef.filters._status import OK
+from liemef.filters import CAUSES, MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
 from liemef.studies import datasets
 from liemef.systems import Noise, attitude_gyro_bias
 from liemef.systems import attitude_bias as ab
 from tolerances import ROUNDOFF
+
+OK = CAUSES.OK.code
 
 RATE = ab.IMU_RATE
 K0 = np.diag([0.05**2] * 3 + [0.02**2] * 3)

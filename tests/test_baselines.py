@@ -2,12 +2,17 @@
 their covariance conversion, missing samples, gates, failures as values, bad input, and the localization
 scenario (the invariant EKF equals the left UKF-M; the local EKF is the worse one)."""
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
+import liemef
+from liemef import codegen
+from liemef.engines import LogGapWarning
 from liemef.filters import CAUSES, TRACES
 from liemef.filters.baselines import (
     ExtendedKalmanFilter,
@@ -19,6 +24,7 @@ from liemef.filters.baselines import (
 )
 from liemef.groups import SE2, TSE2, TSO3, Rn
 from liemef.systems import Noise, Sensor, SensorSystem
+from tolerances import ENGINES
 
 R3 = Rn[3]
 A = np.array([[0.0, 1.0, 0.0], [-0.5, -0.2, 0.3], [0.0, 0.0, -0.1]])
@@ -212,3 +218,64 @@ def test_bad_arguments_are_named():
     bad[3, 0] = np.inf
     with pytest.raises(ValueError, match="us"):
         flt.run(flt.init(R3(np.zeros(3)), np.eye(3)), ts, bad, ys)
+
+
+def _assert_engines_agree(a, b):
+    """Every leaf of two runs (trajectory, final state, status) equal to ENGINES relative, integers exactly."""
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb, strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.shape == y.shape and x.dtype == y.dtype
+        if x.dtype.kind in "iub":
+            np.testing.assert_array_equal(x, y)
+        else:
+            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
+            ok = ~np.isnan(x)
+            scale = max(1.0, float(np.abs(y[ok]).max(initial=0)))
+            np.testing.assert_allclose(x[ok], y[ok], rtol=0, atol=ENGINES * scale)
+
+
+BASELINES = {"iekf": invariant_ekf, "ekf": local_ekf, "ukf-left": ukf_m}
+
+
+@pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC, cc, gcc or clang)")
+@pytest.mark.parametrize("make", list(BASELINES.values()), ids=list(BASELINES))
+def test_auto_runs_every_baseline_by_its_c_kernel_as_xla_does(make):
+    """The C engine serves the baselines through the filters' one path: engine="auto" builds their kernel, and its
+    run (missing samples, held inputs, a gate, a gap) is XLA's to ENGINES, statuses and counters exactly."""
+    gated = SensorSystem(R3, _dynamics, (Sensor("pos", lambda g, t: g.x[:1], Noise.sample(POS_STD), gate=0.999),
+                                         Sensor("vel", lambda g, t: g.x[1:], Noise.density(VEL_DENSITY))),
+                         Noise.density(Q_DENSITY), inputs=("a",))
+    ts, us, ys = _log()
+    us[20:23] = np.nan
+    ys[60, 0] = 1e3
+    ts[90:] += 1.0  # one interval longer than the gap threshold
+    flt = make(gated)
+    state = flt.init(R3(np.array([0.5, -0.3, 0.2])), np.diag([1.0, 2.0, 0.5]))
+    assert liemef.engines.kernel(flt, "auto") is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        auto, c, xla = (flt.run(state, ts, us, ys, engine=e) for e in ("auto", "c", "xla"))
+    assert int(xla.status.code) == 0 and int(xla.status.rejected[0]) >= 1 and int(xla.status.gaps) == 1
+    _assert_engines_agree(c, xla)
+    _assert_engines_agree(auto, c)
+
+
+@pytest.mark.slow  # three XLA compilations on SE(2): over a minute
+@pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC, cc, gcc or clang)")
+def test_on_the_localization_the_c_engine_runs_the_baselines_as_xla_does():
+    """On SE(2) (ukfm's localization, sparse GPS): the invariant EKF, the local EKF and the left UKF-M by C and by
+    XLA agree to ENGINES; a step by C chains as the run does."""
+    c, s, log, g0 = _localization(seconds=2.0)
+    K0 = np.diag([c.theta0_std**2, 0.0, 0.0])
+    args = (np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys))
+    for flt in (invariant_ekf(s.system), local_ekf(s.system), ukf_m(s.system)):
+        state = flt.init(g0, K0)
+        _assert_engines_agree(flt.run(state, *args, engine="c"), flt.run(state, *args, engine="xla"))
+        ts, us, ys = args
+        st = state
+        for k in range(3):
+            st = flt.step(st, ts[k], us[k], ys[k], ts[k + 1] - ts[k], engine="c")
+        run = flt.run(state, ts[:4], us[:4], ys[:4], engine="c")
+        _assert_engines_agree(st, run.final)

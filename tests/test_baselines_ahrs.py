@@ -14,14 +14,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from liemef.filters import FilterState
-from liemef.filters._status import NONFINITE, OK
+from liemef.filters import CAUSES, FilterState
 from liemef.filters.baselines._ahrs import Madgwick, Mahony, quat_mul
 from liemef.groups import R3, SO3, TSO3
 from liemef.studies import datasets
 from liemef.systems import Noise, Sensor, SensorSystem, attitude_gyro_bias, planar_localization
 from liemef.systems import attitude_bias as ab
 from tolerances import ROUNDOFF
+
+NONFINITE, OK = CAUSES.NONFINITE.code, CAUSES.OK.code
 
 RATE = 100.0
 DIP = ab.DIP

@@ -159,3 +159,19 @@ def test_tune_writes_a_file_that_run_accepts(tmp_path, monkeypatch):
     res = invoke("run", "--system", "attitude-bias", "--params", tmp_path / "t" / "tune.json", "--log",
                  tmp_path / "none.csv", "--out", tmp_path / "o")
     assert res.exit_code == 2 and "--params" in res.output
+
+
+def test_run_with_discrete_updates(tmp_path):
+    """``--updates discrete`` (the hybrid filter): the same log, GPS fixes used at their own time; the outlier
+    is still rejected by the gate, which reads the same residual."""
+    ts, p, th = localization_log(tmp_path / "log.csv", outlier=True)
+    (tmp_path / "s.py").write_text("from liemef.systems import planar_localization\n"
+                                   "system = planar_localization(gate=0.999)\nK0 = [0.01, 0.0, 0.0]\n")
+    res = invoke("run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--updates", "discrete", "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "Gate rejected samples: gps 1" in res.output
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["config"]["updates"] == "discrete" and "updates='discrete'" in metrics["system"]["filter"]
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    assert np.max(np.linalg.norm(est[:, 2:4] - p, axis=1)) < 1.0

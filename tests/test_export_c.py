@@ -1,25 +1,28 @@
 """`liemef export-c` (issue 9): the exported C99 filter is the JAX step, a failure in C is the same value as in JAX,
 and the example program filters a CSV log in pure C as liemef's run does.
 
-Each filter is exported (:func:`liemef.codegen.export_c`), compiled with ``cc -std=c99 -O0 -Wall -Werror`` and
-loaded with ctypes (:class:`liemef.codegen.CFilter`). At 100 random states (a random group element, a random SPD
-gain over five decades, so that the adaptive sub-steps loop more than once in a third of them, random inputs,
-outputs, times and dt in 1e-3..0.05, missing outputs by mask and by NaN, held inputs) every leaf of the C state
-after one step equals the JAX ``flt.step`` to ``EXPORTED_C`` relative, integers exactly. The states are those at
-which the JAX step is well conditioned (``check_against_jax``). Both translators are covered: the default
-(scalar code for the ready systems) on the whole matrix, the array code on TSE(2) (every system: slow).
+Each filter is exported (:func:`liemef.codegen.export_c`), compiled with ``cc -std=c99 -O0 -Wall -Wextra -Werror
+-pedantic`` and loaded with ctypes (:class:`liemef.codegen.CFilter`). At 100 random states (a random group element,
+a random SPD gain over five decades, so that the adaptive sub-steps loop more than once in a third of them, random
+inputs, outputs, times and dt in 1e-3..0.05, missing outputs by mask and by NaN, held inputs) every leaf of the C
+state after one step equals the JAX ``flt.step`` to ``EXPORTED_C`` relative, integers exactly. The states are those
+at which the JAX step is well conditioned (``check_against_jax``). Both translators are covered: the default (scalar
+code for the ready systems) on the whole matrix, the array code on TSE(2) (every system: slow).
 
 The default suite covers TSE(2) with both orders and the three connections, every other ready system with the
 second-order (0)-connection filter, and localization at first order; the rest of the matrix (every ready system x
 both orders x zero/minus/plus) is ``@pytest.mark.slow``. Most of the time is JAX compiling each filter's step
 (5-15 s a filter); the C compiles in 0.3-2 s at -O0 against 4-9 s at -O2, which only the CLI export's object
-file pays (the build the docs recommend, with -Wall -Werror at the optimisation level that finds the most).
+file pays (the build the docs recommend, with -Wall -Wextra -Werror -pedantic at the optimisation level that finds
+the most). The exports are also compiled by GCC and Clang with those flags (warning-free ISO C99).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -42,9 +45,9 @@ pytestmark = pytest.mark.skipif(codegen.compiler() is None, reason="no C compile
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "export_c" / "filter_csv.c"
-FLAGS = ("-std=c99", "-O0", "-Wall", "-Werror")
-"""The equality tests' build: the issue's flags at -O0 (the TSE(2) export compiles in about 1 s, against 3 s
-(scalar code) to 13 s (array code) at -O2)."""
+FLAGS = ("-std=c99", "-O0", "-Wall", "-Wextra", "-Werror", "-pedantic")
+"""The equality tests' build: the export's flags (:data:`liemef.codegen.CFLAGS`) at -O0 (the TSE(2) export
+compiles in about 1 s, against 3 s (scalar code) to 13 s (array code) at -O2)."""
 CONNECTIONS = ("zero", "minus", "plus")
 STATES = 100
 KLO, KHI = -2, 3
@@ -389,6 +392,28 @@ def test_export_c_writes_both_files_that_compile_and_prints_the_api(cli_export):
                  "tse2_coords(", "TSE2_BAD_ARGUMENT (-1)", "1 TSE2_NON_FINITE (non-finite)", "K[36] (6 x 6, row-major)",
                  "n = 6, m = 2 inputs, p = 7 outputs", "connection='zero', order='second'"):
         assert word in text, word
+
+
+COMPILERS = ("gcc", "clang")
+"""The compilers the exported C must build warning-free under :data:`liemef.codegen.CFLAGS` (ISO C99,
+``-Wall -Wextra -Werror -pedantic``); one that is absent is skipped unless ``$LIEMEF_REQUIRE_COMPILERS`` names it
+(CI installs both and names both, so that a missing Clang fails there instead of passing unseen)."""
+
+
+def test_exported_c_builds_warning_free_with_gcc_and_clang(build, tmp_path):
+    present = [cc for cc in COMPILERS if shutil.which(cc)]
+    missing = set(os.environ.get("LIEMEF_REQUIRE_COMPILERS", "").split()) - set(present)
+    assert not missing, f"required by $LIEMEF_REQUIRE_COMPILERS but not on the PATH: {sorted(missing)}"
+    if not present:
+        pytest.skip(f"none of {COMPILERS} on the PATH")
+    for key in [*DEFAULT, ("tse2", "second", "zero", "array")]:
+        _, cf = build(*key)
+        for cc in present:
+            obj = tmp_path / f"{cf.exported.prefix}.{cc}.o"
+            proc = subprocess.run([cc, *codegen.CFLAGS, "-c", "-o", str(obj), str(cf.exported.source)],
+                                  capture_output=True, text=True)
+            assert proc.returncode == 0 and proc.stderr == "", f"{key} with {cc}:\n{proc.stderr}"
+            assert obj.stat().st_size > 0
 
 
 def test_export_c_options_reach_the_filter(tmp_path):

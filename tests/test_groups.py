@@ -15,13 +15,39 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from liemef.groups import R1, R2, R3, SE2, SE2R2, SO2, SO2R1, SO3, TSE2, TSO3, LieGroup, Product, Rn
+from liemef.groups import (
+    R1,
+    R2,
+    R3,
+    SE2,
+    SE2R2,
+    SE3,
+    SE23,
+    SEK3,
+    SL3,
+    SO2,
+    SO2R1,
+    SO3,
+    TSE2,
+    TSO3,
+    LieGroup,
+    MatrixGroup,
+    Product,
+    Rn,
+    Sim3,
+)
 from liemef.groups._se2 import _TAYLOR as _SE2_TAYLOR
+from liemef.groups._sek3 import _TAYLOR_SQ as _SEK3_TAYLOR_SQ
 from liemef.groups._so3 import _TAYLOR_SQ as _SO3_TAYLOR_SQ
 from tolerances import FINITE_DIFF, NEAR_PI, ROUNDOFF
 
-GROUPS = [SO2, SO3, SE2, R1, R3, TSE2, TSO3, SE2R2, SO2R1, Product[SO3, SE2, R2]]
+GROUPS = [SO2, SO3, SE2, R1, R3, TSE2, TSO3, SE2R2, SO2R1, Product[SO3, SE2, R2],
+          SE3, SE23, SEK3[3], Product[SE23, Rn[6]], SL3, Sim3]
 PRODUCTS = [G for G in GROUPS if issubclass(G, Product)]
+SLOW_GROUPS = (SL3, Sim3)
+"""Generic matrix groups: their expm/logm loops take seconds to compile for each function and shape (about 4 min
+for the whole property suite of the two on a busy 2-core machine), so their property tests are marked slow. The
+fast suite checks the generic group against the closed forms (test_matrix_group_agrees_with_the_closed_forms)."""
 BATCH = 16  # elements per vectorised check; one batch size throughout, so eager ops compile once per shape
 
 
@@ -32,7 +58,7 @@ def _base_factors(G: type[LieGroup]) -> tuple[type[LieGroup], ...]:
 
 
 def _has_rotation(G) -> bool:
-    return any(not issubclass(T, Rn) for T in _base_factors(G))
+    return any(not issubclass(T, Rn) and T is not SL3 for T in _base_factors(G))
 
 
 ROTATION_GROUPS = [G for G in GROUPS if _has_rotation(G)]
@@ -42,6 +68,7 @@ TAYLOR_ANGLES = sorted({
     float(np.sqrt(_SO3_TAYLOR_SQ)),  # SO3.exp: theta^2 < _TAYLOR_SQ
     float(2 * np.arcsin(np.sqrt(_SO3_TAYLOR_SQ / 4))),  # SO3.log: sin(theta/2)^2 < _TAYLOR_SQ / 4
     _SE2_TAYLOR,  # SE2.exp / SE2.log: |omega| < _TAYLOR
+    float(np.sqrt(_SEK3_TAYLOR_SQ)),  # SEK3's Jacobian coefficients: theta^2 < _TAYLOR_SQ
 })
 AROUND_THRESHOLDS = [a * f for a in TAYLOR_ANGLES for f in (1 - 1e-6, 1 + 1e-6)]
 NEAR_IDENTITY = [1e-12, 1e-9, 1e-6, 1e-3, *AROUND_THRESHOLDS, 0.1]
@@ -53,16 +80,30 @@ def sample_xi(G, rng, shape=(), angle=None, scale=1.0) -> np.ndarray:
 
     Each rotation factor gets the rotation angle ``angle`` (uniform in [-3, 3] if None, i.e. inside the
     principal domain of log) about a random axis; every other coordinate is normal with standard deviation
-    ``scale``.
+    ``scale``, except Sim(3)'s log-scale and all of SL(3)'s coordinates, of standard deviation
+    ``0.3 min(scale, 1)`` (exponentials of large non-skew generators are ill-conditioned matrices, and SL(3) has
+    no rotation block whose angle could be set: its imaginary eigenvalue parts stay well inside (-pi, pi)).
     """
     blocks = []
     for T in _base_factors(G):
         a = rng.uniform(-3.0, 3.0, shape) if angle is None else np.broadcast_to(angle, shape).astype(float)
+
+        def rotation_vector(a=a):
+            u = rng.standard_normal((*shape, 3))
+            return a[..., None] * u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+        bounded = 0.3 * np.minimum(scale, 1.0)
         if T is SO2:
             blocks.append(a[..., None])
         elif T is SO3:
-            u = rng.standard_normal((*shape, 3))
-            blocks.append(a[..., None] * u / np.linalg.norm(u, axis=-1, keepdims=True))
+            blocks.append(rotation_vector())
+        elif issubclass(T, SEK3):
+            blocks += [rotation_vector(), scale * rng.standard_normal((*shape, 3 * T.K))]
+        elif T is Sim3:
+            blocks += [rotation_vector(), scale * rng.standard_normal((*shape, 3)),
+                       bounded * rng.standard_normal((*shape, 1))]
+        elif T is SL3:
+            blocks.append(bounded * rng.standard_normal((*shape, 8)))
         elif T is SE2:
             blocks.append(np.concatenate([a[..., None], scale * rng.standard_normal((*shape, 2))], axis=-1))
         else:
@@ -134,7 +175,11 @@ def rng():
     return np.random.default_rng(20160729)
 
 
-group_param = pytest.mark.parametrize("G", GROUPS, ids=lambda G: G.__name__)
+def _params(groups):
+    return [pytest.param(G, marks=pytest.mark.slow) if G in SLOW_GROUPS else G for G in groups]
+
+
+group_param = pytest.mark.parametrize("G", _params(GROUPS), ids=lambda G: G.__name__)
 
 
 def _xi_cases(G, rng):
@@ -219,13 +264,17 @@ def test_log_exp_round_trip_random(G, rng):
 @group_param
 def test_log_exp_round_trip_near_identity(G, rng):
     # Relative to |xi|: a Taylor branch that is merely "small" near 0 must still be accurate relative to xi.
+    # A MatrixGroup holds the matrix itself, whose diagonal 1 + O(xi) keeps xi only to round-off absolutely
+    # (SL(3)'s diagonal generators, Sim(3)'s scale): there the bound is ROUNDOFF relative or 1e-15 absolute.
     xi = near_identity_xi(G, rng)
     err = np.linalg.norm(np.asarray(G.exp(xi).log()) - xi, axis=-1) / np.linalg.norm(xi, axis=-1)
+    if issubclass(G, MatrixGroup):
+        err = np.minimum(err, np.linalg.norm(np.asarray(G.exp(xi).log()) - xi, axis=-1) / 1e-15 * ROUNDOFF)
     worst = int(np.argmax(err))
     assert err[worst] <= ROUNDOFF, f"relative error {err[worst]:.3g} at xi = {xi[worst]}"
 
 
-@pytest.mark.parametrize("G", ROTATION_GROUPS, ids=lambda G: G.__name__)
+@pytest.mark.parametrize("G", _params(ROTATION_GROUPS), ids=lambda G: G.__name__)
 @pytest.mark.parametrize("eps", PI_DISTANCES)
 def test_log_exp_round_trip_near_pi(G, eps, rng):
     xi = near_pi_xi(G, rng, eps)
@@ -233,8 +282,11 @@ def test_log_exp_round_trip_near_pi(G, eps, rng):
     assert_close(G.from_matrix(G.exp(xi).as_matrix()).log(), xi, NEAR_PI)
 
 
-@pytest.mark.parametrize("G", ROTATION_GROUPS, ids=lambda G: G.__name__)
+@pytest.mark.parametrize("G", [G for G in ROTATION_GROUPS if not issubclass(G, MatrixGroup)],
+                         ids=lambda G: G.__name__)
 def test_log_at_exactly_pi(G, rng):
+    # MatrixGroup.log is the principal logarithm, undefined on the cut locus: see
+    # test_matrix_group_log_on_the_cut_locus.
     # On the cut locus log picks one of the two (or, in SO(3), of the circle of) preimages; exp must return g.
     # For SO(3) also the quaternions with |w| below 1e-12, which take their own branch in SO3.log.
     xi = near_pi_xi(G, rng, 0.0)
@@ -273,7 +325,8 @@ def test_so3_log_ignores_quaternion_sign(rng):
 @group_param
 def test_hat_vee_inverse(G, rng):
     xi = sample_xi(G, rng, (BATCH,))
-    assert_close(G.vee(G.hat(xi)), xi, 0.0)
+    # Closed-form vee reads entries (exact); a MatrixGroup's is the dual basis, a sum of products (round-off).
+    assert_close(G.vee(G.hat(xi)), xi, ROUNDOFF if issubclass(G, MatrixGroup) else 0.0)
     E = basis_hats(G)
     # The hat matrices of the basis are linearly independent (vee is a left inverse on their span).
     assert np.linalg.matrix_rank(E.reshape(G.tangent_dim, -1)) == G.tangent_dim
@@ -688,3 +741,175 @@ def test_product_rejects_factor_type_mismatch():
     assert Product[SE2, R3] is TSE2
     assert Product[SO2, R1] is SO2R1
     assert Product[SE2, R2] is SE2R2
+
+
+# --- SE(3), SE_2(3), SE_K(3) --------------------------------------------------------------------------------
+
+
+def test_se3_algebra_order_is_omega_v():
+    w, v = np.array([0.0, 0.0, 0.7]), np.array([1.3, -0.4, 2.0])
+    c, s = np.cos(0.7), np.sin(0.7)
+    M = np.asarray(SE3.exp(np.concatenate([w, np.zeros(3)])).as_matrix())
+    assert_close(M[:3, :3], [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], ROUNDOFF)
+    assert_close(M[:3, 3], np.zeros(3), 0.0)
+    want = np.eye(4)
+    want[:3, 3] = v
+    assert_close(SE3.exp(np.concatenate([np.zeros(3), v])).as_matrix(), want, 0.0)
+    X = np.asarray(SE3.hat(np.concatenate([w, v])))
+    assert_close(X[:3, :3], SO3.hat(w), 0.0)
+    assert_close(X[:3, 3], v, 0.0)
+    g = SE3.from_rotation_translation(SO3.exp(w), v)
+    assert_close(g.translation(), v, 0.0)
+    assert_close(g.coords(), np.concatenate([w, v]), ROUNDOFF)
+    p = np.array([0.5, -1.0, 2.0])
+    assert_close(g.act(p), np.asarray(SO3.exp(w).as_matrix()) @ p + v, ROUNDOFF)
+
+
+def test_se23_algebra_order_is_omega_velocity_position():
+    nu_v, nu_p = np.array([1.0, 2.0, 3.0]), np.array([-4.0, 5.0, -6.0])
+    M = np.asarray(SE23.exp(np.concatenate([np.zeros(3), nu_v, nu_p])).as_matrix())
+    want = np.eye(5)
+    want[:3, 3], want[:3, 4] = nu_v, nu_p
+    assert_close(M, want, 0.0)
+    R = SO3.exp(np.array([0.3, -0.2, 0.1]))
+    g = SE23.from_rotation_velocity_position(R, nu_v, nu_p)
+    assert_close(g.velocity(), nu_v, 0.0)
+    assert_close(g.position(), nu_p, 0.0)
+    assert_close(g.as_matrix()[:3, :3], R.as_matrix(), 0.0)
+    # extended-pose kinematics: (R, v, p) exp(dt (w, a, v_b)) with zero rotation moves v by R a dt
+    a = np.array([0.2, 0.0, -0.1])
+    moved = g.rplus(0.5 * np.concatenate([np.zeros(3), a, np.zeros(3)]))
+    assert_close(moved.velocity(), nu_v + np.asarray(R.act(a)) * 0.5, ROUNDOFF)
+
+
+def test_sek3_is_indexed_by_the_number_of_vectors():
+    assert SEK3[1] is SE3 and SEK3[2] is SE23 and SEK3[np.int64(3)] is SEK3[3]
+    assert SEK3[3].tangent_dim == 12 and SEK3[3].matrix_dim == 6
+    for K in (0, -1, 1.0, True, "2"):
+        with pytest.raises(ValueError, match=r"SEK3\[K\]: expected a positive integer"):
+            SEK3[K]
+    with pytest.raises(ValueError, match=r"SE3: expected wxyz_p of shape \(\.\.\., 7\)"):
+        SE3(np.zeros(4))
+
+
+@functools.cache
+def _so3_exp_autodiff_left_jacobian():
+    # J_l(w)[:, j] = vee(d/ds exp(w + s e_j) exp(w)^T) at s = 0: the definition, by forward-mode autodiff.
+    def J(w):
+        R = lambda x: SO3.exp(x).as_matrix()  # noqa: E731
+        dR = jax.jacfwd(R)(w)  # (3, 3, 3)
+        return jnp.stack([SO3.vee(dR[..., j] @ R(w).T) for j in range(3)], axis=-1)
+
+    return fast_jit(jax.vmap(J))
+
+
+@pytest.mark.parametrize("where", ["zero", "near_identity", "random", "pi-1e-3", "pi-1e-6"])
+def test_sek3_left_jacobian_closed_forms_equal_autodiff(where, rng):
+    # SE_K(3)'s exp and log use J_l(w) and J_l(w)^{-1} in closed form (Taylor branches): pinned to autodiff of
+    # SO3.exp, on both sides of the Taylor threshold and near pi; and their own derivatives are finite at 0.
+    from liemef.groups import _sek3
+
+    if where == "zero":
+        w = np.zeros((BATCH, 3))
+    elif where == "near_identity":
+        w = sample_xi(SO3, rng, (BATCH,), angle=np.resize(NEAR_IDENTITY, BATCH))
+    elif where == "random":
+        w = sample_xi(SO3, rng, (BATCH,))
+    else:
+        w = near_pi_xi(SO3, rng, float(where[3:]))
+    J = np.asarray(_so3_exp_autodiff_left_jacobian()(jnp.asarray(w)))
+    eye = np.broadcast_to(np.eye(3), (BATCH, 3, 3))
+    Jl = np.swapaxes(np.asarray(_sek3.left_jacobian_apply(w, np.swapaxes(eye, -1, -2))), -1, -2)
+    Jl_inv = np.swapaxes(np.asarray(_sek3.inverse_left_jacobian_apply(w, np.swapaxes(eye, -1, -2))), -1, -2)
+    assert_close(Jl, J, ROUNDOFF)
+    assert_close(Jl_inv @ J, eye, ROUNDOFF if where[:2] != "pi" else NEAR_PI)
+    coeffs = lambda x: jnp.stack([*_sek3.left_jacobian_coefficients(x),  # noqa: E731
+                                  _sek3.inverse_left_jacobian_coefficient(x)])
+    H = np.asarray(jax.vmap(jax.hessian(coeffs))(jnp.asarray(w)))
+    assert np.isfinite(H).all()
+    if where == "zero":  # d^2/dw^2 of a(theta^2) at 0 = 2 a'(0) I: a' = -1/24, b' = -1/120, c' = 1/720
+        assert_close(H[0], 2 * np.array([-1 / 24, -1 / 120, 1 / 720])[:, None, None] * np.eye(3), ROUNDOFF)
+
+
+# --- the generic matrix group -------------------------------------------------------------------------------
+
+
+@functools.cache
+def _generic(G):
+    return MatrixGroup.from_basis(f"{G.__name__}_generic", basis_hats(G))
+
+
+def _agreement_ops(G, M, xi, a, b):
+    """The operations of the closed-form group G and of the MatrixGroup M with its basis, side by side."""
+    g, m = G.exp(xi), M.exp(xi)
+    ma, mb = M.from_matrix(a.as_matrix()), M.from_matrix(b.as_matrix())
+
+    def d_log(T, e):
+        return jax.vmap(lambda x: jax.jacfwd(lambda d: x.rplus(d).log())(jnp.zeros(T.tangent_dim)))(e)
+
+    return {
+        "exp": (m.as_matrix(), g.as_matrix()), "log": (m.log(), g.log()), "Ad": (m.Ad(), g.Ad()),
+        "ad": (M.ad(xi), G.ad(xi)), "vee": (M.vee(G.hat(xi)), xi),
+        "compose": ((ma @ mb.inverse()).as_matrix(), (a @ b.inverse()).as_matrix()),
+        "rminus": (ma.rminus(mb), a.rminus(b)), "d_log": (d_log(M, m), d_log(G, g)),
+    }
+
+
+@pytest.mark.parametrize("G", [SO3, SE3, SE23], ids=lambda G: G.__name__)
+def test_matrix_group_agrees_with_the_closed_forms(G, rng):
+    # Random, near the identity and near pi (1e-3, 1e-6), in one compiled function per group.
+    M = _generic(G)
+    assert (M.tangent_dim, M.matrix_dim) == (G.tangent_dim, G.matrix_dim)
+    xi = np.concatenate(list(_xi_cases(G, rng).values()))
+    a, b = random_elements(G, rng, (xi.shape[0],)), random_elements(G, rng, (xi.shape[0],))
+    out = fast_jit(functools.partial(_agreement_ops, G, M))(xi, a, b)
+    for name, (got, want) in out.items():
+        assert_close(got, want, ROUNDOFF, err_msg=name)
+
+
+def test_sl3_and_sim3_are_their_groups(rng):
+    g = random_elements(SL3, rng)
+    assert_close(np.linalg.det(np.asarray(g.as_matrix())), np.ones(BATCH), ROUNDOFF)
+    assert_close(np.trace(np.asarray(SL3.hat(sample_xi(SL3, rng, (BATCH,)))), axis1=-2, axis2=-1),
+                 np.zeros(BATCH), ROUNDOFF)
+    w, v, sigma = np.array([0.0, 0.0, 0.4]), np.array([1.0, 2.0, 3.0]), 0.3
+    M = np.asarray(Sim3.exp(np.concatenate([w, np.zeros(3), [sigma]])).as_matrix())
+    assert_close(M[:3, :3], np.exp(sigma) * np.asarray(SO3.exp(w).as_matrix()), ROUNDOFF)
+    assert_close(Sim3.exp(np.concatenate([np.zeros(3), v, [0.0]])).as_matrix()[:3, 3], v, ROUNDOFF)
+    assert SL3.tangent_dim == 8 and Sim3.tangent_dim == 7
+
+
+@pytest.mark.parametrize("G", [Sim3, _generic(SO3)], ids=lambda G: G.__name__)
+def test_matrix_group_log_on_the_cut_locus(G, rng):
+    # The principal logarithm is undefined for a rotation by exactly pi (eigenvalues -1). Round-off may still
+    # lead the square roots to a preimage; otherwise the result is NaN, never a wrong finite value.
+    xi = near_pi_xi(G, rng, 0.0)
+    g = G.exp(xi)
+    log = np.asarray(fast_jit(lambda e: e.log())(g))
+    finite = np.isfinite(log).all(axis=-1)
+    assert (finite | np.isnan(log).any(axis=-1)).all()
+    back = np.asarray(G.exp(np.where(finite[:, None], log, 0.0)).as_matrix())[finite]
+    assert_close(back, np.asarray(g.as_matrix())[finite], NEAR_PI)
+
+
+@pytest.mark.parametrize(("basis", "match"), [
+    (np.zeros((2, 3)), r"basis: expected finite matrices of shape \(n, m, m\)"),
+    (np.stack([np.eye(2), 2 * np.eye(2)]), r"basis: expected 2 linearly independent matrices, got rank 1"),
+    (np.stack([[[0.0, 1.0], [0.0, 0.0]], [[0.0, 0.0], [1.0, 0.0]]]), r"basis: expected a Lie algebra"),
+], ids=["shape", "dependent", "not-closed"])
+def test_matrix_group_rejects_bad_bases(basis, match):
+    with pytest.raises(ValueError, match=match):
+        MatrixGroup.from_basis("Bad", basis)
+    with pytest.raises(ValueError, match=r"name: expected a class name"):
+        MatrixGroup.from_basis("no name", np.eye(2)[None])
+
+
+@pytest.mark.slow  # 65 s on a busy 2-core machine: compiling a filter on SL(3)
+def test_adding_a_group_page_runs_and_prints_what_it_shows(tmp_path, monkeypatch):
+    # The worked example of docs/adding-a-group.md: a MatrixGroup from a basis, used as the group of a filter.
+    from pathlib import Path
+
+    from test_tutorial import check_page
+
+    ns = check_page(Path(__file__).resolve().parents[1] / "docs" / "adding-a-group.md", tmp_path, monkeypatch)
+    assert bool(ns["traj"].ok)

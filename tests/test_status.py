@@ -160,3 +160,16 @@ def test_too_many_consecutive_rejections_fail_with_cause_gate():
     ys2[bad[2]] = np.nan
     ok = flt.run(state, ts, us, ys2)
     assert ok.status.ok and int(ok.status.rejected[0]) == 2
+
+
+def test_each_cause_is_one_member_with_its_code_label_and_message():
+    """CAUSES is one enumeration (diffrax's RESULTS shape): a member is its label, reads back by its code, and
+    carries the message that Status.message prints."""
+    assert [c.code for c in CAUSES] == list(range(len(CAUSES)))
+    assert all(CAUSES[c.code] is c and CAUSES[np.int32(c.code)] is c for c in CAUSES)
+    assert CAUSES.NONFINITE == "non-finite" and CAUSES["GATE"] is CAUSES.GATE
+    assert len({c.message for c in CAUSES}) == len(CAUSES)
+    st = liemef.filters.Status.initial(1)
+    failed = eqx.tree_at(lambda s: (s.code, s.index, s.time), st,
+                         (jnp.asarray(CAUSES.INDEFINITE.code, jnp.int32), jnp.asarray(3, jnp.int32), jnp.asarray(0.5)))
+    assert failed.cause == "K not positive definite" and CAUSES.INDEFINITE.message in failed.message()

@@ -14,7 +14,7 @@
  *
  * Build (FILTER is the export's --name, FILTER_UPPER the same in capitals):
  *   liemef export-c --system tse2 --out build
- *   cc -std=c99 -O2 -Wall -Werror -DFILTER=tse2 -DFILTER_UPPER=TSE2 -Ibuild filter_csv.c build/tse2.c -lm
+ *   cc -std=c99 -O2 -Wall -Wextra -Werror -pedantic -DFILTER=tse2 -DFILTER_UPPER=TSE2 -Ibuild filter_csv.c build/tse2.c -lm
  */
 #include <errno.h>
 #include <math.h>

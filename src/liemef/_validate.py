@@ -5,14 +5,63 @@ from __future__ import annotations
 
 import numpy as np
 
+ON_GROUP = 1e-6
+"""How far a group element's stored parameters may be from the group (the unit circle of SO(2)'s and SE(2)'s
+(cos, sin), the unit sphere of SO(3)'s quaternion), in the parameters' own units: |norm - 1| <= 1e-6. Elements
+made by liemef's constructors are within 1e-15; one typed with six digits is within 1e-6."""
+
+INT_MAX = 2**31 - 1
+"""The largest count (sub-steps, samples kept, trials) a compiled loop takes: a C ``int`` and JAX's int32."""
+
+SEED_MAX = 2**63 - 1
+"""The largest random seed (``jax.random.key`` takes a 64-bit integer)."""
+
+
+def numeric(name: str, value) -> np.ndarray:
+    """``value`` as a NumPy array of real numbers, not yet converted: booleans, integers and floats pass (a
+    lone Python integer beyond 64 bits as a float, if it has one); complex numbers, objects (ragged lists,
+    ``None``, big integers inside a list), strings and anything else are refused with a ValueError naming
+    ``name`` and what came."""
+    if isinstance(value, int) and not isinstance(value, bool) and not -2**63 <= value < 2**63:
+        return np.asarray(_float(name, value))
+    try:
+        a = value if isinstance(value, np.ndarray) else np.asarray(value)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise ValueError(f"{name}: expected a numeric array, got {type(value).__name__} ({err})") from err
+    kind = a.dtype.kind
+    if kind == "c":
+        bad = np.argwhere(np.imag(a) != 0)
+        at = tuple(int(i) for i in bad[0]) if bad.size else (0,) * a.ndim
+        raise ValueError(f"{name}: expected real numbers, got complex values (dtype {a.dtype}), "
+                         f"{_first(a, at)}")
+    if kind not in "biuf":
+        what = {"O": "objects", "U": "strings", "S": "bytes", "V": "raw records", "M": "dates",
+                "m": "time deltas"}.get(kind, "non-numbers")
+        raise ValueError(f"{name}: expected a numeric array, got {what} (dtype {a.dtype}), "
+                         f"{_first(a, (0,) * a.ndim)}")
+    return a
+
+
+def _first(a: np.ndarray, at: tuple) -> str:
+    if a.size == 0:
+        return "empty"
+    v = a[at] if a.ndim else a[()]
+    v = v.item() if isinstance(v, np.generic) else v
+    return f"{v!r}" + (f" at index {at}" if a.ndim else "")
+
+
+def _float(name: str, value: int) -> float:
+    try:
+        return float(value)
+    except OverflowError as err:
+        raise ValueError(f"{name}: expected a number, got an integer of {value.bit_length()} bits") from err
+
 
 def array(name: str, value, shape: tuple[int | None, ...] | None = None, *, missing: bool = False) -> np.ndarray:
     """``value`` as a finite float64 numpy array of the given shape (None is any length); with ``missing``,
-    NaN is allowed (a missing sample) but infinities are not."""
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name}: expected a numeric array, got {type(value).__name__} ({err})") from err
+    NaN is allowed (a missing sample) but infinities are not. Integers are converted; complex numbers and
+    objects are refused (:func:`numeric`)."""
+    a = np.asarray(numeric(name, value), dtype=np.float64)
     if shape is not None and (a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape,
                                                                                                    strict=False))):
         want = str(tuple("N" if s is None else s for s in shape)).replace("'", "")
@@ -25,30 +74,79 @@ def array(name: str, value, shape: tuple[int | None, ...] | None = None, *, miss
     return a
 
 
+def positive(name: str, value) -> float:
+    """A finite number > 0 (a mass, an inertia, a length, a rate), as a float."""
+    v = float(array(name, value, ()))
+    if not v > 0:
+        raise ValueError(f"{name}: expected a finite number > 0, got {v}")
+    return v
+
+
+def real(name: str, value) -> float:
+    """A finite real number, as a float."""
+    return float(array(name, value, ()))
+
+
+def integer(name: str, value, low: int = 0, high: int = INT_MAX) -> int:
+    """An integer in [low, high], as an int: Python and NumPy integers pass, booleans, floats and the rest do
+    not (a count given as 2.5 is a mistake, not a rounding)."""
+    want = f"an integer >= {low} and <= {high}"
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ValueError(f"{name}: expected {want}, got {type(value).__name__} {value!r}")
+    v = int(value)
+    if not low <= v <= high:
+        raise ValueError(f"{name}: expected {want}, got {v}")
+    return v
+
+
+def element(name: str, g, G) -> None:
+    """``g`` is a single element of the group type ``G`` with finite parameters on the group: its stored
+    parameters within :data:`ON_GROUP` of it (``g.off_group()``: 0 for a vector space). ValueError naming
+    ``name`` otherwise, with the distance."""
+    import jax
+
+    if not isinstance(g, G):
+        raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
+    if g.batch_shape != ():
+        raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
+    for leaf in jax.tree_util.tree_leaves(g):
+        array(name, leaf)
+    off = float(g.off_group())
+    if not off <= ON_GROUP:
+        params = np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree_util.tree_leaves(g)])
+        raise ValueError(f"{name}: expected an element of {G.__name__} within {ON_GROUP:g} of the group (|norm - 1| "
+                         f"of its unit parameters), got one {off:.6g} off the group, parameters {params.tolist()}")
+
+
 def square(name: str, value, n: int) -> np.ndarray:
     return array(name, value, (n, n))
 
 
 def symmetric_psd(name: str, value, n: int, *, definite: bool = True) -> np.ndarray:
-    """A symmetric positive (semi)definite n x n matrix."""
+    """A symmetric positive (semi)definite n x n matrix (its eigenvalues computed on the matrix scaled to a
+    largest entry of 1, so that no entry overflows)."""
     a = square(name, value, n)
     scale = max(1.0, float(np.abs(a).max()))
-    if not np.allclose(a, a.T, rtol=0, atol=1e-10 * scale):
+    u = a / scale
+    if not np.allclose(u, u.T, rtol=0, atol=1e-10):
         raise ValueError(f"{name}: expected a symmetric matrix, got max |M - M^T| = {np.abs(a - a.T).max():.3g}")
-    eig = np.linalg.eigvalsh(0.5 * (a + a.T))
-    if definite and eig.min() <= 1e-12 * scale:
-        raise ValueError(f"{name}: expected a positive definite matrix, got smallest eigenvalue {eig.min():.3g}")
-    if not definite and eig.min() < -1e-10 * scale:
-        raise ValueError(f"{name}: expected a positive semidefinite matrix, got smallest eigenvalue {eig.min():.3g}")
+    eig = np.linalg.eigvalsh(0.5 * (u + u.T))
+    if definite and eig.min() <= 1e-12:
+        raise ValueError(f"{name}: expected a positive definite matrix, got smallest eigenvalue "
+                         f"{eig.min() * scale:.3g}")
+    if not definite and eig.min() < -1e-10:
+        raise ValueError(f"{name}: expected a positive semidefinite matrix, got smallest eigenvalue "
+                         f"{eig.min() * scale:.3g}")
     return a
 
 
 def invertible(name: str, value, n: int) -> np.ndarray:
     a = square(name, value, n)
-    s = np.linalg.svd(a, compute_uv=False)
+    scale = max(1.0, float(np.abs(a).max()))
+    s = np.linalg.svd(a / scale, compute_uv=False)
     if s.min() <= 1e-12 * max(1.0, s.max()):
         raise ValueError(f"{name}: expected an invertible matrix (D D^T positive definite), "
-                         f"got smallest singular value {s.min():.3g}")
+                         f"got smallest singular value {s.min() * scale:.3g}")
     return a
 
 

@@ -392,6 +392,9 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 @click.option("--interpolation", type=click.Choice(("hold", "linear")), default="hold", show_default=True,
               help="Inputs and dense measurements held over each interval, or linear between samples.")
+@click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
+              help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
+              "at their own time (the hybrid filter: recommended for sample sensors).")
 @click.option("--substeps", default="auto", show_default=True,
               help="Integrator steps per sample interval: auto (by stiffness) or a number.")
 @click.option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
@@ -402,14 +405,14 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--params", "params_file", type=click.Path(path_type=Path),
               help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu.")
 def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection, order, alpha, interpolation,
-            substeps, gap, chunk, progress, params_file):
+            updates, substeps, gap, chunk, progress, params_file):
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
     import jax
     import numpy as np
 
-    from .filters import CAUSES, MinimumEnergyFilter
+    from .filters import MinimumEnergyFilter
     from .metrics import angle_mask, continuous_angles, gain_stats, state_labels
     from .reports import io, plots
     from .studies.experiments import SCHEMA
@@ -440,7 +443,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     q0 = _floats(x0, c, "'--x0'")
     if q0 is None and user is not None:
         q0 = user.x0 if user.x0 is not None else (
-            np.asarray(user.initial_guess(y_first), dtype=np.float64) if user.initial_guess else np.zeros(c))
+            user.guess(y_first) if user.initial_guess else np.zeros(c))
     if q0 is None:
         q = measured(y_first[None, :])[0]
         q0 = np.where(np.isfinite(q), q, 0.0)
@@ -455,7 +458,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     d = _out_dir(out)
     try:
         flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha,
-                                  interpolation=interpolation, substeps=substeps)
+                                  interpolation=interpolation, substeps=substeps, updates=updates)
         state = flt.init(system.group.from_coords(q0), K0)
         if gap is None:
             gap = 10.0 * float(np.median(np.diff(log.ts)))
@@ -486,7 +489,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                                        "K_diag": [float(v) for v in np.diagonal(np.asarray(traj.final.K))]},
                    "log": str(log_path), "filter": repr(flt), "liemef_version": __version__}
         io.write_json(d / "failure.json", failure)
-        raise click.ClickException(f"{status.message(log.ts)} (cause: {CAUSES[int(status.code)]}). No estimates "
+        raise click.ClickException(f"{status.message(log.ts)} (cause: {status.cause}). No estimates "
                                    f"were written; see {d / 'failure.json'}")
 
     names, units = state_labels(system)
@@ -495,7 +498,7 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
     filt = continuous_angles(coords, angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(log.ys - jax.vmap(system.output)(traj.g_hat, log.ts))
+    innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
     onames, ounits = system.output_names, system.output_units
     table_text, table = _innovation_table(log.ts, innov, onames, ounits)
     comps = [f"e{k}" for k in range(n)]
@@ -509,8 +512,10 @@ def run_log(system_name, system_file, log_path, out, x0, k0, k0_diag, connection
                 "t1": float(log.ts[-1])},
         "config": {"x0": [float(v) for v in q0], "K0_diag": [float(v) for v in np.diagonal(K0)],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
+                   "updates": updates,
                    "substeps": substeps, "gap": gap},
-        "innovation": {"definition": "y - h(g_hat) at each present sample (before the update of that sample)",
+        "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
+                       "sample (before the update of that sample)",
                        "components": table},
         "gain": gain_stats(K),
         "status": report,

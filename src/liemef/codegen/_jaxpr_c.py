@@ -28,6 +28,7 @@ rounding (libm's ``sin``/``cos`` against XLA's own, summation order in reduction
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import jax
@@ -121,7 +122,7 @@ _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduc
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
           "checkpoint", "remat", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
-_LINALG = {"dot_general", "lu", "triangular_solve", "custom_linear_solve", "select_n", "clamp",
+_LINALG = {"dot_general", "lu", "triangular_solve", "eigh", "custom_linear_solve", "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort"}
 
 PRIMITIVES: frozenset[str] = frozenset(
@@ -134,7 +135,16 @@ static inline double lm_max(double a, double b) { return (a != a || b != b) ? a 
 static inline double lm_min(double a, double b) { return (a != a || b != b) ? a + b : (a < b ? a : b); }
 static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
 """
-"""Static inline functions every generated source starts with (XLA's NaN-propagating max and min, sign)."""
+"""Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign)."""
+
+
+def helpers_used(*texts: str) -> str:
+    """The lines of :data:`HELPERS` whose function ``texts`` call: an unused static function is a warning
+    (``-Wunused-function``) in clang, even when inline, and the exported C compiles with ``-Wall -Werror``."""
+    body = "\n".join(texts)
+    lines = [ln for ln in HELPERS.strip().splitlines()
+             if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", ln).group(1) + r"\(", body)]
+    return "\n".join(lines)
 
 
 def _subjaxpr(params: dict, *keys):
@@ -545,6 +555,8 @@ class Translator:
             return self.lu(ins[0], avals)
         if name == "triangular_solve":
             return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
+        if name == "eigh":
+            return self.eigh(ins[0], params, avals)
         if name == "integer_pow":
             return [self.integer_pow(ins[0], params["y"], *avals[0])]
         if name == "convert_element_type":
@@ -921,6 +933,60 @@ class Translator:
         self.emit("    }")
         self.emit("}")
         return [lu, piv, perm]
+
+    def eigh(self, a: Val, params, avals) -> list[Val]:
+        """The symmetric eigendecomposition (``v``, ``w``: eigenvectors as columns, eigenvalues ascending) of
+        the triangle ``lower`` (or upper) of ``a``, by cyclic Jacobi rotations (Golub & Van Loan, Algorithm
+        8.5.3) until the off-diagonal part is below the rounding of the whole. Not LAPACK's algorithm: the
+        eigenvalues agree to rounding, an eigenvector up to its sign (and, for a repeated eigenvalue, up to a
+        rotation of its eigenspace)."""
+        if len(a.shape) != 2 or a.shape[0] != a.shape[1] or a.dtype != np.float64:
+            raise UnsupportedPrimitive(f"eigh of shape {a.shape} and dtype {a.dtype} (only square float64, "
+                                       "unbatched)")
+        if params.get("subset_by_index") not in (None, (0, a.shape[0])) or not params.get("sort_eigenvalues", True):
+            raise UnsupportedPrimitive("eigh of a subset of eigenvalues or unsorted")
+        n = a.shape[0]
+        v, w = self.declare(*avals[0]), self.declare(*avals[1])
+        A, i, j, k, p, q, sweep = (self.fresh(x) for x in ("A", "i", "i", "i", "i", "i", "i"))
+        lower = bool(params.get("lower", True))
+        tri = (lambda r, c: f"({r} >= {c} ? {r} * {n} + {c} : {c} * {n} + {r})") if lower else \
+            (lambda r, c: f"({r} <= {c} ? {r} * {n} + {c} : {c} * {n} + {r})")
+        V = v.name
+        self.emit(f"double {A}[{n * n}];")
+        self.emit(f"for (int {i} = 0; {i} < {n}; {i}++) for (int {j} = 0; {j} < {n}; {j}++) {{ "
+                  f"{A}[{i} * {n} + {j}] = {self.elem(a, tri(i, j))}; {V}[{i} * {n} + {j}] = {i} == {j}; }}")
+        self.emit(f"for (int {sweep} = 0; {sweep} < 64; {sweep}++) {{")
+        self.emit("    double joff = 0.0, jall = 0.0;")
+        self.emit(f"    for (int {i} = 0; {i} < {n}; {i}++) for (int {j} = 0; {j} < {n}; {j}++) {{ "
+                  f"double je = {A}[{i} * {n} + {j}] * {A}[{i} * {n} + {j}]; jall += je; "
+                  f"if ({i} != {j}) joff += je; }}")
+        self.emit("    if (!(joff > 4.93e-32 * jall)) break;  /* converged (or not finite) */")
+        self.emit(f"    for (int {p} = 0; {p} < {n}; {p}++) for (int {q} = {p} + 1; {q} < {n}; {q}++) {{")
+        self.emit(f"        const double japq = {A}[{p} * {n} + {q}];")
+        self.emit("        if (japq == 0.0) continue;")
+        self.emit(f"        const double jtau = ({A}[{q} * {n} + {q}] - {A}[{p} * {n} + {p}]) / (2.0 * japq);")
+        self.emit("        const double jt = (jtau >= 0.0 ? 1.0 : -1.0) / (fabs(jtau) + sqrt(1.0 + jtau * jtau));")
+        self.emit("        const double jc = 1.0 / sqrt(1.0 + jt * jt), js = jt * jc;")
+        for M, columns in ((A, True), (A, False), (V, True)):
+            # columns p, q of A (A J), then its rows p, q (J^T A J), then the columns of V (V J)
+            at = (lambda x, M=M: f"{M}[{k} * {n} + {x}]") if columns else (lambda x, M=M: f"{M}[{x} * {n} + {k}]")
+            self.emit(f"        for (int {k} = 0; {k} < {n}; {k}++) {{ const double jx = {at(p)}, "
+                      f"jy = {at(q)}; {at(p)} = jc * jx - js * jy; {at(q)} = js * jx + jc * jy; }}")
+        self.emit(f"        {A}[{p} * {n} + {q}] = 0.0; {A}[{q} * {n} + {p}] = 0.0;")
+        self.emit("    }")
+        self.emit("}")
+        # ascending eigenvalues, their vectors with them (selection sort)
+        self.emit(f"for (int {i} = 0; {i} < {n}; {i}++) {w.name}[{i}] = {A}[{i} * {n} + {i}];")
+        self.emit(f"for (int {i} = 0; {i} < {n}; {i}++) {{")
+        self.emit(f"    int {p} = {i};")
+        self.emit(f"    for (int {j} = {i} + 1; {j} < {n}; {j}++) if ({w.name}[{j}] < {w.name}[{p}]) {p} = {j};")
+        self.emit(f"    if ({p} != {i}) {{")
+        self.emit(f"        const double jx = {w.name}[{i}]; {w.name}[{i}] = {w.name}[{p}]; {w.name}[{p}] = jx;")
+        self.emit(f"        for (int {k} = 0; {k} < {n}; {k}++) {{ const double jy = {V}[{k} * {n} + {i}]; "
+                  f"{V}[{k} * {n} + {i}] = {V}[{k} * {n} + {p}]; {V}[{k} * {n} + {p}] = jy; }}")
+        self.emit("    }")
+        self.emit("}")
+        return [v, w]
 
     def triangular_solve(self, a: Val, b: Val, params, shape, dtype) -> Val:
         """op(A) X = B (``left_side``) or X op(A) = B, A triangular (m x m), unbatched."""

@@ -26,7 +26,8 @@ Python thread per core (ctypes releases the GIL), each on its own range of trial
 
 Builds are cached in the process (by structure and zero pattern) and on disk (by the hash of the jaxpr, the
 zero pattern, the generator's code, the compiler and its flags: ``$LIEMEF_CACHE_DIR``, default
-``~/.cache/liemef/kernels``), so that a new process pays only the trace.
+``~/.cache/liemef/kernels``), so that a new process pays only the trace. The disk cache is a private folder,
+and every library is checked against the manifest its build wrote before it is loaded (:mod:`._cache`).
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ import numpy as np
 
 from .. import _side, _validate
 from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples
+from . import _cache
+from ._cache import Library, cache_dir
 from ._export import _dce, compiler
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
@@ -121,15 +124,6 @@ def _known(x) -> np.ndarray:
     """A parameter's value, or for one traced (a weight vmapped over, inside jit) ones of its shape: no zero is
     then structural, and the kernel serves any value."""
     return np.ones(np.shape(x)) if isinstance(x, jax.core.Tracer) else np.asarray(x)
-
-
-def cache_dir() -> Path:
-    """Where built kernels are kept: ``$LIEMEF_CACHE_DIR``, else ``$XDG_CACHE_HOME/liemef/kernels``, else
-    ``~/.cache/liemef/kernels``."""
-    if os.environ.get("LIEMEF_CACHE_DIR"):
-        return Path(os.environ["LIEMEF_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "liemef" / "kernels"
 
 
 def _trace(flt: AbstractFilter) -> _Traced:
@@ -434,37 +428,54 @@ def _host() -> str:
 def _library(tr: _Traced, flags, kind: str) -> Path:
     """Where the disk cache keeps the library of a traced interval built with ``flags`` (``kind``: "kernel",
     "quick" or "lanes"): keyed by the jaxpr, the generator, the compiler, the flags and, for the host's SIMD,
-    the CPU."""
+    the CPU; in the checked cache folder (:func:`._cache.folder`)."""
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     parts = [tr.key, cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
         ([_host()] if "-march=native" in flags else [])
-    return cache_dir() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
+    return _cache.folder() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
 
 
-def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str | None = None) -> Path:
-    """The shared library of a traced interval (``kind`` "lanes": its batch kernel): from the disk cache (the
-    translation is skipped too), or translated (unless ``source`` is given) and built into it (atomically)."""
+def _cached(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel") -> Library | None:
+    """The library of a traced interval from the disk cache, if it is there and passes its manifest's check."""
+    return _cache.read_verified(_library(tr, flags, kind), tr.key, kind)
+
+
+def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str | None = None) -> Library:
+    """The shared library of a traced interval (``kind`` "lanes": its batch kernel): from the disk cache if it
+    passes its check (the translation is skipped too), else translated (unless ``source`` is given), built in
+    a private folder and put in the cache with its manifest. A file that fails its check (truncated, zero
+    bytes, changed, another filter's kernel) is replaced, never loaded."""
     lib = _library(tr, flags, kind)
-    if lib.exists():
-        return lib
+    got = _cache.read_verified(lib, tr.key, kind)
+    if got is not None:
+        return got
     if source is None:
         source = _translate_lanes(tr) if kind == "lanes" else _translate(tr)
-    lib.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:
-        src = Path(tmp) / "kernel.c"
-        src.write_text(source)
-        out = Path(tmp) / "kernel.so"
-        cmd = [compiler(), *flags, "-fPIC", "-shared", "-o", str(out), str(src), "-lm"]
-        res = subprocess.run(cmd, capture_output=True, text=True)
+    with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:  # 0700
+        Path(tmp, "kernel.c").write_text(source)
+        # relative names in the build folder: the same source gives the same bytes in any process
+        cmd = [compiler(), *flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+        res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0 and "-march=native" in flags:  # a compiler without them (some ARM clangs)
             cmd = [c for c in cmd if c not in NATIVE]
-            res = subprocess.run(cmd, capture_output=True, text=True)
+            res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
-        os.replace(out, lib)
-    return lib
+        data = Path(tmp, "kernel.so").read_bytes()
+    return _cache.install(lib, data, tr.key, kind, {"filter": tr.title, "compiler": compiler(),
+                                                      "flags": list(flags)})
+
+
+def _open(lib: Library | Path, tr: _Traced):
+    """The loaded library (ctypes) of checked bytes, or of a cache file checked now (RuntimeError if it fails)."""
+    if not isinstance(lib, Library):
+        path = Path(lib)
+        lib = _cache.read_verified(path, tr.key, path.name.split("_", 1)[0])
+        if lib is None:
+            raise RuntimeError(f"{path}: not a library of this kernel's that passes its manifest's check")
+    return _cache.load(lib)
 
 
 _dp = ctypes.POINTER(ctypes.c_double)
@@ -560,7 +571,7 @@ def _state_reader(sslots: tuple[Slot, ...], sdef, template):
 class Kernel:
     """A built kernel, loaded: pack and unpack states, and the C ``advance``/``scan``/``batch`` on NumPy arrays."""
 
-    def __init__(self, lib_path: Path, traced: _Traced):
+    def __init__(self, lib: Library | Path, traced: _Traced):
         pslots, sslots, pdef, sdef = traced.pslots, traced.sslots, traced.pdef, traced.sdef
         input_dim, output_dim = traced.m, traced.p
         self.traced = traced
@@ -575,13 +586,13 @@ class Kernel:
         self._optimizer: threading.Thread | None = None
         self._source: str | None = None  # the C source while the -O2 build is under way
         self.optimize_error: str | None = None
-        self._load(lib_path)
+        self._load(lib)
         self._block = self._new_block()
 
-    def _load(self, lib_path: Path) -> None:
-        """Take the C functions from a built library (a later, optimized build of the same source replaces
-        the first one's: calls under way finish in the old library, which stays loaded)."""
-        lib = ctypes.CDLL(str(lib_path))
+    def _load(self, built: Library | Path) -> None:
+        """Take the C functions from a built library, checked (a later, optimized build of the same source
+        replaces the first one's: calls under way finish in the old library, which stays loaded)."""
+        lib = _open(built, self.traced)
         scan, step, batch = lib.kernel_scan, lib.kernel_step, lib.kernel_batch
         scan.argtypes = [_dp, _dp, ctypes.c_int, _dp, _dp, _dp, ctypes.c_double, ctypes.c_int, _dp]
         scan.restype = ctypes.c_int
@@ -591,7 +602,10 @@ class Kernel:
         batch.argtypes = [_dp, ctypes.c_int, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp,
                           ctypes.c_double, ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
         batch.restype = None
-        self.lib, self._scan, self._step, self._batch, self.path = lib, scan, step, batch, lib_path
+        # c_step: the C kernel_step on addresses, (theta, x, xo, t, dt, gap, z) -> status code (-2: an infinite
+        # sample, xo untouched), for an engine that keeps packed states of its own (liemef.engines.OnlineFilter)
+        self.lib, self._scan, self.c_step, self._batch = lib, scan, step, batch
+        self.path = built.path if isinstance(built, Library) else Path(built)
 
     def _optimize(self, source: str) -> None:
         """Build ``source`` with :data:`KERNEL_CFLAGS` in a thread (the compiler runs on another core) and load
@@ -702,7 +716,7 @@ class Kernel:
         row, address = self._row()
         S = self.n_state
         fill_samples(row[S:], self.m, self.p, u, y, u_next, y_next)
-        if self._step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
+        if self.c_step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
             reject_infinite(row[S:], self.m, self.p)
         return self.state(row[:S], address)
 
@@ -721,13 +735,13 @@ class Kernel:
         one trial at a time)."""
         if self._lanes is None:
             try:
-                lib = ctypes.CDLL(str(_build(self.traced, LANE_CFLAGS, "lanes")))
+                lib = _open(_build(self.traced, LANE_CFLAGS, "lanes"), self.traced)
                 fn = lib.lanes_batch
                 fn.argtypes = [_dp, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp, ctypes.c_double,
                                ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
                 fn.restype = None
                 self._lanes = (lib, fn)
-            except (UnsupportedPrimitive, RuntimeError) as err:
+            except (UnsupportedPrimitive, RuntimeError, OSError) as err:
                 self.lanes_error = f"{type(err).__name__}: {str(err).splitlines()[0]}"
                 self._lanes = False
         return self._lanes[1] if self._lanes else None
@@ -817,8 +831,9 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         TRACES["kernel"] += 1
         with _eager():  # also when asked from inside a trace (scan under jit)
             tr = _trace(flt)
-        if _library(tr, KERNEL_CFLAGS, "kernel").exists():
-            kern = Kernel(_build(tr), tr)
+        optimized = _cached(tr)
+        if optimized is not None:
+            kern = Kernel(optimized, tr)
         else:  # a quick build to start with, the -O2 one beside it
             source = _translate(tr)
             kern = Kernel(_build(tr, QUICK_CFLAGS, "quick", source), tr)

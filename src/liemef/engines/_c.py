@@ -1,6 +1,6 @@
 """The C engine: a filter's interval as a compiled C kernel (:mod:`liemef.codegen`), over a log, a batch of
-trials or inside a JAX program (a ``pure_callback``); the trajectory comes back with NaN after a failure, as
-the XLA engine emits it."""
+trials or inside a JAX program (a ``pure_callback``); the trajectory comes back with NaN after a failure by
+the rule the XLA engine follows too (:func:`~liemef.filters._base.nan_after_failure`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..filters import Trajectory
-from ..filters._status import OK
+from ..filters._base import nan_after_failure
 from ._select import theta
 
 
@@ -37,19 +37,11 @@ def trajectory(kern, ts, rows, xf, keep_every, lead=()) -> Trajectory:
     """The Trajectory of the kernel's kept rows (lead + (R, S)) and final packed states (lead + (S,)): NaN
     after a failure, as the XLA engine emits."""
     hist = jax.tree_util.tree_unflatten(kern.sdef, kern.unpack(rows, rows.shape[:-1]))
-    bad = np.asarray(hist.status.code) != OK
-    bad[..., 0] = False  # the first state is the one given, as in scan
-    any_bad = bool(bad.any())
-
-    def nan(a):
-        a = np.array(a) if any_bad else _contiguous(a)
-        if any_bad:
-            a[bad] = np.nan
-        return _to_jax(a)
-
+    states = nan_after_failure(np.asarray(hist.status.code), (hist.g_hat, hist.K), first_given=True)
+    g_hat, K = jax.tree_util.tree_map(lambda a: _to_jax(_contiguous(a)), states)
     final = jax.tree_util.tree_unflatten(kern.sdef, [_to_jax(_contiguous(a)) for a in kern.unpack(xf, lead)])
-    return Trajectory(ts=_to_jax(_contiguous(ts[::keep_every])), g_hat=jax.tree_util.tree_map(nan, hist.g_hat),
-                      K=nan(hist.K), status=final.status, final=final)
+    return Trajectory(ts=_to_jax(_contiguous(ts[::keep_every])), g_hat=g_hat, K=K, status=final.status,
+                      final=final)
 
 
 def scan(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajectory:
@@ -73,14 +65,9 @@ def scan(flt, kern, state, ts, us, ys, gap, n_valid, keep_every) -> Trajectory:
         return [v[..., s.offset:s.offset + s.size].reshape(lead + s.shape).astype(s.dtype) for s in kern.sslots]
 
     hist = jax.tree_util.tree_unflatten(kern.sdef, unpack(rows, (R,)))
-    bad = (hist.status.code != OK).at[0].set(False)  # the first state is the one given
-
-    def nan(a):
-        return jnp.where(bad.reshape((R,) + (1,) * (a.ndim - 1)), jnp.nan, a)
-
+    g_hat, K = nan_after_failure(hist.status.code, (hist.g_hat, hist.K), first_given=True)
     final = jax.tree_util.tree_unflatten(kern.sdef, unpack(xf, ()))
-    return Trajectory(ts=ts[::M], g_hat=jax.tree_util.tree_map(nan, hist.g_hat), K=nan(hist.K), status=final.status,
-                      final=final)
+    return Trajectory(ts=ts[::M], g_hat=g_hat, K=K, status=final.status, final=final)
 
 
 def _scan_host(kern, keep, R, theta, x, ts, us, ys, gap, n_valid):

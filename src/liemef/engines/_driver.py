@@ -20,7 +20,7 @@ from jaxtyping import ArrayLike
 
 from .. import _validate
 from ..filters import FilterState, Trajectory
-from ..filters._base import check_samples, check_time
+from ..filters._base import check_log, check_samples, check_time
 from . import _c, _xla
 from ._select import kernel, theta_address
 
@@ -47,7 +47,7 @@ def run(flt, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayL
     flt._check_state(state)
     flt._check_element("state.g_hat", state.g_hat)
     _validate.square("state.K", state.K, flt.n)
-    ts, us, ys, gap = _check_log(flt, ts, us, ys, (), gap, keep_every)
+    ts, us, ys, gap = check_log(flt, ts, us, ys, (), gap, keep_every)
     kern = kernel(flt, engine)
     if kern is not None:
         traj = _c.run(flt, kern, state, ts, us, ys, float(gap), keep_every)
@@ -80,7 +80,7 @@ def run_batch(flt, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys:
             raise ValueError(f"states: expected a leading trial axis of one length B >= 1 on every leaf, got "
                              f"shape {np.shape(leaf)} at {jax.tree_util.keystr(path)} (B = {B})")
     flt._check_state(jax.tree_util.tree_map(lambda a: a[0], states_np))
-    ts, us, ys, gap = _check_log(flt, ts, us, ys, (B,), gap, keep_every, threads=threads,
+    ts, us, ys, gap = check_log(flt, ts, us, ys, (B,), gap, keep_every, threads=threads,
                                  g_hat=states_np.g_hat)
     kern = kernel(flt, engine)
     if kern is not None:
@@ -93,33 +93,6 @@ def run_batch(flt, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys:
                       "trials were predicted through without holding density measurements", LogGapWarning,
                       stacklevel=3)
     return traj
-
-
-def _check_log(flt, ts, us, ys, lead, gap, keep_every, *, threads=None, g_hat=None):
-    """A log's boundary checks, for one trial (``lead = ()``) or B of them (``lead = (B,)``): the times, the
-    samples' shapes (NaN: missing), ``keep_every``, ``threads``, the states' ``g_hat`` and the gap threshold
-    (default: 10 times the median interval; ``math.inf``: no interval is a gap). Returns ``ts``, ``us``,
-    ``ys`` as float64 arrays and the gap."""
-    ts = _validate.sorted_times("ts", ts)
-    N = ts.shape[0]
-    if N < 2:
-        raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
-    m, p = flt.system.input_dim, flt.system.output_dim
-    us = np.zeros((*lead, N, 0)) if us is None and m == 0 else _validate.array("us", us, (*lead, N, m),
-                                                                                missing=True)
-    ys = _validate.array("ys", ys, (*lead, N, p), missing=True)
-    if not (isinstance(keep_every, int) and keep_every >= 1):
-        raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
-    if threads is not None and not (isinstance(threads, int) and threads >= 1):
-        raise ValueError(f"threads: expected an integer >= 1 (or None: every CPU), got {threads!r}")
-    if g_hat is not None:
-        for leaf in jax.tree_util.tree_leaves(g_hat):
-            _validate.array("states.g_hat", leaf)
-    if gap is None:
-        gap = 10.0 * float(np.median(np.diff(ts)))
-    elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
-        gap = float(_validate.nonnegative("gap", gap))
-    return ts, us, ys, gap
 
 
 def scan(flt, state: FilterState, ts, us, ys, *, gap=np.inf, n_valid=None, keep_every: int = 1,

@@ -55,7 +55,7 @@ class OnlineFilter:
         t, dt = check_time(t, dt)
         self._fill(self._z, self.m, self.p, u, y, u_next, y_next)
         x, xo, za = self._addresses
-        code = self._kern._step(self._theta_address, x, xo, t, dt, float(gap), za)
+        code = self._kern.c_step(self._theta_address, x, xo, t, dt, float(gap), za)
         if code == -2:
             self._reject(self._z, self.m, self.p)
         self._x, self._xo = self._xo, self._x

@@ -10,17 +10,27 @@ import jax
 
 from .. import _side
 from ..codegen import _kernel as kmod
+from ..codegen._cache import EngineWarning
 from ..codegen._export import compiler
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
-the interval, :mod:`liemef.codegen`), ``"xla"`` (jitted JAX) or ``"auto"`` (C for the minimum-energy
-filter where a C compiler is found, else XLA with an :class:`EngineWarning`)."""
+the interval, :mod:`liemef.codegen`), ``"xla"`` (jitted JAX) or ``"auto"``: C for every filter (the
+minimum-energy filter and the baselines alike) where a C compiler is found and the filter's interval
+translates, else XLA (with an :class:`EngineWarning` saying why)."""
 
 
 def engine_of(engine: str | None) -> str:
     """The engine a call uses: ``engine``, else ``$LIEMEF_ENGINE``, else ``"auto"`` (ValueError naming the
     argument if unknown); ``"auto"`` without a C compiler is ``"xla"``."""
+    engine = _asked(engine)
+    if engine == "auto" and _no_compiler():
+        return "xla"
+    return engine
+
+
+def _asked(engine: str | None) -> str:
+    """The engine asked for, checked (``"auto"`` kept as it is)."""
     if engine is None:
         engine = os.environ.get("LIEMEF_ENGINE") or "auto"
         where = "LIEMEF_ENGINE"
@@ -28,8 +38,6 @@ def engine_of(engine: str | None) -> str:
         where = "engine"
     if engine not in ENGINES:
         raise ValueError(f"{where}: expected one of {list(ENGINES)}, got {engine!r}")
-    if engine == "auto" and _no_compiler():
-        return "xla"
     return engine
 
 
@@ -38,14 +46,13 @@ def _no_compiler() -> bool:
     return compiler() is None
 
 
-class EngineWarning(UserWarning):
-    """The C engine was asked for by ``"auto"`` but could not be built; the filter runs with XLA."""
-
-
 def kernel(flt, engine: str | None):
-    """The C kernel the engine choice gives ``flt`` (None: XLA), kept beside the instance (liemef._side)."""
-    engine = engine_of(engine)
-    if engine == "xla" or (engine == "auto" and not type(flt)._c_engine):
+    """The C kernel the engine choice gives ``flt`` (None: XLA), kept beside the instance (liemef._side): the
+    engine's decision alone, the same for every filter (a filter says how its interval advances, not what runs
+    it). ``"auto"`` without a C compiler, or with a kernel that cannot be built, warns (:class:`EngineWarning`,
+    once per filter) and gives None."""
+    engine = _asked(engine)
+    if engine == "xla":
         return None
     cached = _side.get(flt, "kernel")
     if cached is not None:
@@ -54,6 +61,8 @@ def kernel(flt, engine: str | None):
         return cached[0]
     error = None
     try:
+        if engine == "auto" and _no_compiler():
+            raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
         kern = kmod.kernel_for(flt)
     except Exception as err:  # noqa: BLE001 - auto falls back to XLA, saying why; "c" raises
         if engine == "c":

@@ -11,8 +11,7 @@ import numpy as np
 
 from .. import _side
 from ..filters import FilterState, Status, Trajectory
-from ..filters._base import TRACES
-from ..filters._status import OK
+from ..filters._base import TRACES, nan_after_failure
 
 
 def bucket(n: int) -> int:
@@ -34,9 +33,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
                             lambda s: s, st)
 
     def emit(st):
-        bad = st.status.code != OK
-        nan = lambda a: jnp.where(bad, jnp.nan, a)  # noqa: E731
-        return jax.tree_util.tree_map(nan, st.g_hat), nan(st.K)
+        return nan_after_failure(st.status.code, (st.g_hat, st.K), first_given=False)
 
     M = keep_every
     if M == 1:

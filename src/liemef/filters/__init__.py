@@ -8,10 +8,10 @@ Lie-group integrator (:mod:`liemef.integrators`); the baselines (:mod:`liemef.fi
 
 from ._base import TRACES, AbstractFilter, FilterState, Trajectory, sensor_layout
 from ._derivatives import left_hessian, left_jacobian
-from ._mef import INTERPOLATIONS, ORDERS, MinimumEnergyFilter
+from ._mef import INTERPOLATIONS, ORDERS, UPDATES, MinimumEnergyFilter
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import CAUSES, Status
 
-__all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "TRACES",
+__all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "UPDATES", "TRACES",
            "Status", "CAUSES", "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms",
            "riccati_rhs", "left_jacobian", "left_hessian"]

@@ -27,7 +27,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .. import _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
-from ._status import ASYMMETRIC, DEFINITE_TOL, GATE, INDEFINITE, NONFINITE, OK, SYMMETRY_TOL, Status
+from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status
 
 
 class FilterState(eqx.Module):
@@ -58,12 +58,30 @@ class Trajectory(eqx.Module):
     @property
     def ok(self) -> Bool[Array, ""]:
         """True if the run did not fail (its status is ok; a failed run has NaN states after the failure)."""
-        return self.status.code == OK
+        return self.status.code == CAUSES.OK.code
 
     def coords(self) -> Float[Array, "N c"]:
         """The estimate in the group's coordinates (e.g. theta, x, y, omega, vx, vy for TSE(2))."""
         return self.g_hat.coords()
 
+
+def nan_after_failure(codes, states, *, first_given: bool):
+    """The rule of a :class:`Trajectory`: ``states`` (a pytree whose leaves have the shape of ``codes`` in front)
+    with NaN wherever their status ``codes`` is not ok, except, with ``first_given``, the first state along the
+    last axis of ``codes`` (a history's time axis: the state given, never NaN). One state (``codes`` 0-d, as the
+    XLA scan emits them) or a history (the C engine's rows). NumPy states stay NumPy, returned as they are when
+    none failed; JAX ones stay JAX (traceable, under ``vmap`` too)."""
+    xp = np if isinstance(codes, np.ndarray) else jnp
+    bad = codes != CAUSES.OK.code
+    if first_given:
+        bad = bad & (xp.arange(codes.shape[-1]) > 0)
+    if xp is np and not bad.any():
+        return states
+
+    def nan(a):
+        return xp.where(bad if bad.ndim == 0 else bad.reshape(bad.shape + (1,) * (a.ndim - bad.ndim)), xp.nan, a)
+
+    return jax.tree_util.tree_map(nan, states)
 
 
 TRACES: collections.Counter = collections.Counter()
@@ -171,12 +189,16 @@ class AbstractFilter(eqx.Module):
         dense = mask & jnp.isfinite(y1) & ~sample
         y0 = jnp.where(mask, y0, 0.0)
         y1 = jnp.where(dense, y1, y0)
-        Wy = information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal)
-        if any(b.adaptive for b in self.blocks):
-            # a heteroscedastic sensor: the sample's own noise, Sigma(y) = T^-1 Sigma T^-T, so W(y) = T^T W T
-            T = self.system.sample_transform(y0)
-            Wy = T.T @ Wy @ T
+        Wy = self._adapted(information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal), y0)
         return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
+
+    def _adapted(self, Wy, y0):
+        """The information ``Wy`` for the sample ``y0`` (zeros where missing): for sensors marked ``adaptive``, a
+        heteroscedastic sensor's own noise, Sigma(y) = T^-1 Sigma T^-T, so W(y) = T^T W T; else ``Wy``."""
+        if not any(b.adaptive for b in self.blocks):
+            return Wy
+        T = self.system.sample_transform(y0)
+        return T.T @ Wy @ T
 
     def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
                 n_sub=1, capped=False, asymmetric=None) -> FilterState:
@@ -185,7 +207,7 @@ class AbstractFilter(eqx.Module):
         filter's own verdict that K cannot stay symmetric (in place of checking K1's symmetry)."""
         st = state.status
         code = self._health(g1, K1, consecutive, asymmetric)
-        new_fail = code != OK
+        new_fail = code != CAUSES.OK.code
         g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
         K_out = jnp.where(new_fail, state.K, K1)
         n_sub = jnp.asarray(n_sub, jnp.int32)
@@ -198,7 +220,7 @@ class AbstractFilter(eqx.Module):
         out = FilterState(g_hat=g_out, K=K_out, u_last=jnp.where(new_fail, state.u_last, u0), status=status)
         # A failed state is final: later intervals leave all of it unchanged (estimate, gain, held input and the
         # status with its counters, which describe the run up to and including the failing interval).
-        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != OK, a, b), state, out)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != CAUSES.OK.code, a, b), state, out)
 
     @property
     def _screens_samples(self) -> bool:
@@ -263,8 +285,10 @@ class AbstractFilter(eqx.Module):
         for i, b in enumerate(self.blocks):
             if b.max_rejections is not None:
                 gate = gate | (consecutive[i] > b.max_rejections)
-        code = jnp.where(~finite, NONFINITE, jnp.where(asym & self.symmetric, ASYMMETRIC,
-                                                        jnp.where(~definite, INDEFINITE, jnp.where(gate, GATE, OK))))
+        code = jnp.where(~finite, CAUSES.NONFINITE.code,
+                         jnp.where(asym & self.symmetric, CAUSES.ASYMMETRIC.code,
+                                   jnp.where(~definite, CAUSES.INDEFINITE.code,
+                                             jnp.where(gate, CAUSES.GATE.code, CAUSES.OK.code))))
         return code.astype(jnp.int32)
 
     # --- drivers ------------------------------------------------------------------------------------------
@@ -300,11 +324,6 @@ class AbstractFilter(eqx.Module):
         """The online filter of a robot's loop: :func:`liemef.engines.online`."""
         return _engines().online(self, state, engine=engine)
 
-    # --- the C engine -------------------------------------------------------------------------------------
-    _c_engine = False
-    """Whether ``engine="auto"`` runs this filter class by the C kernel (the minimum-energy filter does; other
-    filters run by C only when asked, ``engine="c"``)."""
-
     # --- checks -------------------------------------------------------------------------------------------
     def _check_state(self, state):
         # cheap structural checks only: step() is the online hot path
@@ -332,12 +351,7 @@ class AbstractFilter(eqx.Module):
 def check_element(G: type[LieGroup], name: str, g) -> None:
     """``g`` is a single element of ``G`` with finite parameters (ValueError naming ``name`` otherwise): the
     boundary check of every filter's initial and given states."""
-    if not isinstance(g, G):
-        raise ValueError(f"{name}: expected an element of {G.__name__}, got {type(g).__name__}")
-    if g.batch_shape != ():
-        raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
-    for leaf in jax.tree_util.tree_leaves(g):
-        _validate.array(name, leaf)
+    _validate.element(name, g, G)
 
 
 def check_dt(dt) -> float:
@@ -367,6 +381,35 @@ def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.nd
         ("u", u, m), ("y", y, p), ("u_next", u if u_next is None else u_next, m),
         ("y_next", y if y_next is None else y_next, p)))
 
+
+
+def check_log(flt, ts, us, ys, lead=(), gap=None, keep_every=1, *, threads=None, g_hat=None,
+              missing_inputs: bool = True):
+    """A log's boundary checks, the one check of every filter's run, for one trial (``lead = ()``) or B of them
+    (``lead = (B,)``): the times, the samples' shapes (NaN in ``ys`` missing; in ``us`` held, or refused with
+    ``missing_inputs=False``), ``keep_every``, ``threads``, the states' ``g_hat`` and the gap threshold
+    (default: 10 times the median interval; ``math.inf``: no interval is a gap). Returns ``ts``, ``us``,
+    ``ys`` as float64 arrays and the gap."""
+    ts = _validate.sorted_times("ts", ts)
+    N = ts.shape[0]
+    if N < 2:
+        raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
+    m, p = flt.system.input_dim, flt.system.output_dim
+    us = np.zeros((*lead, N, 0)) if us is None and m == 0 else _validate.array("us", us, (*lead, N, m),
+                                                                                missing=missing_inputs)
+    ys = _validate.array("ys", ys, (*lead, N, p), missing=True)
+    if not (isinstance(keep_every, int) and not isinstance(keep_every, bool) and keep_every >= 1):
+        raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
+    if threads is not None and not (isinstance(threads, int) and threads >= 1):
+        raise ValueError(f"threads: expected an integer >= 1 (or None: every CPU), got {threads!r}")
+    if g_hat is not None:
+        for leaf in jax.tree_util.tree_leaves(g_hat):
+            _validate.array("states.g_hat", leaf)
+    if gap is None:
+        gap = 10.0 * float(np.median(np.diff(ts)))
+    elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
+        gap = float(_validate.nonnegative("gap", gap))
+    return ts, us, ys, gap
 
 
 _ENGINES = "liemef.engines"

@@ -19,10 +19,11 @@ from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
 from ..systems import AbstractSystem
-from ._base import TRACES, AbstractFilter, FilterState, sensor_layout
+from ._base import AbstractFilter, FilterState, sensor_layout
 from ._derivatives import left_jacobian
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
+from ._update import sample_update
 
 ORDERS = ("second", "first")
 """The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (without the Hessian
@@ -30,6 +31,11 @@ term of E and W: the continuous-time left-invariant EKF)."""
 INTERPOLATIONS = ("hold", "linear")
 """How inputs and density measurements vary inside a sample interval: held (zero-order hold, the papers') or
 linear between the interval's two samples (first-order hold, so that RKMK4's inner stages see current data)."""
+
+UPDATES = ("hold", "discrete")
+"""How a sample-meaning measurement enters: ``"hold"`` (its information spread over the interval after its time
+stamp, the papers' zero-order hold) or ``"discrete"`` (used at its own time: the hybrid minimum-energy filter's
+update, :mod:`liemef.filters._update`)."""
 
 # Sub-step budget per unit of stiffness (DESIGN.md §6): ||K E|| h, ||A|| h and the group step ||xi|| h.
 _KE_BUDGET, _A_BUDGET, _XI_BUDGET = 0.5, 0.5, 0.5
@@ -59,6 +65,21 @@ class MinimumEnergyFilter(AbstractFilter):
             that is not stiff takes one step. Or a fixed number of equal steps per interval (1: the papers'
             scheme).
         max_substeps: the most steps ``"auto"`` takes in one interval (the last one finishes it).
+        constant_E: ``"weighted"`` (the theorem: E's constant part is $Dh^\top D^{-\top} Q D^{-1} Dh$) or
+            ``"unit"`` ($Dh^\top Dh$, as Rigo et al. 2022/2023 print it, right only for $Q = D^\top D$: the
+            reproduction of a misprint, DESIGN.md §3).
+        updates: how the samples of sample-meaning sensors (``Noise.sample``) enter. ``"hold"`` (the default,
+            the papers' scheme, which the reproductions use): a sample's information is spread over the interval
+            that follows its time stamp, against an estimate that moves on meanwhile. ``"discrete"``: the hybrid
+            minimum-energy filter (DESIGN.md §7): at its time stamp the sample updates the estimate by the
+            minimizer of the second-order expansion of the cost (prior plus the sample's residual) on the group,
+            then the interval is predicted with the continuous terms of Theorem 4.1 (inputs, density sensors).
+            On a linear system this is the discrete Kalman filter exactly; on fast rotation it removes the lag
+            of the held sample. Recommended for a user system with sample sensors. Density sensors are
+            continuous in either mode.
+        iterations: the number of Newton steps (``order="second"``, the output's second-order term kept) or
+            Gauss-Newton steps (``order="first"``: one step is the invariant EKF's update) of a discrete update
+            (default 1; K+ comes from the Hessian at the last iterate, docs/theorem.md).
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -80,19 +101,29 @@ class MinimumEnergyFilter(AbstractFilter):
     sample: tuple[bool, ...] = eqx.field(static=True)
     blocks: tuple = eqx.field(static=True)
     diagonal: bool = eqx.field(static=True)
+    constant_E: str = eqx.field(static=True)
+    updates: str = eqx.field(static=True, default="hold")
+    iterations: int = eqx.field(static=True, default=1)
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
                  order: Literal["second", "first"] = "second", integrator: str | AbstractIntegrator = "rkmk4",
                  alpha: float = 0.0, *, interpolation: Literal["hold", "linear"] = "hold",
-                 substeps: Literal["auto"] | int = "auto", max_substeps: int = 256):
+                 substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
+                 constant_E: Literal["weighted", "unit"] = "weighted",
+                 updates: Literal["hold", "discrete"] = "hold", iterations: int = 1):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
         _validate.choice("interpolation", interpolation, set(INTERPOLATIONS))
-        if substeps != "auto" and not (isinstance(substeps, int) and substeps >= 1):
-            raise ValueError(f"substeps: expected 'auto' or an integer >= 1, got {substeps!r}")
-        if not (isinstance(max_substeps, int) and max_substeps >= 1):
-            raise ValueError(f"max_substeps: expected an integer >= 1, got {max_substeps!r}")
+        _validate.choice("constant_E", constant_E, {"weighted", "unit"})
+        if substeps != "auto" and not (isinstance(substeps, int) and 1 <= substeps <= _validate.INT_MAX):
+            raise ValueError(f"substeps: expected 'auto' or an integer >= 1 and <= {_validate.INT_MAX}, "
+                             f"got {substeps!r}")
+        _validate.integer("max_substeps", max_substeps, 1)
+        _validate.choice("updates", updates, set(UPDATES))
+        if not (isinstance(iterations, int) and not isinstance(iterations, bool) and iterations >= 1):
+            raise ValueError(f"iterations: expected an integer >= 1 (Newton or Gauss-Newton steps), got {iterations!r}")
+        self.updates, self.iterations = updates, iterations
         self.system = system
         self.connection = make_connection(connection, system.group)
         self.order = order
@@ -100,22 +131,25 @@ class MinimumEnergyFilter(AbstractFilter):
         self.alpha = jnp.asarray(_validate.nonnegative("alpha", alpha))
         self.weights = Weights.of(system)
         self.interpolation, self.substeps, self.max_substeps = interpolation, substeps, max_substeps
+        self.constant_E = constant_E
         self.blocks, self.sample, self.diagonal = sensor_layout(system, self.weights.Wy)
         # K stays symmetric when E is (first order, or a torsion-free connection) (DESIGN.md §1).
         torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
         self.symmetric = order == "first" or bool(np.allclose(torsion, 0.0, atol=1e-12))
 
-
-
-    _c_engine = True  # engine="auto" runs it by its C kernel (AbstractFilter.run)
-
     def __repr__(self) -> str:
+        updates = f", updates={self.updates!r}" if self.updates != "hold" else ""
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
-                f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)})")
+                f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)}{updates}"
+                + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))
 
     # --- the mathematics ----------------------------------------------------------------------------------
-    def _terms(self, weights: Weights, g_hat, K, u, y, t) -> Terms:
-        return _terms_call(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t)
+    def _terms(self, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
+        tm = terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs)
+        if self.constant_E == "weighted":
+            return tm
+        unit = tm.Dh.T @ (weights.Wy - jnp.eye(weights.Wy.shape[0])) @ tm.Dh  # E's constant part as Dh^T Dh
+        return eqx.tree_at(lambda x: x.E, tm, tm.E - unit)
 
     def _riccati(self, tm: Terms, K):
         """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
@@ -128,9 +162,11 @@ class MinimumEnergyFilter(AbstractFilter):
         """r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
 
         A NaN in ``y`` is a missing component; sample-meaning sensors need the interval ``dt`` their sample is
-        spread over."""
+        spread over. ``K`` may be any finite n x n matrix (not only a gain a run can reach: the closed-form tests
+        evaluate the terms at random K); ``t`` and ``dt`` must be finite."""
         self._check_element("g_hat", g_hat)
-        K = _validate.square("K", K, self.n)
+        K = _validate.square("K", K, self.n)  # any finite K: the terms are polynomials in it
+        t = _validate.real("t", t)
         u = self._check_sample("u", u, self.system.input_dim)
         y = self._check_sample("y", y, self.system.output_dim, missing=True)
         if any(self.sample) and dt is None:
@@ -141,7 +177,7 @@ class MinimumEnergyFilter(AbstractFilter):
         weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
                                                   diagonal=self.diagonal),
                           BRB=self.weights.BRB)
-        return _terms_jit(self, weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(float(t)))
+        return self._terms(weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(t))
 
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;
@@ -154,14 +190,36 @@ class MinimumEnergyFilter(AbstractFilter):
         """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing); checks the result."""
         st, g, K = state.status, state.g_hat, state.K
         u0, u1, u_ok, y0, y1, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
+        discrete = self.updates == "discrete" and any(self.sample)
+        if discrete:
+            # the samples' information, per sample, for the update at t; the density sensors' over the interval
+            sample = jnp.asarray(self.sample, dtype=bool)
+            W_sample = self._adapted(
+                information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal), y0)
+            Wy = self._adapted(
+                information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal), y0)
         if self._screens_samples:
-            h0, Dh = left_jacobian(lambda gg: self.system.output(gg, t), g)
+            h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), g)
             HKH = mm(Dh, mm(0.5 * (K + K.T), Dh.T))
-            scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, Wy, st)
-            Wy = Wy * jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+            W_all = Wy + W_sample / dt if discrete else Wy  # the information in force, as the gate reads it
+            scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, W_all, st)
+            root = jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+            Wy = Wy * root
+            if discrete:
+                W_sample = W_sample * root
         else:
             rejected, consecutive = st.rejected, st.consecutive
+        if discrete:
+            g, K = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), g, K, y0, W_sample,
+                                 iterations=self.iterations, newton=self.order == "second")
+            K = jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
+        if discrete and all(self.sample):  # static: no output acts over the interval, so none is differentiated
+            def terms_at(gg, KK, u, y, tau):
+                return self._terms(weights, gg, KK, u, y, tau, outputs=False)
+        else:
+            def terms_at(gg, KK, u, y, tau):
+                return self._terms(weights, gg, KK, u, y, tau)
 
         def data(tau):
             if self.interpolation == "hold":
@@ -171,14 +229,14 @@ class MinimumEnergyFilter(AbstractFilter):
 
         def f(gg, KK, tau):
             u, y = data(tau)
-            tm = self._terms(weights, gg, KK, u, y, tau)
+            tm = terms_at(gg, KK, u, y, tau)
             return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
 
         def field_and_rate(gg, KK, tau):
             # the vector field at a point, and its stiffness rate: the step h is budgeted so that
             # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
             u, y = data(tau)
-            tm = self._terms(weights, gg, KK, u, y, tau)
+            tm = terms_at(gg, KK, u, y, tau)
             xi = tm.lam + mv(KK, tm.r)
             fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
             # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
@@ -223,18 +281,3 @@ class MinimumEnergyFilter(AbstractFilter):
 
         return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
                             consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
-
-
-
-
-# One call per evaluation of the terms: traced once per interval structure (not once per RK stage), and one
-# function in the exported C (liemef.codegen); XLA inlines it.
-_terms_call = eqx.filter_jit(terms)
-
-
-@eqx.filter_jit
-def _terms_jit(flt, weights, g, K, u, y, t):
-    TRACES["terms"] += 1
-    return flt._terms(weights, g, K, u, y, t)
-
-

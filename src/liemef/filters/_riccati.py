@@ -1,6 +1,7 @@
 r"""Residual and perturbed Riccati right-hand side of Theorem 4.1 (Saccon et al. 2016), in coordinates.
 
-With $\tilde y = D^{-\top} Q D^{-1} (y - h(\hat g))$ (DESIGN.md §1):
+With $\tilde y = D^{-\top} Q D^{-1} (y - h(\hat g))$ (DESIGN.md §1; $y \ominus h$ where a sensor declares its
+residual, through :meth:`~liemef.systems.AbstractSystem.output_seen_from`, DESIGN.md §8):
 
 $$r = Dh^\top \tilde y,\quad A = D\lambda - \mathrm{ad}_\lambda - T_\lambda,\quad
 E = Dh^\top D^{-\top} Q D^{-1} Dh - \sum_k \tilde y_k \mathrm{Hess}\, h_k,\quad W = \omega_{K r},$$
@@ -77,11 +78,21 @@ def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Flo
     return W * s[:, None] * s[None, :]
 
 
+@eqx.filter_jit  # one call per evaluation: traced once per interval structure (not once per RK stage), one
+# function in the exported C (liemef.codegen); XLA inlines it
 def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,
-          g: LieGroup, K, u, y, t) -> Terms:
-    """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``."""
+          g: LieGroup, K, u, y, t, outputs: bool = True) -> Terms:
+    """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``. ``outputs=False``
+    (static): no output carries weight (the hybrid filter's prediction with sample sensors only), so r, E, W and
+    the innovation are zero and the output's derivatives are not computed."""
     G = type(g)
-    h0, Dh = left_jacobian(lambda gg: system.output(gg, t), g)
+    if not outputs:
+        lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
+        A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
+        p, n = weights.Wy.shape[0], lam.shape[0]
+        return Terms(r=jnp.zeros(n), A=A, E=jnp.zeros((n, n)), W=jnp.zeros((n, n)), BRB=weights.BRB, lam=lam,
+                     y_tilde=jnp.zeros(p), Dh=jnp.zeros((p, n)), Dlam=Dlam)
+    h0, Dh = left_jacobian(lambda gg: system.output_seen_from(y, gg, t), g)
     y_tilde = mv(weights.Wy, y - h0)
     r = mv(Dh.T, y_tilde)
     lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
@@ -89,7 +100,7 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
     E = mm(Dh.T, mm(weights.Wy, Dh))
     if second_order:
         # sum_k y_tilde_k Hess h_k = Hess (y_tilde . h) + connection correction linear in r = Dh^T y_tilde
-        E = E - (left_hessian(lambda gg: y_tilde @ system.output(gg, t), g) + conn.hessian_correction(r))
+        E = E - (left_hessian(lambda gg: y_tilde @ system.output_seen_from(y, gg, t), g) + conn.hessian_correction(r))
         W = conn.omega_matrix(mv(K, r))
     else:
         W = jnp.zeros_like(A)

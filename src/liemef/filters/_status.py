@@ -10,16 +10,14 @@ status with it: its counters describe the run up to and including the failing in
 
 from __future__ import annotations
 
+import enum
 import math
+import operator
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
-
-CAUSES = ("ok", "non-finite", "K not symmetric", "K not positive definite", "gate")
-"""The cause codes: ``CAUSES[status.code]``."""
-OK, NONFINITE, ASYMMETRIC, INDEFINITE, GATE = range(len(CAUSES))
 
 SYMMETRY_TOL = 1e-8
 """Largest relative asymmetry ``max|K - K^T| / max(1, max|K|)`` of a gain that should be symmetric."""
@@ -27,10 +25,61 @@ DEFINITE_TOL = 1e-9
 """K counts as positive definite while ``sym(K) + DEFINITE_TOL * max|K| I`` has a Cholesky factor."""
 
 
+class _Enumeration(enum.EnumType):
+    """The metaclass of :data:`CAUSES`: its members are read by name (``CAUSES.NONFINITE``) and, as a status
+    code indexes them, by code (``CAUSES[code]``, a Python, NumPy or 0-d JAX integer)."""
+
+    def __getitem__(cls, key):
+        if isinstance(key, str):
+            return super().__getitem__(key)
+        return tuple(cls)[operator.index(key)]  # the members in the order of their codes
+
+
+class _ClassMethodOnClass:
+    """A method that is a classmethod when read off the class and the ``str`` method of the same name when read
+    off a member (a member of :data:`CAUSES` is a string)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def __get__(self, obj, cls=None):
+        if obj is None:
+            return self.fn.__get__(cls, type(cls))
+        return getattr(str, self.fn.__name__).__get__(obj, cls)
+
+
+class CAUSES(enum.StrEnum, metaclass=_Enumeration):
+    """Why a run failed, one member per cause with its message (the shape of diffrax's ``RESULTS``).
+
+    A member is its label (a string: ``CAUSES.NONFINITE == "non-finite"``, as tables and JSON write it),
+    ``code`` is its number in :attr:`Status.code` (``CAUSES[code]`` is the member of a code) and ``message``
+    says what happened, for :meth:`Status.message`.
+    """
+
+    OK = 0, "ok", "ok"
+    NONFINITE = 1, "non-finite", "the state or the gain K became non-finite (NaN or inf)"
+    ASYMMETRIC = 2, "K not symmetric", f"the gain K lost its symmetry (beyond {SYMMETRY_TOL:g} relative)"
+    INDEFINITE = 3, "K not positive definite", "the gain K lost positive definiteness"
+    GATE = 4, "gate", "a sensor's gate rejected more consecutive samples than its max_rejections"
+
+    @_ClassMethodOnClass
+    def index(cls, label: str) -> int:
+        """The code of the cause labelled ``label`` (``CAUSES.index("non-finite") == 1``, as on the tuple of labels
+        CAUSES once was); on a member, ``str.index``."""
+        return cls(label).code
+
+    def __new__(cls, code: int, label: str, message: str):
+        member = str.__new__(cls, label)
+        member._value_ = label
+        member.code = code
+        member.message = message
+        return member
+
+
 class Status(eqx.Module):
     """Health and counters of a run, all array leaves (batched under ``vmap``).
 
-    ``code`` is 0 while healthy, else the index of the cause in :data:`CAUSES`; ``index`` and ``time`` are
+    ``code`` is 0 while healthy, else the ``code`` of its cause in :data:`CAUSES`; ``index`` and ``time`` are
     the first bad sample interval ``[ts[index], ts[index + 1]]`` and its start (-1 and NaN while healthy).
     ``rejected[b]`` counts the samples of sensor block ``b`` rejected by its gate, ``consecutive[b]`` the
     current run of rejections. ``substeps_max``/``substeps_total`` count the integration sub-steps,
@@ -64,12 +113,12 @@ class Status(eqx.Module):
     @property
     def ok(self) -> bool:
         """True if no interval failed (a Python bool; use ``status.code == 0`` under ``vmap``)."""
-        return bool(np.all(np.asarray(self.code) == OK))
+        return bool(np.all(np.asarray(self.code) == CAUSES.OK.code))
 
     @property
     def cause(self) -> str:
-        """The cause, in words (a single run)."""
-        return CAUSES[int(self.code)]
+        """The cause's label (a single run)."""
+        return CAUSES[int(self.code)].value
 
     def as_dict(self, block_names=None) -> dict:
         """The status of a single run as plain Python values (JSON)."""
@@ -89,9 +138,6 @@ class Status(eqx.Module):
         k = int(self.index)
         span = f"[{float(ts[k]):.6g}, {float(ts[k + 1]):.6g}] s" if ts is not None and k + 1 < len(ts) else \
             f"t = {float(self.time):.6g} s"
-        why = {NONFINITE: "the state or the gain K became non-finite (NaN or inf)",
-               ASYMMETRIC: f"the gain K lost its symmetry (beyond {SYMMETRY_TOL:g} relative)",
-               INDEFINITE: "the gain K lost positive definiteness",
-               GATE: "a sensor's gate rejected more consecutive samples than its max_rejections"}[int(self.code)]
+        why = CAUSES[int(self.code)].message
         return (f"filter failed over the sample interval {k} ({span}): {why}; the last good state is the one at "
                 f"sample {k}")

@@ -6,6 +6,7 @@ from typing import ClassVar, Self
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 
@@ -113,6 +114,13 @@ class LieGroup(eqx.Module):
         # Every parameter array of every group has exactly one trailing (event) axis.
         return tuple(jax.tree_util.tree_leaves(self)[0].shape[:-1])
 
+    def off_group(self) -> float:
+        """How far the stored parameters are from the group, as a float (the largest over the batch): 0 for a
+        group whose parameters are unconstrained (R^n); for one that stores unit vectors (the (cos, sin) of
+        SO(2) and SE(2), SO(3)'s quaternion), ``| |v| - 1 |``. The boundary checks refuse an element further
+        than ``liemef._validate.ON_GROUP``."""
+        return 0.0
+
     @classmethod
     def structure_constants(cls) -> Float[Array, "n n n"]:
         r"""$C[m, j, i] = (\mathrm{ad}_{e_j} e_i)_m$, constant for a given group."""
@@ -124,5 +132,20 @@ class LieGroup(eqx.Module):
 
 
 def as_float_array(x: ArrayLike) -> Array:
-    """Convert to a float64 JAX array (the library computes in double precision)."""
+    """Convert to a float64 JAX array (the library computes in double precision); complex values are refused
+    (a ValueError), not truncated."""
+    dtype = getattr(x, "dtype", None)
+    if dtype is None:
+        try:
+            dtype = np.asarray(x).dtype
+        except Exception:  # noqa: BLE001 - e.g. a list of tracers: jnp converts it below
+            dtype = None
+    if dtype is not None and np.issubdtype(dtype, np.complexfloating):
+        raise ValueError(f"group parameters: expected real numbers, got complex values {np.asarray(x)!r}")
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+def unit_distance(v) -> float:
+    """``max | |v| - 1 |`` over the last axis of ``v`` (NumPy, not traced): how far a stored unit vector is."""
+    v = np.asarray(v, dtype=np.float64)
+    return float(np.max(np.abs(np.linalg.norm(v, axis=-1) - 1.0), initial=0.0))

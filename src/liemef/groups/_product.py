@@ -68,6 +68,10 @@ class Product(LieGroup):
     def _tangent_sizes(cls):
         return [t.tangent_dim for t in cls.factor_types]
 
+    def off_group(self) -> float:
+        """The largest of the factors'."""
+        return max(f.off_group() for f in self.factors)
+
     @classmethod
     def identity(cls, batch_shape=()):
         """The tuple of the factors' identities."""

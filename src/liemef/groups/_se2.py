@@ -4,7 +4,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, unit_distance
 from ._so2 import SO2
 
 _TAYLOR = 1e-2  # |omega| below which exp/log use Taylor series (see _so3._TAYLOR_SQ)
@@ -24,6 +24,10 @@ class SE2(LieGroup):
 
     def __init__(self, cos_sin_xy):
         self.cos_sin_xy = as_float_array(cos_sin_xy)
+
+    def off_group(self) -> float:
+        """|(cos, sin)| - 1, in absolute value (the largest over the batch)."""
+        return unit_distance(self.cos_sin_xy[..., :2])
 
     @classmethod
     def identity(cls, batch_shape=()):

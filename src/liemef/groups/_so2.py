@@ -5,7 +5,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from .._linalg import mv
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, unit_distance
 
 
 class SO2(LieGroup):
@@ -19,6 +19,10 @@ class SO2(LieGroup):
 
     def __init__(self, cos_sin):
         self.cos_sin = as_float_array(cos_sin)
+
+    def off_group(self) -> float:
+        """|(cos, sin)| - 1, in absolute value (the largest over the batch)."""
+        return unit_distance(self.cos_sin)
 
     @classmethod
     def identity(cls, batch_shape=()):

@@ -5,7 +5,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from .._linalg import mv
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, unit_distance
 
 # Below this squared angle, exp/log use Taylor series: the values and their first and second derivatives stay
 # finite and accurate at exactly 0 (the engine differentiates exp twice at 0).
@@ -33,6 +33,10 @@ class SO3(LieGroup):
 
     def __init__(self, wxyz):
         self.wxyz = as_float_array(wxyz)
+
+    def off_group(self) -> float:
+        """|q| - 1 of the quaternion, in absolute value (the largest over the batch)."""
+        return unit_distance(self.wxyz)
 
     @classmethod
     def identity(cls, batch_shape=()):

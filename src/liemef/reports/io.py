@@ -37,6 +37,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from .. import _validate
+
 METRICS_FILE = "metrics.json"
 ARRAYS_FILE = "arrays.npz"
 
@@ -153,14 +155,25 @@ def _existing_file(path: str | os.PathLike, name: str) -> Path:
     return p
 
 
-def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """All arrays of an ``.npz`` file (no pickles)."""
-    p = _existing_file(path, "arrays")
+def read_arrays(path: str | os.PathLike, name: str = "arrays") -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` file (no pickles). ValueError naming ``name`` and the file for anything that
+    is not a whole, readable NPZ archive: empty, truncated, corrupted (a bad CRC or compressed stream), a
+    single ``.npy`` array, pickled objects."""
+    p = _existing_file(path, name)
     try:
-        with np.load(p, allow_pickle=False) as z:
+        z = np.load(p, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError(f"{name}: expected an .npz archive of named arrays, got a single array of shape "
+                             f"{np.shape(z)} in {str(p)!r}")
+        with z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise ValueError(f"arrays: cannot read {str(p)!r} as .npz ({err})") from err
+    except ValueError as err:
+        if str(err).startswith(f"{name}: "):
+            raise
+        raise ValueError(f"{name}: cannot read {str(p)!r} as an .npz archive (ValueError: {err})") from err
+    except Exception as err:  # noqa: BLE001 - zipfile, zlib, EOF and OS errors alike: a bad file
+        why = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+        raise ValueError(f"{name}: cannot read {str(p)!r} as an .npz archive ({why})") from err
 
 
 def read_json(path: str | os.PathLike, name: str = "json") -> Any:
@@ -250,8 +263,14 @@ def _cell(c: str) -> float:
 
 
 def _read_csv(p: Path, layout: LogLayout) -> RecordedLog:
-    with p.open(newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+    try:  # utf-8-sig: a header with a byte-order mark (as spreadsheets write) is read without it
+        with p.open(newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except UnicodeDecodeError as err:
+        raise ValueError(f"log {str(p)!r}: expected UTF-8 text, got the byte {err.object[err.start:err.start + 1]!r} "
+                         f"at offset {err.start}, which is not UTF-8 (save the file as UTF-8)") from err
+    except csv.Error as err:
+        raise ValueError(f"log {str(p)!r}: expected CSV text, got {err}") from err
     rows = [r for r in rows if any(c.strip() for c in r)]
     if not rows:
         raise ValueError(f"log {str(p)!r}: the file is empty; expected a header row {','.join(layout.header)}")
@@ -318,7 +337,9 @@ def merge_sensor_times(ts_u, us, streams: Mapping[str, tuple[Any, Any]], layout:
 
 
 def _read_npz(p: Path, layout: LogLayout) -> RecordedLog:
-    z = read_arrays(p)
+    z = read_arrays(p, "log")
+    for key, a in z.items():
+        _validate.numeric(f"log {str(p)!r}: array {key!r}", a)
     m, pdim = len(layout.inputs), len(layout.outputs)
     per_sensor = "ys" not in z and any(name in z for name, _, _ in layout.blocks)
     need = ["ts"] + (["us"] if m else []) + ([] if per_sensor else ["ys"])

@@ -5,7 +5,6 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .. import _validate
@@ -130,12 +129,7 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
     G = system.group
-    if not isinstance(g0, G):
-        raise ValueError(f"g0: expected an element of {G.__name__}, got {type(g0).__name__}")
-    if g0.batch_shape != ():
-        raise ValueError(f"g0: expected a single element (no batch axes), got batch shape {g0.batch_shape}")
-    for leaf in jax.tree_util.tree_leaves(g0):
-        _validate.array("g0", leaf)
+    _validate.element("g0", g0, G)
     ts = _validate.sorted_times("ts", ts)
     if ts.shape[0] < 2:
         raise ValueError(f"ts: expected at least 2 sample times, got {ts.shape[0]}")
@@ -155,8 +149,7 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
     if input_noise is not None:
         input_noise = _validate.array("input_noise", input_noise, (m, None))
         input_noise = jnp.asarray(input_noise)
-    if not (isinstance(substeps, int | np.integer) and substeps >= 1):
-        raise ValueError(f"substeps: expected an integer >= 1, got {substeps!r}")
+    substeps = _validate.integer("substeps", substeps, 1)
     integ = make_integrator(integrator)
     return _simulate_jit(system, g0, input_fn, jnp.asarray(ts), key, jnp.asarray(model_error_std),
                          input_noise, int(substeps), integ)

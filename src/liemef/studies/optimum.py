@@ -189,7 +189,7 @@ def _residuals(system, g0, ts, us, yz, dts, xs):
         return y.rminus(x.rplus(system.dynamics(x, u, t) * dt))
 
     def meas(x, y, t):
-        return system.output(x, t) - y
+        return system.output_seen_from(y, x, t) - y
 
     rp = jax.vmap(proc)(a, b, us[:-1], ts[:-1], dts)
     rm = jax.vmap(meas)(a, yz[:-1], ts[:-1])
@@ -218,7 +218,7 @@ def _linearize(system, g0, ts, us, yz, dts, xs, P0inv, Qinv, W):
         return f(z, z), Ja, Jb
 
     def meas(x, y, t):
-        f = lambda d: system.output(x.rplus(d), t) - y  # noqa: E731
+        f = lambda d: system.output_seen_from(y, x.rplus(d), t) - y  # noqa: E731
         return f(z), jax.jacfwd(f)(z)
 
     r0, J0 = prior(xs[0])

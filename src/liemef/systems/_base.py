@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .. import _validate
@@ -14,7 +15,14 @@ from ..groups import LieGroup
 
 
 def matrix(x) -> Array:
-    """Field converter: a float64 JAX array."""
+    """Field converter: a float64 JAX array; complex values and objects are kept as they are, for the
+    system's check to refuse them by name (a cast would truncate them)."""
+    if isinstance(x, jax.core.Tracer):
+        return jnp.asarray(x, dtype=jnp.float64)
+    kind = getattr(x, "dtype", None)
+    kind = np.asarray(x).dtype.kind if kind is None and x is not None else getattr(kind, "kind", None)
+    if kind is not None and kind not in "biuf":
+        return np.asarray(x)
     return jnp.asarray(x, dtype=jnp.float64)
 
 
@@ -100,6 +108,21 @@ class AbstractSystem(eqx.Module):
         the filters only if a block is marked ``adaptive``. Default: the identity."""
         return jnp.eye(self.output_dim)
 
+    @property
+    def manifold_residuals(self) -> bool:
+        """Whether an output component has a residual other than ``y - h`` (:meth:`residual`)."""
+        return False
+
+    def residual(self, y: Float[Array, "... p"], h: Float[Array, "... p"], t=None) -> Float[Array, "... p"]:
+        r"""The residual $y \ominus h$ of a sample against an output (DESIGN.md §8): ``y - h`` unless a sensor
+        declares its own (angles, directions, rotations: :mod:`liemef.systems._residuals`)."""
+        return y - h
+
+    def output_seen_from(self, y: Float[Array, " p"], g: LieGroup, t) -> Float[Array, " p"]:
+        r"""$\tilde h_y(g) = y - (y \ominus h(g))$, the output as the filters see it against the sample ``y``:
+        its derivatives are the residual's. :meth:`output` itself where every residual is ``y - h``."""
+        return self.output(g, t) if not self.manifold_residuals else y - self.residual(y, self.output(g, t), t)
+
     def information(self) -> Float[Array, "p p"]:
         r"""Measurement information $D^{-\top} Q D^{-1}$: per unit time for density blocks, per sample for
         sample blocks (:mod:`liemef.systems._sensors`)."""
@@ -129,6 +152,8 @@ class AbstractSystem(eqx.Module):
     def __check_init__(self):
         G = self.group
         n = G.tangent_dim
+        for name in ("D", "Q"):
+            _validate.numeric(name, getattr(self, name))
         B = _validate.array("B", self.B, (n, None))
         d = B.shape[1]
         _validate.symmetric_psd("R", self.R, d)
@@ -162,6 +187,16 @@ class System(AbstractSystem):
     R: Float[Array, "d d"] = eqx.field(converter=matrix)
     n_inputs: int = eqx.field(static=True, default=0)
     names: tuple[str, ...] | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        _validate.integer("n_inputs", self.n_inputs, 0)
+        G = self.group_type
+        for name, fn, args in (("dynamics", self.dynamics_fn, (G.identity(), jnp.zeros((self.n_inputs,)), 0.0)),
+                               ("output", self.output_fn, (G.identity(), 0.0))):
+            for leaf in jax.tree_util.tree_leaves(jax.eval_shape(fn, *args)):
+                dtype = getattr(leaf, "dtype", None)
+                if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
+                    raise ValueError(f"{name}: expected a function returning real values, got dtype {dtype}")
 
     @property
     def group(self) -> type[LieGroup]:

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from .. import _validate
+
 
 @dataclass(frozen=True)
 class UserSystem:
@@ -29,6 +31,17 @@ class UserSystem:
     K0: np.ndarray | None = None
     x0: np.ndarray | None = None
     initial_guess: Any = None
+
+    def guess(self, y0) -> np.ndarray:
+        """The file's ``initial_guess(y0)`` as coordinates: ValueError naming the file and the function when it
+        raises (or exits), or returns anything but the group's coordinates as finite real numbers."""
+        c = self.system.group.coords_dim
+        where = f"--system-file: initial_guess of {str(self.path)!r}"
+        try:
+            q = self.initial_guess(y0)
+        except (Exception, SystemExit) as err:
+            raise ValueError(f"{where} failed: {type(err).__name__}: {err}") from err
+        return _validate.array(where, q, (c,))
 
 
 def run_python_file(path: Path, option: str, source: str | None = None):
@@ -50,7 +63,7 @@ def run_python_file(path: Path, option: str, source: str | None = None):
             spec.loader.exec_module(module)
         else:
             exec(compile(source, str(path), "exec"), module.__dict__)  # noqa: S102 - the user's own file
-    except Exception as err:  # a user's file: report whatever it raised, with its type
+    except (Exception, SystemExit) as err:  # a user's file: whatever it raised, named (exit() included)
         raise ValueError(f"{option}: running {str(path)!r} failed: {type(err).__name__}: {err}") from err
     finally:
         sys.modules.pop(name, None)

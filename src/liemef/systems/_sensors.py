@@ -35,6 +35,7 @@ from jaxtyping import Array, Float
 from .. import _validate
 from ..groups import LieGroup
 from ._base import AbstractSystem, Block, matrix
+from ._residuals import AngleResidual
 
 Meaning = Literal["density", "sample"]
 MEANINGS = ("density", "sample")
@@ -42,7 +43,7 @@ ROBUST = ("huber", "cauchy")
 
 
 def _positive_vector(name: str, value) -> Array:
-    a = _validate.array(name, np.atleast_1d(np.asarray(value, dtype=np.float64)), (None,))
+    a = _validate.array(name, np.atleast_1d(_validate.numeric(name, value)), (None,))
     if a.size == 0 or np.any(a <= 0):
         raise ValueError(f"{name}: expected standard deviations > 0, got {a.tolist()}")
     return jnp.asarray(a)
@@ -109,6 +110,13 @@ class Sensor(eqx.Module):
             (its information becomes $T^\top W T$). A hashable object (e.g. a frozen dataclass), so that equal
             models are one compiled structure.
         scale_params: the parameters of ``scale``, an array leaf (tuning them never recompiles).
+        angles: the components that are angles (names or indices, or True for all): their residual is the
+            difference wrapped into [-pi, pi) (a bearing reported in (-pi, pi] against a prediction that is not).
+        residual: the sensor's own residual ``residual(y, h) -> (k,)``, zero at ``y == h`` and smooth in h near y
+            (:func:`~liemef.systems.direction_residual` for unit directions,
+            :func:`~liemef.systems.rotation_residual` for rotation vectors); default ``y - h``.
+
+    Gates, robust losses, the filters' updates and the innovations all use the residual (DESIGN.md §8).
     """
 
     name: str = eqx.field(static=True)
@@ -123,11 +131,12 @@ class Sensor(eqx.Module):
     weight_fn: Callable | None = eqx.field(static=True, default=None)
     scale: Callable | None = eqx.field(static=True, default=None)
     scale_params: Float[Array, " q"] | None = None
+    residual: Callable | None = eqx.field(static=True, default=None)
 
     def __init__(self, name: str, fn: Callable, noise: Noise, components=None, units=None, *, dim: int | None = None,
                  gate: float | None = None, robust: str | None = None, robust_scale: float = 2.0,
                  max_rejections: int | None = None, weight_fn: Callable | None = None, scale: Callable | None = None,
-                 scale_params=None):
+                 scale_params=None, angles=None, residual: Callable | None = None):
         if not isinstance(name, str) or not name.isidentifier():
             raise ValueError(f"name: expected a sensor name usable as a column prefix (letters, digits, _), "
                              f"got {name!r}")
@@ -166,6 +175,15 @@ class Sensor(eqx.Module):
         self.scale_params = None if scale_params is None else jnp.asarray(
             _validate.array(f"sensor {name!r}: scale_params", np.atleast_1d(np.asarray(scale_params, np.float64)),
                             (None,)))
+        if residual is not None and not callable(residual):
+            raise ValueError(f"sensor {name!r}: residual: expected a function residual(y, h), got "
+                             f"{type(residual).__name__}")
+        if angles is not None and angles is not False:
+            if residual is not None:
+                raise ValueError(f"sensor {name!r}: angles, residual: expected one of them (a residual function "
+                                 "wraps its own angles), got both")
+            residual = AngleResidual(_angle_mask(name, angles, components))
+        self.residual = residual
 
     @property
     def dim(self) -> int:
@@ -176,6 +194,22 @@ class Sensor(eqx.Module):
     def columns(self) -> tuple[str, ...]:
         """Log column names ``{name}_{component}``."""
         return tuple(f"{self.name}_{c}" for c in self.components)
+
+
+def _angle_mask(name: str, angles, components: tuple[str, ...]) -> tuple[bool, ...]:
+    """The components ``angles`` names (names or indices, or True for all) as a mask."""
+    if angles is True:
+        return (True,) * len(components)
+    mask = [False] * len(components)
+    for a in (angles if isinstance(angles, list | tuple) else (angles,)):
+        if isinstance(a, str) and a in components:
+            mask[components.index(a)] = True
+        elif isinstance(a, int) and not isinstance(a, bool) and 0 <= a < len(components):
+            mask[a] = True
+        else:
+            raise ValueError(f"sensor {name!r}: angles: expected component names from {list(components)} or "
+                             f"indices below {len(components)} (or True for all), got {a!r}")
+    return tuple(mask)
 
 
 def blocks_of(sensors) -> tuple[Block, ...]:
@@ -331,6 +365,35 @@ class SensorSystem(AbstractSystem):
     def output(self, g, t):
         """The sensors' outputs, concatenated in order."""
         return jnp.concatenate([jnp.atleast_1d(jnp.asarray(s.fn(g, t), dtype=jnp.float64)) for s in self.sensors])
+
+    @property
+    def manifold_residuals(self) -> bool:
+        """Whether a sensor declares its residual (angles or a function)."""
+        return any(s.residual is not None for s in self.sensors)
+
+    def residual(self, y, h, t=None):
+        """Each sensor's residual ``y (-) h`` (its own, or ``y - h``), concatenated."""
+        out, start = [], 0
+        for s in self.sensors:
+            yb, hb = y[..., start:start + s.dim], h[..., start:start + s.dim]
+            out.append(yb - hb if s.residual is None else jnp.asarray(s.residual(yb, hb), dtype=jnp.float64))
+            start += s.dim
+        return jnp.concatenate(out, axis=-1)
+
+    def output_seen_from(self, y, g, t):
+        """The outputs, where a sensor declares a residual as ``y - (y (-) h(g))``: then ``y`` minus this is the
+        residual, and its derivatives are the residual's."""
+        if not self.manifold_residuals:
+            return self.output(g, t)
+        out, start = [], 0
+        for s in self.sensors:
+            hb = jnp.atleast_1d(jnp.asarray(s.fn(g, t), dtype=jnp.float64))
+            if s.residual is not None:
+                yb = y[start:start + s.dim]
+                hb = yb - jnp.asarray(s.residual(yb, hb), dtype=jnp.float64)
+            out.append(hb)
+            start += s.dim
+        return jnp.concatenate(out)
 
     @property
     def input_names(self) -> tuple[str, ...]:

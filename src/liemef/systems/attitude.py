@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .. import _validate
 from ..groups import TSO3
 from ._base import AbstractSystem, matrix
 
@@ -36,8 +37,9 @@ class RigidBodyAttitude(AbstractSystem):
     R: Float[Array, "3 3"] = eqx.field(converter=matrix)
 
     def __init__(self, inertia=None, a1=(0.0, 0.0, 1.0), a2=(0.0, 1.0, 0.0), B=None, D=None, Q=None, R=None):
-        self.inertia = matrix(np.diag([2.0, 5.0, 3.0]) if inertia is None else inertia)
-        self.a1, self.a2 = matrix(a1), matrix(a2)
+        self.inertia = matrix(_validate.symmetric_psd("inertia", np.diag([2.0, 5.0, 3.0]) if inertia is None
+                                                      else inertia, 3))
+        self.a1, self.a2 = matrix(_direction("a1", a1)), matrix(_direction("a2", a2))
         self.B = matrix(np.vstack([np.zeros((3, 3)), SIGMA_DELTA * np.eye(3)]) if B is None else B)
         self.D = matrix(SIGMA_EPS * np.eye(6) if D is None else D)
         self.Q = matrix(SIGMA_EPS**2 * np.eye(6) if Q is None else Q)
@@ -92,3 +94,11 @@ class RigidBodyAttitude(AbstractSystem):
         # Saccon et al. 2016, eq. (57): R^T a_i
         Rt = g.factors[0].as_matrix().T
         return jnp.concatenate([Rt @ self.a1, Rt @ self.a2])
+
+
+def _direction(name: str, v) -> np.ndarray:
+    """A known direction: a finite nonzero 3-vector."""
+    a = _validate.array(name, v, (3,))
+    if not np.linalg.norm(a) > 0:
+        raise ValueError(f"{name}: expected a nonzero direction, got {a}")
+    return a

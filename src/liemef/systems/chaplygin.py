@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .. import _validate
 from ..groups import R2, SE2, SE2R2
 from ._base import AbstractSystem, matrix
 
@@ -60,10 +61,9 @@ class ChaplyginSleigh(AbstractSystem):
                  R=None):
         if sensor not in SENSORS:
             raise ValueError(f"sensor: expected one of {sorted(SENSORS)}, got {sensor!r}")
-        for name, v in (("J", J), ("m", m)):
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
-        self.J, self.m, self.a, self.l, self.sensor = float(J), float(m), float(a), float(l), sensor
+        self.J, self.m = _validate.positive("J", J), _validate.positive("m", m)
+        self.a, self.l = _validate.real("a", a), _validate.positive("l", l)
+        self.sensor = sensor
         p = len(SENSORS[sensor][0])
         B = np.vstack([np.zeros((3, 2)), 10.0 * np.eye(2)]) if B is None else B
         D = np.diag([0.4] * 4 + [0.2] * (p - 4)) if D is None else D

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .. import _validate
 from ..groups import R3, SE2, TSE2
 from ._base import AbstractSystem, matrix
 
@@ -50,7 +51,8 @@ class PlanarRigidBody(AbstractSystem):
     def __init__(self, J=6.125, m=125.0, l=0.2, sensor: Sensor = "gps_imu", B=None, D=None, Q=None, R=None):
         if sensor not in SENSORS:
             raise ValueError(f"sensor: expected one of {sorted(SENSORS)}, got {sensor!r}")
-        self.J, self.m, self.l, self.sensor = float(J), float(m), float(l), sensor
+        self.J, self.m, self.l = _validate.positive("J", J), _validate.positive("m", m), _validate.positive("l", l)
+        self.sensor = sensor
         B = np.vstack([np.zeros((3, 3)), 0.1 * np.eye(3)]) if B is None else B
         D = (np.diag([0.5] * 4 + [0.1] * 3) if sensor == "gps_imu" else 0.1 * np.eye(3)) if D is None else D
         self.B, self.D = matrix(B), matrix(D)

@@ -40,7 +40,7 @@ magnetometer-only update; ahrs's Mahony itself would integrate the raw gyro with
 directly: ahrs skips the whole update (correction included) when a gyro sample is exactly zero; a zero gyro is
 passed as $10^{-150}$ rad/s instead, so that noise-free synthetic logs at rest are still corrected. And the state
 is frozen at the first quaternion that is not finite or lost its unit norm (an overflow): ``status`` records it
-(code ``NONFINITE``, the interval's index and start time) and the later states of a run are NaN, as in
+(cause ``CAUSES.NONFINITE``, the interval's index and start time) and the later states of a run are NaN, as in
 :meth:`~liemef.filters.MinimumEnergyFilter.run`.
 
 BROAD (Laidig et al. 2021; ``tests/test_baselines_ahrs.py``): ahrs's Mahony is step for step the C code of
@@ -72,8 +72,8 @@ from ... import _validate
 from ...groups import R3, SO3, TSO3, LieGroup
 from ...systems import AbstractSystem
 from .. import FilterState, Trajectory
-from .._base import check_dt, check_element, check_time
-from .._status import NONFINITE, OK, Status
+from .._base import check_dt, check_element, check_log, check_time
+from .._status import CAUSES, Status
 
 MADGWICK_GAIN = 0.041
 """ahrs's default Madgwick gain with a magnetometer (``gain_marg``; its IMU-only default is 0.033)."""
@@ -119,39 +119,43 @@ def _interval(update, engine, q, b, u, a, m, dt):
     return (q1, b1, True) if ok else (q, b, False)
 
 
-class _AhrsFilter(eqx.Module):
-    """The shared driver of the ahrs filters (abstract): validation, frames, missing samples, status, runs."""
+def _attitude_sensors(system: AbstractSystem) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The output slices of the ``acc`` and ``mag`` sensors of an attitude system on SO3 or TSO3 with the gyro as
+    its input, whose sensors read up and a northern field at the identity (ValueError naming ``system``
+    otherwise): the checks of every ahrs baseline's constructor."""
+    if not isinstance(system, AbstractSystem):
+        raise ValueError(f"system: expected a liemef attitude system (AbstractSystem), got "
+                         f"{type(system).__name__}")
+    if system.group not in (SO3, TSO3):
+        raise ValueError(f"system: expected an attitude system on SO3 or TSO3, got one on "
+                         f"{system.group.__name__}")
+    if system.input_dim != 3:
+        raise ValueError(f"system: expected the gyro as the input (3 components), got {system.input_dim} inputs")
+    blocks = {b.name: b for b in system.blocks()}
+    for s in ("acc", "mag"):
+        if s not in blocks or blocks[s].dim != 3:
+            got = [f"{b.name} ({b.dim})" for b in system.blocks()]
+            raise ValueError(f"system: expected sensors 'acc' and 'mag' of 3 components each, got sensors {got}")
+    acc, mag = (blocks["acc"].start, blocks["acc"].stop), (blocks["mag"].start, blocks["mag"].stop)
+    # The frames of the conversion hold only if the system's sensors read up and a northern (+y) field.
+    h = np.asarray(system.output(system.group.identity(), jnp.asarray(0.0)))
+    a, m = h[slice(*acc)], h[slice(*mag)]
+    if not (np.allclose(a, [0.0, 0.0, 1.0], atol=1e-9) and abs(m[0]) < 1e-9 and m[1] > 0):
+        raise ValueError("system: expected 'acc' to read the world up (0, 0, 1) and 'mag' a field pointing north "
+                         f"(+y, ENU) at the identity attitude, got acc {a.tolist()} and mag {m.tolist()}")
+    return acc, mag
 
-    system: AbstractSystem
+
+class _AhrsFilter(eqx.Module):
+    """The shared driver of the ahrs filters (abstract; its final classes hold the fields): frames, missing
+    samples, status, runs."""
+
+    system: eqx.AbstractVar[AbstractSystem]
+    acc: eqx.AbstractVar[tuple[int, int]]  # the output slices of the sensors (_attitude_sensors)
+    mag: eqx.AbstractVar[tuple[int, int]]
     has_covariance: ClassVar[bool] = False
     name: ClassVar[str]
     _frame: ClassVar[np.ndarray]  # q_c with q_liemef = q_c (x) q_ahrs
-    acc: tuple[int, int] = eqx.field(static=True)
-    mag: tuple[int, int] = eqx.field(static=True)
-
-    def __init__(self, system: AbstractSystem):
-        if not isinstance(system, AbstractSystem):
-            raise ValueError(f"system: expected a liemef attitude system (AbstractSystem), got "
-                             f"{type(system).__name__}")
-        if system.group not in (SO3, TSO3):
-            raise ValueError(f"system: expected an attitude system on SO3 or TSO3, got one on "
-                             f"{system.group.__name__}")
-        if system.input_dim != 3:
-            raise ValueError(f"system: expected the gyro as the input (3 components), got {system.input_dim} inputs")
-        blocks = {b.name: b for b in system.blocks()}
-        for s in ("acc", "mag"):
-            if s not in blocks or blocks[s].dim != 3:
-                got = [f"{b.name} ({b.dim})" for b in system.blocks()]
-                raise ValueError(f"system: expected sensors 'acc' and 'mag' of 3 components each, got sensors {got}")
-        self.system = system
-        self.acc = (blocks["acc"].start, blocks["acc"].stop)
-        self.mag = (blocks["mag"].start, blocks["mag"].stop)
-        # The frames of the conversion hold only if the system's sensors read up and a northern (+y) field.
-        h = np.asarray(system.output(system.group.identity(), jnp.asarray(0.0)))
-        a, m = h[slice(*self.acc)], h[slice(*self.mag)]
-        if not (np.allclose(a, [0.0, 0.0, 1.0], atol=1e-9) and abs(m[0]) < 1e-9 and m[1] > 0):
-            raise ValueError("system: expected 'acc' to read the world up (0, 0, 1) and 'mag' a field pointing north "
-                             f"(+y, ENU) at the identity attitude, got acc {a.tolist()} and mag {m.tolist()}")
 
     @property
     def n(self) -> int:
@@ -211,14 +215,15 @@ class _AhrsFilter(eqx.Module):
         y = _validate.array("y", y, (self.system.output_dim,), missing=True)
         t, dt = check_time(t, dt)
         st = state.status
-        if int(st.code) != OK:
+        if int(st.code) != CAUSES.OK.code:
             return state
         q, b = self._split(state.g_hat)
         q1, b1, ok = self._interval(self._engine(), q, b, u, y, dt)
         i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
         steps = int(st.steps)
         status = Status(
-            code=i32(OK if ok else NONFINITE), index=i32(-1 if ok else steps), time=jnp.asarray(math.nan if ok else t),
+            code=i32(CAUSES.OK.code if ok else CAUSES.NONFINITE.code), index=i32(-1 if ok else steps),
+            time=jnp.asarray(math.nan if ok else t),
             steps=i32(steps + 1), rejected=st.rejected, consecutive=st.consecutive, substeps_max=i32(1),
             substeps_total=i32(int(st.substeps_total) + 1), substeps_capped=st.substeps_capped, gaps=st.gaps,
             longest_gap=jnp.asarray(max(float(st.longest_gap), dt)), inputs_held=st.inputs_held)
@@ -234,20 +239,14 @@ class _AhrsFilter(eqx.Module):
         are NaN and ``final`` is the last good state (module docstring)."""
         self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
-        ts = _validate.sorted_times("ts", ts)
+        ts, us, ys, _ = check_log(self, ts, us, ys, gap=math.inf, keep_every=keep_every, missing_inputs=False)
         N = ts.shape[0]
-        if N < 2:
-            raise ValueError(f"ts: expected at least 2 time stamps, got {N}")
-        us = _validate.array("us", us, (N, 3))
-        ys = _validate.array("ys", ys, (N, self.system.output_dim), missing=True)
-        if not (isinstance(keep_every, int) and not isinstance(keep_every, bool) and keep_every >= 1):
-            raise ValueError(f"keep_every: expected an integer >= 1, got {keep_every!r}")
         n, st = self.n, state.status
         q, b = self._split(state.g_hat)
         Q, B = np.full((N, 4), np.nan), np.full((N, 3), np.nan)
         Q[0], B[0] = q, b
         dts = np.diff(ts)
-        failed, k_fail, done = int(st.code) != OK, -1, 0
+        failed, k_fail, done = int(st.code) != CAUSES.OK.code, -1, 0
         u_last = np.asarray(state.u_last)
         engine, update = self._engine(), type(self)._update
         A, M = ys[:, slice(*self.acc)], ys[:, slice(*self.mag)]
@@ -264,7 +263,7 @@ class _AhrsFilter(eqx.Module):
             Q[k + 1], B[k + 1], u_last = q, b, us[k]
         steps = int(st.steps) + done
         if k_fail >= 0:
-            code, index, time = NONFINITE, int(st.steps) + k_fail, float(ts[k_fail])
+            code, index, time = CAUSES.NONFINITE.code, int(st.steps) + k_fail, float(ts[k_fail])
         else:
             code, index, time = int(st.code), int(st.index), float(st.time)
         status = Status(
@@ -326,10 +325,14 @@ class Madgwick(_AhrsFilter):
 
     name: ClassVar[str] = "madgwick"
     _frame: ClassVar[np.ndarray] = _Q_NWU_TO_ENU
+    system: AbstractSystem
+    acc: tuple[int, int] = eqx.field(static=True)
+    mag: tuple[int, int] = eqx.field(static=True)
     gain: float = eqx.field(static=True)
 
     def __init__(self, system: AbstractSystem, gain: float = MADGWICK_GAIN):
-        super().__init__(system)
+        self.acc, self.mag = _attitude_sensors(system)
+        self.system = system
         self.gain = _positive("gain", gain)
 
     def __repr__(self) -> str:
@@ -362,11 +365,15 @@ class Mahony(_AhrsFilter):
 
     name: ClassVar[str] = "mahony"
     _frame: ClassVar[np.ndarray] = _Q_IDENTITY
+    system: AbstractSystem
+    acc: tuple[int, int] = eqx.field(static=True)
+    mag: tuple[int, int] = eqx.field(static=True)
     k_P: float = eqx.field(static=True)
     k_I: float = eqx.field(static=True)
 
     def __init__(self, system: AbstractSystem, k_P: float = MAHONY_K_P, k_I: float = MAHONY_K_I):
-        super().__init__(system)
+        self.acc, self.mag = _attitude_sensors(system)
+        self.system = system
         self.k_P = _positive("k_P", k_P)
         self.k_I = _positive("k_I", k_I, zero=True)
         if system.group is SO3 and self.k_I != 0:

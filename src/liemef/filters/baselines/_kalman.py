@@ -118,8 +118,9 @@ class AbstractKalmanFilter(AbstractFilter):
         """Short name for tables (``"iekf"``, ``"ekf"``, ``"ukf-left"``, ...)."""
 
     @abc.abstractmethod
-    def _moments(self, g, P, t) -> tuple[Array, Array, Array]:
-        """``h(g_hat)``, the output covariance C from the state and the cross-covariance P_ey."""
+    def _moments(self, g, P, t, y) -> tuple[Array, Array, Array]:
+        """``h(g_hat)``, the output covariance C from the state and the cross-covariance P_ey (the output as seen
+        from the sample ``y``: :meth:`~liemef.systems.AbstractSystem.output_seen_from`)."""
 
     @abc.abstractmethod
     def _predict(self, g, P, u, t, dt) -> tuple[LieGroup, Array]:
@@ -148,7 +149,7 @@ class AbstractKalmanFilter(AbstractFilter):
         u0, _, u_ok, y0, _, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
         P = self._to_own(g, state.K)
         # update with y0: the information of the present components over the interval
-        h0, C, P_ey = self._moments(g, P, t)
+        h0, C, P_ey = self._moments(g, P, t, y0)
         nu = y0 - h0
         scale, rejected, consecutive = self._sensor_scale(nu, C, t, dt, mask, Wy, st)
         info = Wy * dt * jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
@@ -203,10 +204,10 @@ class ExtendedKalmanFilter(AbstractKalmanFilter):
         """``"iekf"`` (left error), ``"ekf"`` (local) or ``"ekf-right"``."""
         return {"left": "iekf", "local": "ekf", "right": "ekf-right"}[self.error]
 
-    def _moments(self, g, P, t):
+    def _moments(self, g, P, t, y):
         plus, _ = retraction(self.error)
         zero = jnp.zeros(self.n)
-        h = lambda e: self.system.output(plus(g, e), t)  # noqa: E731
+        h = lambda e: self.system.output_seen_from(y, plus(g, e), t)  # noqa: E731
         H = jax.jacfwd(h)(zero)
         PH = mm(P, H.T)
         return h(zero), mm(H, PH), PH
@@ -273,13 +274,13 @@ class UnscentedKalmanFilter(AbstractKalmanFilter):
         d = xis - mean
         return wj * jnp.einsum("ki,kj->ij", d, d) + w0 * jnp.outer(mean, mean)
 
-    def _moments(self, g, P, t):
+    def _moments(self, g, P, t, y):
         plus, _ = retraction(self.error)
         s, wj, wm, w0 = self._weights()
         cols = s * _sqrt_psd(P).T  # rows: s c_j
         xis = jnp.concatenate([cols, -cols])
-        h0 = self.system.output(g, t)
-        ys = jax.vmap(lambda e: self.system.output(plus(g, e), t))(xis)
+        h0 = self.system.output_seen_from(y, g, t)
+        ys = jax.vmap(lambda e: self.system.output_seen_from(y, plus(g, e), t))(xis)
         y_bar = wm * h0 + wj * jnp.sum(ys, axis=0)
         dy = ys - y_bar
         C = w0 * jnp.outer(h0 - y_bar, h0 - y_bar) + wj * jnp.einsum("ki,kj->ij", dy, dy)

@@ -16,9 +16,9 @@ resumes without recomputing its finished tasks (:class:`Store`).
 
 from ._run import DEFAULT_WORKERS, CampaignResult, Progress, run_campaign
 from ._spec import KEYS, SCHEMA, Campaign, CampaignError, Setting, Task
-from ._store import CAMPAIGN_FILE, MANIFEST_FILE, RESULT_FILE, Entry, Store, sha256_file
+from ._store import CAMPAIGN_FILE, LOCK_FILE, MANIFEST_FILE, RESULT_FILE, CampaignLock, Entry, Store, sha256_file
 from ._task import TaskInput, TaskOutput, run_task
 
 __all__ = ["Campaign", "CampaignError", "CampaignResult", "Setting", "Task", "Progress", "run_campaign", "Store",
-           "Entry", "TaskInput", "TaskOutput", "run_task", "sha256_file", "KEYS", "SCHEMA", "DEFAULT_WORKERS",
-           "CAMPAIGN_FILE", "MANIFEST_FILE", "RESULT_FILE"]
+           "Entry", "CampaignLock", "TaskInput", "TaskOutput", "run_task", "sha256_file", "KEYS", "SCHEMA",
+           "DEFAULT_WORKERS", "CAMPAIGN_FILE", "LOCK_FILE", "MANIFEST_FILE", "RESULT_FILE"]

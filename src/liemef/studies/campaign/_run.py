@@ -30,7 +30,7 @@ import numpy as np
 from ... import __version__
 from ...reports import io
 from ._spec import SCHEMA, Campaign, CampaignError, Setting, Task
-from ._store import RESULT_FILE, Entry, Store
+from ._store import RESULT_FILE, CampaignLock, Entry, Store
 from ._task import TaskInput, TaskOutput, config_of, experiment_of, run_task
 
 DEFAULT_WORKERS = 2
@@ -224,8 +224,10 @@ def run_campaign(campaign: Campaign, scheduler: str | None = None, workers: int 
         on_task: called after each task is recorded (:data:`OnTask`).
 
     Raises:
-        CampaignError: a bad description or setting (before anything runs), another campaign in ``out``, or a
-            task that failed twice (naming it; finished tasks are kept).
+        CampaignError: a bad description or setting (before anything runs), another campaign in ``out``,
+            another client running this one (naming its pid and host; a lock left by a client that no longer
+            runs is taken over, and the result's ``problems`` say so), or a task that failed twice (naming it;
+            finished tasks are kept).
         KeyboardInterrupt: on Ctrl-C, after the cluster is closed; finished tasks are kept.
     """
     if not isinstance(campaign, Campaign):
@@ -234,9 +236,21 @@ def run_campaign(campaign: Campaign, scheduler: str | None = None, workers: int 
         raise CampaignError(f"workers: expected an integer >= 1, got {workers!r}")
     exp, points, configs = _check(campaign)
     store = Store.open(campaign)
+    lock = CampaignLock.acquire(campaign.out)  # one client at a time
+    try:
+        return _run_locked(campaign, store, lock.note, exp, points, configs, scheduler, workers, progress, client,
+                           on_task, stream)
+    finally:
+        lock.release()
+
+
+def _run_locked(campaign: Campaign, store: Store, note: str | None, exp, points: list[Setting], configs: list,
+                scheduler: str | None, workers: int, progress, client: Any, on_task: OnTask | None,
+                stream: TextIO | None) -> CampaignResult:
+    """:func:`run_campaign` once its folder is open and locked (``note``: a stale lock taken over)."""
     tasks = campaign.tasks()
     done = store.finished()
-    problems = list(store.problems)
+    problems = list(store.problems) + ([note] if note else [])
     stream = sys.stderr if stream is None else stream
     for p in problems:
         print(f"campaign {campaign.name}: {p}", file=stream)

@@ -3,6 +3,7 @@
 ::
 
     OUT/campaign.json           the description and its fingerprint (written first; a rerun must match it)
+    OUT/campaign.lock           the running client's pid, host and start (:class:`CampaignLock`; empty when none)
     OUT/manifest.jsonl          one line per finished task: id, file, SHA-256, trials, where and how long
     OUT/tasks/s000/t0000064.npz the per-trial arrays of one task (written atomically, then recorded)
     OUT/settings/s000_.../      montecarlo.{npz,json,md,csv} of each setting        } only when every task
@@ -13,7 +14,11 @@
 A task counts as finished only when its manifest line exists and its file's SHA-256 matches the line: a
 file without a line (killed between the two) or with another checksum (truncated, edited) is computed again.
 The manifest is appended one line at a time with ``fsync``; a torn last line (killed mid-write) is ignored
-and the next line starts on a new line.
+and the next line starts on a new line. The checksums guard integrity (a torn or truncated file), not
+authenticity: whoever can write the folder can write a task file and a matching line.
+
+One client at a time: :func:`~liemef.studies.campaign.run_campaign` holds an exclusive lock on the folder
+(:class:`CampaignLock`) while it runs.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import contextlib
 import hashlib
 import json
 import os
+import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +40,7 @@ from ._spec import SCHEMA, Campaign, CampaignError, Task
 CAMPAIGN_FILE = "campaign.json"
 MANIFEST_FILE = "manifest.jsonl"
 RESULT_FILE = "result.json"
+LOCK_FILE = "campaign.lock"
 
 
 def sha256_file(path: Path) -> str:
@@ -195,3 +202,73 @@ class Store:
         the new one rewrites them, and no ``result.json`` says "complete" in between."""
         with contextlib.suppress(FileNotFoundError):
             (self.out / RESULT_FILE).unlink()
+
+
+class CampaignLock:
+    """The exclusive lock of a campaign's output folder, held by the client that runs it.
+
+    ``OUT/campaign.lock`` is locked with ``flock`` (released by the system when the holder exits, however it
+    ends) and holds the holder's pid, host and start time. A second client is refused with them. A lock left
+    by a client that no longer runs (killed: the file still names it, but nobody holds the ``flock``) is taken
+    over, and :attr:`note` says whose it was. :meth:`release` empties the file and unlocks it."""
+
+    def __init__(self, path: Path, fd: int, note: str | None):
+        self.path, self._fd, self.note = path, fd, note
+
+    @classmethod
+    def acquire(cls, out: Path) -> CampaignLock:
+        """Lock ``out`` (CampaignError naming the holder's pid and host if another client holds it)."""
+        import fcntl
+
+        path = Path(out) / LOCK_FILE
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as err:
+            raise CampaignError(f"out: cannot open the lock {str(path)!r} ({err.strerror or err})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise CampaignError(f"out: {str(out)!r} is in use by another client of this campaign: "
+                                f"{_describe(holder)} ({str(path)!r}); wait for it to finish or stop it, then run "
+                                "again") from None
+        holder = _holder(fd)
+        note = None
+        if holder:
+            note = (f"took over the lock of {_describe(holder)}, which no longer runs (a client stopped without "
+                    "releasing it)")
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
+        os.fsync(fd)
+        return cls(path, fd, note)
+
+    def release(self) -> None:
+        """Empty the lock file and unlock it (idempotent)."""
+        if self._fd is None:
+            return
+        import fcntl
+
+        with contextlib.suppress(OSError):
+            os.ftruncate(self._fd, 0)
+        with contextlib.suppress(OSError):
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+        os.close(self._fd)
+        self._fd = None
+
+
+def _holder(fd: int) -> dict:
+    """The holder a lock file names ({} if it is empty or unreadable)."""
+    try:
+        data = json.loads(os.pread(fd, 4096, 0).decode("utf-8") or "{}")
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _describe(holder: dict) -> str:
+    if not holder:
+        return "a client that has not yet written its pid and host"
+    return (f"pid {holder.get('pid', '?')} on host {holder.get('host', '?')}, running since "
+            f"{holder.get('started', '?')}")

@@ -159,7 +159,8 @@ def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, 
     codes = out["code"]
     failed = np.flatnonzero(codes != 0)
     entry["diverged"] = {"count": int(failed.size),
-                         "trials": [{"trial": int(i), "cause": CAUSES[int(codes[i])], "time": float(out["time"][i])}
+                         "trials": [{"trial": int(i), "cause": CAUSES[int(codes[i])].value,
+                                     "time": float(out["time"][i])}
                                     for i in failed[:20]]}
     flips = np.flatnonzero(trials["final_heading"] > L.FLIP_DEG)
     entry["heading_flips"] = {"count": int(flips.size), "trials": [int(i) for i in flips]}

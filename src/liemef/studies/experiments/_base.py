@@ -34,10 +34,9 @@ class RunConfig:
     dt: float
 
     def _check_run(self, positive: tuple[str, ...] = ()) -> None:
-        """ValueErrors for a non-integer seed, ``duration``, ``dt`` and the ``positive`` fields not finite
-        numbers > 0, a run shorter than one step, an unknown ``order`` or ``integrator``."""
-        if not isinstance(self.seed, int | np.integer) or isinstance(self.seed, bool):
-            raise ValueError(f"seed: expected an integer, got {self.seed!r}")
+        """ValueErrors for a seed not an integer in [0, 2**63 - 1], ``duration``, ``dt`` and the ``positive``
+        fields not finite numbers > 0, a run shorter than one step, an unknown ``order`` or ``integrator``."""
+        _validate.integer("seed", self.seed, 0, _validate.SEED_MAX)
         for name in ("duration", "dt", *positive):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):

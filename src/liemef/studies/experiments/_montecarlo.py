@@ -43,9 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ... import __version__
+from ... import __version__, _validate
 from ...filters import CAUSES, Status
-from ...filters._status import NONFINITE, OK
 from ...metrics import Window, error_stats, window_mask
 from ...metrics._stats import format_number, json_number
 from ...reports import io
@@ -66,8 +65,10 @@ ProgressFn = Callable[[int, int, float, "float | None"], None]
 
 
 def trial_keys(seed: int, runs: int) -> jax.Array:
-    """The key of every trial: ``jax.random.split(jax.random.key(seed), runs)``."""
-    return jax.random.split(jax.random.key(seed), runs)
+    """The key of every trial: ``jax.random.split(jax.random.key(seed), runs)`` (ValueError naming ``seed`` or
+    ``runs`` out of range: a seed in [0, 2**63 - 1], at least one run)."""
+    seed = _validate.integer("seed", seed, 0, _validate.SEED_MAX)
+    return jax.random.split(jax.random.key(seed), _validate.integer("runs", runs, 1))
 
 
 # --- progress ----------------------------------------------------------------------------------------------
@@ -181,11 +182,11 @@ def trial_cause(errors: Float[Array, "N c"], status: Status | Int[Array, ""] | N
     """The cause code of a trial (an index in :data:`~liemef.filters.CAUSES`): its status code when the status
     failed, else ``"non-finite"`` when its errors are not all finite, else 0 (``"ok"``). Traceable."""
     finite = jnp.all(jnp.isfinite(errors))
-    cause = jnp.where(finite, OK, NONFINITE).astype(jnp.int32)
+    cause = jnp.where(finite, CAUSES.OK.code, CAUSES.NONFINITE.code).astype(jnp.int32)
     if status is None:
         return cause
     code = jnp.asarray(status.code if isinstance(status, Status) else status).astype(jnp.int32)
-    return jnp.where(code != OK, code, cause)
+    return jnp.where(code != CAUSES.OK.code, code, cause)
 
 
 TRACES = collections.Counter()
@@ -207,8 +208,8 @@ def _statistics_fn(name: str, errors: Callable, windows: tuple[Window, ...] | in
         stats = jnp.stack([jnp.stack([s[k] for k in STATS], axis=-1) for s in per_window])
         cause = trial_cause(e, status)
         if keep_every is None:
-            return stats, cause == OK, cause
-        return stats, cause == OK, cause, e[::keep_every]
+            return stats, cause == CAUSES.OK.code, cause
+        return stats, cause == CAUSES.OK.code, cause, e[::keep_every]
 
     return one
 
@@ -465,16 +466,16 @@ class MonteCarloResult:
             raise ValueError(f"units/counts: expected one unit per component ({len(self.names)}) and one count "
                              f"per window ({len(self.windows)}), got {len(self.units)} and {len(self.counts)}")
         if self.causes is None:
-            causes = np.where(finite, OK, NONFINITE).astype(np.int32)
+            causes = np.where(finite, CAUSES.OK.code, CAUSES.NONFINITE.code).astype(np.int32)
         else:
             causes = np.asarray(self.causes)
             if causes.shape != finite.shape or not np.issubdtype(causes.dtype, np.integer) \
                     or np.any((causes < 0) | (causes >= len(CAUSES))):
                 raise ValueError(f"causes: expected shape ({finite.shape[0]},) of integer cause codes in "
                                  f"[0, {len(CAUSES)}) (liemef.filters.CAUSES), got {causes.shape} {causes.dtype}")
-            if np.any((causes == OK) != finite):
+            if np.any((causes == CAUSES.OK.code) != finite):
                 raise ValueError("causes: expected code 0 (ok) exactly for the finite trials, got "
-                                 f"{_list(np.flatnonzero((causes == OK) != finite))} inconsistent")
+                                 f"{_list(np.flatnonzero((causes == CAUSES.OK.code) != finite))} inconsistent")
         set_ = object.__setattr__
         set_(self, "stats", stats)
         set_(self, "finite", finite)
@@ -520,7 +521,7 @@ class MonteCarloResult:
         """The number of diverged trials by cause, ``{cause: count}`` over the causes that occurred, in the
         order of :data:`~liemef.filters.CAUSES` (e.g. ``{"non-finite": 1, "K not positive definite": 1}``)."""
         counts = np.bincount(self.causes, minlength=len(CAUSES))
-        return {CAUSES[i]: int(n) for i, n in enumerate(counts) if i != OK and n}
+        return {CAUSES[i].value: int(n) for i, n in enumerate(counts) if i != CAUSES.OK.code and n}
 
     def divergence_summary(self) -> str:
         """One line: ``"2 of 100 diverged: non-finite 1, K not positive definite 1"`` or
@@ -623,7 +624,7 @@ class MonteCarloResult:
         return rows
 
     def _heading(self) -> str:
-        word = "non-finite" if set(self.diverged()) <= {CAUSES[NONFINITE]} else "diverged"
+        word = "non-finite" if set(self.diverged()) <= {CAUSES.NONFINITE.value} else "diverged"
         bad = f", {self.n_nonfinite} {word} (left out: trials {_list(self.nonfinite_trials)})" \
             if self.n_nonfinite else ", all finite"
         return f"Monte Carlo of {self.experiment}: {self.runs} trials (seed {self.seed}){bad}"
@@ -713,8 +714,8 @@ class MonteCarloResult:
             "keys": f"trial i uses jax.random.split(jax.random.key({self.seed}), {self.runs})[i]",
             "nonfinite": {"count": self.n_nonfinite, "trials": [int(i) for i in self.nonfinite_trials]},
             "diverged": {"count": self.n_nonfinite, "by_cause": self.diverged(),
-                         "trials": {CAUSES[c]: [int(i) for i in np.flatnonzero(self.causes == c)]
-                                    for c in sorted(set(self.causes.tolist()) - {OK})},
+                         "trials": {CAUSES[c].value: [int(i) for i in np.flatnonzero(self.causes == c)]
+                                    for c in sorted(set(self.causes.tolist()) - {CAUSES.OK.code})},
                          "definition": "a trial diverged when its filter status failed (its cause) or its "
                                        "errors are not all finite (non-finite); diverged trials are left out "
                                        "of the statistics"},

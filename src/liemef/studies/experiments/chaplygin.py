@@ -34,13 +34,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ... import _validate
-from ...filters import MinimumEnergyFilter, Trajectory
+from ...filters import AbstractFilter, MinimumEnergyFilter, Trajectory
 from ...metrics import FULL
 from ...reports import io
 from ...simulation import SensorLog, Truth, simulate, simulate_core
@@ -198,25 +197,33 @@ class ChaplyginConfig(RunConfig):
         return constraint_K0() if constrained else np.eye(5)
 
 
-class PrintedWeightsFilter(MinimumEnergyFilter):
+class PrintedWeightsFilter(AbstractFilter):
     r"""The filter as Rigo et al. 2023 print it with the stated Q = I: residual (27)/(30) and the Hessian part
     of E with the weights $q_i/d_i^2$, but the constant part of E as printed in eqs. (33), (48), (58), (62),
     $Dh^\top Dh$ = diag(2 l^2, 2, 2, 1, 1), which is the theorem's only for Q = D'D:
     $E_{printed} = E - Dh^\top (D^{-\top} Q D^{-1} - I) Dh$ (pinned in ``tests/test_chaplygin_closed_forms.py``).
 
-    A reproduction of a misprint, not a filter to use: it differs from :class:`~liemef.MinimumEnergyFilter`
-    only in E (every other term, the driver and the integrators are the engine's), hence a subclass that
-    overrides the one method computing the terms.
+    A reproduction of a misprint, not a filter to use: a wrapper (final) of the minimum-energy filter with
+    ``constant_E="unit"``, the field that makes this variant; every other term, the interval and the
+    integrators are that filter's, and its attributes (``system``, ``terms``, ...) read through.
     """
 
-    def __repr__(self) -> str:
-        return "PrintedWeightsFilter" + super().__repr__().removeprefix("MinimumEnergyFilter")
+    filter: MinimumEnergyFilter
 
-    def _terms(self, weights, g_hat, K, u, y, t):
-        tm = super()._terms(weights, g_hat, K, u, y, t)
-        Wy = weights.Wy
-        extra = tm.Dh.T @ (Wy - jnp.eye(Wy.shape[0])) @ tm.Dh
-        return eqx.tree_at(lambda x: x.E, tm, tm.E - extra)
+    def __init__(self, system: ChaplyginSleigh, **options):
+        self.filter = MinimumEnergyFilter(system, constant_E="unit", **options)
+
+    def __repr__(self) -> str:
+        return "PrintedWeightsFilter" + repr(self.filter).removeprefix("MinimumEnergyFilter").replace(
+            ", constant_E='unit'", "")
+
+    def __getattr__(self, name: str):
+        if name == "filter" or name.startswith("__"):  # not set yet, or a protocol the wrapper does not have
+            raise AttributeError(name)
+        return getattr(self.filter, name)
+
+    def _interval(self, state, t, dt, u0, u1, y0, y1, gap):
+        return self.filter._interval(state, t, dt, u0, u1, y0, y1, gap)
 
 
 @dataclass(frozen=True)

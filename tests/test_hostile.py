@@ -1,0 +1,329 @@
+"""Hostile input at the Python API (issue 19, item 2): every case is a ValueError, raised before any compile,
+whose message names the argument (or the file) and the value received.
+
+Categories: log files, group elements, physical parameters, dtypes, integer ranges, system files, encodings
+and gains/times of ``terms``. The tolerance for group elements is ``liemef._validate.ON_GROUP``.
+"""
+
+from __future__ import annotations
+
+import re
+import zipfile
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import liemef
+from liemef import _validate
+from liemef.groups import SE2, SO3, TSE2, Rn
+from liemef.reports import io
+from liemef.simulation import simulate
+from liemef.studies.experiments import tse2
+from liemef.studies.experiments._montecarlo import trial_keys
+from liemef.systems import ChaplyginSleigh, PlanarRigidBody, RigidBodyAttitude, System, planar_localization
+from liemef.systems._file import load_system_file
+
+
+def _raises(fn, *words):
+    """``fn()`` raises a ValueError (not another type) whose message holds every word (regex-escaped)."""
+    with pytest.raises(ValueError) as err:
+        fn()
+    assert type(err.value) is ValueError
+    for w in words:
+        assert re.search(re.escape(str(w)), str(err.value)), (w, str(err.value))
+    return str(err.value)
+
+
+# --- log files ------------------------------------------------------------------------------------------------
+def _good_npz(path):
+    ts = 0.1 * np.arange(20)
+    np.savez(path, ts=ts, us=np.zeros((20, 3)), ys=np.ones((20, 2)))
+    return path
+
+
+@pytest.fixture
+def localization():
+    return planar_localization()
+
+
+LOG_CASES = {
+    "zero-byte npz": lambda p: p.write_bytes(b""),
+    "truncated npz": lambda p: p.write_bytes(_good_npz(p).read_bytes()[:300]),
+    "bit-flipped npz": lambda p: p.write_bytes(_flip(_good_npz(p).read_bytes())),
+    "npy renamed npz": lambda p: np.save(open(p, "wb"), np.zeros(3)),
+    "text as npz": lambda p: p.write_text("t,v_x\n0,1\n"),
+    "pickled npz": lambda p: np.savez(p, ts=np.array([{"a": 1}], dtype=object)),
+}
+
+
+def _flip(data: bytes) -> bytes:
+    """The archive with one byte of its first member's data flipped (its CRC no longer matches)."""
+    b = bytearray(data)
+    b[200] ^= 0xFF
+    return bytes(b)
+
+
+@pytest.mark.parametrize("case", sorted(LOG_CASES))
+def test_a_corrupt_npz_log_is_named(case, tmp_path, localization):
+    p = tmp_path / "log.npz"
+    LOG_CASES[case](p)
+    _raises(lambda: io.read_log(p, localization), "log", str(p))
+
+
+def test_a_complex_npz_log_is_refused(tmp_path, localization):
+    p = tmp_path / "log.npz"
+    np.savez(p, ts=0.1 * np.arange(5), us=np.zeros((5, 3)) + 1j, ys=np.ones((5, 2)))
+    _raises(lambda: io.read_log(p, localization), str(p), "'us'", "complex", "1j")
+
+
+def test_a_zipped_archive_without_arrays_is_named(tmp_path, localization):
+    p = tmp_path / "log.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        z.writestr("readme.txt", "not an array")
+    _raises(lambda: io.read_log(p, localization), "log", str(p))
+
+
+def test_a_csv_with_a_byte_order_mark_is_read(tmp_path, localization):
+    p = tmp_path / "log.csv"
+    header = ",".join(io.LogLayout.of(localization).header)
+    p.write_bytes(("\ufeff" + header + "\n" + "\n".join(f"{0.1 * k},1,0,0,{k},0" for k in range(5)) + "\n")
+                  .encode("utf-8"))
+    log = io.read_log(p, localization)
+    assert log.ts.shape == (5,) and np.all(log.ys[:, 0] == np.arange(5))
+
+
+def test_a_latin1_csv_names_the_file(tmp_path, localization):
+    p = tmp_path / "log.csv"
+    header = ",".join(io.LogLayout.of(localization).header)
+    p.write_bytes((header + "\n0,1,0,0,0,0\n# caf\xe9\n").encode("latin-1"))
+    _raises(lambda: io.read_log(p, localization), str(p), "UTF-8", r"b'\xe9'")
+
+
+def test_a_binary_csv_names_the_file(tmp_path, localization):
+    p = tmp_path / "log.csv"
+    p.write_bytes(b"t,v_x\x00\x00\n")
+    _raises(lambda: io.read_log(p, localization), str(p))
+
+
+# --- group elements -------------------------------------------------------------------------------------------
+def _se2(c, s):
+    return SE2(jnp.array([c, s, 0.0, 0.0]))
+
+
+OFF_GROUP = {
+    "SE(2) (cos, sin) = (3, 0)": (lambda: _se2(3.0, 0.0), 2.0),
+    "SE(2) (cos, sin) = (0, 0)": (lambda: _se2(0.0, 0.0), 1.0),
+    "zero quaternion": (lambda: SO3(jnp.zeros(4)), 1.0),
+    "quaternion of norm 3": (lambda: SO3(jnp.array([3.0, 0.0, 0.0, 0.0])), 2.0),
+}
+
+
+@pytest.fixture(scope="module")
+def se2_filter():
+    return liemef.MinimumEnergyFilter(planar_localization())
+
+
+@pytest.fixture(scope="module")
+def attitude_filter():
+    return liemef.MinimumEnergyFilter(RigidBodyAttitude())
+
+
+@pytest.mark.parametrize("case", sorted(OFF_GROUP))
+def test_an_element_off_the_group_is_refused_by_init_with_its_distance(case, se2_filter, attitude_filter):
+    make, distance = OFF_GROUP[case]
+    g = make()
+    if isinstance(g, SE2):
+        flt, g0 = se2_filter, g
+    else:
+        flt = attitude_filter
+        g0 = flt.system.group((g, Rn[3](jnp.zeros(3))))
+    _raises(lambda: flt.init(g0, np.eye(flt.n)), "g0", f"{distance:.6g} off the group", str(_validate.ON_GROUP))
+
+
+@pytest.mark.parametrize("case", sorted(OFF_GROUP))
+def test_an_element_off_the_group_is_refused_by_simulate(case):
+    make, distance = OFF_GROUP[case]
+    g = make()
+    if isinstance(g, SE2):
+        sysm = PlanarRigidBody()
+        g0 = TSE2((g, Rn[3](jnp.zeros(3))))
+        fn = lambda t: jnp.zeros(2)  # noqa: E731
+    else:
+        sysm = RigidBodyAttitude()
+        g0 = sysm.group((g, Rn[3](jnp.zeros(3))))
+        fn = lambda t: jnp.zeros(3)  # noqa: E731
+    _raises(lambda: simulate(sysm, g0, fn, np.arange(3.0), _key()), "g0", f"{distance:.6g} off the group")
+
+
+def test_an_element_within_the_tolerance_is_accepted(se2_filter):
+    g = _se2(1.0 + 0.5 * _validate.ON_GROUP, 0.0)
+    assert se2_filter.init(g, np.eye(3)).g_hat is g
+
+
+def test_terms_refuses_an_element_off_the_group(se2_filter):
+    _raises(lambda: se2_filter.terms(_se2(0.0, 0.0), np.eye(3), np.zeros(3), np.zeros(2), dt=0.1), "g_hat",
+            "1 off the group")
+
+
+def _key():
+    import jax
+
+    return jax.random.key(0)
+
+
+# --- physical parameters --------------------------------------------------------------------------------------
+PHYSICAL = [
+    (PlanarRigidBody, "J", 0), (PlanarRigidBody, "J", float("nan")), (PlanarRigidBody, "m", -1),
+    (PlanarRigidBody, "l", 0), (PlanarRigidBody, "l", float("inf")), (PlanarRigidBody, "J", 1j),
+    (ChaplyginSleigh, "J", 0), (ChaplyginSleigh, "m", -1), (ChaplyginSleigh, "l", 0),
+    (ChaplyginSleigh, "a", float("nan")), (ChaplyginSleigh, "l", float("inf")),
+]
+
+
+@pytest.mark.parametrize(("cls", "name", "value"), PHYSICAL, ids=[f"{c.__name__}-{n}={v}" for c, n, v in PHYSICAL])
+def test_a_bad_physical_parameter_is_refused(cls, name, value):
+    _raises(lambda: cls(**{name: value}), f"{name}:", value)
+
+
+@pytest.mark.parametrize(("inertia", "shown"), [(np.zeros((3, 3)), "smallest eigenvalue 0"),
+                                                (np.diag([2.0, -5.0, 3.0]), "smallest eigenvalue -5"),
+                                                (np.diag([np.nan, 5.0, 3.0]), "nan")])
+def test_a_bad_inertia_is_refused(inertia, shown):
+    _raises(lambda: RigidBodyAttitude(inertia=inertia), "inertia:", shown)
+
+
+def test_a_zero_direction_is_refused():
+    _raises(lambda: RigidBodyAttitude(a1=(0.0, 0.0, 0.0)), "a1:", "nonzero direction", "[0. 0. 0.]")
+
+
+def test_a_zero_or_negative_gps_std_is_refused():
+    _raises(lambda: planar_localization(gps_std=0.0), "std:", "0.0")
+    _raises(lambda: planar_localization(gps_std=-1.0), "std:", "-1.0")
+
+
+# --- dtypes -----------------------------------------------------------------------------------------------------
+def _tiny_system(**kw):
+    args = dict(B=np.eye(2), D=np.eye(1), Q=np.eye(1), R=np.eye(2), n_inputs=1)
+    args.update(kw)
+    dyn = args.pop("dynamics", lambda g, u, t: jnp.array([g.x[1], u[0]]))
+    return System(group_type=Rn[2], dynamics_fn=dyn, output_fn=lambda g, t: g.x[:1], **args)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    flt = liemef.MinimumEnergyFilter(_tiny_system())
+    return flt, flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
+
+
+def test_complex_samples_times_gains_and_states_are_refused(tiny):
+    flt, state = tiny
+    ts, us, ys = np.arange(3.0), np.zeros((3, 1)), np.ones((3, 1))
+    _raises(lambda: flt.run(state, ts, us, ys + 1j), "ys", "complex")
+    _raises(lambda: flt.run(state, ts, us + 2j, ys), "us", "complex")
+    _raises(lambda: flt.run(state, ts + 0.5j, us, ys), "ts", "complex", "0.5j")
+    _raises(lambda: flt.init(Rn[2](jnp.zeros(2)), np.eye(2) * (1 + 1j)), "K0", "complex")
+    _raises(lambda: flt.step(state, 0.0, np.array([1j]), np.ones(1), 0.1), "u", "complex")
+    _raises(lambda: Rn[2](np.array([1.0 + 2j, 0.0])), "complex")
+    _raises(lambda: SE2.from_coords(np.array([0.1j, 0.0, 0.0])), "complex")
+
+
+def test_object_and_string_arrays_are_refused(tiny):
+    flt, state = tiny
+    ts, us = np.arange(3.0), np.zeros((3, 1))
+    _raises(lambda: flt.run(state, ts, us, np.array([[1.0], [None], [2.0]], dtype=object)), "ys", "objects")
+    _raises(lambda: flt.run(state, ts, us, np.array([["1"], ["2"], ["3"]])), "ys", "strings")
+    _raises(lambda: flt.run(state, [0.0, [1.0, 2.0], 3.0], us, np.ones((3, 1))), "ts")
+
+
+def test_integers_are_converted(tiny):
+    flt, state = tiny
+    a = flt.run(state, np.arange(3), np.zeros((3, 1), int), np.ones((3, 1), int), engine="xla")
+    b = flt.run(state, np.arange(3.0), np.zeros((3, 1)), np.ones((3, 1)), engine="xla")
+    np.testing.assert_array_equal(np.asarray(a.K), np.asarray(b.K))
+
+
+@pytest.mark.parametrize("name", ["B", "D", "Q", "R"])
+def test_a_complex_system_matrix_is_refused(name):
+    value = {"B": np.eye(2), "D": np.eye(1), "Q": np.eye(1), "R": np.eye(2)}[name] * (1 + 1j)
+    _raises(lambda: _tiny_system(**{name: value}), f"{name}:", "complex")
+
+
+def test_dynamics_returning_complex_values_are_refused():
+    _raises(lambda: _tiny_system(dynamics=lambda g, u, t: jnp.array([g.x[1], u[0]]) * (1 + 1j)), "dynamics",
+            "complex")
+
+
+def test_a_huge_weight_is_checked_without_overflow():
+    sysm = _tiny_system(Q=1e308 * np.eye(1))
+    assert float(sysm.Q[0, 0]) == 1e308
+    _raises(lambda: _tiny_system(Q=-1e308 * np.eye(1)), "Q:", "smallest eigenvalue -1e+308")
+
+
+# --- integer ranges ---------------------------------------------------------------------------------------------
+def test_huge_and_negative_integers_are_refused():
+    sysm = PlanarRigidBody()
+    g0 = TSE2((SE2.identity(), Rn[3](jnp.zeros(3))))
+    fn = lambda t: jnp.zeros(2)  # noqa: E731
+    _raises(lambda: simulate(sysm, g0, fn, np.arange(3.0), _key(), substeps=2**70), "substeps", 2**70)
+    _raises(lambda: simulate(sysm, g0, fn, np.arange(3.0), _key(), substeps=0), "substeps", "got 0")
+    _raises(lambda: simulate(sysm, g0, fn, np.arange(3.0), _key(), substeps=2.5), "substeps", "2.5")
+    _raises(lambda: trial_keys(2**70, 3), "seed", 2**70)
+    _raises(lambda: trial_keys(-1, 3), "seed", "got -1")
+    _raises(lambda: trial_keys(0, 0), "runs", "got 0")
+    _raises(lambda: tse2.TSE2Config(seed=2**70), "seed", 2**70)
+    _raises(lambda: _tiny_system(n_inputs=-1), "n_inputs", "got -1")
+    _raises(lambda: liemef.MinimumEnergyFilter(_tiny_system(), substeps=2**70), "substeps", 2**70)
+    _raises(lambda: liemef.MinimumEnergyFilter(_tiny_system(), max_substeps=2**70), "max_substeps", 2**70)
+
+
+def test_a_huge_integer_as_a_number_is_converted_or_named():
+    assert _validate.real("x", 2**70) == float(2**70)
+    _raises(lambda: _validate.real("x", 2**1100), "x:", "1101 bits")
+
+
+# --- terms ------------------------------------------------------------------------------------------------------
+def test_terms_refuses_a_nan_interval_time_or_gain(se2_filter):
+    """``terms`` takes any finite K (r, A, E, W are polynomials in it; the closed-form tests use random K, and
+    K = -I gives the values of those polynomials there), and refuses what is not finite or not real."""
+    g = SE2.identity()
+    args = (np.zeros(3), np.zeros(2))
+    _raises(lambda: se2_filter.terms(g, -np.eye(3), *args, dt=float("nan")), "dt", "nan")
+    _raises(lambda: se2_filter.terms(g, np.eye(3), *args, float("nan"), dt=0.1), "t:", "nan")
+    _raises(lambda: se2_filter.terms(g, np.diag([1.0, np.nan, 1.0]), *args, dt=0.1), "K:", "nan")
+    _raises(lambda: se2_filter.terms(g, np.eye(3) * 1j, *args, dt=0.1), "K:", "complex")
+    plus, minus = se2_filter.terms(g, np.eye(3), *args, dt=0.1), se2_filter.terms(g, -np.eye(3), *args, dt=0.1)
+    np.testing.assert_allclose(np.asarray(minus.E), np.asarray(plus.E))  # E does not depend on K
+
+
+# --- system files -----------------------------------------------------------------------------------------------
+SYSTEM_FILE = """
+import jax.numpy as jnp, numpy as np
+from liemef.groups import Rn
+from liemef.systems import System
+system = System(group_type=Rn[2], dynamics_fn=lambda g, u, t: jnp.array([g.x[1], 0.0]),
+                output_fn=lambda g, t: g.x[:1], B=np.eye(2), D=np.eye(1), Q=np.eye(1), R=np.eye(2))
+"""
+
+
+@pytest.mark.parametrize(("body", "shown"), [("raise SystemExit(0)", "SystemExit: 0"),
+                                             ("import sys\nsys.exit(3)", "SystemExit: 3"),
+                                             ("raise KeyError('gps')", "KeyError: 'gps'"),
+                                             ("1 / 0", "ZeroDivisionError"),
+                                             ("def f(:\n    pass", "SyntaxError")])
+def test_a_system_file_that_raises_or_exits_is_named(body, shown, tmp_path):
+    p = tmp_path / "sys.py"
+    p.write_text(SYSTEM_FILE + body + "\n")
+    _raises(lambda: load_system_file(p), "--system-file", str(p), shown)
+
+
+@pytest.mark.parametrize(("guess", "shown"), [("raise RuntimeError('no fix')", "RuntimeError: no fix"),
+                                              ("raise SystemExit(0)", "SystemExit: 0"),
+                                              ("return [1.0]", "expected shape (2,), got (1,)"),
+                                              ("return [1j, 0]", "complex"),
+                                              ("return [np.nan, 0]", "nan")])
+def test_an_initial_guess_that_fails_is_named(guess, shown, tmp_path):
+    p = tmp_path / "sys.py"
+    p.write_text(SYSTEM_FILE + f"def initial_guess(y0):\n    {guess}\n")
+    user = load_system_file(p)
+    _raises(lambda: user.guess(np.ones(1)), "initial_guess", str(p), shown)
