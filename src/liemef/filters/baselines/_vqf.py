@@ -33,8 +33,8 @@ from jaxtyping import ArrayLike
 from ... import _validate
 from ...systems import AbstractSystem
 from .. import FilterState, Trajectory
-from .._status import OK, Status
-from ._ahrs import _Q_IDENTITY, _AhrsFilter
+from .._status import CAUSES, Status
+from ._ahrs import _Q_IDENTITY, _AhrsFilter, _attitude_sensors
 
 GRAVITY = 9.81
 """m/s^2: the accelerometer's scale when a system's log holds only its direction."""
@@ -55,6 +55,9 @@ class VQF(_AhrsFilter):
 
     name: ClassVar[str] = "vqf"
     _frame: ClassVar[np.ndarray] = _Q_IDENTITY
+    system: AbstractSystem
+    acc: tuple[int, int] = eqx.field(static=True)
+    mag: tuple[int, int] = eqx.field(static=True)
     offline: bool = eqx.field(static=True)
     params: tuple = eqx.field(static=True)
     norm: tuple[int, int] | None = eqx.field(static=True)
@@ -62,7 +65,8 @@ class VQF(_AhrsFilter):
 
     def __init__(self, system: AbstractSystem, offline: bool = False, params: dict | None = None, *,
                  broad_indexing: bool = False):
-        super().__init__(system)
+        self.acc, self.mag = _attitude_sensors(system)
+        self.system = system
         if not isinstance(offline, bool):
             raise ValueError(f"offline: expected True or False, got {offline!r}")
         if params is not None and not isinstance(params, dict):
@@ -140,7 +144,8 @@ class VQF(_AhrsFilter):
         n, st = self.n, state.status
         steps = int(st.steps) + N - 1
         status = Status(
-            code=jnp.asarray(OK, jnp.int32), index=st.index, time=st.time, steps=jnp.asarray(steps, jnp.int32),
+            code=jnp.asarray(CAUSES.OK.code, jnp.int32), index=st.index, time=st.time,
+            steps=jnp.asarray(steps, jnp.int32),
             rejected=st.rejected, consecutive=st.consecutive, substeps_max=jnp.asarray(1, jnp.int32),
             substeps_total=jnp.asarray(steps, jnp.int32), substeps_capped=st.substeps_capped, gaps=st.gaps,
             longest_gap=jnp.maximum(st.longest_gap, jnp.asarray(float(dts.max()))), inputs_held=st.inputs_held)
