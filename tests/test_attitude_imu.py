@@ -122,3 +122,16 @@ def test_parameters_are_leaves_and_checked():
         attitude_imu(acc_adapt=-1.0)
     with pytest.raises(ValueError, match="^field:"):
         attitude_imu(field=0.0)
+
+
+def test_a_backward_gyro_sample_is_the_rate_over_the_interval_ending_at_its_time():
+    rng = np.random.default_rng(3)
+    gyr, acc, mag = rng.normal(size=(5, 3)), rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    _, fwd, ys_f = ab.imu_log(gyr, acc, mag, 100.0)
+    _, bwd, ys_b = ab.imu_log(gyr, acc, mag, 100.0, gyro="backward")
+    np.testing.assert_array_equal(fwd, gyr)
+    np.testing.assert_array_equal(bwd[:4], gyr[1:])  # us[k] = sample k + 1: the rate over [t_k, t_k+1]
+    np.testing.assert_array_equal(bwd[4], gyr[4])  # the last one held
+    np.testing.assert_array_equal(ys_f, ys_b)  # the directions keep their own time
+    with pytest.raises(ValueError, match="gyro"):
+        ab.imu_log(gyr, acc, mag, 100.0, gyro="centred")

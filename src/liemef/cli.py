@@ -724,9 +724,12 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
               help="Evaluations of the shared search (each runs every trial).")
 @click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
               help="Evaluations of each leave-one-out fold's refinement.")
+@click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
+              help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
+                   "ending at t_k), as compare broad's mef-imu-d.")
 @click.option("--realdata", type=click.Path(path_type=Path), help="The real-data folder (default: found).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar on stderr.")
-def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, realdata, progress):
+def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, updates, realdata, progress):
     """Fit the IMU model's noise levels (system attitude-imu) to the BROAD trials present, by a derivative-free
     search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
     set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
@@ -735,10 +738,11 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
 
     try:
         recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
-                                      None if realdata is None else str(realdata))
+                                      None if realdata is None else str(realdata),
+                                      gyro="backward" if updates == "discrete" else "forward")
         kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
         result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
-                            **kw)
+                            updates=updates, **kw)
     except ValueError as err:
         raise click.UsageError(str(err)) from err
     d = io.ensure_dir(out)

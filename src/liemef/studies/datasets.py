@@ -184,15 +184,18 @@ def broad(path: str | os.PathLike) -> BroadTrial:
                       rate=rate, name=p.stem)
 
 
-def broad_to_log(trial: BroadTrial, *, norms: bool = False) -> io.RecordedLog:
+def broad_to_log(trial: BroadTrial, *, norms: bool = False, gyro: str = "forward") -> io.RecordedLog:
     """The liemef log of a BROAD trial for :func:`liemef.systems.attitude_gyro_bias`: ``us`` the gyro (N, 3),
     ``ys`` the normalized accelerometer and magnetometer (N, 6); with ``norms=True``, for
-    :func:`liemef.systems.attitude_imu`, also their raw norms (N, 8)."""
+    :func:`liemef.systems.attitude_imu`, also their raw norms (N, 8). ``gyro="backward"`` takes gyro sample k as
+    the rate over the interval that ends at $t_k$, BROAD's and VQF's convention
+    (:func:`~liemef.systems.attitude_bias.imu_log`)."""
     from ..systems.attitude_bias import imu_log
 
     if not isinstance(trial, BroadTrial):
         raise ValueError(f"trial: expected a BroadTrial (from broad()), got {type(trial).__name__}")
-    ts, us, ys = imu_log(trial.gyr, trial.acc, trial.mag, trial.rate, t0=float(trial.ts[0]), norms=norms)
+    ts, us, ys = imu_log(trial.gyr, trial.acc, trial.mag, trial.rate, t0=float(trial.ts[0]), norms=norms,
+                         gyro=gyro)
     return io.RecordedLog(ts=ts, us=us, ys=ys)
 
 

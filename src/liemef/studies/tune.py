@@ -77,14 +77,16 @@ class Recording:
 
 
 def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None = None,
-                     realdata: str | None = None, *, lead: float = 5.0) -> list[Recording]:
+                     realdata: str | None = None, *, lead: float = 5.0, gyro: str = "forward") -> list[Recording]:
     """The BROAD trials present (:func:`liemef.studies.datasets.broad_trials`) as recordings for
     :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest.
 
     Whole trials (``seconds`` None) start as ``liemef compare broad`` does: TRIAD of the first 50 samples, zero
     bias and its ``K0``. A window (``seconds``) starts ``lead`` s before the first movement and lasts
     ``lead + seconds`` s: TRIAD of its first 50 samples (at rest) and the mean gyro over the rest before it as
-    the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest)."""
+    the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
+    the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
+    ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``)."""
     from ..systems.attitude_bias import initial_estimate, magnetic_dip, rest_norms
     from . import datasets
     from .compare._broad import K0
@@ -103,7 +105,7 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         rest = tr.rest
         gravity, fld = rest_norms(tr.acc[rest], tr.mag[rest])
         constants = {"dip": magnetic_dip(tr.acc[rest], tr.mag[rest]), "gravity": gravity, "field": fld}
-        log = datasets.broad_to_log(tr, norms=True)
+        log = datasets.broad_to_log(tr, norms=True, gyro=gyro)
         if seconds is None:
             out.append(Recording(tid, log.ts, log.us, log.ys, constants, initial_estimate(tr.acc[:50], tr.mag[:50]),
                                  K0, tr.quat_true, tr.movement))
@@ -199,15 +201,15 @@ def _nll_terms(system, g, K, ys):
 
 
 def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: str = "second",
-             engine: str | None = None) -> float:
-    """One recording's loss under ``params``: run the minimum-energy filter (``order``) and score it; a failed run
-    scores ``inf``."""
+             engine: str | None = None, updates: str = "hold") -> float:
+    """One recording's loss under ``params``: run the minimum-energy filter (``order``, ``updates``) and score it;
+    a failed run scores ``inf``."""
     from ..filters import MinimumEnergyFilter
 
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     system = system_from(params, rec.constants)
-    flt = MinimumEnergyFilter(system, order=order)
+    flt = MinimumEnergyFilter(system, order=order, updates=updates)
     traj = flt.run(flt.init(rec.g0, rec.K0), rec.ts, rec.us, rec.ys, engine=engine)
     if int(traj.status.code) != 0:
         return float("inf")
@@ -251,7 +253,7 @@ def _search(loss_of: Callable[[np.ndarray], np.ndarray], weights: np.ndarray, x0
 
 def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMETERS, objective: str = "truth", *,
          start: dict | None = None, maxfev: int = 40, fold_maxfev: int = 12, step: float = 0.5,
-         order: str = "second", progress: bool = True) -> dict:
+         order: str = "second", updates: str = "hold", progress: bool = True) -> dict:
     """Tune ``names`` on ``recordings`` with leave-one-recording-out cross-validation (module docstring).
 
     Args:
@@ -264,6 +266,8 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMET
         fold_maxfev: evaluations of each fold's refinement (each runs the fold's training recordings).
         step: the initial simplex's size, in decades.
         order: the filter's order.
+        updates: the filter's sample updates (``"discrete"``: samples at their own time; give it recordings with
+            ``gyro="backward"``).
         progress: a tqdm progress bar (on stderr).
 
     Returns ``{"system", "objective", "names", "params", "folds": {name: {"params", "train", "held_out"}},
@@ -306,7 +310,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMET
             bar.update(1)
         params = {**fixed, **_to_params(names, x)}
         for i in np.flatnonzero(which & np.isnan(losses)):
-            losses[i] = evaluate(recs[i], params, objective, order=order)
+            losses[i] = evaluate(recs[i], params, objective, order=order, updates=updates)
         return losses
 
     everyone = np.ones(R, bool)
@@ -327,6 +331,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMET
     bar.close()
     held = [f["held_out"] for f in folds.values()]
     return {"format": FORMAT, "system": SYSTEM, "objective": objective, "names": list(names), "order": order,
+            "updates": updates,
             "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
             "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
             "folds": folds, "held_out_mean": float(np.mean(held)),

@@ -4,7 +4,8 @@ BROAD (Berlin Robust Orientation Estimation Assessment Dataset) records an IMU (
 magnetometer at 285.7 Hz) with optical motion-capture attitude as the truth. The trials are the ones present in
 the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filter gets:
 
-- the same log (:func:`liemef.studies.datasets.broad_to_log`);
+- the same log (:func:`liemef.studies.datasets.broad_to_log`), but for the filters of :data:`OWN_TIME`, which
+  take gyro sample k over the interval that ends at t_k, as `vqf-broad` does;
 - the same initial estimate, TRIAD from the first 50 samples at rest, with zero bias;
 - for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
 
@@ -73,6 +74,11 @@ BROAD_FILTERS = {
                 "disturbance, heading-only magnetometer)", lambda c: MinimumEnergyFilter(_imu(c))),
     "mef-imu-first": ("first-order minimum-energy filter, IMU noise model",
                       lambda c: MinimumEnergyFilter(_imu(c), order="first")),
+    "mef-imu-d": ("minimum-energy filter, IMU noise model, samples at their own time (updates='discrete', gyro "
+                  "sample k over the interval ending at t_k as in vqf-broad)",
+                  lambda c: MinimumEnergyFilter(_imu(c), updates="discrete")),
+    "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
+                        lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete")),
     "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
     "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
     "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
@@ -88,6 +94,10 @@ BROAD_FILTERS = {
 }
 """The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
 gravity and field at rest, and the IMU model's parameters)."""
+OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first"})
+"""The filters that take every sample at its own time, as ``vqf-broad`` does: the hybrid update
+(``updates="discrete"``: state k has seen y_k) and gyro sample k as the rate over the interval that ends at t_k
+(``broad_to_log(..., gyro="backward")``), so state k has seen gyro, accelerometer and magnetometer sample k."""
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "iekf",
                    "ukf-left", "vqf", "vqf-offline", "vqf-broad", "madgwick", "madgwick-broad", "mahony",
                    "mahony-broad")
@@ -213,7 +223,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             trial = trial.head(st.seconds)
         dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
         gravity, fld = rest_norms(trial.acc[trial.rest], trial.mag[trial.rest])
-        log = datasets.broad_to_log(trial, norms=True)
+        logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
         g0 = initial_estimate(trial.acc[:50], trial.mag[:50])
         params = {} if tuned is None else params_for(tuned, tid)
         ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params}
@@ -222,6 +232,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             t0 = time.perf_counter()
             flt = BROAD_FILTERS[name][1](ctx)
             state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
+            log = logs["backward" if name in OWN_TIME else "forward"]
             ys = log.ys if flt.system.output_dim == log.ys.shape[1] else log.ys[:, :flt.system.output_dim]
             traj = flt.run(state, log.ts, log.us, ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
