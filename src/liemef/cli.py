@@ -392,6 +392,10 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 @click.option("--interpolation", type=click.Choice(("hold", "linear")), default="hold", show_default=True,
               help="Inputs and dense measurements held over each interval, or linear between samples.")
+@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
+              default="attitude-imu", show_default=True,
+              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
+                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
 @click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
               help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
               "at their own time (the hybrid filter: recommended for sample sensors).")
@@ -724,22 +728,30 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
               help="Evaluations of the shared search (each runs every trial).")
 @click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
               help="Evaluations of each leave-one-out fold's refinement.")
+@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
+              default="attitude-imu", show_default=True,
+              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
+                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
 @click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
               help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                    "ending at t_k), as compare broad's mef-imu-d.")
 @click.option("--realdata", type=click.Path(path_type=Path), help="The real-data folder (default: found).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar on stderr.")
-def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, updates, realdata, progress):
-    """Fit the IMU model's noise levels (system attitude-imu) to the BROAD trials present, by a derivative-free
+def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, system_name, updates, realdata,
+             progress):
+    """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
     search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
     set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
     from .reports import io
     from .studies import tune as _tune
 
+    if system_name == "attitude-velocity" and updates != "discrete":
+        raise click.UsageError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
+                               f"mef-vel), got {updates}")
     try:
         recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
                                       None if realdata is None else str(realdata),
-                                      gyro="backward" if updates == "discrete" else "forward")
+                                      gyro="backward" if updates == "discrete" else "forward", system=system_name)
         kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
         result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
                             updates=updates, **kw)

@@ -51,11 +51,24 @@ PARAMETERS = {
     "dip_std": (1e-3, 3.0),
     "bias_walk": (1e-7, 1e-2),
     "gyro_std": (1e-4, 0.1),
+    "acc_density": (1e-4, 1.0),
+    "velocity_std": (1e-2, 10.0),
 }
-"""The tunable parameters of :func:`liemef.systems.attitude_imu` and their bounds (the search is in log space)."""
+"""The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
 DEFAULT_PARAMETERS = ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")
 SYSTEM = "attitude-imu"
-"""The system a tuning file is for."""
+"""The default system of a tuning file."""
+SYSTEMS = {
+    "attitude-imu": ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk",
+                     "gyro_std"),
+    "attitude-velocity": ("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density",
+                          "velocity_std"),
+}
+"""The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
+:func:`liemef.systems.attitude_velocity`) and the parameters each takes."""
+DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
+                 "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
+"""The parameters :func:`tune` fits by default, per system."""
 FORMAT = "liemef-tune-1"
 
 
@@ -74,10 +87,12 @@ class Recording:
     K0: np.ndarray
     quat_true: np.ndarray | None = None
     mask: np.ndarray | None = None
+    system: str = SYSTEM
 
 
 def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None = None,
-                     realdata: str | None = None, *, lead: float = 5.0, gyro: str = "forward") -> list[Recording]:
+                     realdata: str | None = None, *, lead: float = 5.0, gyro: str = "forward",
+                     system: str = SYSTEM) -> list[Recording]:
     """The BROAD trials present (:func:`liemef.studies.datasets.broad_trials`) as recordings for
     :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest.
 
@@ -86,10 +101,23 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     ``lead + seconds`` s: TRIAD of its first 50 samples (at rest) and the mean gyro over the rest before it as
     the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
     the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
-    ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``)."""
-    from ..systems.attitude_bias import initial_estimate, magnetic_dip, rest_norms
+    ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``). ``system``: a key of :data:`SYSTEMS`;
+    ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.attitude_bias.imu_velocity_log`), the state
+    with a velocity at rest and ``K0_VELOCITY``."""
+    from ..reports import io as _io
+    from ..systems.attitude_bias import (
+        attitude_velocity_state,
+        imu_velocity_log,
+        initial_estimate,
+        magnetic_dip,
+        rest_norms,
+    )
     from . import datasets
-    from .compare._broad import K0
+    from .compare._broad import K0, K0_VELOCITY
+
+    if system not in SYSTEMS:
+        raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
+    velocity = system == "attitude-velocity"
 
     folder = None if realdata is None else Path(realdata) / datasets.BROAD_DIR
     found = datasets.broad_trials(folder)
@@ -105,30 +133,41 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         rest = tr.rest
         gravity, fld = rest_norms(tr.acc[rest], tr.mag[rest])
         constants = {"dip": magnetic_dip(tr.acc[rest], tr.mag[rest]), "gravity": gravity, "field": fld}
-        log = datasets.broad_to_log(tr, norms=True, gyro=gyro)
+        if velocity:
+            log = _io.RecordedLog(*imu_velocity_log(tr.gyr, tr.acc, tr.mag, tr.rate, float(tr.ts[0]), gyro=gyro))
+        else:
+            log = datasets.broad_to_log(tr, norms=True, gyro=gyro)
         if seconds is None:
-            out.append(Recording(tid, log.ts, log.us, log.ys, constants, initial_estimate(tr.acc[:50], tr.mag[:50]),
-                                 K0, tr.quat_true, tr.movement))
+            g0 = initial_estimate(tr.acc[:50], tr.mag[:50])
+            out.append(Recording(tid, log.ts, log.us, log.ys, constants,
+                                 attitude_velocity_state(g0) if velocity else g0, K0_VELOCITY if velocity else K0,
+                                 tr.quat_true, tr.movement, system))
             continue
         k_move = int(rest.sum())
         a = max(0, k_move - int(lead * tr.rate))
         b = min(len(tr.ts), k_move + int(seconds * tr.rate))
         bias = tr.gyr[:a].mean(axis=0) if a > 0 else np.zeros(3)
         w = slice(a, b)
+        g0 = initial_estimate(tr.acc[a:a + 50], tr.mag[a:a + 50], bias)
+        k0 = [0.05**2] * 3 + [0.002**2] * 3 + ([0.1**2] * 3 if velocity else [])
         out.append(Recording(tid, log.ts[w], log.us[w], log.ys[w], constants,
-                             initial_estimate(tr.acc[a:a + 50], tr.mag[a:a + 50], bias),
-                             np.diag([0.05**2] * 3 + [0.002**2] * 3), tr.quat_true[w], tr.movement[w]))
+                             attitude_velocity_state(g0) if velocity else g0, np.diag(k0), tr.quat_true[w],
+                             tr.movement[w], system))
     return out
 
 
-def system_from(params: dict, constants: dict):
-    """:func:`liemef.systems.attitude_imu` with the recording's ``constants`` and the tuned ``params``."""
-    from ..systems import attitude_imu
+def system_from(params: dict, constants: dict, system: str = SYSTEM):
+    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu` or
+    :func:`liemef.systems.attitude_velocity`) with the recording's ``constants`` and the tuned ``params``."""
+    from ..systems import attitude_imu, attitude_velocity
 
-    unknown = sorted(set(params) - set(PARAMETERS))
+    if system not in SYSTEMS:
+        raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
+    unknown = sorted(set(params) - set(SYSTEMS[system]))
     if unknown:
-        raise ValueError(f"params: expected names from {sorted(PARAMETERS)}, got {unknown}")
-    return attitude_imu(**constants, **{k: float(v) for k, v in params.items()})
+        raise ValueError(f"params: expected names from {sorted(SYSTEMS[system])}, got {unknown}")
+    factory = attitude_imu if system == "attitude-imu" else attitude_velocity
+    return factory(**constants, **{k: float(v) for k, v in params.items()})
 
 
 # --- objectives -------------------------------------------------------------------------------------------------
@@ -161,7 +200,7 @@ def _nll_one(system, g, K, y):
     Wy = T.T @ system.information() @ T
     total = 0.0
     for b in system.blocks():
-        if b.name not in ("acc", "mag"):
+        if b.name not in ("acc", "mag") or _constant(system, b.name):
             continue
         sl = slice(b.start, b.stop)
         hb = h[sl]
@@ -176,6 +215,13 @@ def _nll_one(system, g, K, y):
         val = 0.5 * (nu @ jnp.linalg.solve(S, nu) + jnp.linalg.slogdet(S)[1])
         total = total + jnp.where(ok, val, 0.0)
     return total
+
+
+def _constant(system, name: str) -> bool:
+    """Whether the sensor ``name``'s output does not depend on the state (a covariate, not a measurement)."""
+    from ..systems.attitude_bias import ConstantOutput
+
+    return any(s.name == name and isinstance(s.fn, ConstantOutput) for s in system.sensors)
 
 
 def _nll_terms_impl(system, g, K, ys):
@@ -208,7 +254,7 @@ def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: s
 
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
-    system = system_from(params, rec.constants)
+    system = system_from(params, rec.constants, rec.system)
     flt = MinimumEnergyFilter(system, order=order, updates=updates)
     traj = flt.run(flt.init(rec.g0, rec.K0), rec.ts, rec.us, rec.ys, engine=engine)
     if int(traj.status.code) != 0:
@@ -251,15 +297,15 @@ def _search(loss_of: Callable[[np.ndarray], np.ndarray], weights: np.ndarray, x0
     return np.asarray(res.x)
 
 
-def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMETERS, objective: str = "truth", *,
+def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, objective: str = "truth", *,
          start: dict | None = None, maxfev: int = 40, fold_maxfev: int = 12, step: float = 0.5,
          order: str = "second", updates: str = "hold", progress: bool = True) -> dict:
     """Tune ``names`` on ``recordings`` with leave-one-recording-out cross-validation (module docstring).
 
     Args:
         recordings: two or more :class:`Recording` (e.g. :func:`broad_recordings`).
-        names: the parameters to tune (keys of :data:`PARAMETERS`); the others stay at ``start`` or the
-            system's defaults.
+        names: the parameters to tune (of the recordings' system, :data:`SYSTEMS`; default
+            :data:`DEFAULT_NAMES`); the others stay at ``start`` or the system's defaults.
         objective: ``"truth"`` or ``"nll"``.
         start: the starting values (default: :func:`liemef.systems.attitude_imu`'s defaults).
         maxfev: evaluations of the shared search (each runs every recording).
@@ -275,22 +321,28 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMET
     """
     import inspect
 
-    from ..systems import attitude_imu
+    from ..systems import attitude_imu, attitude_velocity
 
     recs = list(recordings)
     if len(recs) < 2 or not all(isinstance(r, Recording) for r in recs):
         raise ValueError(f"recordings: expected two or more Recording objects, got {len(recs)}")
-    names = tuple(names)
-    bad = [n for n in names if n not in PARAMETERS]
+    systems = {r.system for r in recs}
+    if len(systems) != 1:
+        raise ValueError(f"recordings: expected recordings of one system, got {sorted(systems)}")
+    sysname = systems.pop()
+    allowed = SYSTEMS[sysname]
+    names = DEFAULT_NAMES[sysname] if names is None else tuple(names)
+    bad = [n for n in names if n not in allowed]
     if not names or bad or len(set(names)) != len(names):
-        raise ValueError(f"names: expected distinct parameter names from {sorted(PARAMETERS)}, got {list(names)}")
+        raise ValueError(f"names: expected distinct parameter names from {sorted(allowed)}, got {list(names)}")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
-    defaults = {k: v.default for k, v in inspect.signature(attitude_imu).parameters.items() if k in PARAMETERS}
+    factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
+    defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
     base = {**defaults, **(start or {})}
-    unknown = sorted(set(base) - set(PARAMETERS))
+    unknown = sorted(set(base) - set(allowed))
     if unknown:
-        raise ValueError(f"start: expected names from {sorted(PARAMETERS)}, got {unknown}")
+        raise ValueError(f"start: expected names from {sorted(allowed)}, got {unknown}")
     x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)
@@ -330,7 +382,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] = DEFAULT_PARAMET
     final = run(x_all, everyone)
     bar.close()
     held = [f["held_out"] for f in folds.values()]
-    return {"format": FORMAT, "system": SYSTEM, "objective": objective, "names": list(names), "order": order,
+    return {"format": FORMAT, "system": sysname, "objective": objective, "names": list(names), "order": order,
             "updates": updates,
             "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
             "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
@@ -358,15 +410,16 @@ def load(path: str | Path) -> dict:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ValueError(f"params: cannot read {str(p)!r} as a liemef tuning file (JSON): {err}") from err
-    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("system") != SYSTEM:
-        raise ValueError(f"params: expected a liemef tuning file (format {FORMAT!r}, system {SYSTEM!r}), got "
+    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("system") not in SYSTEMS:
+        raise ValueError(f"params: expected a liemef tuning file (format {FORMAT!r}, system from {list(SYSTEMS)}), got "
                          f"{str(p)!r} with format {data.get('format') if isinstance(data, dict) else None!r}")
     for where, params in [("params", data.get("params"))] + [(f"folds.{k}.params", v.get("params"))
                                                             for k, v in (data.get("folds") or {}).items()]:
-        if not isinstance(params, dict) or set(params) - set(PARAMETERS) or not all(
+        if not isinstance(params, dict) or set(params) - set(SYSTEMS[data["system"]]) or not all(
                 isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in params.values()):
-            raise ValueError(f"params: {str(p)!r}: expected {where} to map names from {sorted(PARAMETERS)} to "
-                             f"numbers >= 0, got {params!r}")
+            allowed = sorted(SYSTEMS[data["system"]])
+            raise ValueError(f"params: {str(p)!r}: expected {where} to map names from {allowed} to numbers >= 0, "
+                             f"got {params!r}")
     return data
 
 

@@ -44,7 +44,13 @@ from ...filters import MinimumEnergyFilter
 from ...filters.baselines import VQF, Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
 from ...systems import attitude_gyro_bias
-from ...systems.attitude_bias import initial_estimate, magnetic_dip, rest_norms
+from ...systems.attitude_bias import (
+    attitude_velocity_state,
+    imu_velocity_log,
+    initial_estimate,
+    magnetic_dip,
+    rest_norms,
+)
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
 
@@ -54,10 +60,20 @@ def _plain(ctx):
     return attitude_gyro_bias(dip=ctx["dip"])
 
 
-def _imu(ctx):
+def _tuned(ctx, system):
+    """The trial's tuned parameters if the tuning file is for ``system``, else the system's defaults."""
     from ..tune import system_from
 
-    return system_from(ctx["params"], {k: ctx[k] for k in ("dip", "gravity", "field")})
+    params = ctx["params"] if ctx.get("tuned_system", "attitude-imu") == system else {}
+    return system_from(params, {k: ctx[k] for k in ("dip", "gravity", "field")}, system)
+
+
+def _imu(ctx):
+    return _tuned(ctx, "attitude-imu")
+
+
+def _velocity(ctx):
+    return _tuned(ctx, "attitude-velocity")
 
 
 BROAD_FILTERS = {
@@ -79,6 +95,13 @@ BROAD_FILTERS = {
                   lambda c: MinimumEnergyFilter(_imu(c), updates="discrete")),
     "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
                         lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete")),
+    "mef-vel": ("minimum-energy filter, bounded-velocity model (attitude_velocity: linear acceleration as a "
+                "velocity state, heading-only magnetometer), samples at their own time",
+                lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete")),
+    "mef-vel-first": ("first-order minimum-energy filter, bounded-velocity model, samples at their own time",
+                      lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete")),
+    "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
+                 lambda c: invariant_ekf(_velocity(c))),
     "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
     "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
     "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
@@ -94,7 +117,7 @@ BROAD_FILTERS = {
 }
 """The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
 gravity and field at rest, and the IMU model's parameters)."""
-OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first"})
+OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-first", "iekf-vel"})
 """The filters that take every sample at its own time, as ``vqf-broad`` does: the hybrid update
 (``updates="discrete"``: state k has seen y_k) and gyro sample k as the rate over the interval that ends at t_k
 (``broad_to_log(..., gyro="backward")``), so state k has seen gyro, accelerometer and magnetometer sample k."""
@@ -110,6 +133,8 @@ PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "ma
 parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
 METRICS = ("total", "heading", "inclination")
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
+K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
+"""K0 of the bounded-velocity model: K0's attitude and bias, and (0.1 m/s)^2 on the velocity (at rest)."""
 
 
 @dataclass(frozen=True)
@@ -224,15 +249,22 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
         dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
         gravity, fld = rest_norms(trial.acc[trial.rest], trial.mag[trial.rest])
         logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
+        logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
+                                                            float(trial.ts[0]), gyro="backward"))
         g0 = initial_estimate(trial.acc[:50], trial.mag[:50])
         params = {} if tuned is None else params_for(tuned, tid)
-        ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params}
+        ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params,
+               "tuned_system": None if tuned is None else tuned["system"]}
         rows = {}
         for name in st.filters:
             t0 = time.perf_counter()
             flt = BROAD_FILTERS[name][1](ctx)
-            state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
-            log = logs["backward" if name in OWN_TIME else "forward"]
+            velocity = flt.system.group.tangent_dim == 9
+            if velocity:
+                state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
+            else:
+                state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
+            log = logs["velocity" if velocity else "backward" if name in OWN_TIME else "forward"]
             ys = log.ys if flt.system.output_dim == log.ys.shape[1] else log.ys[:, :flt.system.output_dim]
             traj = flt.run(state, log.ts, log.us, ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
