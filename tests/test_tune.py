@@ -97,3 +97,25 @@ def test_bad_settings_are_refused(short):
         T.evaluate(recordings[0], FIXED, "truth")
     with pytest.raises(ValueError, match="^params:"):
         T.system_from({"nope": 1.0}, {})
+
+
+@pytest.mark.slow  # two compilations of the 9-state model: about 30 s of CPU
+def test_the_velocity_model_tunes_and_its_file_names_it(tmp_path):
+    from test_attitude_imu import simulate_translation
+
+    recs = []
+    for seed in (0, 1):
+        ts, gyr, acc, mag, R, v = simulate_translation(seed=seed, duration=3.0)
+        _, us, ys = ab.imu_velocity_log(gyr, acc, mag, 100.0)
+        g0 = ab.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))), v[0])
+        recs.append(T.Recording(f"v{seed}", ts, us, ys, {"dip": ab.DIP, "gravity": 9.81, "field": 43.0}, g0,
+                                np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-2] * 3), system="attitude-velocity"))
+    with pytest.raises(ValueError, match="^names:"):
+        T.tune(recs, names=("acc_std",))  # a parameter of the other model
+    res = T.tune(recs, names=("velocity_std",), objective="nll", maxfev=2, fold_maxfev=1, progress=False)
+    assert res["system"] == "attitude-velocity" and np.isfinite(res["held_out_mean"])
+    back = T.load(T.save(res, tmp_path / "tune.json"))
+    system = T.system_from(T.params_for(back, "v0"), recs[0].constants, back["system"])
+    assert system.group.tangent_dim == 9
+    with pytest.raises(ValueError, match="^system:"):
+        T.system_from({}, {}, "attitude-gps")
