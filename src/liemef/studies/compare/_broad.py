@@ -121,10 +121,11 @@ OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-first"
 """The filters that take every sample at its own time, as ``vqf-broad`` does: the hybrid update
 (``updates="discrete"``: state k has seen y_k) and gyro sample k as the rate over the interval that ends at t_k
 (``broad_to_log(..., gyro="backward")``), so state k has seen gyro, accelerometer and magnetometer sample k."""
-DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "iekf",
+DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d",
+                   "mef-vel", "mef-vel-first", "iekf-vel", "iekf",
                    "ukf-left", "vqf", "vqf-offline", "vqf-broad", "madgwick", "madgwick-broad", "mahony",
                    "mahony-broad")
-"""The filters run by default (every one but ``iekf-imu``)."""
+"""The filters run by default (every one but ``iekf-imu`` and ``mef-imu-d-first``)."""
 PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
              "24": {"madgwick": 1.8, "mahony": 2.1}, "10": {"madgwick": 3.6, "mahony": 2.8},
              "16": {"madgwick": 4.8, "mahony": 20.3}, "28": {"madgwick": 8.3, "mahony": 6.3},
