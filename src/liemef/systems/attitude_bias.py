@@ -340,10 +340,20 @@ def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk
 
 
 # --- linear acceleration as a state: the velocity of a hand-held IMU is bounded ---------------------------------
-VELOCITY_STD = 0.5
+VELOCITY_STD = 0.26
 r"""Default std of the zero-velocity pseudo-measurement of :func:`attitude_velocity`, as a density
-(m/s sqrt(s)): a velocity that stays within $\sigma_v$ and decorrelates in $\tau$ has the low-frequency density
-$\sigma_v\sqrt{2\tau}$; a hand-held IMU, $\sigma_v \approx 0.35$ m/s and $\tau \approx 1$ s, gives 0.5."""
+(m/s sqrt(s)). A velocity that stays within $\sigma_v$ and decorrelates in $\tau$ has the low-frequency density
+$\sigma_v\sqrt{2\tau}$: a hand-held IMU, $\sigma_v \approx 0.2-0.35$ m/s and $\tau \approx 0.5-1$ s, gives
+0.2-0.5. The value is the geometric mean over the folds of the leave-one-out tune on the 7 shared BROAD trials
+(docs/imu.md): 0.23 in five folds, 0.36 in two."""
+VELOCITY_GYRO_STD = 0.015
+"""Default gyro std per sample at ``IMU_RATE`` of :func:`attitude_velocity` (rad/s): three times the gyro's
+white noise (:data:`GYRO_STD`), because in motion a MEMS gyro's scale-factor and cross-axis errors (0.5-1 % each
+on a datasheet) add 0.01-0.02 rad/s at 1-2 rad/s. The value is the geometric mean over the folds of the
+leave-one-out tune on BROAD (0.018 in five folds, 0.0085 in two)."""
+VELOCITY_MAG_STD = 0.032
+"""Default magnetometer std of :func:`attitude_velocity` (unitless; the fold mean of the same tune: 0.026 in
+five folds, 0.051 in two)."""
 ACC_DENSITY = 0.02
 """Default accelerometer noise density of :func:`attitude_velocity` (m/s^2/sqrt(Hz)): a MEMS accelerometer's
 white noise (BROAD at rest: 0.05 m/s^2 per sample at 286 Hz, 0.003 m/s^2/sqrt(Hz)) plus its scale and
@@ -371,8 +381,8 @@ def _velocity(g, t):
     return g.factors[2].x
 
 
-def attitude_velocity(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK,
-                      mag_std=MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
+def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK,
+                      mag_std=VELOCITY_MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
                       acc_density=ACC_DENSITY, velocity_std=VELOCITY_STD, mag_adapt: float = MAG_ADAPT,
                       dip_std: float = DIP_STD, norm_std=NORM_STD) -> SensorSystem:
     r"""Attitude, gyro bias and velocity: linear acceleration in the minimum-energy framework, VQF's idea
@@ -396,7 +406,8 @@ def attitude_velocity(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias
     (gyro, accelerometer) (N, 6) and ``ys`` (acc direction, mag direction, norms, zero velocity) (N, 11).
 
     Args:
-        gyro_std, imu_rate, bias_walk, mag_std, dip: as :func:`attitude_imu`.
+        gyro_std, imu_rate, bias_walk, mag_std, dip: as :func:`attitude_imu`, but the defaults of ``gyro_std``
+            (:data:`VELOCITY_GYRO_STD`) and ``mag_std`` (:data:`VELOCITY_MAG_STD`) are this model's.
         gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`): structure.
         field: $B$ (uT), the undisturbed field's norm: structure.
         acc_density: the accelerometer's noise density (m/s^2/sqrt(Hz); one value or 3).
