@@ -406,13 +406,19 @@ def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_R
     (gyro, accelerometer) (N, 6) and ``ys`` (acc direction, mag direction, norms, zero velocity) (N, 11).
 
     Args:
-        gyro_std, imu_rate, bias_walk, mag_std, dip: as :func:`attitude_imu`, but the defaults of ``gyro_std``
-            (:data:`VELOCITY_GYRO_STD`) and ``mag_std`` (:data:`VELOCITY_MAG_STD`) are this model's.
+        gyro_std: the gyro's std per sample at ``imu_rate`` (rad/s), as :func:`attitude_imu`'s; this model's
+            default is :data:`VELOCITY_GYRO_STD`.
+        imu_rate: the IMU rate (Hz) the gyro std refers to (None: ``gyro_std`` is a density).
+        bias_walk: the gyro bias random walk density (rad/s/sqrt(s)).
+        mag_std: the magnetometer direction's std per sample (unitless); default :data:`VELOCITY_MAG_STD`.
+        dip: the magnetic dip (rad): structure.
         gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`): structure.
         field: $B$ (uT), the undisturbed field's norm: structure.
         acc_density: the accelerometer's noise density (m/s^2/sqrt(Hz); one value or 3).
         velocity_std: the zero-velocity pseudo measurement's density (m/s sqrt(s); one value or 3).
-        mag_adapt, dip_std, norm_std: as :func:`attitude_imu`.
+        mag_adapt: $c_m \ge 0$ of :class:`MagneticNoise`, as :func:`attitude_imu`'s.
+        dip_std: $\sigma_{dip} \ge 0$ (rad) of :class:`MagneticNoise`.
+        norm_std: the norms' per-sample stds (2 values; they move nothing).
 
     K0 guidance: the velocity block in (m/s)^2, e.g. (0.1 m/s)^2 at rest.
     """
