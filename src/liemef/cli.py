@@ -392,10 +392,6 @@ def _innovation_table(ts, innov, names, units) -> tuple[str, dict]:
 @click.option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 @click.option("--interpolation", type=click.Choice(("hold", "linear")), default="hold", show_default=True,
               help="Inputs and dense measurements held over each interval, or linear between samples.")
-@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
-              default="attitude-imu", show_default=True,
-              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
-                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
 @click.option("--updates", type=click.Choice(("hold", "discrete")), default="hold", show_default=True,
               help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
               "at their own time (the hybrid filter: recommended for sample sensors).")
