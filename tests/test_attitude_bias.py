@@ -244,9 +244,9 @@ REALDATA = datasets.realdata_dir()
 def _broad_path(trial):
     if REALDATA is None:
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
-    path = REALDATA / datasets.BROAD_TRIALS[trial]
-    if not path.is_file():
-        pytest.skip(f"real data absent: {path} not found")
+    path = datasets.broad_trials().get(trial)
+    if path is None:
+        pytest.skip(f"real data absent: BROAD trial {trial} not found in {REALDATA}")
     return path
 
 

@@ -356,9 +356,9 @@ def test_bad_logs_and_states_raise_value_errors_naming_the_argument(name, log):
 def _broad(trial):
     if REALDATA is None:
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
-    path = REALDATA / datasets.BROAD_TRIALS[trial]
-    if not path.is_file():
-        pytest.skip(f"real data absent: {path} not found")
+    path = datasets.broad_trials().get(trial)
+    if path is None:
+        pytest.skip(f"real data absent: BROAD trial {trial} not found in {REALDATA}")
     return datasets.broad(path)
 
 

@@ -112,6 +112,55 @@ def test_dataset_converts_a_real_recording_for_run(tmp_path):
     assert res.exit_code == 2 and "path:" in res.output
 
 
+def test_dataset_takes_the_id_of_a_recording_present(tmp_path, monkeypatch):
+    import scipy.io
+
+    root = tmp_path / "realdata"
+    (root / "broad").mkdir(parents=True)
+    N = 30
+    scipy.io.savemat(root / "broad" / "05_new_trial.mat", {
+        "imu_gyr": np.zeros((N, 3)), "imu_acc": np.tile([0.0, 0.0, 9.81], (N, 1)),
+        "imu_mag": np.tile([0.0, 20.0, -40.0], (N, 1)), "opt_quat": np.tile([1.0, 0, 0, 0], (N, 1)),
+        "movement": np.ones(N, np.uint8), "sampling_rate": 100.0})
+    monkeypatch.setenv("LIEMEF_REALDATA", str(root))
+    res = invoke("dataset", "broad", "5", "--out", tmp_path / "log.csv")
+    assert res.exit_code == 0, res.output
+    assert f"{N} samples" in res.output
+    res = invoke("dataset", "broad", "6", "--out", tmp_path / "log.csv")
+    assert res.exit_code == 2 and "path:" in res.output
+
+
+def test_tune_writes_a_file_that_run_accepts(tmp_path, monkeypatch):
+    import scipy.io
+    from scipy.spatial.transform import Rotation
+
+    root = tmp_path / "realdata"
+    (root / "broad").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    N, rate = 400, 100.0
+    R = Rotation.from_rotvec(np.outer(np.r_[np.zeros(200), np.linspace(0, 1, 200)], [0.0, 0.0, 1.0]))
+    q = R.as_quat()[:, [3, 0, 1, 2]]
+    for name in ("01_a.mat", "02_b.mat"):
+        scipy.io.savemat(root / "broad" / name, {
+            "imu_gyr": np.r_[np.zeros((200, 3)), np.tile([0, 0, 100.0 / 199], (200, 1))]
+            + 0.001 * rng.standard_normal((N, 3)),
+            "imu_acc": R.inv().apply([0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((N, 3)),
+            "imu_mag": R.inv().apply([0.0, 16.0, -40.0]), "opt_quat": q,
+            "movement": np.r_[np.zeros(200), np.ones(200)].astype(np.uint8), "sampling_rate": rate})
+    monkeypatch.setenv("LIEMEF_REALDATA", str(root))
+    res = invoke("tune", "broad", "--out", tmp_path / "t", "--params", "acc_std", "--seconds", "1",
+                 "--maxfev", "2", "--fold-maxfev", "1", "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "held-out" in res.output and (tmp_path / "t" / "tune.json").is_file()
+    from liemef.studies import tune
+
+    tuned = tune.load(tmp_path / "t" / "tune.json")
+    assert set(tuned["folds"]) == {"01", "02"}
+    res = invoke("run", "--system", "attitude-bias", "--params", tmp_path / "t" / "tune.json", "--log",
+                 tmp_path / "none.csv", "--out", tmp_path / "o")
+    assert res.exit_code == 2 and "--params" in res.output
+
+
 def test_run_with_discrete_updates(tmp_path):
     """``--updates discrete`` (the hybrid filter): the same log, GPS fixes used at their own time; the outlier
     is still rejected by the gate, which reads the same residual."""

@@ -138,18 +138,24 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
-    if folder is None or not (folder / datasets.BROAD_TRIALS["07"]).is_file():
+    if folder is None or "07" not in datasets.broad_trials():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
     out = tmp_path / "broad"
+    tuned = {"format": "liemef-tune-1", "system": "attitude-imu", "params": {"acc_std": 0.05},
+             "folds": {"07": {"params": {"acc_std": 0.04, "mag_adapt": 2.0}}}}
+    (tmp_path / "tune.json").write_text(json.dumps(tuned))
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=07", "--set", "seconds=32",
-                                       "--filters", "iekf,madgwick,mahony-broad", "--out", str(out),
-                                       "--no-progress"])
+                                       "--set", f"params={tmp_path / 'tune.json'}",
+                                       "--filters", "iekf,madgwick,mahony-broad,mef-imu,vqf,vqf-broad", "--out",
+                                       str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
     for f in ("broad.md", "broad.csv", "broad.json", "arrays.npz", "fig_errors_07.png"):
         assert (out / f).stat().st_size > 0, f
     meta = json.loads((out / "broad.json").read_text())
     rows = meta["trials"]["07"]["filters"]
-    assert list(rows) == ["iekf", "madgwick", "mahony-broad"]
+    assert list(rows) == ["iekf", "madgwick", "mahony-broad", "mef-imu", "vqf", "vqf-broad"]
+    assert meta["trials"]["07"]["imu_params"] == {"acc_std": 0.04, "mag_adapt": 2.0}   # the fold without 07
+    assert meta["ratio_to_vqf"]["vqf"] == 1.0
     for name, r in rows.items():  # 5 s of motion after 26.5 s of rest, from a TRIAD start: a few degrees
         assert r["ok"] and 0.0 < r["inclination"] <= r["total"] < 15.0, (name, r)
     assert meta["trials"]["07"]["published"] is None  # a head of the trial is not the published run
@@ -174,7 +180,7 @@ def test_compare_wifibot_at_a_tiny_size(tmp_path):
     from liemef.studies import datasets
 
     folder = datasets.realdata_dir()
-    if folder is None or not (folder / datasets.WIFIBOT_RUNS["4"]).is_file():
+    if folder is None or "4" not in datasets.wifibot_runs():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
     out = tmp_path / "wifibot"
     res = CliRunner().invoke(cli.cli, ["compare", "wifibot", "--runs", "3", "--set", "recordings=4", "--filters",

@@ -85,7 +85,7 @@ def test_write_log_names_columns_and_leaves_missing_samples_empty(tmp_path):
 
 # --- BROAD ------------------------------------------------------------------------------------------------------
 def test_broad_loader_and_log():
-    trial = datasets.broad(_real(datasets.BROAD_TRIALS["01"]))
+    trial = datasets.broad(_real("broad/01_undisturbed_slow_rotation_A.mat"))
     N = 56940
     assert trial.rate == pytest.approx(2000.0 / 7.0)
     assert trial.gyr.shape == trial.acc.shape == trial.mag.shape == (N, 3) and trial.quat_true.shape == (N, 4)
@@ -109,7 +109,7 @@ def test_broad_loader_and_log():
 
 # --- Wifibot with synthetic GPS -------------------------------------------------------------------------------------
 def test_wifibot_loader_and_log():
-    run = datasets.wifibot(_real(datasets.WIFIBOT_RUNS["1"]))
+    run = datasets.wifibot(_real("ukfm_wifibot/wifibot1.txt"))
     assert run.ts.shape == run.v.shape == run.omega.shape == (1745,) and run.truth.shape == (1745, 3)
     np.testing.assert_array_equal(run.truth[0], [0.0, 0.0, 0.0])
     log = datasets.wifibot_to_log(run)
@@ -135,7 +135,7 @@ def test_wifibot_localization_with_synthetic_gps():
     # odometry over-reads the truth by about 5 %, a systematic error that white noise has to cover); GPS 0.1 m
     # at 1 Hz; the start pose is known (the truth is relative to it). Measured: heading rms 5.08 deg, position
     # rms 0.088 m; odometry dead reckoning: 16.5 deg, 0.248 m.
-    run = datasets.wifibot(_real(datasets.WIFIBOT_RUNS["1"]))
+    run = datasets.wifibot(_real("ukfm_wifibot/wifibot1.txt"))
     log = datasets.wifibot_to_log(run, gps_rate=1.0, gps_std=0.1, seed=0)
     system = planar_localization(odometry_std=(0.2, 0.05, 0.01), odometry_rate=50.0, gps_std=0.1)
     flt = MinimumEnergyFilter(system)
@@ -149,3 +149,64 @@ def test_wifibot_localization_with_synthetic_gps():
     th, p = _dead_reckoning(run)
     assert heading < 0.5 * np.degrees(np.sqrt(np.mean(np.asarray(wrap_angle(run.truth[:, 0] - th)) ** 2)))
     assert position < 0.5 * np.sqrt(np.mean(np.sum((run.truth[:, 1:] - p) ** 2, axis=1)))
+
+
+# --- every recording present, read from the files themselves ---------------------------------------------------
+def _fake_broad(path, N=40, rate=100.0):
+    import scipy.io
+
+    rng = np.random.default_rng(0)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
+    scipy.io.savemat(path, {"imu_gyr": 0.01 * rng.standard_normal((N, 3)),
+                            "imu_acc": np.tile([0.0, 0.0, 9.81], (N, 1)) + 0.05 * rng.standard_normal((N, 3)),
+                            "imu_mag": np.tile([0.0, 20.0, -40.0], (N, 1)), "opt_quat": q,
+                            "movement": np.r_[np.zeros(10), np.ones(N - 10)].astype(np.uint8),
+                            "sampling_rate": rate})
+
+
+def test_broad_trials_are_found_by_their_content(tmp_path):
+    _fake_broad(tmp_path / "05_some_new_trial.mat")
+    _fake_broad(tmp_path / "39_another.mat", N=30)
+    _fake_broad(tmp_path / "custom.mat")
+    import scipy.io
+
+    scipy.io.savemat(tmp_path / "12_not_broad.mat", {"x": np.ones(3)})      # a .mat without BROAD's variables
+    (tmp_path / "13_junk.mat").write_text("not a mat file")
+    found = datasets.broad_trials(tmp_path)
+    assert list(found) == ["05", "39", "custom"]
+    trial = datasets.broad(found["39"])
+    assert trial.gyr.shape == (30, 3) and trial.rate == 100.0 and trial.name == "39_another"
+    assert datasets.broad_trials(tmp_path / "absent") == {}
+
+
+def test_wifibot_runs_are_found_by_their_header(tmp_path):
+    rows = "\n".join(f"{0.02 * k} 0.1 0.5 0 0 {0.01 * k} 0" for k in range(5))
+    (tmp_path / "wifibot7.txt").write_text("t gyro vx vy theta px py\n" + rows + "\n")
+    (tmp_path / "my_run.txt").write_text("t gyro vx vy theta px py\n" + rows + "\n")
+    (tmp_path / "notes.txt").write_text("some notes\n")
+    found = datasets.wifibot_runs(tmp_path)
+    assert list(found) == ["7", "my_run"]
+    assert datasets.wifibot(found["7"]).ts.shape == (5,)
+
+
+def test_the_comparisons_take_every_trial_present(tmp_path):
+    from liemef.studies.compare import BroadComparison, WifibotComparison
+
+    (tmp_path / "broad").mkdir()
+    (tmp_path / "ukfm_wifibot").mkdir()
+    for name in ("02_a.mat", "16_b.mat", "31_c.mat"):
+        _fake_broad(tmp_path / "broad" / name)
+    rows = "\n".join(f"{0.02 * k} 0.1 0.5 0 0 {0.01 * k} 0" for k in range(5))
+    (tmp_path / "ukfm_wifibot" / "wifibot9.txt").write_text("t gyro vx vy theta px py\n" + rows + "\n")
+    assert BroadComparison(realdata=str(tmp_path)).trials == ("02", "16", "31")
+    assert BroadComparison(trials="16,2", realdata=str(tmp_path)).trials == ("16", "02")
+    with pytest.raises(ValueError, match=r"^trials: expected BROAD trials present .* \['02', '16', '31'\]"):
+        BroadComparison(trials="07", realdata=str(tmp_path))
+    assert WifibotComparison(realdata=str(tmp_path)).recordings == ("9",)
+
+
+def test_the_shared_folder_holds_every_broad_trial_and_wifibot_run():
+    if REALDATA is None or not (REALDATA / "broad").is_dir():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    assert {"01", "07", "24", "10", "16", "28", "33"} <= set(datasets.broad_trials())
+    assert {"1", "4"} <= set(datasets.wifibot_runs())

@@ -271,10 +271,12 @@ def _system_option(help_text: str):
               "measurements not held (default: 10 x the median interval).")
 @click.option("--chunk", type=click.IntRange(min=16), default=65536, show_default=True,
               help="Samples per compiled chunk (progress is shown between chunks).")
+@click.option("--params", "params_file", type=click.Path(path_type=Path),
+              help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu.")
 @FORCE
 @_progress("Progress on stderr (on a terminal).")
 def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_diag, connection, order, alpha,
-            interpolation, updates, substeps, gap, chunk, force, progress):
+            interpolation, updates, substeps, gap, chunk, params_file, force, progress):
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
@@ -297,6 +299,8 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
     from .studies import logs
 
     source = logs.resolve_system(system_name, system_file)
+    if params_file is not None:
+        source = _tuned(source, system_name, params_file)
     n, c = source.system.group.tangent_dim, source.system.group.coords_dim
     try:
         if tum:
@@ -328,6 +332,21 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
                f"{run.report['substeps_max']} in one)")
     click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
                f"{io.ARRAYS_FILE}, {', '.join(p.name for p in written[4:])} to {target.path}")
+
+
+def _tuned(source, system_name, params_file):
+    """``source`` with the final parameter set of a `liemef tune` file (``--params``)."""
+    import dataclasses
+
+    from .studies import tune as _tune
+
+    if system_name != "attitude-imu":
+        raise click.BadParameter(f"expected --system attitude-imu with a tuning file, got {system_name!r}",
+                                 param_hint="'--params'")
+    try:
+        return dataclasses.replace(source, system=_tune.system_from(_tune.params_for(_tune.load(params_file)), {}))
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="'--params'") from err
 
 
 def _read_bag(path, topics, system):
@@ -439,15 +458,18 @@ def schema(system_name, system_file):
 @click.option("--seconds", type=float, help="Only the first SECONDS of the recording.")
 @click.option("--gps-std", type=float, default=0.1, show_default=True,
               help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0).")
-def dataset(kind, path, out, truth, seconds, gps_std):
+@click.option("--norms", is_flag=True, help="broad: also the raw norms, a log for the system attitude-imu.")
+def dataset(kind, path, out, truth, seconds, gps_std, norms):
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
     `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
     magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
-    localization)."""
+    localization). PATH may also be the id of a recording present in the real-data folder (`broad 16`,
+    `wifibot 4`; found by reading the files)."""
     from .studies import datasets
 
     try:
-        log, system, written = datasets.convert(kind, path, out, truth=truth, seconds=seconds, gps_std=gps_std)
+        log, system, written = datasets.convert(kind, path, out, truth=truth, seconds=seconds, gps_std=gps_std,
+                                                norms=norms)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="'PATH'") from err
     click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
@@ -455,9 +477,62 @@ def dataset(kind, path, out, truth, seconds, gps_std):
     click.echo(f"Filter it with: liemef run --system {system} --log {out} --out DIR")
 
 
+@cli.command("tune")
+@click.argument("data", type=click.Choice(("broad",)))
+@click.option("--out", required=True, type=click.Path(path_type=Path),
+              help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md.")
+@click.option("--objective", type=click.Choice(("truth", "nll")), default="truth", show_default=True,
+              help="truth: BROAD's total attitude rms; nll: the innovations' negative log-likelihood (no truth).")
+@click.option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present).")
+@click.option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's).")
+@click.option("--seconds", type=float, default=90.0, show_default=True,
+              help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`.")
+@click.option("--maxfev", type=click.IntRange(min=1), default=40, show_default=True,
+              help="Evaluations of the shared search (each runs every trial).")
+@click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
+              help="Evaluations of each leave-one-out fold's refinement.")
+@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
+              default="attitude-imu", show_default=True,
+              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
+                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
+@click.option("--updates", type=click.Choice(_names.UPDATES), default="hold", show_default=True,
+              help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
+                   "ending at t_k), as compare broad's mef-imu-d.")
+@click.option("--realdata", type=click.Path(path_type=Path), help="The real-data folder (default: found).")
+@FORCE
+@_progress("A progress bar on stderr.")
+def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, system_name, updates, realdata,
+             force, progress):
+    """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
+    search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
+    set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
+    if system_name == "attitude-velocity" and updates != "discrete":
+        raise click.UsageError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
+                               f"mef-vel), got {updates}")
+    target = outputs.claim(out, "tune", force)
+    from .reports import io
+    from .studies import tune as _tune
+
+    try:
+        recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
+                                      None if realdata is None else str(realdata),
+                                      gyro="backward" if updates == "discrete" else "forward", system=system_name)
+        kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
+        result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
+                            updates=updates, **kw)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from err
+    with outputs.staged(target) as d:
+        _tune.save(result, d / "tune.json")
+        io.write_text(d / "tune.md", _tune.markdown(result))
+    click.echo(_tune.markdown(result))
+    click.echo(f"Wrote tune.json and tune.md to {target.path}")
+
+
 _COMPARE_HELP = (
     "Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.\n\n"
-    "Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left.\n\n"
+    "Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left; and "
+    "iekf-right, ukf-right, ukf-local (the inertial-navigation studies' defaults, with ekf and ukf-left).\n\n"
     + "\n\n".join(f"{s.name}: {s.help}" for s in registry.STUDIES["comparison"].values())
     + "\n\nTrials where a filter fails are counted and named, and left out of the statistics. Exit status 1 when "
     "no trial of any filter is usable.")

@@ -178,7 +178,8 @@ class AbstractFilter(eqx.Module):
         """The interval's data under the shared conventions: a missing input sample holds the last one; a missing
         measurement component has no weight; density samples are not held across a gap. Returns the inputs
         ``u0, u1``, whether ``u0`` was present, the measurements ``y0, y1`` (zeros where missing), the mask of
-        present components of ``y0``, the information in force ``Wy`` and whether the interval is a gap."""
+        present components of ``y0``, the information in force ``Wy`` (for sensors marked ``adaptive``, given the
+        sample: :meth:`~liemef.systems.AbstractSystem.sample_transform`) and whether the interval is a gap."""
         sample = jnp.asarray(self.sample, dtype=bool)
         u_ok = jnp.isfinite(u0)
         u0 = jnp.where(u_ok, u0, state.u_last)
@@ -188,8 +189,16 @@ class AbstractFilter(eqx.Module):
         dense = mask & jnp.isfinite(y1) & ~sample
         y0 = jnp.where(mask, y0, 0.0)
         y1 = jnp.where(dense, y1, y0)
-        Wy = information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal)
+        Wy = self._adapted(information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal), y0)
         return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
+
+    def _adapted(self, Wy, y0):
+        """The information ``Wy`` for the sample ``y0`` (zeros where missing): for sensors marked ``adaptive``, a
+        heteroscedastic sensor's own noise, Sigma(y) = T^-1 Sigma T^-T, so W(y) = T^T W T; else ``Wy``."""
+        if not any(b.adaptive for b in self.blocks):
+            return Wy
+        T = self.system.sample_transform(y0)
+        return T.T @ Wy @ T
 
     def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
                 n_sub=1, capped=False, asymmetric=None) -> FilterState:

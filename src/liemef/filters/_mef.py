@@ -182,8 +182,10 @@ class MinimumEnergyFilter(AbstractFilter):
         if discrete:
             # the samples' information, per sample, for the update at t; the density sensors' over the interval
             sample = jnp.asarray(self.sample, dtype=bool)
-            W_sample = information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal)
-            Wy = information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal)
+            W_sample = self._adapted(
+                information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal), y0)
+            Wy = self._adapted(
+                information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal), y0)
         if self._screens_samples:
             h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), g)
             HKH = mm(Dh, mm(0.5 * (K + K.T), Dh.T))

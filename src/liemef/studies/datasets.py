@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,14 +29,64 @@ from ..reports import io
 ENV_VAR = "LIEMEF_REALDATA"
 """Environment variable naming the real-data folder (the one holding ``broad/`` and ``ukfm_wifibot/``)."""
 
-BROAD_TRIALS = {
-    "01": "broad/01_undisturbed_slow_rotation_A.mat",
-    "07": "broad/07_undisturbed_fast_rotation_B.mat",
-    "24": "broad/24_disturbed_tapping_A.mat",
-}
-"""The BROAD trials in the real-data folder, by number, relative to :func:`realdata_dir`."""
-WIFIBOT_RUNS = {"1": "ukfm_wifibot/wifibot1.txt", "4": "ukfm_wifibot/wifibot4.txt"}
-"""The Wifibot runs in the real-data folder, by number, relative to :func:`realdata_dir`."""
+BROAD_DIR = "broad"
+"""The BROAD trials' folder inside :func:`realdata_dir`."""
+WIFIBOT_DIR = "ukfm_wifibot"
+"""The Wifibot runs' folder inside :func:`realdata_dir`."""
+BROAD_VARIABLES = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
+"""The variables a ``.mat`` file must hold to be a BROAD trial."""
+WIFIBOT_HEADER = ("t", "gyro", "vx", "vy", "theta", "px", "py")
+"""The header line a text file must have to be a Wifibot run."""
+
+
+def _trial_id(stem: str, prefix: str = "") -> str:
+    """A recording's id from its file name: the leading number of ``NN_name`` (BROAD: ``"07"``), the number
+    after ``prefix`` (``wifibot4`` -> ``"4"``), else the whole stem."""
+    m = re.match(rf"^{re.escape(prefix)}(\d+)(?:_|$)", stem)
+    return m.group(1) if m else stem
+
+
+def broad_trials(folder: str | os.PathLike | None = None) -> dict[str, Path]:
+    """Every BROAD trial present: the ``.mat`` files of ``folder`` (default ``realdata_dir() / "broad"``) that
+    hold BROAD's variables (:data:`BROAD_VARIABLES`, read from the file's directory with
+    ``scipy.io.whosmat``, without loading the arrays), by id (the file's leading number, ``"07"``), sorted.
+    Other files are ignored; an absent folder gives ``{}``."""
+    import scipy.io
+
+    d = _folder(folder, BROAD_DIR)
+    out = {}
+    for p in sorted(d.glob("*.mat")) if d is not None else ():
+        try:
+            names = {v[0] for v in scipy.io.whosmat(p)}
+        except Exception:  # scipy raises several types on a file that is not a .mat  # noqa: BLE001
+            continue
+        if names.issuperset(BROAD_VARIABLES):
+            out.setdefault(_trial_id(p.stem), p)
+    return dict(sorted(out.items()))
+
+
+def wifibot_runs(folder: str | os.PathLike | None = None) -> dict[str, Path]:
+    """Every Wifibot run present: the text files of ``folder`` (default ``realdata_dir() / "ukfm_wifibot"``)
+    whose first line is the header :data:`WIFIBOT_HEADER`, by id (``wifibot4.txt`` -> ``"4"``), sorted."""
+    d = _folder(folder, WIFIBOT_DIR)
+    out = {}
+    for p in sorted(d.glob("*.txt")) if d is not None else ():
+        try:
+            with p.open(encoding="utf-8") as f:
+                header = tuple(f.readline().split())
+        except (OSError, UnicodeDecodeError):
+            continue
+        if header == WIFIBOT_HEADER:
+            out.setdefault(_trial_id(p.stem, "wifibot"), p)
+    return dict(sorted(out.items()))
+
+
+def _folder(folder, sub: str) -> Path | None:
+    if folder is not None:
+        p = Path(folder).expanduser()
+        return p if p.is_dir() else None
+    root = realdata_dir()
+    return None if root is None or not (root / sub).is_dir() else root / sub
 
 
 def realdata_dir() -> Path | None:
@@ -133,14 +184,18 @@ def broad(path: str | os.PathLike) -> BroadTrial:
                       rate=rate, name=p.stem)
 
 
-def broad_to_log(trial: BroadTrial) -> io.RecordedLog:
+def broad_to_log(trial: BroadTrial, *, norms: bool = False, gyro: str = "forward") -> io.RecordedLog:
     """The liemef log of a BROAD trial for :func:`liemef.systems.attitude_gyro_bias`: ``us`` the gyro (N, 3),
-    ``ys`` the normalized accelerometer and magnetometer (N, 6)."""
+    ``ys`` the normalized accelerometer and magnetometer (N, 6); with ``norms=True``, for
+    :func:`liemef.systems.attitude_imu`, also their raw norms (N, 8). ``gyro="backward"`` takes gyro sample k as
+    the rate over the interval that ends at $t_k$, BROAD's and VQF's convention
+    (:func:`~liemef.systems.attitude_bias.imu_log`)."""
     from ..systems.attitude_bias import imu_log
 
     if not isinstance(trial, BroadTrial):
         raise ValueError(f"trial: expected a BroadTrial (from broad()), got {type(trial).__name__}")
-    ts, us, ys = imu_log(trial.gyr, trial.acc, trial.mag, trial.rate, t0=float(trial.ts[0]))
+    ts, us, ys = imu_log(trial.gyr, trial.acc, trial.mag, trial.rate, t0=float(trial.ts[0]), norms=norms,
+                         gyro=gyro)
     return io.RecordedLog(ts=ts, us=us, ys=ys)
 
 
@@ -176,7 +231,7 @@ def wifibot(path: str | os.PathLike) -> WifibotRun:
         data = np.loadtxt(p, skiprows=1, ndmin=2)
     except (OSError, UnicodeDecodeError, ValueError) as err:
         raise ValueError(f"path: cannot read {str(p)!r} as a Wifibot run ({err})") from err
-    want = ["t", "gyro", "vx", "vy", "theta", "px", "py"]
+    want = list(WIFIBOT_HEADER)
     if header != want or data.shape[1] != len(want) or data.shape[0] < 2:
         raise ValueError(f"path: expected a Wifibot run with the header {' '.join(want)} and 7 numeric columns, "
                          f"got {str(p)!r} with header {header} and data of shape {data.shape}")
@@ -216,28 +271,35 @@ def wifibot_to_log(run: WifibotRun, gps_rate: float = 1.0, gps_std: float = 0.1,
 
 
 def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: str | os.PathLike | None = None,
-            seconds: float | None = None, gps_std: float = 0.1) -> tuple[io.RecordedLog, str, list[Path]]:
+            seconds: float | None = None, gps_std: float = 0.1, norms: bool = False
+            ) -> tuple[io.RecordedLog, str, list[Path]]:
     """A real recording as a log for ``liemef run``: ``kind`` ``"broad"`` (a BROAD ``.mat`` trial, system
-    ``attitude-bias``) or ``"wifibot"`` (a Wifibot ``.txt`` run with synthetic GPS of ``gps_std`` m, system
-    ``localization``), only its first ``seconds`` if given, written to ``out`` (``.csv`` or ``.npz``) and its
-    ground truth to ``truth`` (CSV). Returns the log, the ready system's name and the files written."""
+    ``attitude-bias``, or ``attitude-imu`` with ``norms``: the raw norms too) or ``"wifibot"`` (a Wifibot ``.txt``
+    run with synthetic GPS of ``gps_std`` m, system ``localization``), only its first ``seconds`` if given,
+    written to ``out`` (``.csv`` or ``.npz``) and its ground truth to ``truth`` (CSV). ``path`` may also be the
+    id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`, :func:`wifibot_runs`).
+    Returns the log, the ready system's name and the files written."""
     from .experiments import get_system
 
+    if kind not in ("broad", "wifibot"):
+        raise ValueError(f"kind: expected 'broad' or 'wifibot', got {kind!r}")
+    if not Path(path).exists():  # an id of a recording present, found by reading the files
+        found = (broad_trials if kind == "broad" else wifibot_runs)()
+        key = f"{int(str(path)):02d}" if kind == "broad" and str(path).isdigit() else str(path)
+        path = found.get(key, path)
     if kind == "broad":
         rec = broad(path)
         rec = rec.head(seconds) if seconds else rec
-        log, name = broad_to_log(rec), "attitude-bias"
+        log, name = broad_to_log(rec, norms=norms), "attitude-imu" if norms else "attitude-bias"
         header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]
         columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
-    elif kind == "wifibot":
+    else:
         rec = wifibot(path)
         if seconds:
             k = max(2, int(np.searchsorted(rec.ts, rec.ts[0] + seconds)))
             rec = WifibotRun(rec.ts[:k], rec.v[:k], rec.omega[:k], rec.truth[:k], rec.name)
         log, name = wifibot_to_log(rec, gps_std=gps_std), "localization"
         header, columns = ["t", "theta", "x", "y"], [rec.ts, *rec.truth.T]
-    else:
-        raise ValueError(f"kind: expected 'broad' or 'wifibot', got {kind!r}")
     written = [io.write_log(out, get_system(name).make(), log.ts, log.us, log.ys)]
     if truth is not None:
         written.append(io.write_csv(truth, header, columns))

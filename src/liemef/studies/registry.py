@@ -142,12 +142,15 @@ for _name, _title, _settings, _help in (
      "+ gyro bias from a synthetic IMU (filters: mef, mef-first, mef-minus, mef-plus, iekf, ukf-left; madgwick "
      "and mahony on request, gyro bias only); writes attitude_basin.md, attitude_basin.csv, attitude_basin.json, "
      "arrays.npz and fig_basin_<system>.png."),
-    ("broad", "the BROAD attitude recordings: the MEF, the EKF, the UKF-M, Madgwick and Mahony",
-     ("trials", "seconds", "realdata"),
+    ("broad", "the BROAD attitude recordings: the MEF and its IMU models, the EKF, the UKF-M, VQF, Madgwick and "
+     "Mahony",
+     ("trials", "seconds", "realdata", "params"),
      "the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer with "
-     "optical truth), with the MEF, a robust MEF, the invariant EKF, the UKF-M and ahrs's Madgwick and Mahony "
-     "(default and published gains), one weight set for all trials; writes broad.md, broad.csv, broad.json and "
-     "arrays.npz."),
+     "optical truth), with the MEF (attitude + gyro bias, the IMU noise model mef-imu and the bounded-velocity "
+     "model mef-vel, samples at their own time), the invariant EKF, the UKF-M, VQF (online, offline and in "
+     "BROAD's indexing) and ahrs's Madgwick and Mahony (default and published gains), one weight set for all "
+     "trials (--set params=tune.json: a `liemef tune` file, each trial run with the fold tuned without it); "
+     "writes broad.md, broad.csv, broad.json and arrays.npz."),
     ("wifibot", "UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
      ("recordings", "gps_rate", "gps_std", "realdata"),
      "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "
@@ -169,6 +172,10 @@ SYSTEMS: dict[str, str] = {
     "attitude-bias": "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, "
                      "rad/s), normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default "
                      "MEMS noise levels and a dip of 68 deg (liemef.systems.attitude_bias)",
+    "attitude-imu": "attitude and gyro bias on TSO(3) with the IMU noise model (linear acceleration, magnetic "
+                    "disturbance, heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and "
+                    "magnetometer directions and their raw norms (norm_acc m/s^2, norm_mag uT); defaults of "
+                    "liemef.systems.attitude_imu",
     "localization": "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
                     "with NaN between fixes; the default noise levels (liemef.systems.localization)",
 }

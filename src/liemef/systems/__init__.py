@@ -8,7 +8,7 @@ from ._base import AbstractSystem, Block, System
 from ._residuals import direction_residual, rotation_residual
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
-from .attitude_bias import attitude_gyro_bias
+from .attitude_bias import attitude_gyro_bias, attitude_imu, attitude_velocity
 from .chaplygin import ChaplyginSleigh
 from .inertial import inertial_navigation
 from .localization import planar_localization
@@ -17,6 +17,6 @@ from .rigid_body_3d import pose3d
 from .unit_circle import UnitCircleBias
 
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
-           "attitude_gyro_bias", "pose3d", "inertial_navigation",
+           "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "pose3d", "inertial_navigation",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state", "direction_residual", "rotation_residual"]

@@ -39,6 +39,8 @@ class Block:
     robust_scale: float = 2.0
     max_rejections: int | None = None
     weight_fn: Callable | None = None
+    adaptive: bool = False
+    """Whether the block's information depends on the sample (:meth:`AbstractSystem.sample_transform`)."""
 
     @property
     def dim(self) -> int:
@@ -99,6 +101,12 @@ class AbstractSystem(eqx.Module):
     def blocks(self) -> tuple[Block, ...]:
         """The output's sensor blocks as the filter engine sees them: one density block ``y`` by default."""
         return (Block("y", 0, self.output_dim, sample=False),)
+
+    def sample_transform(self, y: Float[Array, " p"]) -> Float[Array, "p p"]:
+        r"""A heteroscedastic measurement model: the noise of the sample ``y`` (zeros where missing) is
+        $\Sigma(y) = T(y)^{-1} \Sigma\, T(y)^{-\top}$, so its information is $T^\top D^{-\top} Q D^{-1} T$. Read by
+        the filters only if a block is marked ``adaptive``. Default: the identity."""
+        return jnp.eye(self.output_dim)
 
     @property
     def manifold_residuals(self) -> bool:

@@ -28,6 +28,7 @@ from typing import Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jax.scipy.linalg
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -103,6 +104,12 @@ class Sensor(eqx.Module):
         max_rejections: the most consecutive rejected samples allowed: the next rejection in a row is a failure
             (cause ``gate``).
         weight_fn: optional time-varying weight ``w(t) >= 0`` that multiplies the sensor's information.
+        scale: optional heteroscedastic noise model: ``scale(std, params, y)`` of the whole sample ``y`` (all
+            sensors' components, zeros where missing), the sensor's noise ``std`` and ``params``, returns a factor
+            f in $(0, 1]$ on the sensor's information (its std becomes ``std / sqrt(f)``) or a k x k matrix T
+            (its information becomes $T^\top W T$). A hashable object (e.g. a frozen dataclass), so that equal
+            models are one compiled structure.
+        scale_params: the parameters of ``scale``, an array leaf (tuning them never recompiles).
         angles: the components that are angles (names or indices, or True for all): their residual is the
             difference wrapped into [-pi, pi) (a bearing reported in (-pi, pi] against a prediction that is not).
         residual: the sensor's own residual ``residual(y, h) -> (k,)``, zero at ``y == h`` and smooth in h near y
@@ -122,12 +129,14 @@ class Sensor(eqx.Module):
     robust_scale: float = eqx.field(static=True, default=2.0)
     max_rejections: int | None = eqx.field(static=True, default=None)
     weight_fn: Callable | None = eqx.field(static=True, default=None)
+    scale: Callable | None = eqx.field(static=True, default=None)
+    scale_params: Float[Array, " q"] | None = None
     residual: Callable | None = eqx.field(static=True, default=None)
 
     def __init__(self, name: str, fn: Callable, noise: Noise, components=None, units=None, *, dim: int | None = None,
                  gate: float | None = None, robust: str | None = None, robust_scale: float = 2.0,
-                 max_rejections: int | None = None, weight_fn: Callable | None = None, angles=None,
-                 residual: Callable | None = None):
+                 max_rejections: int | None = None, weight_fn: Callable | None = None, scale: Callable | None = None,
+                 scale_params=None, angles=None, residual: Callable | None = None):
         if not isinstance(name, str) or not name.isidentifier():
             raise ValueError(f"name: expected a sensor name usable as a column prefix (letters, digits, _), "
                              f"got {name!r}")
@@ -159,6 +168,13 @@ class Sensor(eqx.Module):
         self.robust, self.robust_scale = robust, float(robust_scale)
         self.max_rejections = None if max_rejections is None else int(max_rejections)
         self.weight_fn = weight_fn
+        if (scale is None) != (scale_params is None) or (scale is not None and not callable(scale)):
+            raise ValueError(f"sensor {name!r}: scale, scale_params: expected both (a function scale(std, params, y) "
+                             f"and its parameters) or neither, got {scale!r} and {scale_params!r}")
+        self.scale = scale
+        self.scale_params = None if scale_params is None else jnp.asarray(
+            _validate.array(f"sensor {name!r}: scale_params", np.atleast_1d(np.asarray(scale_params, np.float64)),
+                            (None,)))
         if residual is not None and not callable(residual):
             raise ValueError(f"sensor {name!r}: residual: expected a function residual(y, h), got "
                              f"{type(residual).__name__}")
@@ -204,7 +220,7 @@ def blocks_of(sensors) -> tuple[Block, ...]:
     for s in sensors:
         thr = None if s.gate is None else float(chi2.ppf(s.gate, s.dim))
         out.append(Block(s.name, start, start + s.dim, s.noise.meaning == "sample", thr, s.robust, s.robust_scale,
-                         s.max_rejections, s.weight_fn))
+                         s.max_rejections, s.weight_fn, adaptive=s.scale is not None))
         start += s.dim
     return tuple(out)
 
@@ -303,6 +319,33 @@ class SensorSystem(AbstractSystem):
     def blocks(self) -> tuple[Block, ...]:
         """One block per sensor, with its sample meaning, gate and robust loss."""
         return blocks_of(self.sensors)
+
+    def sample_transform(self, y):
+        """Block-diagonal: each sensor's ``scale`` of the sample ``y`` (a factor f gives sqrt(f) I, a matrix is
+        taken as it is), the identity for the others."""
+        blocks = []
+        for s in self.sensors:
+            if s.scale is None:
+                blocks.append(jnp.eye(s.dim))
+                continue
+            T = jnp.asarray(s.scale(s.noise.std, s.scale_params, y), dtype=jnp.float64)
+            blocks.append(jnp.sqrt(T) * jnp.eye(s.dim) if T.ndim == 0 else T)
+        return jax.scipy.linalg.block_diag(*blocks)
+
+    def with_scale_params(self, **params) -> SensorSystem:
+        """A copy with new parameters of the sensors' heteroscedastic models, by sensor name: same structure."""
+        out = self
+        for name, value in params.items():
+            idx = [i for i, s in enumerate(self.sensors) if s.name == name and s.scale is not None]
+            if not idx:
+                raise ValueError(f"with_scale_params: expected a sensor with a noise model from "
+                                 f"{[s.name for s in self.sensors if s.scale is not None]}, got {name!r}")
+            old = self.sensors[idx[0]].scale_params
+            v = jnp.asarray(value, dtype=jnp.float64).reshape(-1)
+            if v.shape != old.shape:
+                raise ValueError(f"{name}: expected {old.shape[0]} parameters, got {v.shape[0]}")
+            out = eqx.tree_at(lambda s, i=idx[0]: s.sensors[i].scale_params, out, v)
+        return out
 
     # --- the model --------------------------------------------------------------------------------------------
     @property

@@ -67,7 +67,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mv
-from ..groups import R3, SO3, TSO3
+from ..groups import R3, SO3, TSO3, Product
 from ._sensors import Noise, Sensor, SensorSystem
 
 IMU_RATE = 285.714
@@ -170,6 +170,319 @@ def attitude_gyro_bias(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bia
                         input_units=("rad/s",) * 3, state_names=STATE_NAMES, state_units=STATE_UNITS)
 
 
+# --- real IMU effects: a heteroscedastic model of the direction sensors ------------------------------------------
+GRAVITY = 9.81
+"""Default gravity (m/s^2) for :func:`attitude_imu`; use the accelerometer's norm at rest (:func:`rest_norms`)."""
+FIELD = 43.0
+"""Default magnetic field strength (uT) for :func:`attitude_imu` (Berlin; BROAD measures 42-44 uT); use
+:func:`rest_norms` on your own data."""
+ACC_ADAPT = math.sqrt(2.0)
+r"""Default gain $c_a$ of the accelerometer's noise model (:class:`AccelerationNoise`): $\sqrt 2$, the tilt a
+horizontal linear acceleration causes for the norm it adds."""
+IMU_BIAS_WALK = 1e-5
+"""Default gyro bias random walk of :func:`attitude_imu` (rad/s/sqrt(s)): a MEMS gyro's rate random walk
+(datasheets: 0.5-2e-5 rad/s/sqrt(s)), about 0.008 deg/s over BROAD's 3 minutes. :data:`BIAS_WALK` (1e-4), ten
+times that, let the fast-translation trial's accelerometer errors pull the bias by 0.1-0.3 deg/s within seconds."""
+ACC_NORM_TOL = 0.03
+"""Default $e_0$ of :class:`AccelerationNoise`: the accelerometer norm's own relative error (3 % of g: BROAD's
+norm at rest scatters by 0.5 %, and a MEMS accelerometer's scale factors and misalignment add 1-3 %)."""
+MAG_ADAPT = 1.0
+"""Default gain $c_m$ of the magnetometer's noise model on the field's relative norm and dip errors
+(:class:`MagneticNoise`)."""
+DIP_STD = 0.1
+"""Default std (rad, per sample) of the magnetometer's direction along the dip (:class:`MagneticNoise`): the
+local field's dip varies by degrees indoors."""
+NORM_STD = (0.1, 1.0)
+"""Std of one sample of the norms (accelerometer m/s^2, magnetometer uT): their noise at rest, a few times
+BROAD's (0.03 m/s^2, 0.3 uT). They do not depend on the attitude, so they move neither the estimate nor K."""
+
+
+@dataclass(frozen=True)
+class ConstantOutput:
+    r"""$h(g) = c$: a measurement that does not depend on the state (the norms of :func:`attitude_imu`)."""
+
+    c: tuple[float, ...]
+
+    def __call__(self, g, t):
+        return jnp.asarray(self.c)
+
+
+@dataclass(frozen=True)
+class AccelerationNoise:
+    r"""The accelerometer direction's noise given the sample. A linear acceleration $a_{lin}$ (world frame)
+    tilts the measured direction and changes the norm: with $e = (|a| - g)/g$,
+
+    * a horizontal $a_{lin}$ tilts the direction by $\theta \approx |a_{lin}|/g$ and lengthens the reading to
+      $g\sqrt{1 + \theta^2}$: $e \approx \theta^2/2$, i.e. $\theta^2 \approx 2|e|$;
+    * a vertical one changes the norm only ($\theta = 0$, $|e| = |a_{lin}|/g$);
+    * the norm has errors of its own (noise, scale factors, misalignment: a few percent of g on a MEMS part),
+      which say nothing of a tilt.
+
+    So $2|e|$ bounds the squared tilt once $|e|$ is well above the norm's own error level $e_0$, and a small
+    $|e|$ says little. The model adds to the sensor's variance
+
+    $$\sigma_a(y)^2 = \sigma_a^2 + c_a^2\, \frac{e^2}{|e| + e_0},$$
+
+    which is $c_a^2 |e|$ for $|e| \gg e_0$ ($c_a = \sqrt 2$ is the bound itself, :data:`ACC_ADAPT`; larger
+    values account for accelerations that last several samples, whose errors are not independent) and
+    $c_a^2 e^2 / e_0$, quadratic, for $|e| \ll e_0$. A sample whose norm says "accelerating" weighs less,
+    smoothly (no threshold). ``params = (c_a, e_0)``; ``norm`` is the index of $|a|$ in the sample (the
+    ``norm`` sensor of :func:`attitude_imu`).
+    """
+
+    norm: int
+    gravity: float
+
+    def __call__(self, std, params, y):
+        e = (y[self.norm] - self.gravity) / self.gravity
+        s2 = std[0] ** 2
+        return s2 / (s2 + params[0] ** 2 * e * e / (jnp.abs(e) + params[1]))
+
+
+@dataclass(frozen=True)
+class MagneticNoise:
+    r"""The magnetometer direction's noise given the sample: anisotropic (the field's dip is local), and larger
+    when the field is disturbed.
+
+    *Heading, not tilt.* The accelerometer is the reference for tilt. The field's direction below the horizon
+    varies indoors (iron in the building, a translation through an inhomogeneous field) by degrees, and with a
+    steep dip $\delta$ a tilt error $\varepsilon$ about north looks to the magnetometer like a heading error
+    $\tan\delta\,\varepsilon$ (2.5 times at Berlin's 68 deg). The sample's two tangent directions on the sphere
+    are $t_1 = \bar u \times \bar m / |\cdot|$ (a change of heading moves $\bar m$ along it; $\bar u$ the
+    accelerometer's up) and $t_2 = \bar m \times t_1$ (a change of dip). The noise is
+    $\sigma_m^2 (I - t_2 t_2^\top) + (\sigma_m^2 + \sigma_{dip}^2)\, t_2 t_2^\top$: the magnetometer informs the
+    heading with its std and the tilt only through $\sigma_{dip}$.
+
+    *Disturbances.* A magnet or iron changes the field's strength $B$ and its dip; the squared relative norm
+    error and the squared dip error bound the disturbance's squared relative size from below, and the whole
+    block's variance grows with them:
+
+    $$\sigma_m(y)^2 = \sigma_m^2 + c_m^2 \left[\left(\frac{|m| - B}{B}\right)^2 +
+    \left(\frac{-\bar a\cdot\bar m - \sin\delta}{\cos\delta}\right)^2\right]$$
+
+    (the second term is the dip error to first order). ``params = (c_m, sigma_dip)``. The indices are those of
+    the sample: ``acc`` and ``mag`` the first components of the two directions, ``norm`` that of $|m|$. Returns
+    the transform $T$ with $T^\top T = \sigma_m^2 \Sigma(y)^{-1}$.
+    """
+
+    acc: int
+    mag: int
+    norm: int
+    field: float
+    dip: float
+
+    def __call__(self, std, params, y):
+        a, m = y[self.acc:self.acc + 3], y[self.mag:self.mag + 3]
+        e_norm = (y[self.norm] - self.field) / self.field
+        e_dip = (-(a @ m) - math.sin(self.dip)) / math.cos(self.dip)
+        s2 = std[0] ** 2
+        f = s2 / (s2 + params[0] ** 2 * (e_norm ** 2 + e_dip ** 2))
+        t1 = jnp.cross(a, m)
+        n1 = jnp.sqrt(t1 @ t1)
+        t1 = t1 / jnp.where(n1 > 1e-9, n1, 1.0)
+        t2 = jnp.cross(m, t1)
+        # (I - c t2 t2^T)^2 = I - kappa t2 t2^T for a unit t2, kappa = sigma_dip^2 / (sigma_m^2 + sigma_dip^2)
+        kappa = params[1] ** 2 / (s2 + params[1] ** 2)
+        c = 1.0 - jnp.sqrt(1.0 - kappa)
+        return jnp.sqrt(f) * (jnp.eye(3) - c * jnp.outer(t2, t2))
+
+
+def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK, acc_std=ACC_STD,
+                 mag_std=MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
+                 acc_adapt: float = ACC_ADAPT, acc_norm_tol: float = ACC_NORM_TOL, mag_adapt: float = MAG_ADAPT,
+                 dip_std: float = DIP_STD,
+                 norm_std=NORM_STD,
+                 directions: Literal["sample", "density"] = "sample") -> SensorSystem:
+    r"""Attitude + gyro bias with a heteroscedastic model of the direction sensors (real IMU effects).
+
+    :func:`attitude_gyro_bias` with a third sensor, ``norm`` = $(|a|, |m|)$ (m/s^2, uT), the raw norms of the
+    two readings (:func:`imu_log` with ``norms=True``). The norms do not depend on the attitude
+    ($h_{norm} = (g, B)$, a constant: they add nothing to the residual or to E). They are the covariates of the
+    direction sensors' noise: each direction sample's std is a function of the sample, the accelerometer's by
+    :class:`AccelerationNoise` (linear acceleration), the magnetometer's by :class:`MagneticNoise` (magnetic
+    disturbance). This is a measurement model, not a switch: the cost's weight on a sample is the inverse of
+    its variance under the model, and every factor is smooth in the sample.
+
+    Args (beyond :func:`attitude_gyro_bias`'s, whose defaults it keeps but ``bias_walk`` =
+    :data:`IMU_BIAS_WALK`):
+        gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`).
+        field: $B$ (uT), the magnetometer's norm in the undisturbed field (:func:`rest_norms`).
+        acc_adapt: $c_a \ge 0$ (0: the plain model).
+        acc_norm_tol: $e_0 > 0$, the accelerometer norm's own relative error.
+        mag_adapt: $c_m \ge 0$ (0 and ``dip_std=0``: the plain model).
+        dip_std: $\sigma_{dip} \ge 0$ (rad), the magnetometer's extra std along the dip.
+        norm_std: the norms' per-sample stds (2 values).
+
+    ``gravity``, ``field`` and ``dip`` are structure (a new value compiles anew); the stds and $c_a$, $c_m$
+    are leaves (:meth:`~liemef.systems.SensorSystem.with_noise`,
+    :meth:`~liemef.systems.SensorSystem.with_scale_params`).
+    """
+    for name, v in (("gravity", gravity), ("field", field)):
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected a norm > 0, got {v!r}")
+    if not (isinstance(acc_norm_tol, int | float | np.floating) and math.isfinite(acc_norm_tol) and acc_norm_tol > 0):
+        raise ValueError(f"acc_norm_tol: expected a relative error > 0, got {acc_norm_tol!r}")
+    for name, v in (("acc_adapt", acc_adapt), ("mag_adapt", mag_adapt), ("dip_std", dip_std)):
+        if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"{name}: expected a gain >= 0, got {v!r}")
+    base = attitude_gyro_bias(gyro_std, imu_rate, bias_walk, acc_std, mag_std, dip, directions=directions)
+    acc, mag = base.sensors
+    acc = Sensor("acc", acc.fn, acc.noise, acc.components, acc.units,
+                 scale=AccelerationNoise(norm=6, gravity=float(gravity)),
+                 scale_params=[float(acc_adapt), float(acc_norm_tol)])
+    mag = Sensor("mag", mag.fn, mag.noise, mag.components, mag.units,
+                 scale=MagneticNoise(acc=0, mag=3, norm=7, field=float(field), dip=float(dip)),
+                 scale_params=[float(mag_adapt), float(dip_std)])
+    norm = Sensor("norm", ConstantOutput((float(gravity), float(field))), Noise.sample(norm_std), ("acc", "mag"),
+                  ("m/s^2", "uT"))
+    return SensorSystem(TSO3, gyro_bias_dynamics, (acc, mag, norm), base.process_noise, inputs=INPUT_NAMES,
+                        input_units=("rad/s",) * 3, state_names=STATE_NAMES, state_units=STATE_UNITS)
+
+
+# --- linear acceleration as a state: the velocity of a hand-held IMU is bounded ---------------------------------
+VELOCITY_STD = 0.011
+r"""Default std of the zero-velocity pseudo-measurement of :func:`attitude_velocity`, as a density
+(m/s sqrt(s)): the geometric mean over the folds of the leave-one-out tune on the 7 shared BROAD trials
+(docs/imu.md; 0.0117 in six folds, 0.010, the search's bound, in one). It is far stiffer than a hand's velocity
+statistics suggest: a velocity that stays within $\sigma_v$ and decorrelates in $\tau$ has the low-frequency
+density $\sigma_v\sqrt{2\tau}$, 0.2-0.5 for a hand-held IMU. What the data fit is the rate at which the
+accelerometer corrects the tilt against the gyro's errors in motion, not a velocity statistic; the velocity
+state is then a short low-pass of the specific force in the world frame. Use 0.2-0.5 where the motion is known
+to be a hand's and the gyro better than BROAD's."""
+VELOCITY_GYRO_STD = 0.012
+"""Default gyro std per sample at ``IMU_RATE`` of :func:`attitude_velocity` (rad/s): about twice the gyro's
+white noise (:data:`GYRO_STD`), because in motion a MEMS gyro's scale-factor and cross-axis errors (0.5-1 % each
+on a datasheet) add 0.01-0.02 rad/s at 1-2 rad/s. The value is the geometric mean over the folds of the
+leave-one-out tune on BROAD (0.0122 in six folds, 0.0101 in one)."""
+VELOCITY_MAG_STD = 0.022
+"""Default magnetometer std of :func:`attitude_velocity` (unitless; the fold mean of the same tune: 0.021 in
+six folds, 0.031 in one)."""
+ACC_DENSITY = 0.02
+"""Default accelerometer noise density of :func:`attitude_velocity` (m/s^2/sqrt(Hz)): a MEMS accelerometer's
+white noise (BROAD at rest: 0.05 m/s^2 per sample at 286 Hz, 0.003 m/s^2/sqrt(Hz)) plus its scale and
+misalignment errors in motion."""
+VELOCITY_STATE_NAMES = STATE_NAMES + ("vx", "vy", "vz")
+VELOCITY_STATE_UNITS = STATE_UNITS + ("m/s",) * 3
+VELOCITY_INPUT_NAMES = INPUT_NAMES + ("force_x", "force_y", "force_z")
+
+
+@dataclass(frozen=True)
+class VelocityDynamics:
+    r"""$\lambda(g, u) = (u_\omega - b,\ 0,\ R u_a - g\,e_{up})$ on SO(3) x R^3 x R^3: the attitude turns with
+    the gyro less its bias, the bias is constant, the world velocity integrates the specific force rotated to the
+    world less gravity ``gravity`` (m/s^2)."""
+
+    gravity: float
+
+    def __call__(self, g, u, t):
+        R = g.factors[0].as_matrix()
+        b = g.factors[1].x
+        return jnp.concatenate([u[:3] - b, jnp.zeros(3), mv(R, u[3:6]) - jnp.asarray((0.0, 0.0, self.gravity))])
+
+
+def _velocity(g, t):
+    return g.factors[2].x
+
+
+def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK,
+                      mag_std=VELOCITY_MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
+                      acc_density=ACC_DENSITY, velocity_std=VELOCITY_STD, mag_adapt: float = MAG_ADAPT,
+                      dip_std: float = DIP_STD, norm_std=NORM_STD) -> SensorSystem:
+    r"""Attitude, gyro bias and velocity: linear acceleration in the minimum-energy framework, VQF's idea
+    (low-pass the accelerometer in an almost inertial frame) written as a model.
+
+    State $g = (R, b, v)$ on SO(3) x R^3 x R^3, $v$ the IMU's velocity in the world frame (m/s). Inputs: the gyro
+    (rad/s) and the accelerometer's specific force $u_a$ (m/s^2, body frame), both with white noise:
+    $R^\top\dot R = [u_\omega - b]_\times$, $\dot b = 0$ (walk ``bias_walk``), $\dot v = R u_a - g\,e_{up}$
+    (noise ``acc_density``, :class:`VelocityDynamics`). A hand-held or body-worn IMU goes nowhere fast: its
+    velocity stays small, so the model measures $v = 0$ continuously, with density ``velocity_std`` (a pseudo
+    measurement, the ``velocity`` sensor; the log holds zeros). A tilt error $\varepsilon$ makes $R u_a$ leak
+    $g\,\varepsilon$ into $\dot v$, which the pseudo measurement sees within a second; a linear acceleration
+    integrates to the bounded velocity it causes, and moves the tilt only as much as that velocity's std allows.
+    The accelerometer is never a gravity direction: there is no white-noise assumption on linear acceleration,
+    and no threshold.
+
+    The magnetometer is :func:`attitude_imu`'s: heading only, down-weighted by its norm and dip errors
+    (:class:`MagneticNoise`). Its covariates are the sample's accelerometer direction and the two norms, which
+    the log carries as the sensors ``acc`` and ``norm``. They are constants to the model ($h$ does not depend on
+    the state), so they add nothing to the residual or to E. The log is :func:`imu_velocity_log`'s: ``us``
+    (gyro, accelerometer) (N, 6) and ``ys`` (acc direction, mag direction, norms, zero velocity) (N, 11).
+
+    Args:
+        gyro_std: the gyro's std per sample at ``imu_rate`` (rad/s), as :func:`attitude_imu`'s; this model's
+            default is :data:`VELOCITY_GYRO_STD`.
+        imu_rate: the IMU rate (Hz) the gyro std refers to (None: ``gyro_std`` is a density).
+        bias_walk: the gyro bias random walk density (rad/s/sqrt(s)).
+        mag_std: the magnetometer direction's std per sample (unitless); default :data:`VELOCITY_MAG_STD`.
+        dip: the magnetic dip (rad): structure.
+        gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`): structure.
+        field: $B$ (uT), the undisturbed field's norm: structure.
+        acc_density: the accelerometer's noise density (m/s^2/sqrt(Hz); one value or 3).
+        velocity_std: the zero-velocity pseudo measurement's density (m/s sqrt(s); one value or 3).
+        mag_adapt: $c_m \ge 0$ of :class:`MagneticNoise`, as :func:`attitude_imu`'s.
+        dip_std: $\sigma_{dip} \ge 0$ (rad) of :class:`MagneticNoise`.
+        norm_std: the norms' per-sample stds (2 values; they move nothing).
+
+    K0 guidance: the velocity block in (m/s)^2, e.g. (0.1 m/s)^2 at rest.
+    """
+    for name, v in (("gravity", gravity), ("field", field)):
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected a norm > 0, got {v!r}")
+    for name, v in (("mag_adapt", mag_adapt), ("dip_std", dip_std)):
+        if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"{name}: expected a gain >= 0, got {v!r}")
+    base = attitude_gyro_bias(gyro_std, imu_rate, bias_walk, 1.0, mag_std, dip)
+    acc_noise, vel_noise = Noise.density(acc_density), Noise.density(velocity_std)
+    if acc_noise.dim not in (1, 3) or vel_noise.dim not in (1, 3):
+        raise ValueError(f"acc_density, velocity_std: expected 1 or 3 stds each, got {acc_noise.dim} and "
+                         f"{vel_noise.dim}")
+    density = jnp.concatenate([base.process_noise.std, jnp.broadcast_to(acc_noise.std, (3,))])
+    xyz = ("x", "y", "z")
+    _, mag = base.sensors
+    acc = Sensor("acc", ConstantOutput(E_UP), Noise.sample(1.0), xyz, ("1",) * 3)
+    mag = Sensor("mag", mag.fn, mag.noise, mag.components, mag.units,
+                 scale=MagneticNoise(acc=0, mag=3, norm=7, field=float(field), dip=float(dip)),
+                 scale_params=[float(mag_adapt), float(dip_std)])
+    norm = Sensor("norm", ConstantOutput((float(gravity), float(field))), Noise.sample(norm_std), ("acc", "mag"),
+                  ("m/s^2", "uT"))
+    vel = Sensor("velocity", _velocity, Noise.density(jnp.broadcast_to(vel_noise.std, (3,))), xyz, ("m/s",) * 3)
+    return SensorSystem(Product[SO3, R3, R3], VelocityDynamics(float(gravity)), (acc, mag, norm, vel),
+                        Noise.density(density), inputs=VELOCITY_INPUT_NAMES,
+                        input_units=("rad/s",) * 3 + ("m/s^2",) * 3, state_names=VELOCITY_STATE_NAMES,
+                        state_units=VELOCITY_STATE_UNITS)
+
+
+def imu_velocity_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"],
+                     rate: float, t0: float = 0.0, *,
+                     gyro: Literal["forward", "backward"] = "forward") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The log of :func:`attitude_velocity` from raw IMU columns: ``us`` = (gyro, accelerometer) (N, 6), the
+    inputs, in the sample convention ``gyro`` for both (:func:`imu_log`); ``ys`` = (accelerometer direction,
+    magnetometer direction, their norms, zero velocity) (N, 11), at their own time."""
+    ts, us, ys = imu_log(gyr, acc, mag, rate, t0, norms=True, gyro=gyro)
+    a = _validate.array("acc", np.asarray(acc, dtype=np.float64), (us.shape[0], 3), missing=True)
+    if gyro == "backward":
+        a = np.concatenate([a[1:], a[-1:]], axis=0)
+    return ts, np.concatenate([us, a], axis=1), np.concatenate([ys, np.zeros((ys.shape[0], 3))], axis=1)
+
+
+def attitude_velocity_state(g: TSO3, v=(0.0, 0.0, 0.0)):
+    """The :func:`attitude_velocity` state from an attitude-and-bias estimate (e.g. :func:`initial_estimate`) and a
+    velocity (m/s, default at rest)."""
+    v = _validate.array("v", np.asarray(v, dtype=np.float64), (3,))
+    return Product[SO3, R3, R3]((g.factors[0], g.factors[1], R3(jnp.asarray(v))))
+
+
+def rest_norms(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> tuple[float, float]:
+    """The medians of the accelerometer's and the magnetometer's norms over samples at rest (their units):
+    ``gravity`` and ``field`` of :func:`attitude_imu` (rows with a NaN are skipped)."""
+    a = np.linalg.norm(np.atleast_2d(np.asarray(acc, dtype=np.float64)), axis=1)
+    m = np.linalg.norm(np.atleast_2d(np.asarray(mag, dtype=np.float64)), axis=1)
+    a, m = a[np.isfinite(a) & (a > 0)], m[np.isfinite(m) & (m > 0)]
+    if a.size == 0 or m.size == 0:
+        raise ValueError("acc, mag: expected samples at rest with finite, non-zero vectors, got none")
+    return float(np.median(a)), float(np.median(m))
+
+
 # --- helpers for recorded IMU data ----------------------------------------------------------------------------
 def _unit_rows(name: str, v) -> np.ndarray:
     a = _validate.array(name, np.atleast_2d(np.asarray(v, dtype=np.float64)), (None, 3), missing=True)
@@ -240,13 +553,23 @@ def measured_state(ys: Float[ArrayLike, "N 6"]) -> Float[np.ndarray, "N 6"]:
 
 
 def imu_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"],
-            rate: float, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A filter log ``(ts, us, ys)`` from raw IMU columns (BROAD's ``imu_gyr``, ``imu_acc``, ``imu_mag``).
+            rate: float, t0: float = 0.0, *, norms: bool = False,
+            gyro: Literal["forward", "backward"] = "forward") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""A filter log ``(ts, us, ys)`` from raw IMU columns (BROAD's ``imu_gyr``, ``imu_acc``, ``imu_mag``).
 
     ``ts = t0 + k / rate`` (a uniform clock), ``us`` the gyro (N, 3) in rad/s, ``ys`` the normalized
     accelerometer and magnetometer (N, 6) in the order of :func:`attitude_gyro_bias`'s sensors; a NaN or a zero
-    vector is a missing sample (NaN).
+    vector is a missing sample (NaN). ``norms=True`` appends the raw norms ``(|acc|, |mag|)`` (N, 8), the
+    ``norm`` sensor of :func:`attitude_imu`.
+
+    ``gyro`` says which interval a gyro sample measures. ``"forward"``: sample k is the rate over
+    $[t_k, t_{k+1})$, the library's input convention (``us[k]`` = sample k). ``"backward"``: sample k is the rate
+    over $(t_{k-1}, t_k]$, as an IMU that averages over its sample period reports it, and as VQF and BROAD
+    integrate it ($q_k = q_{k-1} \otimes \exp(\omega_k T)$, BROAD's truth aligned to that): ``us[k]`` = sample
+    k + 1 (the last one is held). At fast rotation the choice moves the estimate by one sample's turn (3.4 deg
+    at 17 rad/s and 286 Hz).
     """
+    _validate.choice("gyro", gyro, {"forward", "backward"})
     gyr = _validate.array("gyr", np.asarray(gyr, dtype=np.float64), (None, 3), missing=True)
     N = gyr.shape[0]
     a, m = _unit_rows("acc", acc), _unit_rows("mag", mag)
@@ -256,7 +579,13 @@ def imu_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], mag: Flo
     if not (isinstance(rate, int | float) and math.isfinite(rate) and rate > 0):
         raise ValueError(f"rate: expected a sample rate > 0 in Hz, got {rate!r}")
     ts = float(t0) + np.arange(N) / float(rate)
-    return ts, gyr, np.concatenate([a, m], axis=1)
+    if gyro == "backward":
+        gyr = np.concatenate([gyr[1:], gyr[-1:]], axis=0)
+    ys = [a, m]
+    if norms:
+        n = [np.linalg.norm(np.asarray(v, dtype=np.float64), axis=1, keepdims=True) for v in (acc, mag)]
+        ys += [np.where(np.isfinite(v) & (v > 0), v, np.nan) for v in n]
+    return ts, gyr, np.concatenate(ys, axis=1)
 
 
 def quaternion_to_tso3(quat_wxyz: Float[ArrayLike, "N 4"], bias=None) -> TSO3:

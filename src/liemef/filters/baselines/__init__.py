@@ -5,7 +5,8 @@ r"""The filters people compare with, on any liemef system and with the same inte
   coordinates (``error="local"``, :func:`local_ekf`);
 * :class:`UnscentedKalmanFilter`: the UKF on the manifold (UKF-M, :func:`ukf_m`), left retraction by default;
 * :class:`Madgwick` and :class:`Mahony`: the AHRS filters of the ``ahrs`` package, on attitude systems (no
-  covariance: ``has_covariance = False``).
+  covariance: ``has_covariance = False``);
+* :class:`VQF`: Laidig and Seel's VQF (the ``vqf`` package), online or offline, on attitude systems.
 
 Their state's ``K`` is the covariance of the left error $\xi$, $g = \hat g\exp\xi$, whatever their own error
 coordinates, as the minimum-energy filter's K: metrics and NEES read every filter the same way.
@@ -22,6 +23,7 @@ from ._kalman import (
     retraction,
     ukf_m,
 )
+from ._vqf import VQF
 
 __all__ = ["AbstractKalmanFilter", "ExtendedKalmanFilter", "UnscentedKalmanFilter", "invariant_ekf", "local_ekf",
-           "ukf_m", "ERRORS", "retraction", "Madgwick", "Mahony"]
+           "ukf_m", "ERRORS", "retraction", "Madgwick", "Mahony", "VQF"]

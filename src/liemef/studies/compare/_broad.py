@@ -4,7 +4,8 @@ BROAD (Berlin Robust Orientation Estimation Assessment Dataset) records an IMU (
 magnetometer at 285.7 Hz) with optical motion-capture attitude as the truth. The trials are the ones present in
 the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filter gets:
 
-- the same log (:func:`liemef.studies.datasets.broad_to_log`);
+- the same log (:func:`liemef.studies.datasets.broad_to_log`), but for the filters of :data:`OWN_TIME`, which
+  take gyro sample k over the interval that ends at t_k, as `vqf-broad` does;
 - the same initial estimate, TRIAD from the first 50 samples at rest, with zero bias;
 - for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
 
@@ -40,11 +41,17 @@ from pathlib import Path
 import numpy as np
 
 from ...filters import MinimumEnergyFilter
-from ...filters.baselines import Madgwick, Mahony, invariant_ekf, ukf_m
+from ...filters.baselines import VQF, Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...systems import attitude_gyro_bias
-from ...systems.attitude_bias import initial_estimate, magnetic_dip
+from ...systems.attitude_bias import (
+    attitude_velocity_state,
+    imu_velocity_log,
+    initial_estimate,
+    magnetic_dip,
+    rest_norms,
+)
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
 
@@ -53,52 +60,108 @@ SCHEMA = "liemef.compare.broad/1"
 
 REFERENCE_ACCURACY_DEG = 0.35
 """The optical truth's accuracy (the dataset README's median agreement of the accelerometer at rest)."""
+def _plain(ctx):
+    return attitude_gyro_bias(dip=ctx["dip"])
+
+
+def _tuned(ctx, system):
+    """The trial's tuned parameters if the tuning file is for ``system``, else the system's defaults."""
+    from ..tune import system_from
+
+    params = ctx["params"] if ctx.get("tuned_system", "attitude-imu") == system else {}
+    return system_from(params, {k: ctx[k] for k in ("dip", "gravity", "field")}, system)
+
+
+def _imu(ctx):
+    return _tuned(ctx, "attitude-imu")
+
+
+def _velocity(ctx):
+    return _tuned(ctx, "attitude-velocity")
+
+
 BROAD_FILTERS = {
-    "mef": ("minimum-energy filter, second order, (0)-connection", lambda dip: MinimumEnergyFilter(
-        attitude_gyro_bias(dip=dip))),
-    "mef-first": ("first-order minimum-energy filter", lambda dip: MinimumEnergyFilter(
-        attitude_gyro_bias(dip=dip), order="first")),
-    "mef-minus": ("minimum-energy filter, (-)-connection", lambda dip: MinimumEnergyFilter(
-        attitude_gyro_bias(dip=dip), connection="minus")),
-    "mef-plus": ("minimum-energy filter, (+)-connection", lambda dip: MinimumEnergyFilter(
-        attitude_gyro_bias(dip=dip), connection="plus")),
+    "mef": ("minimum-energy filter, second order, (0)-connection", lambda c: MinimumEnergyFilter(_plain(c))),
+    "mef-first": ("first-order minimum-energy filter", lambda c: MinimumEnergyFilter(_plain(c), order="first")),
+    "mef-minus": ("minimum-energy filter, (-)-connection", lambda c: MinimumEnergyFilter(
+        _plain(c), connection="minus")),
+    "mef-plus": ("minimum-energy filter, (+)-connection", lambda c: MinimumEnergyFilter(
+        _plain(c), connection="plus")),
     "mef-robust": ("minimum-energy filter with Huber losses on the accelerometer and the magnetometer",
-                   lambda dip: MinimumEnergyFilter(attitude_gyro_bias(dip=dip, acc_robust="huber",
-                                                                      mag_robust="huber"))),
-    "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda dip: invariant_ekf(attitude_gyro_bias(dip=dip))),
-    "ukf-left": ("UKF-M, left retraction", lambda dip: ukf_m(attitude_gyro_bias(dip=dip))),
-    "madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041", lambda dip: Madgwick(attitude_gyro_bias(dip=dip))),
-    "madgwick-broad": ("ahrs Madgwick, BROAD's beta = 0.12", lambda dip: Madgwick(attitude_gyro_bias(dip=dip),
-                                                                                   gain=0.12)),
-    "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3", lambda dip: Mahony(attitude_gyro_bias(dip=dip))),
+                   lambda c: MinimumEnergyFilter(attitude_gyro_bias(dip=c["dip"], acc_robust="huber",
+                                                                    mag_robust="huber"))),
+    "mef-imu": ("minimum-energy filter, IMU noise model (attitude_imu: linear acceleration, magnetic "
+                "disturbance, heading-only magnetometer)", lambda c: MinimumEnergyFilter(_imu(c))),
+    "mef-imu-first": ("first-order minimum-energy filter, IMU noise model",
+                      lambda c: MinimumEnergyFilter(_imu(c), order="first")),
+    "mef-imu-d": ("minimum-energy filter, IMU noise model, samples at their own time (updates='discrete', gyro "
+                  "sample k over the interval ending at t_k as in vqf-broad)",
+                  lambda c: MinimumEnergyFilter(_imu(c), updates="discrete")),
+    "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
+                        lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete")),
+    "mef-vel": ("minimum-energy filter, bounded-velocity model (attitude_velocity: linear acceleration as a "
+                "velocity state, heading-only magnetometer), samples at their own time",
+                lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete")),
+    "mef-vel-first": ("first-order minimum-energy filter, bounded-velocity model, samples at their own time",
+                      lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete")),
+    "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
+                 lambda c: invariant_ekf(_velocity(c))),
+    "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
+    "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
+    "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
+    "vqf": ("VQF (Laidig and Seel 2023), online, its defaults", lambda c: VQF(_imu(c))),
+    "vqf-offline": ("VQF, offline (acausal), its defaults", lambda c: VQF(_imu(c), offline=True)),
+    "vqf-broad": ("VQF, online, in BROAD's indexing (one sample ahead of the other filters)",
+                  lambda c: VQF(_imu(c), broad_indexing=True)),
+    "madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041", lambda c: Madgwick(_plain(c))),
+    "madgwick-broad": ("ahrs Madgwick, BROAD's beta = 0.12", lambda c: Madgwick(_plain(c), gain=0.12)),
+    "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3", lambda c: Mahony(_plain(c))),
     "mahony-broad": ("ahrs Mahony, BROAD's Kp = 0.74, Ki = 0.0012",
-                     lambda dip: Mahony(attitude_gyro_bias(dip=dip), k_P=0.74, k_I=0.0012)),
+                     lambda c: Mahony(_plain(c), k_P=0.74, k_I=0.0012)),
 }
-"""The filters of the BROAD study: a description and a factory from the trial's magnetic dip."""
+"""The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
+gravity and field at rest, and the IMU model's parameters)."""
+OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-first", "iekf-vel"})
+"""The filters that take every sample at its own time, as ``vqf-broad`` does: the hybrid update
+(``updates="discrete"``: state k has seen y_k) and gyro sample k as the rate over the interval that ends at t_k
+(``broad_to_log(..., gyro="backward")``), so state k has seen gyro, accelerometer and magnetometer sample k."""
+DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d",
+                   "mef-vel", "mef-vel-first", "iekf-vel", "iekf",
+                   "ukf-left", "vqf", "vqf-offline", "vqf-broad", "madgwick", "madgwick-broad", "mahony",
+                   "mahony-broad")
+"""The filters run by default (every one but ``iekf-imu`` and ``mef-imu-d-first``)."""
 PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
-             "24": {"madgwick": 1.8, "mahony": 2.1}}
+             "24": {"madgwick": 1.8, "mahony": 2.1}, "10": {"madgwick": 3.6, "mahony": 2.8},
+             "16": {"madgwick": 4.8, "mahony": 20.3}, "28": {"madgwick": 8.3, "mahony": 6.3},
+             "33": {"madgwick": 7.1, "mahony": 11.0}}
 """Total rms (deg) of BROAD's own Madgwick (beta = 0.12) and Mahony (Kp = 0.74, Ki = 0.0012) per trial, one
 parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
 METRICS = ("total", "heading", "inclination")
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
+K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
+"""K0 of the bounded-velocity model: K0's attitude and bias, and (0.1 m/s)^2 on the velocity (at rest)."""
 
 
 @dataclass(frozen=True)
 class BroadComparison:
-    """The study's settings: ``trials`` (ids of :data:`liemef.studies.datasets.BROAD_TRIALS`; default: every one
-    present), ``seconds`` (the head of each trial; default: whole trials), ``filters``, ``realdata`` (the folder;
-    default :func:`liemef.studies.datasets.realdata_dir`)."""
+    """The study's settings: ``trials`` (ids of the trials present, read from the files by
+    :func:`liemef.studies.datasets.broad_trials`; default: every one), ``seconds`` (the head of each trial;
+    default: whole trials), ``filters``, ``realdata`` (the folder;
+    default :func:`liemef.studies.datasets.realdata_dir`), ``params``: a tuning file (``liemef tune``) for the
+    IMU model (``mef-imu``, ...): trial i uses the parameters tuned without it when the file has that fold
+    (leave-one-out, held-out errors), else its final set; default :func:`liemef.systems.attitude_imu`'s."""
 
     trials: tuple[str, ...] | str | None = None
     seconds: float | None = None
     filters: tuple[str, ...] | str | None = None
     realdata: str | None = None
+    params: str | None = None
 
     def __post_init__(self):
-        folder, present = realdata_present(self.realdata, datasets.BROAD_TRIALS)
+        folder, present = realdata_present(self.realdata, datasets.broad_trials, datasets.BROAD_DIR)
         trials = self.trials
         if trials is None:
-            trials = present
+            trials = tuple(present)
         elif isinstance(trials, str | int):
             trials = tuple(t.strip() for t in str(trials).split(","))
         # ids are two digits ("07"); a number given on the command line (7, 24) means the same trial
@@ -107,7 +170,11 @@ class BroadComparison:
         if not trials or unknown:
             raise ValueError(f"trials: expected BROAD trials present in {folder} from {list(present)}, got "
                              f"{list(trials)}")
-        names = parse_names("filters", self.filters, BROAD_FILTERS, tuple(BROAD_FILTERS))
+        names = parse_names("filters", self.filters, BROAD_FILTERS, DEFAULT_FILTERS)
+        if self.params is not None:
+            from ..tune import load
+
+            load(self.params)  # checked before any run
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
@@ -155,21 +222,36 @@ def error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray,
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
     """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
     st = BroadComparison() if study is None else study
-    folder = Path(st.realdata)
+    from ..tune import load, params_for
+
+    paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
+    tuned = None if st.params is None else load(st.params)
     per_trial, winners, arrays = {}, {}, {}
     for tid in st.trials:
-        trial = datasets.broad(folder / datasets.BROAD_TRIALS[tid])
+        trial = datasets.broad(paths[tid])
         if st.seconds is not None:
             trial = trial.head(st.seconds)
         dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
-        log = datasets.broad_to_log(trial)
+        gravity, fld = rest_norms(trial.acc[trial.rest], trial.mag[trial.rest])
+        logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
+        logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
+                                                            float(trial.ts[0]), gyro="backward"))
         g0 = initial_estimate(trial.acc[:50], trial.mag[:50])
+        params = {} if tuned is None else params_for(tuned, tid)
+        ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params,
+               "tuned_system": None if tuned is None else tuned["system"]}
         rows = {}
         for name in st.filters:
             t0 = time.perf_counter()
-            flt = BROAD_FILTERS[name][1](dip)
-            state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
-            traj = flt.run(state, log.ts, log.us, log.ys)
+            flt = BROAD_FILTERS[name][1](ctx)
+            velocity = flt.system.group.tangent_dim == 9
+            if velocity:
+                state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
+            else:
+                state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
+            log = logs["velocity" if velocity else "backward" if name in OWN_TIME else "forward"]
+            ys = log.ys if flt.system.output_dim == log.ys.shape[1] else log.ys[:, :flt.system.output_dim]
+            traj = flt.run(state, log.ts, log.us, ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
             status = traj.status
             arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
@@ -185,7 +267,8 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                 print(f"  trial {tid} {name:15s} total {fmt(r['total'])}, heading {fmt(r['heading'])}, inclination "
                       f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", flush=True)
         per_trial[tid] = {"file": trial.name, "seconds": float(trial.ts[-1] - trial.ts[0]),
-                          "dip_deg": math.degrees(dip), "filters": rows,
+                          "dip_deg": math.degrees(dip), "gravity": gravity, "field_uT": fld,
+                          "imu_params": params, "filters": rows,
                           "published": PUBLISHED.get(tid) if st.seconds is None else None}
         winners[tid] = {}
         for m in METRICS:
@@ -203,10 +286,17 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
         return None if any(x is None for x in v) else float(np.mean(v))
 
     means = {n: {m: mean(n, m) for m in METRICS} for n in st.filters}
+    ratio = {}
+    if "vqf" in st.filters:
+        for n in st.filters:
+            v = [(per_trial[t]["filters"][n]["total"], per_trial[t]["filters"]["vqf"]["total"]) for t in st.trials]
+            ratio[n] = None if any(a is None or b is None for a, b in v) else float(max(a / b for a, b in v))
     return {"study": {**dataclasses.asdict(st), "weights": "attitude_gyro_bias() defaults for every trial, dip "
                       "measured at rest per trial", "K0": "diag(0.05^2 I3, 0.01^2 I3)",
-                      "initial": "TRIAD of the first 50 samples, zero bias"},
-            "trials": per_trial, "means": means, "winners": winners, "arrays": arrays}
+                      "initial": "TRIAD of the first 50 samples, zero bias",
+                      "imu_params": "attitude_imu() defaults" if tuned is None else
+                      f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"},
+            "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners, "arrays": arrays}
 
 
 def markdown(result: dict) -> str:
@@ -227,6 +317,15 @@ def markdown(result: dict) -> str:
             cells.append(f"{fmt(r['total'])} / {fmt(r['heading'])} / {fmt(r['inclination'])}"
                          + ("" if r["ok"] else f" ({r['status']})"))
         lines.append(f"| {n} | " + " | ".join(cells) + f" | {fmt(result['means'][n]['total'])} |")
+    lines += ["", "## Total rms per trial [deg], and against VQF", "",
+              "| filter | " + " | ".join(st["trials"]) + " | mean | worst ratio to vqf |",
+              "|---|" + "---:|" * (len(st["trials"]) + 2)]
+    for n in names:
+        tot = [result["trials"][t]["filters"][n]["total"] for t in st["trials"]]
+        ratio = result.get("ratio_to_vqf", {}).get(n)
+        lines.append(f"| {n} | " + " | ".join(fmt(v) for v in tot) + f" | {fmt(result['means'][n]['total'])} | "
+                     + ("-" if ratio is None else f"{ratio:.2f}") + " |")
+    lines.append("")
     pub = [result["trials"][t]["published"] for t in st["trials"]]
     if all(p is not None for p in pub):
         for who in ("madgwick", "mahony"):

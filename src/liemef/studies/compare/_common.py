@@ -4,7 +4,7 @@ and the tables and figures of a study."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -69,16 +69,18 @@ def check_counts(settings, *names: str) -> None:
             raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
 
 
-def realdata_present(realdata: str | None, table: Mapping[str, str]) -> tuple[Path, tuple[str, ...]]:
-    """The real-data folder (``realdata``, else :func:`liemef.studies.datasets.realdata_dir`) and the ids of ``table``
-    (id -> path inside it) whose files are present."""
+def realdata_present(realdata: str | None, find: Callable[[Path], Mapping[str, Path]], sub: str
+                     ) -> tuple[Path, dict[str, Path]]:
+    """The real-data folder (``realdata``, else :func:`liemef.studies.datasets.realdata_dir`) and the recordings
+    ``find(folder / sub)`` finds in it (id -> file, read from the files themselves, e.g.
+    :func:`liemef.studies.datasets.broad_trials`)."""
     from .. import datasets
 
     folder = Path(realdata) if realdata is not None else datasets.realdata_dir()
     if folder is None or not folder.is_dir():
         raise ValueError(f"realdata: expected the real-data folder (set {datasets.ENV_VAR} or give realdata=PATH), "
                          f"got {realdata or 'none found'}")
-    return folder, tuple(k for k, rel in table.items() if (folder / rel).is_file())
+    return folder, dict(find(folder / sub))
 
 
 def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> dict:

@@ -51,9 +51,10 @@ METRICS = (("heading_rms", "heading rms", "deg"), ("position_rms", "position rms
 
 @dataclass(frozen=True)
 class WifibotComparison:
-    """The study's settings: the Wifibot ``recordings`` present (ids of :data:`liemef.studies.datasets.WIFIBOT_RUNS`;
-    default all present), ``runs`` GPS seeds from ``seed``, the GPS ``gps_rate`` (Hz) and ``gps_std`` (m),
-    ``filters``, and ``realdata`` (default :func:`liemef.studies.datasets.realdata_dir`)."""
+    """The study's settings: the Wifibot ``recordings`` present (ids of
+    :func:`liemef.studies.datasets.wifibot_runs`, read from the files; default all present), ``runs`` GPS seeds
+    from ``seed``, the GPS ``gps_rate`` (Hz) and ``gps_std`` (m), ``filters``, and ``realdata``
+    (default :func:`liemef.studies.datasets.realdata_dir`)."""
 
     recordings: tuple[str, ...] | str | None = None
     runs: int = 20
@@ -64,8 +65,8 @@ class WifibotComparison:
     realdata: str | None = None
 
     def __post_init__(self):
-        folder, present = realdata_present(self.realdata, datasets.WIFIBOT_RUNS)
-        rec = present if self.recordings is None else tuple(str(r).strip() for r in (
+        folder, present = realdata_present(self.realdata, datasets.wifibot_runs, datasets.WIFIBOT_DIR)
+        rec = tuple(present) if self.recordings is None else tuple(str(r).strip() for r in (
             str(self.recordings).split(",") if isinstance(self.recordings, str | int) else self.recordings))
         if not rec or any(r not in present for r in rec):
             raise ValueError(f"recordings: expected Wifibot runs present in {folder} from {list(present)}, got "
@@ -96,7 +97,7 @@ def compare_wifibot(study: WifibotComparison | None = None, *, progress: bool = 
     system = planar_localization(odometry_std=ODOMETRY_STD, odometry_rate=50.0, gps_std=st.gps_std)
     out, arrays = {}, {}
     for rid in st.recordings:
-        run = datasets.wifibot(folder / datasets.WIFIBOT_RUNS[rid])
+        run = datasets.wifibot(datasets.wifibot_runs(folder / datasets.WIFIBOT_DIR)[rid])
         logs = [datasets.wifibot_to_log(run, st.gps_rate, st.gps_std, seed=st.seed + i) for i in range(st.runs)]
         ys = np.stack([lg.ys for lg in logs])
         ts, us = logs[0].ts, logs[0].us

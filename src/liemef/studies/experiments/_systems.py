@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, planar_localization
+from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, attitude_imu, planar_localization
 from ...systems import attitude_bias as _attitude_bias
 from .. import registry
 from . import attitude, chaplygin, unit_circle
@@ -66,6 +66,8 @@ SYSTEMS: dict[str, SystemSpec] = {
     "attitude-bias": SystemSpec(
         "attitude-bias", registry.SYSTEMS["attitude-bias"],
         attitude_gyro_bias, _attitude_bias.measured_state),
+    "attitude-imu": SystemSpec(
+        "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state),
     "localization": SystemSpec(
         "localization", registry.SYSTEMS["localization"],
         planar_localization, _gps_state),

@@ -1,0 +1,449 @@
+r"""``liemef tune``: fit a system's noise levels (and its noise model's parameters) to recorded data, across
+several recordings, with leave-one-recording-out cross-validation.
+
+Objectives (:data:`OBJECTIVES`):
+
+* ``"truth"``: the attitude error against a truth (BROAD's total rms over its movement mask, deg);
+* ``"nll"``: the innovations' negative log-likelihood, which needs no truth. Before sample $k$ is used, the
+  filter predicts it: $\nu_k = y_k - h(\hat g_k)$ with covariance $S_k = Dh\,K_k\,Dh^\top + \Sigma(y_k)$ (K is
+  the covariance of the left error, $\Sigma(y)$ the sample's own noise under the system's noise model). The cost is
+  $\frac{1}{N}\sum_k \tfrac12 (\nu_k^\top S_k^{-1}\nu_k + \log\det S_k)$. A direction sensor (a unit vector) has
+  two degrees of freedom: its innovation and covariance are taken in the tangent plane at $h(\hat g_k)$.
+
+Search: derivative-free (scipy's Nelder-Mead) over the logarithms of the parameters. The filter's adaptive
+sub-steps (a ``while_loop``) have no reverse-mode derivative, and the noise model's weights move the sub-step
+count, so the objective is piecewise smooth at best: a gradient through the compiled filter does not exist
+where it would be needed. Every evaluation reuses the compiled filter (the parameters are array leaves).
+
+Cross-validation: for each recording $i$, the parameters are tuned on the others and evaluated on $i$ (its
+*held-out* error); the report puts it beside the training error. To keep this affordable the search is shared:
+a first Nelder-Mead on all recordings records every recording's loss at every point it visits; each fold
+starts from the visited point that is best on its own training recordings and refines it with a shorter
+Nelder-Mead on them. The final set (for unseen recordings) is the search's best on all recordings.
+Objectives may be computed on each recording's first ``seconds`` (windowed, for speed); the held-out
+evaluation of :func:`liemef.studies.compare.compare_broad` then runs whole recordings.
+
+The result is saved as JSON (:func:`save`, :func:`load`): the system's name, the parameters, and per fold the
+parameters tuned without that recording, which ``liemef run``, ``liemef compare broad`` and
+:func:`system_from` accept.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..reports import io
+
+OBJECTIVES = ("truth", "nll")
+PARAMETERS = {
+    "acc_std": (1e-3, 1.0),
+    "mag_std": (1e-3, 1.0),
+    "acc_adapt": (1e-2, 100.0),
+    "acc_norm_tol": (1e-3, 10.0),
+    "mag_adapt": (1e-2, 100.0),
+    "dip_std": (1e-3, 3.0),
+    "bias_walk": (1e-7, 1e-2),
+    "gyro_std": (1e-4, 0.1),
+    "acc_density": (1e-4, 1.0),
+    "velocity_std": (1e-2, 10.0),
+}
+"""The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
+DEFAULT_PARAMETERS = ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")
+SYSTEM = "attitude-imu"
+"""The default system of a tuning file."""
+SYSTEMS = {
+    "attitude-imu": ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk",
+                     "gyro_std"),
+    "attitude-velocity": ("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density",
+                          "velocity_std"),
+}
+"""The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
+:func:`liemef.systems.attitude_velocity`) and the parameters each takes."""
+DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
+                 "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
+"""The parameters :func:`tune` fits by default, per system."""
+FORMAT = "liemef-tune-1"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One recording to tune on: its log, the structural constants of its system (``dip``, ``gravity``,
+    ``field``, measured at rest), the initial state, and optionally its truth (quaternions (w, x, y, z) body
+    -> world) with the mask of samples the error counts."""
+
+    name: str
+    ts: np.ndarray
+    us: np.ndarray
+    ys: np.ndarray
+    constants: dict
+    g0: object
+    K0: np.ndarray
+    quat_true: np.ndarray | None = None
+    mask: np.ndarray | None = None
+    system: str = SYSTEM
+
+
+def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None = None,
+                     realdata: str | None = None, *, lead: float = 5.0, gyro: str = "forward",
+                     system: str = SYSTEM) -> list[Recording]:
+    """The BROAD trials present (:func:`liemef.studies.datasets.broad_trials`) as recordings for
+    :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest.
+
+    Whole trials (``seconds`` None) start as ``liemef compare broad`` does: TRIAD of the first 50 samples, zero
+    bias and its ``K0``. A window (``seconds``) starts ``lead`` s before the first movement and lasts
+    ``lead + seconds`` s: TRIAD of its first 50 samples (at rest) and the mean gyro over the rest before it as
+    the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
+    the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
+    ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``). ``system``: a key of :data:`SYSTEMS`;
+    ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.attitude_bias.imu_velocity_log`), the state
+    with a velocity at rest and ``K0_VELOCITY``."""
+    from ..reports import io as _io
+    from ..systems.attitude_bias import (
+        attitude_velocity_state,
+        imu_velocity_log,
+        initial_estimate,
+        magnetic_dip,
+        rest_norms,
+    )
+    from . import datasets
+    from .compare._broad import K0, K0_VELOCITY
+
+    if system not in SYSTEMS:
+        raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
+    velocity = system == "attitude-velocity"
+
+    folder = None if realdata is None else Path(realdata) / datasets.BROAD_DIR
+    found = datasets.broad_trials(folder)
+    ids = list(found) if trials is None else [f"{int(t):02d}" if str(t).isdigit() else str(t) for t in trials]
+    missing = [t for t in ids if t not in found]
+    if not ids or missing:
+        raise ValueError(f"trials: expected BROAD trials present from {list(found)}, got {ids}")
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds: expected a window > 0 s or None, got {seconds!r}")
+    out = []
+    for tid in ids:
+        tr = datasets.broad(found[tid])
+        rest = tr.rest
+        gravity, fld = rest_norms(tr.acc[rest], tr.mag[rest])
+        constants = {"dip": magnetic_dip(tr.acc[rest], tr.mag[rest]), "gravity": gravity, "field": fld}
+        if velocity:
+            log = _io.RecordedLog(*imu_velocity_log(tr.gyr, tr.acc, tr.mag, tr.rate, float(tr.ts[0]), gyro=gyro))
+        else:
+            log = datasets.broad_to_log(tr, norms=True, gyro=gyro)
+        if seconds is None:
+            g0 = initial_estimate(tr.acc[:50], tr.mag[:50])
+            out.append(Recording(tid, log.ts, log.us, log.ys, constants,
+                                 attitude_velocity_state(g0) if velocity else g0, K0_VELOCITY if velocity else K0,
+                                 tr.quat_true, tr.movement, system))
+            continue
+        k_move = int(rest.sum())
+        a = max(0, k_move - int(lead * tr.rate))
+        b = min(len(tr.ts), k_move + int(seconds * tr.rate))
+        bias = tr.gyr[:a].mean(axis=0) if a > 0 else np.zeros(3)
+        w = slice(a, b)
+        g0 = initial_estimate(tr.acc[a:a + 50], tr.mag[a:a + 50], bias)
+        k0 = [0.05**2] * 3 + [0.002**2] * 3 + ([0.1**2] * 3 if velocity else [])
+        out.append(Recording(tid, log.ts[w], log.us[w], log.ys[w], constants,
+                             attitude_velocity_state(g0) if velocity else g0, np.diag(k0), tr.quat_true[w],
+                             tr.movement[w], system))
+    return out
+
+
+def system_from(params: dict, constants: dict, system: str = SYSTEM):
+    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu` or
+    :func:`liemef.systems.attitude_velocity`) with the recording's ``constants`` and the tuned ``params``."""
+    from ..systems import attitude_imu, attitude_velocity
+
+    if system not in SYSTEMS:
+        raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
+    unknown = sorted(set(params) - set(SYSTEMS[system]))
+    if unknown:
+        raise ValueError(f"params: expected names from {sorted(SYSTEMS[system])}, got {unknown}")
+    factory = attitude_imu if system == "attitude-imu" else attitude_velocity
+    return factory(**constants, **{k: float(v) for k, v in params.items()})
+
+
+# --- objectives -------------------------------------------------------------------------------------------------
+def truth_error(rec: Recording, quat: np.ndarray) -> float:
+    """BROAD's total rms (deg) of the estimate against the recording's truth over its mask."""
+    from .compare._broad import broad_errors
+
+    if rec.quat_true is None:
+        raise ValueError(f"objective: 'truth' needs a truth; recording {rec.name!r} has none")
+    e = broad_errors(quat, rec.quat_true, rec.mask if rec.mask is not None else np.ones(len(rec.ts), bool))
+    return float("inf") if e["total"] is None else e["total"]
+
+
+def innovation_nll(system, traj, ys: np.ndarray) -> float:
+    """The innovations' mean negative log-likelihood (module docstring) of the direction sensors ``acc`` and
+    ``mag`` over the samples where they are present (``inf`` if it is not finite)."""
+    import jax.numpy as jnp
+
+    vals = np.asarray(_nll_terms(system, traj.g_hat, traj.K, jnp.asarray(ys)))
+    return float(np.mean(vals)) if np.all(np.isfinite(vals)) else float("inf")
+
+
+def _nll_one(system, g, K, y):
+    import jax.numpy as jnp
+
+    from ..filters._derivatives import left_jacobian
+
+    h, Dh = left_jacobian(lambda gg: system.output(gg, 0.0), g)
+    T = system.sample_transform(jnp.where(jnp.isfinite(y), y, 0.0))
+    Wy = T.T @ system.information() @ T
+    total = 0.0
+    for b in system.blocks():
+        if b.name not in ("acc", "mag") or _constant(system, b.name):
+            continue
+        sl = slice(b.start, b.stop)
+        hb = h[sl]
+        # an orthonormal basis of the tangent plane at h (a unit vector): the sample's two degrees of freedom
+        a = jnp.where(jnp.abs(hb[0]) < 0.9, jnp.array([1.0, 0.0, 0.0]), jnp.array([0.0, 1.0, 0.0]))
+        e1 = jnp.cross(hb, a)
+        e1 = e1 / jnp.linalg.norm(e1)
+        P = jnp.stack([e1, jnp.cross(hb, e1)])
+        ok = jnp.all(jnp.isfinite(y[sl]))
+        nu = P @ (jnp.where(ok, y[sl], hb) - hb)
+        S = P @ (Dh[sl] @ K @ Dh[sl].T + jnp.linalg.inv(Wy[sl, sl])) @ P.T
+        val = 0.5 * (nu @ jnp.linalg.solve(S, nu) + jnp.linalg.slogdet(S)[1])
+        total = total + jnp.where(ok, val, 0.0)
+    return total
+
+
+def _constant(system, name: str) -> bool:
+    """Whether the sensor ``name``'s output does not depend on the state (a covariate, not a measurement)."""
+    from ..systems.attitude_bias import ConstantOutput
+
+    return any(s.name == name and isinstance(s.fn, ConstantOutput) for s in system.sensors)
+
+
+def _nll_terms_impl(system, g, K, ys):
+    import jax
+
+    return jax.vmap(lambda gg, KK, y: _nll_one(system, gg, KK, y))(g, K, ys)
+
+
+def _lazy_jit():
+    import equinox as eqx
+
+    return eqx.filter_jit(_nll_terms_impl)
+
+
+_NLL_JIT = []
+
+
+def _nll_terms(system, g, K, ys):
+    """Per sample, the NLL terms; compiled once per system structure (the noise levels are leaves)."""
+    if not _NLL_JIT:
+        _NLL_JIT.append(_lazy_jit())
+    return _NLL_JIT[0](system, g, K, ys)
+
+
+def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: str = "second",
+             engine: str | None = None, updates: str = "hold") -> float:
+    """One recording's loss under ``params``: run the minimum-energy filter (``order``, ``updates``) and score it;
+    a failed run scores ``inf``."""
+    from ..filters import MinimumEnergyFilter
+
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
+    system = system_from(params, rec.constants, rec.system)
+    flt = MinimumEnergyFilter(system, order=order, updates=updates)
+    traj = flt.run(flt.init(rec.g0, rec.K0), rec.ts, rec.us, rec.ys, engine=engine)
+    if int(traj.status.code) != 0:
+        return float("inf")
+    if objective == "truth":
+        return truth_error(rec, np.asarray(traj.g_hat.factors[0].wxyz))
+    return innovation_nll(system, traj, rec.ys)
+
+
+# --- the search -------------------------------------------------------------------------------------------------
+@dataclass
+class _Cache:
+    """Every visited point (log10 parameters) and every recording's loss there."""
+
+    points: list = field(default_factory=list)
+    losses: list = field(default_factory=list)
+
+
+def _to_params(names, x) -> dict:
+    out = {}
+    for n, v in zip(names, x, strict=True):
+        lo, hi = PARAMETERS[n]
+        out[n] = float(10.0 ** np.clip(v, math.log10(lo), math.log10(hi)))
+    return out
+
+
+def _search(loss_of: Callable[[np.ndarray], np.ndarray], weights: np.ndarray, x0: np.ndarray, maxfev: int,
+            step: float) -> np.ndarray:
+    """Nelder-Mead on the mean over the recordings with ``weights`` (1 = in the training set), from ``x0``."""
+    from scipy.optimize import minimize
+
+    def f(x):
+        v = loss_of(x)[weights > 0]
+        m = float(np.mean(v))
+        return m if math.isfinite(m) else 1e300
+
+    simplex = np.vstack([x0] + [x0 + step * e for e in np.eye(len(x0))])
+    res = minimize(f, x0, method="Nelder-Mead", options={"maxfev": maxfev, "initial_simplex": simplex,
+                                                         "xatol": 0.02, "fatol": 1e-4})
+    return np.asarray(res.x)
+
+
+def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, objective: str = "truth", *,
+         start: dict | None = None, maxfev: int = 40, fold_maxfev: int = 12, step: float = 0.5,
+         order: str = "second", updates: str = "hold", progress: bool = True) -> dict:
+    """Tune ``names`` on ``recordings`` with leave-one-recording-out cross-validation (module docstring).
+
+    Args:
+        recordings: two or more :class:`Recording` (e.g. :func:`broad_recordings`).
+        names: the parameters to tune (of the recordings' system, :data:`SYSTEMS`; default
+            :data:`DEFAULT_NAMES`); the others stay at ``start`` or the system's defaults.
+        objective: ``"truth"`` or ``"nll"``.
+        start: the starting values (default: :func:`liemef.systems.attitude_imu`'s defaults).
+        maxfev: evaluations of the shared search (each runs every recording).
+        fold_maxfev: evaluations of each fold's refinement (each runs the fold's training recordings).
+        step: the initial simplex's size, in decades.
+        order: the filter's order.
+        updates: the filter's sample updates (``"discrete"``: samples at their own time; give it recordings with
+            ``gyro="backward"``).
+        progress: a tqdm progress bar (on stderr).
+
+    Returns ``{"system", "objective", "names", "params", "folds": {name: {"params", "train", "held_out"}},
+    "evaluations", "elapsed_s"}``.
+    """
+    import inspect
+
+    from ..systems import attitude_imu, attitude_velocity
+
+    recs = list(recordings)
+    if len(recs) < 2 or not all(isinstance(r, Recording) for r in recs):
+        raise ValueError(f"recordings: expected two or more Recording objects, got {len(recs)}")
+    systems = {r.system for r in recs}
+    if len(systems) != 1:
+        raise ValueError(f"recordings: expected recordings of one system, got {sorted(systems)}")
+    sysname = systems.pop()
+    allowed = SYSTEMS[sysname]
+    names = DEFAULT_NAMES[sysname] if names is None else tuple(names)
+    bad = [n for n in names if n not in allowed]
+    if not names or bad or len(set(names)) != len(names):
+        raise ValueError(f"names: expected distinct parameter names from {sorted(allowed)}, got {list(names)}")
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
+    factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
+    defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
+    base = {**defaults, **(start or {})}
+    unknown = sorted(set(base) - set(allowed))
+    if unknown:
+        raise ValueError(f"start: expected names from {sorted(allowed)}, got {unknown}")
+    x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
+    fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
+    R = len(recs)
+    cache, t0 = _Cache(), time.perf_counter()
+    total = maxfev + 2 * len(names) + 2 + R * (fold_maxfev + len(names) + 2)
+    bar = _progress(total, progress)
+
+    def run(x, which):
+        """Losses of the recordings ``which`` (bool mask) at x; those already computed there are reused."""
+        key = tuple(np.round(x, 12))
+        if key in cache.points:
+            losses = cache.losses[cache.points.index(key)]
+        else:
+            losses = np.full(R, np.nan)
+            cache.points.append(key)
+            cache.losses.append(losses)
+            bar.update(1)
+        params = {**fixed, **_to_params(names, x)}
+        for i in np.flatnonzero(which & np.isnan(losses)):
+            losses[i] = evaluate(recs[i], params, objective, order=order, updates=updates)
+        return losses
+
+    everyone = np.ones(R, bool)
+    x_all = _search(lambda x: run(x, everyone), everyone.astype(float), x0, maxfev, step)
+    folds = {}
+    for i, rec in enumerate(recs):
+        train = everyone.copy()
+        train[i] = False
+        full = [(float(np.mean(ls[train])), p) for p, ls in zip(cache.points, cache.losses, strict=True)
+                if np.all(np.isfinite(ls[train]))]
+        start_i = np.array(min(full)[1]) if full else x_all
+        x_i = _search(lambda x, tr=train: run(x, tr), train.astype(float), start_i, fold_maxfev, step / 2)
+        losses = run(x_i, everyone)
+        folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)}, "train": float(np.mean(losses[train])),
+                           "held_out": float(losses[i])}
+        bar.set_postfix_str(f"fold {rec.name}: held-out {losses[i]:.3g}")
+    final = run(x_all, everyone)
+    bar.close()
+    held = [f["held_out"] for f in folds.values()]
+    return {"format": FORMAT, "system": sysname, "objective": objective, "names": list(names), "order": order,
+            "updates": updates,
+            "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
+            "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
+            "folds": folds, "held_out_mean": float(np.mean(held)),
+            "train_mean": float(np.mean([f["train"] for f in folds.values()])),
+            "evaluations": len(cache.points), "elapsed_s": time.perf_counter() - t0}
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="tune", unit="point", disable=not enabled, leave=True)
+
+
+# --- the tuned set as a file --------------------------------------------------------------------------------------
+def save(result: dict, path: str | Path) -> Path:
+    """Write a tuning result (:func:`tune`) as JSON."""
+    return io.write_json(Path(path), result)
+
+
+def load(path: str | Path) -> dict:
+    """Read a tuning file (:func:`save`), checked: its format, system, parameter names and values."""
+    p = io._existing_file(path, "params")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"params: cannot read {str(p)!r} as a liemef tuning file (JSON): {err}") from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("system") not in SYSTEMS:
+        raise ValueError(f"params: expected a liemef tuning file (format {FORMAT!r}, system from {list(SYSTEMS)}), got "
+                         f"{str(p)!r} with format {data.get('format') if isinstance(data, dict) else None!r}")
+    for where, params in [("params", data.get("params"))] + [(f"folds.{k}.params", v.get("params"))
+                                                            for k, v in (data.get("folds") or {}).items()]:
+        if not isinstance(params, dict) or set(params) - set(SYSTEMS[data["system"]]) or not all(
+                isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in params.values()):
+            allowed = sorted(SYSTEMS[data["system"]])
+            raise ValueError(f"params: {str(p)!r}: expected {where} to map names from {allowed} to numbers >= 0, "
+                             f"got {params!r}")
+    return data
+
+
+def params_for(tuned: dict, recording: str | None = None) -> dict:
+    """The parameters to use on ``recording``: its fold's (tuned without it) if the file has one, else the
+    file's final set."""
+    folds = tuned.get("folds") or {}
+    if recording is not None and recording in folds:
+        return dict(folds[recording]["params"])
+    return dict(tuned["params"])
+
+
+def markdown(result: dict) -> str:
+    """The tuning report: per recording the held-out loss beside the training loss, and the parameters."""
+    unit = "deg (BROAD total rms)" if result["objective"] == "truth" else "(mean NLL per sample)"
+    lines = [f"# liemef tune: {result['system']}, objective {result['objective']} {unit}", "",
+             f"{result['evaluations']} points, {result['elapsed_s']:.0f} s. Leave-one-recording-out: each row's "
+             "parameters were tuned without that recording.", "",
+             "| recording | held-out | training (the other recordings) | " + " | ".join(result["names"]) + " |",
+             "|---|---:|---:|" + "---:|" * len(result["names"])]
+    for name, f in result["folds"].items():
+        lines.append(f"| {name} | {f['held_out']:.3f} | {f['train']:.3f} | "
+                     + " | ".join(f"{f['params'][n]:.4g}" for n in result["names"]) + " |")
+    lines.append(f"| mean | {result['held_out_mean']:.3f} | {result['train_mean']:.3f} | |")
+    lines += ["", "Final set (all recordings): " + ", ".join(f"{k} = {v:.4g}" for k, v in result["params"].items()),
+              ""]
+    return "\n".join(lines)

@@ -1,0 +1,121 @@
+"""liemef tune (liemef.studies.tune): the likelihood fit recovers known noise levels on simulated data within
+the Monte Carlo spread, leave-one-out bookkeeping, the tuned set as a file, and its checks."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from liemef.groups import R3, SO3, TSO3
+from liemef.studies import tune as T
+from liemef.systems import attitude_bias as ab
+from test_attitude_imu import simulate
+
+ACC, MAG = 0.03, 0.06                     # the truth the fit must find
+FIXED = {"acc_adapt": 0.0, "mag_adapt": 0.0, "dip_std": 0.0, "gyro_std": ab.GYRO_STD, "bias_walk": 1e-5}
+
+
+def _recording(seed):
+    ts, us, ys, R, bias = simulate(seed=seed, duration=10.0, bursts=False, magnet=False)
+    rng = np.random.default_rng(100 + seed)
+    # directions with the known noise levels (the simulated ones replaced), renormalized
+    up = np.einsum("nji,j->ni", R, [0.0, 0.0, 1.0]) + ACC * rng.standard_normal((len(ts), 3))
+    m = np.einsum("nji,j->ni", R, ab.magnetic_reference(ab.DIP)) + MAG * rng.standard_normal((len(ts), 3))
+    ys = ys.copy()
+    ys[:, 0:3] = up / np.linalg.norm(up, axis=1, keepdims=True)
+    ys[:, 3:6] = m / np.linalg.norm(m, axis=1, keepdims=True)
+    g0 = TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.asarray(bias))))
+    return T.Recording(f"s{seed}", ts, us, ys, {"dip": ab.DIP, "gravity": 9.81, "field": 43.0}, g0,
+                       np.diag([1e-4] * 3 + [1e-6] * 3))
+
+
+@pytest.fixture(scope="module")
+def recordings():
+    return [_recording(s) for s in range(4)]
+
+
+@pytest.fixture(scope="module")
+def short():
+    return [T.Recording(r.name, r.ts[:300], r.us[:300], r.ys[:300], r.constants, r.g0, r.K0)
+            for r in (_recording(0), _recording(1))]
+
+
+@pytest.mark.slow  # about 2 minutes on a busy 2-core machine
+def test_the_likelihood_fit_recovers_the_noise_levels(recordings):
+    def fit(rec):
+        f = lambda x: T.evaluate(rec, {**FIXED, "acc_std": 10 ** x[0], "mag_std": 10 ** x[1]}, "nll")  # noqa: E731
+        return 10 ** minimize(f, np.log10([0.02, 0.05]), method="Nelder-Mead",
+                              options={"xatol": 1e-3, "fatol": 1e-6, "maxfev": 60}).x
+
+    fits = np.array([fit(r) for r in recordings])             # one per seed: the Monte Carlo spread
+    mean, sd = fits.mean(axis=0), fits.std(axis=0, ddof=1)
+    truth = np.array([ACC, MAG])
+    # the truth lies within 3 standard errors of the mean fit (plus 2 % for the model's own approximations)
+    assert np.all(np.abs(mean - truth) <= 3 * sd / 2 + 0.02 * truth), (fits, truth)
+    res = T.tune(recordings, names=("acc_std", "mag_std"), objective="nll", start={**FIXED, "acc_std": 0.02,
+                 "mag_std": 0.05}, maxfev=30, fold_maxfev=8, progress=False)
+    final = np.array([res["params"]["acc_std"], res["params"]["mag_std"]])
+    assert np.all(np.abs(final - truth) <= 3 * sd + 0.05 * truth), (final, fits)
+    assert set(res["folds"]) == {"s0", "s1", "s2", "s3"}
+    for f in res["folds"].values():
+        assert np.isfinite(f["held_out"]) and np.isfinite(f["train"])
+
+
+def test_the_tuned_set_as_a_file(tmp_path, short):
+    recordings = short
+    res = T.tune(recordings, names=("acc_std",), objective="nll",
+                 start={**FIXED, "mag_std": MAG}, maxfev=4, fold_maxfev=2, progress=False)
+    path = T.save(res, tmp_path / "tune.json")
+    back = T.load(path)
+    assert back["params"] == pytest.approx(res["params"])
+    assert T.params_for(back, "s0") == res["folds"]["s0"]["params"]
+    assert T.params_for(back, "other") == res["params"]
+    system = T.system_from(back["params"], recordings[0].constants)
+    assert float(system.sensors[0].noise.std[0]) == pytest.approx(res["params"]["acc_std"])
+    assert "held-out" in T.markdown(res)
+    (tmp_path / "bad.json").write_text('{"format": "liemef-tune-1", "system": "attitude-imu", "params": {"x": 1}}')
+    with pytest.raises(ValueError, match="^params: .* expected params to map names"):
+        T.load(tmp_path / "bad.json")
+    with pytest.raises(ValueError, match="^params: expected a liemef tuning file"):
+        T.load(_write(tmp_path / "other.json", "{}"))
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_bad_settings_are_refused(short):
+    recordings = short
+    with pytest.raises(ValueError, match="^recordings:"):
+        T.tune(recordings[:1])
+    with pytest.raises(ValueError, match="^names:"):
+        T.tune(recordings[:2], names=("nope",))
+    with pytest.raises(ValueError, match="^objective:"):
+        T.tune(recordings[:2], objective="mse")
+    with pytest.raises(ValueError, match="^objective: 'truth' needs a truth"):
+        T.evaluate(recordings[0], FIXED, "truth")
+    with pytest.raises(ValueError, match="^params:"):
+        T.system_from({"nope": 1.0}, {})
+
+
+@pytest.mark.slow  # two compilations of the 9-state model: about 30 s of CPU
+def test_the_velocity_model_tunes_and_its_file_names_it(tmp_path):
+    from test_attitude_imu import simulate_translation
+
+    recs = []
+    for seed in (0, 1):
+        ts, gyr, acc, mag, R, v = simulate_translation(seed=seed, duration=3.0)
+        _, us, ys = ab.imu_velocity_log(gyr, acc, mag, 100.0)
+        g0 = ab.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))), v[0])
+        recs.append(T.Recording(f"v{seed}", ts, us, ys, {"dip": ab.DIP, "gravity": 9.81, "field": 43.0}, g0,
+                                np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-2] * 3), system="attitude-velocity"))
+    with pytest.raises(ValueError, match="^names:"):
+        T.tune(recs, names=("acc_std",))  # a parameter of the other model
+    res = T.tune(recs, names=("velocity_std",), objective="nll", maxfev=2, fold_maxfev=1, progress=False)
+    assert res["system"] == "attitude-velocity" and np.isfinite(res["held_out_mean"])
+    back = T.load(T.save(res, tmp_path / "tune.json"))
+    system = T.system_from(T.params_for(back, "v0"), recs[0].constants, back["system"])
+    assert system.group.tangent_dim == 9
+    with pytest.raises(ValueError, match="^system:"):
+        T.system_from({}, {}, "attitude-gps")
