@@ -176,6 +176,11 @@ SYSTEMS: dict[str, str] = {
                     "disturbance, heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and "
                     "magnetometer directions and their raw norms (norm_acc m/s^2, norm_mag uT); defaults of "
                     "liemef.systems.attitude_imu",
+    "pose3d": "rigid body on SE(3): input the body twist (omega_x..z rad/s, v_x..z m/s), position fixes "
+              "(position_x..z, m) with NaN between fixes; the default noise levels (liemef.systems.pose3d)",
+    "inertial-navigation": "inertial navigation on SE_2(3): input the gyro (rad/s) and the accelerometer's specific "
+                           "force (m/s^2) at 100 Hz, GNSS position fixes (gnss_x..z, m) with NaN between fixes; the "
+                           "default noise levels (liemef.systems.inertial_navigation)",
     "localization": "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
                     "with NaN between fixes; the default noise levels (liemef.systems.localization)",
 }

@@ -8,7 +8,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...systems import AbstractSystem, PlanarRigidBody, attitude_gyro_bias, attitude_imu, planar_localization
+from ...systems import (
+    AbstractSystem,
+    PlanarRigidBody,
+    attitude_gyro_bias,
+    attitude_imu,
+    inertial_navigation,
+    planar_localization,
+    pose3d,
+)
 from ...systems import attitude_bias as _attitude_bias
 from .. import registry
 from . import attitude, chaplygin, unit_circle
@@ -42,6 +50,16 @@ def _gps_state(ys) -> np.ndarray:
     return np.concatenate([np.full((ys.shape[0], 1), np.nan), ys[:, 0:2]], axis=1)
 
 
+def _position_fix_state(n_before: int):
+    """Coordinates read off position fixes (N, 3) in the first three outputs: the position where a fix is
+    present, after ``n_before`` coordinates that are not measured (NaN: the rotation vector, and the velocity of
+    SE_2(3))."""
+    def measured(ys) -> np.ndarray:
+        ys = np.asarray(ys, dtype=np.float64)
+        return np.concatenate([np.full((ys.shape[0], n_before), np.nan), ys[:, 0:3]], axis=1)
+    return measured
+
+
 SYSTEMS: dict[str, SystemSpec] = {
     "tse2": SystemSpec(
         "tse2", registry.SYSTEMS["tse2"],
@@ -68,6 +86,9 @@ SYSTEMS: dict[str, SystemSpec] = {
         attitude_gyro_bias, _attitude_bias.measured_state),
     "attitude-imu": SystemSpec(
         "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state),
+    "pose3d": SystemSpec("pose3d", registry.SYSTEMS["pose3d"], pose3d, _position_fix_state(3)),
+    "inertial-navigation": SystemSpec(
+        "inertial-navigation", registry.SYSTEMS["inertial-navigation"], inertial_navigation, _position_fix_state(6)),
     "localization": SystemSpec(
         "localization", registry.SYSTEMS["localization"],
         planar_localization, _gps_state),
