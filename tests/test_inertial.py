@@ -66,9 +66,8 @@ def test_the_imu_integrates_back_to_the_truth():
     assert err < 1e-11
     np.testing.assert_allclose(np.asarray(got.g.velocity()), np.asarray(truth.velocity()), rtol=0, atol=1e-11)
     # Lie-Euler drops a dt^2 / 2 per step: first order, the error halves with the step
-    errs = [_integrate(c, "lie-euler", n)[0] for n in (1, 2, 4)]
-    slopes = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
-    np.testing.assert_allclose(slopes, 1.0, atol=0.05)
+    errs = [_integrate(c, "lie-euler", n)[0] for n in (1, 2)]
+    np.testing.assert_allclose(np.log2(errs[0] / errs[1]), 1.0, atol=0.05)
     assert 1e-4 < errs[0] < 1e-2
 
 
