@@ -66,9 +66,8 @@ def test_the_imu_integrates_back_to_the_truth():
     assert err < 1e-11
     np.testing.assert_allclose(np.asarray(got.g.velocity()), np.asarray(truth.velocity()), rtol=0, atol=1e-11)
     # Lie-Euler drops a dt^2 / 2 per step: first order, the error halves with the step
-    errs = [_integrate(c, "lie-euler", n)[0] for n in (1, 2, 4)]
-    slopes = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
-    np.testing.assert_allclose(slopes, 1.0, atol=0.05)
+    errs = [_integrate(c, "lie-euler", n)[0] for n in (1, 2)]
+    np.testing.assert_allclose(np.log2(errs[0] / errs[1]), 1.0, atol=0.05)
     assert 1e-4 < errs[0] < 1e-2
 
 
@@ -196,3 +195,40 @@ def test_the_local_chart_of_se23_is_so3_times_r6():
     np.testing.assert_allclose(np.asarray(g2.velocity()), np.asarray(g.velocity() + e[3:6]), rtol=0, atol=ROUNDOFF)
     np.testing.assert_allclose(np.asarray(g2.position()), np.asarray(g.position() + e[6:9]), rtol=0, atol=ROUNDOFF)
     np.testing.assert_allclose(np.asarray(minus(g2, g)), np.asarray(e), rtol=0, atol=ROUNDOFF)
+
+
+def test_ukfms_initial_covariances_and_their_quirks():
+    c = I.InertialConfig()
+    truth, u = I.simulate_truth(c)
+    _, g0 = I.sensor_log(c, truth, u, I.numpy_draws(c, 0))
+    K0 = c.K0
+    # P0 is isotropic per block: the left, SO(3) x R^6 and (converted) right-invariant covariances are one
+    for name in ("ukf-left", "ukf-local", "iekf-right"):
+        np.testing.assert_allclose(np.asarray(I.ukfm_initial_K(name, c, g0)), K0, rtol=0, atol=1e-12)
+    # the quirks: the EKF's right_P0 read as SO(3) x R^6, the right UKF-M's P0 read as right-invariant
+    C = np.asarray(g0.rotation().as_matrix())
+    p = np.asarray(g0.position())
+    S = np.array([[0, -p[2], p[1]], [p[2], 0, -p[0]], [-p[1], p[0], 0]])
+    K_ekf = np.asarray(I.ukfm_initial_K("ekf", c, g0))
+    np.testing.assert_allclose(K_ekf[6:9, 6:9], C.T @ (K0[6:9, 6:9] + S @ K0[0:3, 0:3] @ S.T) @ C, rtol=1e-12)
+    K_ukf = np.asarray(I.ukfm_initial_K("ukf-right", c, g0))
+    # both inflate the position by the attitude's lever arm [p]_x; they correlate it with opposite signs
+    np.testing.assert_allclose(K_ukf[6:9, 6:9], K_ekf[6:9, 6:9], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(K_ekf[6:9, 0:3], C.T @ S @ K0[0:3, 0:3] @ C, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(K_ukf[6:9, 0:3], -K_ekf[6:9, 0:3], rtol=1e-12, atol=1e-15)
+    assert np.trace(K_ekf[6:9, 6:9]) > 1.5 * np.trace(K0[6:9, 6:9])  # the 5 m lever arm of an 8.7 deg std
+
+
+@pytest.mark.slow  # about 2 min on a shared core: one 3000-step compilation
+def test_the_invariant_ekf_lands_on_ukfms_run_0():
+    """On ukfm's own run 0 (its legacy stream), liemef's right-invariant EKF gives ukfm's rms to the sample-time
+    convention (liemef's error at an observation step is the one before the update): +0.017 deg, measured."""
+    from liemef.studies.compare._inertial import per_trial, run_filter
+
+    c = I.InertialConfig()
+    out = run_filter("iekf-right", c, I.stacked_draws(c, "numpy", 0, 1))
+    m = per_trial(c, out)
+    att, pos = I.PUBLISHED_PER_SEED["iekf-right"][0]
+    assert 0.0 < m["attitude_rms"][0] - att < 0.03
+    assert abs(m["position_rms"][0] - pos) < 0.005
+    assert 0.5 < m["nees_attitude"][0] < 3.0 and 0.5 < m["nees_position_ukfm"][0] < 4.0  # ukfm: 1.65 / 2.38

@@ -56,6 +56,11 @@ METRICS = (("attitude_rms", "attitude rms, all n", "deg"), ("position_rms", "pos
            ("final_attitude", "final attitude error", "deg"))
 NEES = (("nees_attitude", "attitude NEES / 3"), ("nees_position", "position NEES / 3"),
         ("nees_position_ukfm", "position NEES / 3, ukfm's M"))
+BATCH_NOTE = ("batch_size defaults to 1: on a shared 2-core machine (jax 0.10.2), vmapped batches of 10 trials of "
+              "this 3000-step SE_2(3) scan hung four times inside XLA's CPU runtime (every thread idle in "
+              "block_until_ready, with and without the compilation cache, nice or intra-op threads); batches "
+              "of 1 ran. Not understood.")
+"""Why the inertial-navigation studies compile one trial per call."""
 PUBLISHED_KEYS = (("attitude_rms", "attitude_deg"), ("position_rms", "position_m"),
                   ("nees_attitude", "nees_attitude"), ("nees_position_ukfm", "nees_position"))
 """Our per-trial metric -> ukfm's figure (:data:`liemef.studies.experiments.inertial.PUBLISHED`)."""
@@ -67,18 +72,23 @@ class InertialComparison:
     second window ``steady`` (s), the ``filters`` (names of :data:`~liemef.studies.compare.FILTERS`),
     ``batch_size`` trials per compiled batch, and ``rng``: ``"jax"`` (trial i from ``split(key(seed),
     runs)[i]``) or ``"numpy"`` (ukfm's legacy stream seeded ``seed + i``: with seeds 0-19 these are the runs
-    behind ukfm's figures)."""
+    behind ukfm's figures). ``initial``: ``"consistent"`` (every filter starts from K0 = P0 as the left-error
+    covariance, converted exactly to its own coordinates) or ``"ukfm"`` (ukfm's filters start from the matrix
+    ukfm gives each, quirks included: :func:`~liemef.studies.experiments.inertial.ukfm_initial_K`; the MEF as
+    in ``"consistent"``)."""
 
     runs: int = 20
     seed: int = 0
     duration: float = 30.0
     steady: float = 10.0
     filters: tuple[str, ...] | str | None = DEFAULT_FILTERS
-    batch_size: int = 10
+    batch_size: int = 1  # see BATCH_NOTE
     rng: str = "jax"
+    initial: str = "consistent"
 
     def __post_init__(self):
         _validate.choice("rng", self.rng, set(I.RNGS))
+        _validate.choice("initial", self.initial, {"consistent", "ukfm"})
         check_counts(self, "runs", "batch_size")
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
@@ -91,25 +101,28 @@ class InertialComparison:
         return I.InertialConfig(duration=self.duration, steady=self.steady)
 
 
-def _trial_fn(config: I.InertialConfig, right: bool):
+def _trial_fn(config: I.InertialConfig, right: bool, ukfm_name: str | None):
     s = I.setup(config)
 
     def one(flt, state0, draws):
         log, g0 = I.sensor_log(config, s.truth, s.u_true, draws)
-        traj = flt.scan(eqx.tree_at(lambda st: st.g_hat, state0, g0), log.ts, log.us, log.ys)
+        K0 = state0.K if ukfm_name is None else I.ukfm_initial_K(ukfm_name, config, g0)
+        traj = flt.scan(eqx.tree_at(lambda st: (st.g_hat, st.K), state0, (g0, K0)), log.ts, log.us, log.ys)
         return I.series(s.truth, traj.g_hat, traj.K, right=right), traj.status.code, traj.status.time
 
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0)))
 
 
-def run_filter(name: str, config: I.InertialConfig, draws: I.Draws, batch_size: int = 10) -> dict[str, np.ndarray]:
-    """One filter on the trials of ``draws`` (:func:`~liemef.studies.experiments.inertial.stacked_draws`): its
-    error series (runs, N, 6) (:func:`~liemef.studies.experiments.inertial.series`), status codes and failure
-    times."""
+def run_filter(name: str, config: I.InertialConfig, draws: I.Draws, batch_size: int = 1,
+               initial: str = "consistent") -> dict[str, np.ndarray]:
+    """One filter on the trials of ``draws`` (:func:`~liemef.studies.experiments.inertial.stacked_draws`), from
+    ``initial`` K0 (:class:`InertialComparison`): its error series (runs, N, 6)
+    (:func:`~liemef.studies.experiments.inertial.series`), status codes and failure times."""
     s = I.setup(config)
     flt = make_filter(name, s.system)
     state0 = flt.init(jax.tree_util.tree_map(lambda a: a[0], s.truth), config.K0)
-    fn = _trial_fn(config, getattr(flt, "error", "left") == "right")
+    ukfm_name = name if initial == "ukfm" and name in I.UKFM_FILTERS else None
+    fn = _trial_fn(config, getattr(flt, "error", "left") == "right", ukfm_name)
     runs = draws.rot0.shape[0]
     parts = [fn(flt, state0, jax.tree_util.tree_map(lambda a, i=i: a[i:i + batch_size], draws))
              for i in range(0, runs, batch_size)]
@@ -207,7 +220,7 @@ def compare_inertial(study: InertialComparison | None = None, *, progress: bool 
     per_filter, trials, bands = {}, {}, {}
     for name in st.filters:
         t0 = time.perf_counter()
-        out = run_filter(name, config, draws, st.batch_size)
+        out = run_filter(name, config, draws, st.batch_size, st.initial)
         elapsed = time.perf_counter() - t0
         trials[name] = per_trial(config, out)
         per_filter[name] = summarize(config, name, out, trials[name], same_runs=same, overlap=overlap, seed=st.seed)

@@ -57,7 +57,7 @@ class InertialBasin:
     prior_std_deg: float = 90.0
     tolerance_deg: float = 5.0
     filters: tuple[str, ...] | str | None = DEFAULT_FILTERS
-    batch_size: int = 20
+    batch_size: int = 1  # liemef.studies.compare._inertial.BATCH_NOTE
 
     def __post_init__(self):
         check_counts(self, "runs", "batch_size")

@@ -357,6 +357,29 @@ def _setup(config: InertialConfig) -> Setup:
     return Setup(config=config, system=system, filter=flt, truth=truth, u_true=u_true)
 
 
+def ukfm_initial_K(name: str, config: InertialConfig, g0_hat: SE23) -> jax.Array:
+    r"""The initial covariance ukfm's benchmark gives its filter ``name`` (a key of :data:`UKFM_FILTERS`), as the
+    covariance of the left error at ``g0_hat`` (traceable; scenario §1.4, "initial covariance conversion").
+
+    ukfm hands ``P0`` to its SO(3) x R^6 and left UKF-M, and ``right_P0 = J_0 P_0 J_0^\top`` ($J_0 = I$ except
+    $J_0[p, \phi] = [\hat p_0]_\times$, the first-order map to the right-invariant error) to its IEKF, each in its
+    own coordinates. Two quirks: the EKF, whose coordinates are SO(3) x R^6, also gets ``right_P0``, and the
+    right UKF-M, whose coordinates are right-invariant, gets the unconverted ``P0``. The matrix is mapped to the
+    left error by the exact Jacobian of each chart at ``g0_hat`` (SO(3) x R^6 with ukfm's world-frame rotation
+    error, $C = \mathrm{Exp}(e_\phi)\hat C$)."""
+    _validate.choice("name", name, set(UKFM_FILTERS))
+    P0 = jnp.asarray(config.K0)
+    J0 = jnp.eye(9).at[6:9, 0:3].set(_skew(g0_hat.position()))
+    right_P0 = J0 @ P0 @ J0.T
+    world = lambda g, e: SE23.from_rotation_velocity_position(  # noqa: E731
+        SO3.exp(e[:3]) @ g.rotation(), g.velocity() + e[3:6], g.position() + e[6:9])
+    right = lambda g, e: SE23.exp(e) @ g  # noqa: E731
+    plus, P = {"ukf-local": (world, P0), "ukf-left": (lambda g, e: g @ SE23.exp(e), P0), "ukf-right": (right, P0),
+               "iekf-right": (right, right_P0), "ekf": (world, right_P0)}[name]
+    J = jax.jacfwd(lambda e: left_error(plus(g0_hat, e), g0_hat))(jnp.zeros(9))
+    return J @ P @ J.T
+
+
 # --- the metrics --------------------------------------------------------------------------------------------
 def _skew(w):
     z = jnp.zeros(w.shape[:-1])
@@ -389,6 +412,7 @@ def series(truth: SE23, g_hat: SE23, K, *, right: bool = False) -> jax.Array:
 
 
 __all__ = ["InertialConfig", "Draws", "jax_draws", "numpy_draws", "stacked_draws", "simulate_truth", "sensor_log",
-           "landmark_output", "system_of", "setup", "Setup", "series", "ukfm_step", "exp_so3", "NAMES", "UNITS",
+           "landmark_output", "system_of", "setup", "Setup", "series", "ukfm_initial_K", "ukfm_step", "exp_so3",
+           "NAMES", "UNITS",
            "PUBLISHED", "PUBLISHED_PER_SEED", "PUBLISHED_INITIAL_ERRORS", "PUBLISHED_RUNS", "UKFM_FILTERS",
            "LANDMARKS"]
