@@ -95,6 +95,9 @@ def test_the_registry_is_what_the_library_registers():
         assert study.load() is EXPERIMENTS[name]
     comparisons = registry.STUDIES["comparison"]
     assert list(comparisons) == list(STUDIES)
+    from liemef.studies.compare import _PARTS  # every comparison the library implements is declared, and no other
+
+    assert sorted(_PARTS) == sorted(comparisons)
     for name, study in comparisons.items():
         assert study.load() is STUDIES[name] and study.title == STUDIES[name].description
         fields = {f.name for f in dataclasses.fields(STUDIES[name].settings)}

@@ -142,6 +142,18 @@ for _name, _title, _settings, _help in (
      "+ gyro bias from a synthetic IMU (filters: mef, mef-first, mef-minus, mef-plus, iekf, ukf-left; madgwick "
      "and mahony on request, gyro bias only); writes attitude_basin.md, attitude_basin.csv, attitude_basin.json, "
      "arrays.npz and fig_basin_<system>.png."),
+    ("inertial-navigation", "ukfm's inertial-navigation benchmark on SE_2(3): every filter on the same trials",
+     ("duration", "steady", "rng", "batch_size", "initial"),
+     "ukfm's inertial-navigation benchmark on SE_2(3) (IMU 100 Hz, three landmarks at 1 Hz, 15 deg / 1 m initial "
+     "error); writes inertial.md (per filter the attitude and position rms, NEES, ukfm's own figures beside ours, "
+     "the winners with their paired lead), inertial.csv, inertial.json, arrays.npz and fig_errors.png. With --set "
+     "rng=numpy the trials are ukfm's own runs (seeds 0-19: per-seed differences); with --set initial=ukfm each "
+     "filter starts from the initial covariance ukfm hands it."),
+    ("inertial-basin", "convergence basin in the initial attitude error (0-180 deg) on ukfm's inertial navigation",
+     ("duration", "angles_deg", "prior_std_deg", "tolerance_deg", "batch_size"),
+     "the convergence basin in the initial attitude error (0-179 deg about random axes) on the inertial-navigation "
+     "scenario; writes inertial_basin.md, inertial_basin.csv, inertial_basin.json, arrays.npz and "
+     "fig_basin_inertial_navigation.png."),
     ("broad", "the BROAD attitude recordings: the MEF and its IMU models, the EKF, the UKF-M, VQF, Madgwick and "
      "Mahony",
      ("trials", "seconds", "realdata", "params"),
