@@ -286,6 +286,9 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
     if (system_name is None) == (system_file is None):
         raise click.UsageError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
                                f"own), got {'both' if system_name else 'neither'}")
+    if params_file is not None and system_name != "attitude-imu":
+        raise click.BadParameter(f"expected --system attitude-imu with a tuning file, got {system_name!r}",
+                                 param_hint="'--params'")
     bag = log_path.is_dir() or log_path.suffix.lower() == ".bag"
     if bag and topics is None:
         raise click.BadParameter(f"{log_path} is a ROS bag: give --topics MAPPING.json", param_hint="'--topics'")
@@ -300,7 +303,7 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
 
     source = logs.resolve_system(system_name, system_file)
     if params_file is not None:
-        source = _tuned(source, system_name, params_file)
+        source = _tuned(source, params_file)
     n, c = source.system.group.tangent_dim, source.system.group.coords_dim
     try:
         if tum:
@@ -334,15 +337,13 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
                f"{io.ARRAYS_FILE}, {', '.join(p.name for p in written[4:])} to {target.path}")
 
 
-def _tuned(source, system_name, params_file):
-    """``source`` with the final parameter set of a `liemef tune` file (``--params``)."""
+def _tuned(source, params_file):
+    """``source`` (attitude-imu, checked before) with the final parameter set of a `liemef tune` file
+    (``--params``)."""
     import dataclasses
 
     from .studies import tune as _tune
 
-    if system_name != "attitude-imu":
-        raise click.BadParameter(f"expected --system attitude-imu with a tuning file, got {system_name!r}",
-                                 param_hint="'--params'")
     try:
         return dataclasses.replace(source, system=_tune.system_from(_tune.params_for(_tune.load(params_file)), {}))
     except ValueError as err:
