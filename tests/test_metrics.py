@@ -178,3 +178,22 @@ def test_gain_stats_by_hand_and_for_a_diverged_run():
     assert s["non_finite_steps"] == 1 and s["final_diagonal"] == [None, None]
     assert s["min_eigenvalue"] == pytest.approx(1.5 - math.sqrt(0.5))
     json.dumps(s, allow_nan=False)
+
+
+def test_run_nees_is_the_left_errors_nees_in_one_call():
+    """run_nees(truth, run) = e^T K^-1 e with e = log(g_hat^-1 g), per sample, against an explicit solve."""
+    from types import SimpleNamespace
+
+    from liemef.groups import SE2
+    from liemef.metrics import run_nees
+
+    rng = np.random.default_rng(3)
+    g = SE2.from_coords(rng.normal(size=(5, 3)))
+    g_hat = SE2.from_coords(np.asarray(g.coords()) + 0.1 * rng.normal(size=(5, 3)))
+    A = rng.normal(size=(5, 3, 3))
+    K = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(3)
+    e = np.asarray((g_hat.inverse() @ g).log())
+    expected = np.einsum("ni,ni->n", e, np.linalg.solve(K, e[:, :, None])[:, :, 0])
+    got = np.asarray(run_nees(g, SimpleNamespace(g_hat=g_hat, K=K)))
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    assert np.all(got > 0)

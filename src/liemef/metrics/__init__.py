@@ -10,12 +10,13 @@ Two error measures:
 :func:`error_table` collects them for several windows with names and units (:func:`state_labels`) into an
 :class:`ErrorTable` that prints and serializes itself. :func:`gain_stats` summarizes the symmetry and
 definiteness of a gain over a run; :func:`continuous_angles` prepares angle time series for figures.
-Consistency: :func:`left_error` (the error K is the covariance of), :func:`nees` and :func:`chi2_bounds`;
+Consistency: :func:`left_error` (the error K is the covariance of), :func:`nees`, :func:`run_nees` (a run against
+its truth, one call) and :func:`chi2_bounds`;
 :func:`wilson_interval` for a fraction of trials. Trajectories: :func:`pose_parts` (a position and a quaternion off
 any pose-like state) and :func:`ape_rpe`, the absolute and relative pose errors by evo's library.
 """
 
-from ._consistency import chi2_bounds, left_error, nees, wilson_interval
+from ._consistency import chi2_bounds, left_error, nees, run_nees, wilson_interval
 from ._errors import angle_mask, continuous_angles, coordinate_error, group_error, state_error, wrap_angle
 from ._gain import gain_stats
 from ._labels import group_error_labels, state_labels
@@ -24,5 +25,5 @@ from ._trajectory import ape_rpe, pose_parts
 
 __all__ = ["wrap_angle", "angle_mask", "coordinate_error", "state_error", "group_error", "state_labels",
            "group_error_labels", "Window", "FULL", "window_mask", "error_stats", "error_table", "ErrorTable",
-           "continuous_angles", "gain_stats", "left_error", "nees", "chi2_bounds",
+           "continuous_angles", "gain_stats", "left_error", "nees", "run_nees", "chi2_bounds",
            "wilson_interval", "pose_parts", "ape_rpe"]

@@ -37,6 +37,15 @@ def nees(e: Float[ArrayLike, "... n"], K: Float[ArrayLike, "... n n"]) -> Float[
     return jnp.where(jnp.all(e == 0.0, axis=-1), 0.0, q)
 
 
+def run_nees(g_true: LieGroup, traj) -> Float[Array, " N"]:
+    r"""The NEES of a filter's run against its truth, per sample: $e_k^\top K_k^{-1} e_k$ with the left error
+    $e_k = \log(\hat g_k^{-1} g_k)$ (:func:`left_error`, :func:`nees`). ``g_true``: the true states (batch shape
+    (N,)); ``traj``: the run (a :class:`~liemef.filters.Trajectory`, or anything with ``g_hat`` and ``K`` over the
+    same N samples). NaN where the run had failed. For a consistent filter it follows a chi-square law with n
+    degrees of freedom (:func:`chi2_bounds`)."""
+    return nees(left_error(g_true, traj.g_hat), traj.K)
+
+
 def chi2_bounds(dof: int, n_runs: int, prob: float = 0.95, *, per_dof: bool = False) -> tuple[float, float]:
     r"""Two-sided ``prob`` bounds for the average NEES of ``n_runs`` independent runs of a consistent filter:
     $(\chi^2_{nN}((1-p)/2),\ \chi^2_{nN}((1+p)/2)) / N$ with $n$ = ``dof``, $N$ = ``n_runs``
