@@ -25,7 +25,7 @@ demo: $(STAMP)
 JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(CURDIR)/.cache/liemef
 
 test: $(STAMP)
-	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q
+	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q --durations=30
 
 test-slow: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -q -m slow

@@ -49,8 +49,8 @@ def reproduced(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def paper_run(reproduced):
-    # the seeded run of the reproduction again, in memory (compiled once: same config)
+def paper_run():
+    # the seeded run of the reproduction, in memory
     return attitude.run(CONFIG)
 
 
@@ -126,6 +126,7 @@ def test_measured_attitude_by_triad_recovers_noise_free_rotations():
     assert np.all(np.isnan(q[:, 3:]))
 
 
+@pytest.mark.slow  # a 4-trial Monte Carlo of 15 s at 1 ms: about 70 s of the fast suite's 2 cores
 def test_reproduction_writes_fig3_metrics_and_the_paired_comparison(reproduced, paper_run):
     out, rep = reproduced
     for name in ("metrics.json", "arrays.npz", "fig3_errors.png", "fig_angular_velocity.png", "comparison.md",

@@ -355,10 +355,14 @@ def _wait_for_tasks(out: Path, n: int, proc, timeout: float = 300.0) -> None:
     raise AssertionError(f"no {n} tasks after {timeout} s")
 
 
+@pytest.mark.slow  # two CLI processes that compile, 100-160 s on a busy 2-core machine; the fast suite checks the
+# reuse of finished tasks in-process (test_one_worker_two_workers_and_montecarlo_give_identical_statistics) and
+# the exit code 130 of an interrupt (tests/test_cli_outputs.py)
 def test_stopped_campaign_resumes_without_recomputing(tmp_path):
-    # tasks long enough (16 trials x 15001 samples, 0.4 s or more once compiled) for Ctrl-C to land between them
+    # tasks long enough (16 trials x 15001 samples, 0.4 s or more once compiled) for Ctrl-C to land between them;
+    # 32 seeds: 2 tasks for each of the 2 settings
     out = tmp_path / "out"
-    shape = {"seeds": 64, "trials_per_task": 16, "duration": 30.0, "dt": 0.002, "steady_from": 10.0}
+    shape = {"seeds": 32, "trials_per_task": 16, "duration": 30.0, "dt": 0.002, "steady_from": 10.0}
     (tmp_path / "c.toml").write_text(toml_text(out, **shape))
     c = Campaign.load(tmp_path / "c.toml")
     n_tasks = len(c.tasks())

@@ -855,7 +855,7 @@ def _agreement_ops(G, M, xi, a, b):
     }
 
 
-@pytest.mark.parametrize("G", [SO3, SE3, SE23], ids=lambda G: G.__name__)
+@pytest.mark.parametrize("G", [SO3, SE3, pytest.param(SE23, marks=pytest.mark.slow)], ids=lambda G: G.__name__)
 def test_matrix_group_agrees_with_the_closed_forms(G, rng):
     # Random, near the identity and near pi (1e-3, 1e-6), in one compiled function per group.
     M = _generic(G)
