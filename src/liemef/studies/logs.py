@@ -34,6 +34,11 @@ SCHEMA = "liemef.run/1"
 figures)."""
 FAILURE_SCHEMA = "liemef.failure/1"
 """Version tag of ``failure.json`` (status, message, last good state, log, filter)."""
+OUTLIER_PROB = 1e-6
+"""A used sample whose normalized innovation squared exceeds the chi-square quantile ``1 - OUTLIER_PROB`` (of its
+sensor's dimension) is reported as an outlier by :meth:`LogRun.warnings` (the filter used it: no gate)."""
+CONDITION_WARN = 1e12
+"""A failed run whose gain K had a larger condition number than this says that rounding is the likely cause."""
 DEFAULT_CHUNK = 65536
 """Samples per compiled chunk of :func:`filter_log` (one compilation per chunk length)."""
 
@@ -138,6 +143,122 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     return Trajectory(ts=jnp.asarray(log.ts), g_hat=g_hat, K=K, status=traj.status, final=traj.final)
 
 
+def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
+    """What a failed run's interval ``k`` held, to say why it failed: its length (a gap?), whether its sub-steps
+    hit their cap, and each sensor's sample at its start against the last good estimate ``g`` (gain ``K``): the
+    residual ``y (-) h(g)`` of its present components and its size in standard deviations of the innovation,
+    ``sqrt(r^T S^-1 r)`` with ``S = H K H^T + Sigma`` (``Sigma`` a sample's noise covariance; for a density sensor
+    its average over the interval). The JSON-ready dict of ``failure.json``'s ``interval``, with ``"said"``: the
+    clause that the failure message ends with."""
+    import jax.numpy as jnp
+
+    from ..filters._derivatives import left_jacobian
+
+    system, ts = flt.system, log.ts
+    t0 = float(ts[k])
+    dt = float(ts[k + 1] - ts[k]) if k + 1 < len(ts) else math.nan
+    y = np.asarray(log.ys[k], dtype=np.float64)
+    out = {"start": t0, "length": dt, "gap": bool(dt > gap), "substeps_capped": bool(report["substeps_capped"]),
+           "samples": {}}
+    said = []
+    if out["gap"]:
+        said.append(f"the interval is a gap of {dt:.4g} s, predicted through on held inputs")
+    if out["substeps_capped"]:
+        said.append("its integration hit the sub-step cap (max_substeps)")
+    Ks = 0.5 * (np.asarray(K) + np.asarray(K).T)
+    with np.errstate(all="ignore"):
+        cond = float(np.linalg.cond(Ks)) if np.all(np.isfinite(Ks)) else math.inf
+    out["K_condition"] = cond if math.isfinite(cond) else None
+    if cond > CONDITION_WARN:
+        said.append(f"K at its start has a condition number of {cond:.2g}, at which float64 rounding (1/eps = "
+                    f"{1 / np.finfo(np.float64).eps:.2g}) can break its positive definiteness: a K0 of a realistic "
+                    "size (your prior's covariance) avoids this")
+    present = np.isfinite(y)
+    if present.any():
+        y0 = jnp.asarray(np.where(present, y, 0.0))
+        h, H = left_jacobian(lambda gg: system.output_seen_from(y0, gg, t0), g)
+        r = np.asarray(y0 - h)
+        H, K = np.asarray(H), np.asarray(K)
+        Sigma = np.linalg.inv(np.asarray(flt.weights.Wy))
+        sizes = []
+        for b in flt.blocks:
+            idx = np.arange(b.start, b.stop)[present[b.start:b.stop]]
+            if idx.size == 0:
+                continue
+            S = H[idx] @ K @ H[idx].T + Sigma[np.ix_(idx, idx)] / (1.0 if b.sample or not dt > 0 else dt)
+            with np.errstate(all="ignore"):
+                try:
+                    sigmas = float(np.sqrt(r[idx] @ np.linalg.solve(S, r[idx])))
+                except np.linalg.LinAlgError:
+                    sigmas = math.nan
+            names = [system.output_names[i] for i in idx]
+            out["samples"][b.name] = {"components": names, "residual": [float(v) for v in r[idx]],
+                                      "sigmas": sigmas if math.isfinite(sigmas) else None}
+            sizes.append((sigmas, b.name))
+        shown = ", ".join(f"{name} {s:.3g}" for s, name in sorted(sizes, key=lambda x: -np.nan_to_num(x[0]))
+                          if math.isfinite(s))
+        if shown:
+            said.append(f"its samples, in innovation standard deviations from the last good estimate: {shown}")
+    out["said"] = "".join(f"; {s}" for s in said)
+    return out
+
+
+def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
+    """Per sensor, the present samples whose innovation (``innov``, before their update) lies beyond the
+    chi-square ``1 - OUTLIER_PROB`` quantile of its dimension, measured by ``r^T S^-1 r`` with ``S = H K H^T +
+    Sigma`` (``Sigma`` one sample's noise covariance; for a density sensor its average over the interval): their
+    count, and the largest in standard deviations (``sqrt(r^T S^-1 r)``) with its time. A JSON-ready dict."""
+    import jax
+    from scipy.stats import chi2
+
+    from ..filters._derivatives import left_jacobian
+
+    system, ts = flt.system, log.ts
+    ys = np.asarray(log.ys, dtype=np.float64)
+    present = np.isfinite(ys)
+    rows = np.flatnonzero(present.any(axis=1))
+    Sigma = np.linalg.inv(np.asarray(flt.weights.Wy))
+    out = {}
+    if rows.size == 0:
+        return out
+    y0 = np.where(present[rows], ys[rows], 0.0)
+    g = jax.tree_util.tree_map(lambda a: a[rows], traj.g_hat)
+    H = np.asarray(jax.vmap(lambda gg, y, t: left_jacobian(lambda x: system.output_seen_from(y, x, t), gg)[1])(
+        g, y0, ts[rows]))
+    K = np.asarray(traj.K)[rows]
+    dt = np.diff(ts, append=np.nan)[rows]
+    finite_K = np.isfinite(K).all(axis=(1, 2))
+    for b in flt.blocks:
+        sl = slice(b.start, b.stop)
+        scale = np.where(b.sample | ~(dt > 0), 1.0, dt)
+        nis = np.full(rows.size, np.nan)
+        # rows alike in which of the block's components are present share one batched solve
+        patterns = present[rows, sl] & finite_K[:, None]
+        for pattern in np.unique(patterns[patterns.any(axis=1)], axis=0):
+            i = np.flatnonzero((patterns == pattern).all(axis=1))
+            idx = np.arange(b.start, b.stop)[pattern]
+            Hi = H[i][:, idx]
+            S = Hi @ K[i] @ np.swapaxes(Hi, 1, 2) + Sigma[np.ix_(idx, idx)] / scale[i, None, None]
+            r = innov[rows[i]][:, idx]
+            with np.errstate(all="ignore"):
+                try:
+                    nis[i] = np.einsum("ij,ij->i", r, np.linalg.solve(S, r[..., None])[..., 0])
+                except np.linalg.LinAlgError:  # a singular S somewhere: row by row, skipping those
+                    for j, Sj, rj in zip(i, S, r, strict=True):
+                        try:
+                            nis[j] = rj @ np.linalg.solve(Sj, rj)
+                        except np.linalg.LinAlgError:
+                            pass
+            nis[i] = np.where(nis[i] > chi2.ppf(1.0 - OUTLIER_PROB, idx.size), nis[i], np.nan)
+        sizes = np.sqrt(nis)
+        hit = np.flatnonzero(np.isfinite(sizes))
+        worst = hit[np.argmax(sizes[hit])] if hit.size else None
+        out[b.name] = {"count": int(hit.size), "probability": OUTLIER_PROB,
+                       "largest_sigmas": None if worst is None else float(sizes[worst]),
+                       "largest_t": None if worst is None else float(ts[rows[worst]])}
+    return out
+
+
 def innovation_table(innov, names, units) -> tuple[str, dict]:
     """Mean, std and rms of each innovation component over its present samples (NaN = no sample): the text
     table and its JSON-ready form."""
@@ -190,6 +311,12 @@ class LogRun:
                        f"{self.report['longest_gap']:.4g} s) were predicted through")
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
+        for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
+            if o["count"]:
+                out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
+                           f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at t = "
+                           f"{o['largest_t']:.6g} s) and were used; a gate (Sensor(gate=...) in a --system-file) "
+                           "would reject them")
         return out
 
     def rejected(self) -> dict[str, int]:
@@ -267,11 +394,14 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     if not status.ok:
         k = int(status.index)
         last = np.asarray(traj.final.g_hat.coords())
-        failure = {"schema": FAILURE_SCHEMA, "status": report, "message": status.message(log.ts),
+        context = failure_context(flt, log, k, traj.final.g_hat, traj.final.K, gap, report)
+        common["message"] = status.message(log.ts) + context.pop("said")
+        failure = {"schema": FAILURE_SCHEMA, "status": report, "message": common["message"],
                    "last_good_state": {"sample": k, "t": float(log.ts[k]),
                                        "coords": dict(zip(names, map(float, last), strict=True)),
                                        "K_diag": [float(v) for v in np.diagonal(np.asarray(traj.final.K))]},
-                   "log": log_file, "filter": repr(flt), "command": "run", "liemef_version": __version__}
+                   "interval": context, "log": log_file, "filter": repr(flt), "command": "run",
+                   "liemef_version": __version__}
         return LogRun(**common, failure=failure)
     return _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
                      updates, substeps, angle_mask, continuous_angles, gain_stats)
@@ -288,6 +418,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
     onames, ounits = system.output_names, system.output_units
     text, table = innovation_table(innov, onames, ounits)
+    outliers = innovation_outliers(flt, log, traj, innov)
     label, measured = source.label, source.measured
     figures = [{"file": "estimate.png", "components": list(names),
                 "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) from "
@@ -302,7 +433,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
                    "updates": updates, "substeps": substeps, "gap": common["gap"]},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
-                       "components": table},
+                       "components": table,
+                       "outliers": outliers},
         "gain": gain_stats(K),
         "status": common["report"],
         "run": {"finite": True, "liemef_version": __version__},
