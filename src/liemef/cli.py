@@ -299,6 +299,19 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
                                  param_hint="'--system-file'")
     target = outputs.claim(out, "run", force)
     from .reports import io
+
+    log = q0 = K0 = None
+    if system_name is not None:  # a ready system: its columns and sizes are known without JAX
+        known = registry.system_schema(system_name)
+        q0 = _floats(x0, known["coords_dim"], "'--x0'")
+        K0 = _floats(k0_diag, known["tangent_dim"], "'--k0-diag'") if k0_diag is not None else k0
+        if topics is None:
+            layout = io.LogLayout(tuple(known["inputs"]), tuple(known["outputs"]),
+                                  tuple(tuple(b) for b in known["blocks"]))
+            try:
+                log = io.read_log(log_path, layout)
+            except ValueError as err:
+                raise click.BadParameter(str(err), param_hint="'--log'") from err
     from .studies import logs
 
     source = logs.resolve_system(system_name, system_file)
@@ -309,11 +322,14 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
         if tum:
             from .metrics import pose_parts
             pose_parts(source.system.group.identity((1,)))
-        log = io.read_log(log_path, source.system) if topics is None else _read_bag(log_path, topics, source.system)
+        if log is None:
+            log = io.read_log(log_path, source.system) if topics is None else _read_bag(log_path, topics,
+                                                                                           source.system)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="'--tum'" if err.args[0].startswith("g:") else "'--log'") from err
-    q0 = _floats(x0, c, "'--x0'")
-    K0 = _floats(k0_diag, n, "'--k0-diag'") if k0_diag is not None else k0
+    if system_name is None:
+        q0 = _floats(x0, c, "'--x0'")
+        K0 = _floats(k0_diag, n, "'--k0-diag'") if k0_diag is not None else k0
     run = logs.filter_log(source, log, x0=q0, K0=K0, connection=connection, order=order, alpha=alpha,
                           interpolation=interpolation, updates=updates, substeps=substeps, gap=gap, chunk=chunk,
                           progress=progress, log_file=log_path)
@@ -442,6 +458,11 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
 def schema(system_name, system_file):
     """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
     sensors' noise levels, and the CSV header that `liemef run` expects."""
+    if system_name is not None and system_file is None:  # a ready system: no JAX
+        known = registry.system_schema(system_name)
+        click.echo(f"{system_name}: {known['description']}")
+        click.echo(known["text"])
+        return
     from .studies.logs import resolve_system
     from .systems._file import format_schema
 

@@ -199,5 +199,19 @@ SYSTEMS: dict[str, str] = {
 """The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``) with their descriptions; each
 is built by :data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""
 
+
+
+def system_schema(name: str) -> dict:
+    """The log schema of the ready system ``name`` (:data:`SYSTEMS`), without JAX: its description, ``inputs``,
+    ``outputs``, sensor ``blocks`` ``[name, start, stop]``, ``coords_dim``, ``tangent_dim`` and the ``text`` that
+    ``liemef schema`` prints (:func:`liemef.studies.logs.system_schema`, generated into
+    :mod:`liemef.studies._schemas`). A ValueError for an unknown name."""
+    from ._schemas import SCHEMAS
+
+    if name not in SCHEMAS:
+        raise ValueError(f"system: expected one of {sorted(SCHEMAS)}, got {name!r}")
+    return SCHEMAS[name]
+
+
 DATASETS = ("broad", "wifibot")
 """The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""
