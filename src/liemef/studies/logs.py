@@ -237,6 +237,92 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
     return out
 
 
+def _rotation_blocks(G, offset: int = 0) -> list[tuple[int, tuple[int, ...]]]:
+    """Where the coordinates of ``G`` hold an SO(3) rotation vector: ``(coordinate offset, factor path)`` per
+    SO(3) part (SO(3) itself, the rotation of SE(3), SE_2(3), SE_K(3), and of those in a product)."""
+    from ..groups import SEK3, SO3, Product
+
+    if isinstance(G, type) and issubclass(G, Product):
+        out, o = [], offset
+        for i, F in enumerate(G.factor_types):
+            out += [(off, (i, *path)) for off, path in _rotation_blocks(F, o)]
+            o += F.coords_dim
+        return out
+    if issubclass(G, SO3 | SEK3):
+        return [(offset, ())]
+    return []
+
+
+def _rpy(R):
+    """Roll, pitch and yaw (rad) of rotation matrices R = Rz(yaw) Ry(pitch) Rx(roll) (body to world)."""
+    import jax.numpy as jnp
+
+    return jnp.stack([jnp.arctan2(R[..., 2, 1], R[..., 2, 2]), jnp.arcsin(jnp.clip(-R[..., 2, 0], -1.0, 1.0)),
+                      jnp.arctan2(R[..., 1, 0], R[..., 0, 0])], axis=-1)
+
+
+def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
+    """The state components that ``liemef run``'s figure plots, with their standard deviations from K.
+
+    The components are the coordinates of ``g_hat`` (batch (N,)), except that each SO(3) rotation vector (which
+    jumps at +-pi) is replaced by roll, pitch and yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``); angles are unwrapped
+    along time. A component ``f(g)`` has the standard deviation ``sqrt(J K J^T)`` with ``J`` the derivative of
+    ``f(g_hat exp xi)`` at ``xi = 0`` (K is the covariance of the left error xi). ``measured`` (N, c) coordinates
+    read off the measurements (NaN where not measured) are mapped alike and put on the estimate's branch.
+    Returns ``names``, ``units``, ``values`` (N, c), ``std`` (N, c), ``measured`` (N, c, when given) and, for a
+    pose group, ``path`` (N, 2): the estimate's x-y position (``path_measured`` from ``measured`` when it has x
+    and y)."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..groups import SE2, SEK3, SO3, Product
+    from ..metrics import angle_mask, continuous_angles, pose_parts
+
+    G = system.group
+    names, units = list(system.state_names), list(system.state_units)
+    angles = list(angle_mask(G))
+    blocks = _rotation_blocks(G)
+
+    def rotation(g, path):
+        for i in path:
+            g = g.factors[i]
+        return g if isinstance(g, SO3) else g.rotation()
+
+    def plotted(g):
+        c = g.coords()
+        for off, path in blocks:
+            c = c.at[off:off + 3].set(_rpy(rotation(g, path).as_matrix()))
+        return c
+
+    for j, (off, _) in enumerate(blocks):
+        names[off:off + 3] = [n + (f"_{j + 1}" if j else "") for n in ("roll", "pitch", "yaw")]
+        units[off:off + 3] = ["rad"] * 3
+        angles[off:off + 3] = [True, False, True]
+
+    def one(g, KK):
+        J = jax.jacfwd(lambda xi: plotted(g.rplus(xi)))(jnp.zeros(G.tangent_dim))
+        return plotted(g), jnp.sqrt(jnp.clip(jnp.einsum("ij,jk,ik->i", J, 0.5 * (KK + KK.T), J), 0.0))
+
+    values, std = (np.asarray(a) for a in jax.vmap(one)(g_hat, jnp.asarray(K)))
+    values = continuous_angles(values, angles)
+    out = {"names": np.array(names), "units": np.array(units), "values": values, "std": std}
+    if measured is not None:
+        m = np.array(measured, dtype=np.float64)
+        for off, _ in blocks:
+            rows = np.isfinite(m[:, off:off + 3]).all(axis=1)
+            rv = np.where(rows[:, None], m[:, off:off + 3], 0.0)
+            m[:, off:off + 3] = np.where(rows[:, None], np.asarray(_rpy(SO3.exp(jnp.asarray(rv)).as_matrix())),
+                                         np.nan)
+        out["measured"] = continuous_angles(m, angles, reference=values)
+    first = G.factor_types[0] if issubclass(G, Product) else G
+    if not issubclass(first, SE2 | SEK3):  # no position (SO(2), SO(3), R^n)
+        return out
+    out["path"] = np.asarray(pose_parts(g_hat)[0])[:, :2]
+    if measured is not None and {"x", "y"} <= set(names):
+        out["path_measured"] = out["measured"][:, [names.index("x"), names.index("y")]]
+    return out
+
+
 def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
     """Per sensor, the present samples whose innovation (``innov``, before their update) lies beyond the
     chi-square ``1 - OUTLIER_PROB`` quantile of its dimension, measured by ``r^T S^-1 r`` with ``S = H K H^T +
@@ -454,9 +540,10 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     text, table = innovation_table(innov, onames, ounits)
     outliers = innovation_outliers(flt, log, traj, innov)
     label, measured = source.label, source.measured
-    figures = [{"file": "estimate.png", "components": list(names),
-                "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) from "
-                         f"{Path(common['log_file']).name}"}]
+    bands = state_bands(system, traj.g_hat, K, None if measured is None else measured(log.ys))
+    figures = [{"file": "estimate.png", "kind": "run", "components": [str(v) for v in bands["names"]],
+                "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) with +-3 "
+                         f"sigma from K, from {Path(common['log_file']).name}"}]
     metrics = {
         "schema": SCHEMA,
         "system": {"name": label, "description": source.description, "filter": common["filter"]},
@@ -478,4 +565,5 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
               "K_diag": K_diag, "us": log.us, "ys": log.ys, "innovation": innov, "output_names": np.array(onames)}
     if measured is not None:
         arrays["measured"] = continuous_angles(measured(log.ys), angles, reference=filt)
+    arrays.update({f"plot_{k}": v for k, v in bands.items()})
     return LogRun(**common, metrics=metrics, arrays=arrays, innovation_text=text)
