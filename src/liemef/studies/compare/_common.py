@@ -159,6 +159,32 @@ def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float =
     return [float(lo), float(hi)]
 
 
+FAR_FACTOR = 10.0
+"""A NEES is flagged "far above" (below) its chi-square bounds beyond FAR_FACTOR times the upper bound (below the
+lower bound divided by it): the filter's K does not describe its error, whatever its status says."""
+
+
+def nees_flag(mean: float | None, bounds) -> str | None:
+    """How a mean NEES (per dimension) sits against its 95 % chi-square ``bounds`` (lo, hi): ``"within"``,
+    ``"above"``, ``"below"``, ``"far above"`` or ``"far below"`` (beyond :data:`FAR_FACTOR`); None without a
+    value. The bounds are those of one step's average over the trials; a mean over time as well is tighter, so
+    "above" and "below" are the conservative reading."""
+    if mean is None or not math.isfinite(mean):
+        return None
+    lo, hi = bounds
+    if mean > hi:
+        return "far above" if mean > FAR_FACTOR * hi else "above"
+    if mean < lo:
+        return "far below" if mean < lo / FAR_FACTOR else "below"
+    return "within"
+
+
+def nees_cell(mean: float | None, bounds, digits: int = 3) -> str:
+    """A table cell of a mean NEES, marked when far outside its bounds (:func:`nees_flag`)."""
+    flag = nees_flag(mean, bounds)
+    return fmt(mean, digits) + (f" ({flag}!)" if flag is not None and flag.startswith("far") else "")
+
+
 def fmt(v, digits: int = 4) -> str:
     """A table cell: ``-`` for None or NaN."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
