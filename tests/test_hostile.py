@@ -1,8 +1,12 @@
-"""Hostile input at the Python API (issue 19, item 2): every case is a ValueError, raised before any compile,
-whose message names the argument (or the file) and the value received.
+"""Hostile input at the Python API (issue 19, item 2): every bad input is a ValueError, raised before any compile,
+whose message names the argument (or the file) and the value received; a hostile log that is valid input ends
+in a finite estimate with its warnings or in a failure value.
 
 Categories: log files, group elements, physical parameters, dtypes, integer ranges, system files, encodings
-and gains/times of ``terms``. The tolerance for group elements is ``liemef._validate.ON_GROUP``.
+and gains/times of ``terms``, and hostile logs at run time (a NaN input, an outlier, a gap, a huge K0: a finite
+estimate with its warnings or a failure value). The tolerance for group elements is
+``liemef._validate.ON_GROUP``. Each category is a section opened by ``# --- name ---``;
+``python tools/hostile_counts.py`` counts the cases per category.
 """
 
 from __future__ import annotations
