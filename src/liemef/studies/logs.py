@@ -567,3 +567,131 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         arrays["measured"] = continuous_angles(measured(log.ys), angles, reference=filt)
     arrays.update({f"plot_{k}": v for k, v in bands.items()})
     return LogRun(**common, metrics=metrics, arrays=arrays, innovation_text=text)
+
+
+def _bad(option: str, message: str) -> ValueError:
+    """A ValueError naming the command-line ``option`` it is about
+    (:class:`liemef.studies.settings.OptionError`, for the CLI's hint)."""
+    from .settings import OptionError
+
+    return OptionError(message, option)
+
+
+def check_log_file(path: str | os.PathLike) -> None:
+    """What can be said of a log file before it is read (and before JAX loads): an existing, non-empty .csv or
+    .npz file. ValueError naming ``--log`` otherwise."""
+    p = Path(path)
+    if not p.exists():
+        raise _bad("--log", f"log: file not found: {str(p)!r}")
+    if not p.is_file():
+        raise _bad("--log", f"log: expected a file, got a directory {str(p)!r}")
+    if p.suffix.lower() not in (".csv", ".npz"):
+        raise _bad("--log", f"log: expected a .csv or .npz file, got {str(p)!r}")
+    if p.stat().st_size == 0:
+        raise _bad("--log", f"log: expected a CSV or NPZ log, got an empty file {str(p)!r}")
+
+
+@dataclass(frozen=True)
+class SavedRun:
+    """What :func:`filter_log_to` did: the filtered ``run`` (:class:`LogRun`), the ``log`` read, the folder
+    ``out`` and the files ``written`` there (``failure.json`` alone for a failed run)."""
+
+    run: LogRun
+    log: Any = field(repr=False)
+    out: Path
+    written: list[Path]
+
+
+def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,
+                  system_file: str | os.PathLike | None = None, topics: str | os.PathLike | None = None,
+                  params: str | os.PathLike | None = None, x0=None, K0=None, tum: bool = False, force: bool = False,
+                  **options) -> SavedRun:
+    """Filter the recorded ``log`` and write its outputs to the folder ``out``, whole or not at all: what
+    ``liemef run`` does, for a script as well.
+
+    ``system`` (a ready system's name) or ``system_file`` (your own), exactly one; ``log`` a CSV or NPZ file, or
+    a ROS bag with ``topics`` (the mapping file, :mod:`liemef.reports.rosbag`); ``params`` a `liemef tune` file
+    (attitude-imu only); ``x0``, ``K0`` and ``options`` as :func:`filter_log`; ``tum`` also writes
+    ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`).
+    Bad input is a ValueError naming the option (``err.option``), raised before anything is written and, for a
+    ready system and a CSV or NPZ log, before JAX is imported. A failure inside the filter is no exception:
+    ``out`` then holds ``failure.json`` alone and :attr:`LogRun.ok` is False."""
+    from ..reports import outputs
+    from . import registry
+
+    K0 = None if K0 is None else np.asarray(K0, dtype=np.float64)
+    if K0 is not None and K0.ndim == 0 and not (math.isfinite(K0) and K0 >= 0):
+        raise _bad("--k0", f"expected a number >= 0, got {float(K0)}")
+    if (system is None) == (system_file is None):
+        raise ValueError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
+                         f"own), got {'both' if system else 'neither'}")
+    if params is not None and system != "attitude-imu":
+        raise _bad("--params", f"expected --system attitude-imu with a tuning file, got {system!r}")
+    log = Path(log)
+    bag = log.is_dir() or log.suffix.lower() == ".bag"
+    if bag and topics is None:
+        raise _bad("--topics", f"{log} is a ROS bag: give --topics MAPPING.json")
+    if not bag:
+        check_log_file(log)
+    if system_file is not None and not Path(system_file).is_file():
+        raise _bad("--system-file", f"expected a Python file defining `system`, got {str(system_file)!r} "
+                                    "(not found)")
+    target = outputs.claim(out, "run", force)
+    recorded = None
+    if system is not None:  # a ready system: its columns and sizes are known without JAX
+        known = registry.system_schema(system)
+        for name, value, n in (("--x0", x0, known["coords_dim"]), ("--k0-diag", K0, known["tangent_dim"])):
+            if value is not None and np.ndim(value) == 1 and np.shape(value) != (n,):
+                raise _bad(name, f"expected {n} finite numbers separated by commas, got {len(value)}")
+        if topics is None:
+            layout = io.LogLayout(tuple(known["inputs"]), tuple(known["outputs"]),
+                                  tuple(tuple(b) for b in known["blocks"]))
+            recorded = _read(lambda: io.read_log(log, layout), "--log")
+    source = resolve_system(system, system_file)
+    if params is not None:
+        source = _tuned(source, params)
+    n, c = source.system.group.tangent_dim, source.system.group.coords_dim
+    for name, value, size in (("--x0", x0, c), ("--k0-diag", K0, n)):
+        if value is not None and np.ndim(value) == 1 and np.shape(value) != (size,):
+            raise _bad(name, f"expected {size} finite numbers separated by commas, got {len(value)}")
+    if tum:
+        from ..metrics import pose_parts
+
+        _read(lambda: pose_parts(source.system.group.identity((1,))), "--tum")
+    if recorded is None:
+        recorded = _read(lambda: io.read_log(log, source.system), "--log") if topics is None else \
+            _read_bag(log, topics, source.system)
+    run = filter_log(source, recorded, x0=x0, K0=K0, log_file=log, **options)
+    with outputs.staged(target, manifest=run.ok) as d:
+        written = run.save(d)
+        if tum and run.ok:
+            written.append(io.write_tum(d / io.TUM_FILE, recorded.ts, run.trajectory.g_hat))
+    return SavedRun(run=run, log=recorded, out=target.path, written=[target.path / p.name for p in written])
+
+
+def _read(fn, option: str):
+    try:
+        return fn()
+    except ValueError as err:
+        raise _bad(option, str(err)) from err
+
+
+def _tuned(source: LogSystem, params) -> LogSystem:
+    """``source`` (attitude-imu) with the final parameter set of a `liemef tune` file (``--params``)."""
+    import dataclasses
+
+    from . import tune
+
+    return dataclasses.replace(source, system=_read(lambda: tune.system_from(tune.params_for(tune.load(params)), {}),
+                                                    "--params"))
+
+
+def _read_bag(path, topics, system):
+    from ..reports.rosbag import read_bag
+
+    try:
+        return read_bag(path, topics, system)
+    except ValueError as err:
+        if err.args[0].startswith("mapping"):
+            raise _bad("--topics", str(err)) from err
+        raise
