@@ -211,3 +211,14 @@ def test_a_bad_log_and_the_schema_are_answered_without_jax(tmp_path):
     assert "CSV header: t,v_x,v_y,omega,gps_x,gps_y" in out
     assert "loaded: ['numpy']" in res.stdout, out  # numpy reads the log; JAX is never imported
     assert not (tmp_path / "o").exists()
+
+
+def test_the_compare_help_lists_the_registry_filters():
+    """`liemef compare --help` lists the comparisons' filters from the registry, which declares exactly the
+    filters the comparisons build."""
+    from liemef.studies.compare._common import FILTERS
+
+    assert list(FILTERS) == list(registry.FILTERS)
+    text = cli.cli.commands["compare"].help
+    for name, description in registry.FILTERS.items():
+        assert f"  {name:<11} {description}" in text

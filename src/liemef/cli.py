@@ -467,8 +467,8 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
 
 _COMPARE_HELP = (
     "Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.\n\n"
-    "Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left; and "
-    "iekf-right, ukf-right, ukf-local (the inertial-navigation studies' defaults, with ekf and ukf-left).\n\n"
+    "\b\nFilters (--filters; each study's default set is in its tables):\n"
+    + "\n".join(f"  {name:<11} {description}" for name, description in registry.FILTERS.items()) + "\n\n"
     + "\n\n".join(f"{s.name}: {s.help}" for s in registry.STUDIES["comparison"].values())
     + "\n\nTrials where a filter fails are counted and named, and left out of the statistics. Exit status 1 when "
     "no trial of any filter is usable.")

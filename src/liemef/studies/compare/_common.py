@@ -13,26 +13,23 @@ from ... import _validate
 from ...filters import AbstractFilter, MinimumEnergyFilter
 from ...filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_ekf, ukf_m
 from ...metrics._stats import json_number
+from .. import registry
 
-FILTERS = {
-    "mef": ("minimum-energy filter, second order, (0)-connection (the default)",
-            lambda s: MinimumEnergyFilter(s)),
-    "mef-minus": ("minimum-energy filter, second order, (-)-connection",
-                  lambda s: MinimumEnergyFilter(s, connection="minus")),
-    "mef-plus": ("minimum-energy filter, second order, (+)-connection",
-                 lambda s: MinimumEnergyFilter(s, connection="plus")),
-    "mef-first": ("first-order minimum-energy filter (continuous-time left-invariant EKF)",
-                  lambda s: MinimumEnergyFilter(s, order="first")),
-    "iekf": ("invariant EKF (left-invariant error), discrete", invariant_ekf),
-    "iekf-right": ("invariant EKF with the right-invariant error (ukfm's iekf of inertial navigation), discrete",
-                   lambda s: ExtendedKalmanFilter(s, "right")),
-    "ekf": ("EKF in local coordinates (rotation multiplicative, position additive), discrete", local_ekf),
-    "ukf-left": ("UKF-M with the left retraction (ukfm's ukf_left), discrete", ukf_m),
-    "ukf-right": ("UKF-M with the right retraction (ukfm's ukf_right), discrete", lambda s: ukf_m(s, "right")),
-    "ukf-local": ("UKF-M in local coordinates (rotation multiplicative, position additive; ukfm's ukf_so3xr6), "
-                  "discrete", lambda s: ukf_m(s, "local")),
+_FACTORIES = {
+    "mef": lambda s: MinimumEnergyFilter(s),
+    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus"),
+    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus"),
+    "mef-first": lambda s: MinimumEnergyFilter(s, order="first"),
+    "iekf": invariant_ekf,
+    "iekf-right": lambda s: ExtendedKalmanFilter(s, "right"),
+    "ekf": local_ekf,
+    "ukf-left": ukf_m,
+    "ukf-right": lambda s: ukf_m(s, "right"),
+    "ukf-local": lambda s: ukf_m(s, "local"),
 }
-"""Filter names of the comparisons: a description and a factory from a system."""
+FILTERS = {name: (description, _FACTORIES[name]) for name, description in registry.FILTERS.items()}
+"""Filter names of the comparisons: a description (declared in :data:`liemef.studies.registry.FILTERS`) and a
+factory from a system."""
 
 
 def make_filter(name: str, system) -> AbstractFilter:
