@@ -173,3 +173,52 @@ def test_float64_is_on_in_every_import_path(load):
         print(jnp.ones(2).dtype, *{{leaf.dtype for leaf in jax.tree_util.tree_leaves(SO2.from_coords([0.3]))}})
     """)
     assert res.stdout.split() == ["float64", "float64"], res.stdout
+
+
+def test_the_generated_schemas_are_the_systems():
+    """liemef.studies._schemas (read without JAX by `run` and `schema`) is what the ready systems say; after a
+    change, regenerate it with liemef.studies.logs.write_schemas()."""
+    from liemef.studies import _schemas, logs
+
+    assert sorted(_schemas.SCHEMAS) == sorted(registry.SYSTEMS)
+    for name in registry.SYSTEMS:
+        assert _schemas.SCHEMAS[name] == logs.system_schema(name), name
+
+
+def test_a_bad_log_and_the_schema_are_answered_without_jax(tmp_path):
+    """A log missing a column is exit 2 naming it, a wrong --x0 size exit 2, and `schema` prints the table, all
+    before JAX is imported (the time is measured by benchmarks/bench_cli_errors.py, not asserted)."""
+    log = tmp_path / "missing.csv"
+    log.write_text("t,v_x,v_y,omega,gps_x\n0,1,0,0,0\n0.01,1,0,0,\n")
+    good = tmp_path / "good.csv"
+    good.write_text("t,v_x,v_y,omega,gps_x,gps_y\n0,1,0,0,0,0\n0.01,1,0,0,,\n")
+    res = python(f"""
+        import sys
+        from liemef.cli import main
+        for argv in ({["run", "--system", "localization", "--log", str(log), "--out", str(tmp_path / "o")]!r},
+                     {["run", "--system", "localization", "--log", str(good), "--out", str(tmp_path / "o"),
+                       "--x0", "1,2"]!r},
+                     ["schema", "localization"]):
+            try:
+                main(argv)
+            except SystemExit as exit:
+                print("exit", exit.code)
+        print("loaded:", sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib') or m in {HEAVY!r}))
+    """)
+    out = res.stdout + res.stderr
+    assert out.count("exit 2") == 2 and "exit 0" in out, out
+    assert "missing column(s) ['gps_y']" in out and "--x0" in out and "expected 3 finite numbers" in out
+    assert "CSV header: t,v_x,v_y,omega,gps_x,gps_y" in out
+    assert "loaded: ['numpy']" in res.stdout, out  # numpy reads the log; JAX is never imported
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_compare_help_lists_the_registry_filters():
+    """`liemef compare --help` lists the comparisons' filters from the registry, which declares exactly the
+    filters the comparisons build."""
+    from liemef.studies.compare._common import FILTERS
+
+    assert list(FILTERS) == list(registry.FILTERS)
+    text = cli.cli.commands["compare"].help
+    for name, description in registry.FILTERS.items():
+        assert f"  {name:<11} {description}" in text

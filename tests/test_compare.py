@@ -16,6 +16,7 @@ from liemef.studies.compare import (
     parse_filters,
 )
 from liemef.studies.compare._basins import convergence
+from liemef.studies.compare._common import nees_cell, nees_flag
 
 
 def test_the_paired_comparison_names_a_winner_only_when_its_lead_is_outside_the_spread():
@@ -101,7 +102,7 @@ def test_compare_localization_at_a_tiny_size(tmp_path, filters):
     names = filters.split(",")
     assert list(meta["filters"]) == names
     for name, e in meta["filters"].items():
-        assert e["runs"] == 3 and e["healthy"] + e["diverged"]["count"] == 3
+        assert e["runs"] == 3 and e["status_ok"] + e["diverged"]["count"] == 3
         assert e["heading_rms"]["p5"] <= e["heading_rms"]["mean"] <= e["heading_rms"]["p95"], name
     assert "published" not in meta["filters"]["iekf"]  # not the published 40 s scenario: no comparison
     arrays = np.load(out / "arrays.npz")
@@ -113,6 +114,9 @@ def test_compare_localization_at_a_tiny_size(tmp_path, filters):
     assert winner == min(meta["filters"], key=lambda n: meta["filters"][n]["heading_rms"]["mean"])
     md = (out / "comparison.md").read_text()
     assert "| iekf |" in md and "## Winners" in md and "NaN" not in md
+    assert "| filter | status ok | flips |" in md and "healthy" not in md
+    for e in meta["filters"].values():
+        assert e["nees_position"]["flag"] == nees_flag(e["nees_position"]["mean"], e["nees_position"]["chi2_bounds"])
 
 
 def test_compare_heading_basin_at_a_tiny_size(tmp_path):
@@ -189,7 +193,7 @@ def test_compare_wifibot_at_a_tiny_size(tmp_path):
     meta = json.loads((out / "wifibot.json").read_text())
     rec = meta["recordings"]["4"]
     for name, e in rec["filters"].items():  # the straight run: GPS of 0.1 m keeps the position within ~0.1 m
-        assert e["healthy"] == 3 and 0.02 < e["position_rms"]["mean"] < 0.2 and e["heading_rms"]["mean"] < 5, name
+        assert e["status_ok"] == 3 and 0.02 < e["position_rms"]["mean"] < 0.2 and e["heading_rms"]["mean"] < 5, name
     arrays = np.load(out / "arrays.npz")
     assert arrays["4/iekf/heading_rms"].shape == (3,)
     assert arrays["4/iekf/bands"].shape == (3, arrays["4/ts"].shape[0], 2)
@@ -260,3 +264,13 @@ def test_attitude_basin_distance_to_the_optimum(tmp_path):
         assert 0.0 <= row["optimum_deg_final"] < 1.0 and 0.0 <= row["optimum_deg_mean"] < 2.0, (name, row)
     # the discrete invariant EKF is the Kalman filter of the very cost the MAP minimizes: the closer one
     assert rows["iekf"]["optimum_deg_final"] < rows["mef"]["optimum_deg_final"]
+
+
+def test_a_nees_far_outside_its_bounds_is_flagged():
+    """'status ok' counts the trials run through; the NEES flag says whether K described the error: mef-minus on
+    localization ran 5 of 5 trials at a position NEES of 1e6 (far above bounds of about 0.5-1.7)."""
+
+    bounds = (0.5, 1.7)
+    assert [nees_flag(v, bounds) for v in (1.0, 1.8, 17.1, 0.4, 0.04, None, float("nan"))] == [
+        "within", "above", "far above", "below", "far below", None, None]
+    assert nees_cell(1e6, bounds) == "1e+06 (far above!)" and nees_cell(1.8, bounds) == "1.8"

@@ -1,8 +1,12 @@
-"""Hostile input at the Python API (issue 19, item 2): every case is a ValueError, raised before any compile,
-whose message names the argument (or the file) and the value received.
+"""Hostile input at the Python API (issue 19, item 2): every bad input is a ValueError, raised before any compile,
+whose message names the argument (or the file) and the value received; a hostile log that is valid input ends
+in a finite estimate with its warnings or in a failure value.
 
 Categories: log files, group elements, physical parameters, dtypes, integer ranges, system files, encodings
-and gains/times of ``terms``. The tolerance for group elements is ``liemef._validate.ON_GROUP``.
+and gains/times of ``terms``, and hostile logs at run time (a NaN input, an outlier, a gap, a huge K0: a finite
+estimate with its warnings or a failure value). The tolerance for group elements is
+``liemef._validate.ON_GROUP``. Each category is a section opened by ``# --- name ---``;
+``python tools/hostile_counts.py`` counts the cases per category.
 """
 
 from __future__ import annotations
@@ -327,3 +331,78 @@ def test_an_initial_guess_that_fails_is_named(guess, shown, tmp_path):
     p.write_text(SYSTEM_FILE + f"def initial_guess(y0):\n    {guess}\n")
     user = load_system_file(p)
     _raises(lambda: user.guess(np.ones(1)), "initial_guess", str(p), shown)
+
+
+# --- hostile logs at run time ------------------------------------------------------------------------------------
+# A NaN input sample, a 1e4 m GPS outlier with no gate, a 1.5 s gap and a huge K0 (the inertial-navigation trial of
+# issue 19 on SE(2), which compiles in seconds): each ends in a finite estimate with its warnings, or in a failure
+# value that says where, when and why; never in NaN estimates written as a success, never in a traceback.
+def _hostile_log(path, outlier=True, N=600):
+    """A circle at 0.785 m/s, 100 Hz odometry with input sample 150 NaN, GPS at 2 Hz (std 0.3 m) with fix 200 at
+    (1e4, 1e4) m if ``outlier``, and no samples in [3, 4.5) s. Returns the times kept and the true positions."""
+    rng = np.random.RandomState(0)
+    dt, v, w = 0.01, 2 * np.pi * 5 / 40, 2 * np.pi / 40
+    th = np.arange(N) * w * dt
+    p = np.concatenate([[[0.0, 0.0]], np.cumsum(v * dt * np.column_stack([np.cos(th), np.sin(th)]), axis=0)[:-1]])
+    us = np.column_stack([v + 0.01 * rng.randn(N), 0.01 * rng.randn(N), w + np.pi / 180 * rng.randn(N)])
+    ys = np.full((N, 2), np.nan)
+    ys[::50] = p[::50] + 0.3 * rng.randn(len(ys[::50]), 2)
+    us[150] = np.nan
+    if outlier:
+        ys[200] = [1e4, 1e4]
+    ts = np.arange(N) * dt
+    keep = (ts < 3) | (ts >= 4.5)
+    io.write_log(path, planar_localization(), ts[keep], us[keep], ys[keep])
+    return ts[keep], p[keep]
+
+
+def _filter(path, **kw):
+    from liemef.studies import logs
+
+    return logs.filter_log("localization", path, x0=np.zeros(3), updates="discrete", **kw)
+
+
+def test_a_nan_input_and_a_gap_are_filtered_through_and_said(tmp_path):
+    ts, p = _hostile_log(tmp_path / "log.csv", outlier=False)
+    run = _filter(tmp_path / "log.csv", K0=1.0)
+    assert run.ok and run.report["gaps"] == 1 and run.report["inputs_held"] == 1
+    said = " | ".join(run.warnings())
+    assert "longest 1.51 s) were predicted through" in said and "1 input sample(s) were missing" in said
+    assert "beyond the chi-square" not in said
+    coords = np.asarray(run.trajectory.coords())
+    assert np.isfinite(coords).all() and np.max(np.linalg.norm(coords[:, 1:] - p, axis=1)) < 1.0
+    assert run.metrics["innovation"]["outliers"]["gps"]["count"] == 0
+
+
+def test_an_outlier_the_filter_used_is_reported(tmp_path):
+    """With no gate the 1e4 m fix is used (the estimate jumps: a finite, honest result of the model) and the run
+    says so, with the fix's time and size, and how to reject such fixes."""
+    _hostile_log(tmp_path / "log.csv")
+    run = _filter(tmp_path / "log.csv", K0=1.0)
+    assert run.ok
+    out = run.metrics["innovation"]["outliers"]["gps"]
+    assert out["largest_t"] == 2.0 and out["largest_sigmas"] > 1e3 and out["count"] >= 1
+    assert any(w.startswith(f"gps: {out['count']} sample(s) lay beyond the chi-square 0.999999 bound") and
+               "at t = 2 s" in w and "gate" in w for w in run.warnings())
+
+
+def test_a_huge_k0_fails_as_a_value_that_says_why(tmp_path):
+    """K0 = 1e12 I: K's condition number passes 1e12 and the first fix after t = 0 breaks its positive
+    definiteness. `liemef run` exits 1, without a traceback, with failure.json alone, naming the interval, its
+    time, the cause, K's conditioning and the fix's innovation."""
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    _hostile_log(tmp_path / "log.csv")
+    res = CliRunner().invoke(cli, ["run", "--system", "localization", "--log", str(tmp_path / "log.csv"), "--out",
+                                   str(tmp_path / "o"), "--x0", "0,0,0", "--k0", "1e12", "--updates", "discrete",
+                                   "--no-progress"])
+    assert res.exit_code == 1 and isinstance(res.exception, SystemExit) and "Traceback" not in res.output, res.output
+    assert "filter failed over the sample interval 50 ([0.5, 0.51] s): the gain K lost positive definiteness" in \
+        res.output and "condition number of" in res.output and "gps 0." in res.output
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["failure.json"]
+    failure = io.read_json(tmp_path / "o" / "failure.json")
+    assert failure["interval"]["K_condition"] > 1e12 and failure["interval"]["gap"] is False
+    assert failure["interval"]["samples"]["gps"]["components"] == ["gps_x", "gps_y"]
+    assert all(np.isfinite(list(failure["last_good_state"]["coords"].values())))

@@ -151,7 +151,7 @@ def test_compare_inertial_navigation_at_a_tiny_size(tmp_path):
     arrays = np.load(out / "arrays.npz")
     assert arrays["attitude_rms"].shape == (2, 2) and arrays["bands"].shape == (2, 3, 300, 2)
     for i, (name, e) in enumerate(meta["filters"].items()):
-        assert e["healthy"] == 2 and "published" not in e  # 3 s is not ukfm's scenario
+        assert e["status_ok"] == 2 and "published" not in e  # 3 s is not ukfm's scenario
         assert e["attitude_rms"]["mean"] == pytest.approx(np.mean(arrays["attitude_rms"][i]))
         # two observations in 3 s bring a 15 deg / 1 m start within a few degrees and decimetres
         assert e["attitude_rms_steady"]["pooled"] < 10.0 and e["position_rms_steady"]["pooled"] < 1.0, name

@@ -3,7 +3,7 @@
 Every choice and help list comes from :mod:`liemef.studies.registry` and :mod:`liemef._names`, which load without
 JAX, so ``liemef --help`` answers at once and bad arguments are reported before JAX is imported. The work is the
 library's: :meth:`~liemef.studies.experiments.Experiment.reproduce`, :func:`~liemef.studies.experiments.montecarlo`,
-:func:`liemef.studies.logs.filter_log`, :func:`liemef.codegen.export_c`, :func:`liemef.studies.datasets.convert`,
+:func:`liemef.studies.logs.filter_log_to`, :func:`liemef.codegen.export_c`, :func:`liemef.studies.datasets.convert`,
 the comparisons of :mod:`liemef.studies.compare` and :func:`liemef.studies.campaign.run_campaign`.
 
 Output folders are complete or absent (:mod:`liemef.reports.outputs`): written beside ``--out`` and renamed into
@@ -63,17 +63,16 @@ class _Commands(click.Group):
             signal.signal(signal.SIGTERM, previous)
 
 
-def _floats(text: str | None, n: int, option: str):
+def _floats(text: str | None, option: str):
+    """Comma-separated finite numbers (their count is the library's to check)."""
     if text is None:
         return None
-    import numpy as np
-
     try:
-        v = np.array([float(s) for s in text.replace(",", " ").split()])
+        v = [float(s) for s in text.replace(",", " ").split()]
     except ValueError as err:
-        raise click.BadParameter(f"expected {n} numbers separated by commas, got {text!r}", param_hint=option) from err
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise click.BadParameter(f"expected {n} finite numbers separated by commas, got {text!r}", param_hint=option)
+        raise click.BadParameter(f"expected numbers separated by commas, got {text!r}", param_hint=option) from err
+    if not v or not all(math.isfinite(x) for x in v):
+        raise click.BadParameter(f"expected finite numbers separated by commas, got {text!r}", param_hint=option)
     return v
 
 
@@ -280,98 +279,29 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1."""
-    substeps = _substeps(substeps)
-    if k0 is not None and not (math.isfinite(k0) and k0 >= 0):
-        raise click.BadParameter(f"expected a number >= 0, got {k0}", param_hint="'--k0'")
-    if (system_name is None) == (system_file is None):
-        raise click.UsageError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
-                               f"own), got {'both' if system_name else 'neither'}")
-    if params_file is not None and system_name != "attitude-imu":
-        raise click.BadParameter(f"expected --system attitude-imu with a tuning file, got {system_name!r}",
-                                 param_hint="'--params'")
-    bag = log_path.is_dir() or log_path.suffix.lower() == ".bag"
-    if bag and topics is None:
-        raise click.BadParameter(f"{log_path} is a ROS bag: give --topics MAPPING.json", param_hint="'--topics'")
-    if not bag:
-        _check_log_file(log_path)
-    if system_file is not None and not system_file.is_file():
-        raise click.BadParameter(f"expected a Python file defining `system`, got {str(system_file)!r} (not found)",
-                                 param_hint="'--system-file'")
-    target = outputs.claim(out, "run", force)
-    from .reports import io
     from .studies import logs
 
-    source = logs.resolve_system(system_name, system_file)
-    if params_file is not None:
-        source = _tuned(source, params_file)
-    n, c = source.system.group.tangent_dim, source.system.group.coords_dim
-    try:
-        if tum:
-            from .metrics import pose_parts
-            pose_parts(source.system.group.identity((1,)))
-        log = io.read_log(log_path, source.system) if topics is None else _read_bag(log_path, topics, source.system)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--tum'" if err.args[0].startswith("g:") else "'--log'") from err
-    q0 = _floats(x0, c, "'--x0'")
-    K0 = _floats(k0_diag, n, "'--k0-diag'") if k0_diag is not None else k0
-    run = logs.filter_log(source, log, x0=q0, K0=K0, connection=connection, order=order, alpha=alpha,
-                          interpolation=interpolation, updates=updates, substeps=substeps, gap=gap, chunk=chunk,
-                          progress=progress, log_file=log_path)
-    click.echo(f"Filtered {log.ts.shape[0]} samples of {log_path} with {source.label} ({run.filter})")
+    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, topics=topics,
+                               params=params_file, x0=_floats(x0, "'--x0'"),
+                               K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
+                               force=force, connection=connection, order=order, alpha=alpha,
+                               interpolation=interpolation, updates=updates, substeps=_substeps(substeps), gap=gap,
+                               chunk=chunk, progress=progress)
+    run = saved.run
+    click.echo(f"Filtered {saved.log.ts.shape[0]} samples of {log_path} with {run.source.label} ({run.filter})")
     if run.rejected():
         click.echo("Gate rejected samples: " + ", ".join(f"{k} {v}" for k, v in run.rejected().items()))
     for w in run.warnings():
         click.echo(f"WARNING: {w}", err=True)
-    with outputs.staged(target, manifest=run.ok) as d:
-        written = run.save(d)
-        if tum and run.ok:
-            written.append(io.write_tum(d / io.TUM_FILE, log.ts, run.trajectory.g_hat))
     if not run.ok:
         raise click.ClickException(f"{run.message} (cause: {run.report['cause']}). No estimates were written; see "
-                                   f"{target.path / 'failure.json'}")
+                                   f"{saved.out / 'failure.json'}")
     click.echo("Innovation y - h(g_hat) over the present samples:")
     click.echo(run.innovation_text)
     click.echo(f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
                f"{run.report['substeps_max']} in one)")
-    click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, {io.METRICS_FILE}, "
-               f"{io.ARRAYS_FILE}, {', '.join(p.name for p in written[4:])} to {target.path}")
-
-
-def _tuned(source, params_file):
-    """``source`` (attitude-imu, checked before) with the final parameter set of a `liemef tune` file
-    (``--params``)."""
-    import dataclasses
-
-    from .studies import tune as _tune
-
-    try:
-        return dataclasses.replace(source, system=_tune.system_from(_tune.params_for(_tune.load(params_file)), {}))
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--params'") from err
-
-
-def _read_bag(path, topics, system):
-    from .reports.rosbag import read_bag
-
-    try:
-        return read_bag(path, topics, system)
-    except ValueError as err:
-        if err.args[0].startswith("mapping"):
-            raise click.BadParameter(str(err), param_hint="'--topics'") from err
-        raise
-
-
-def _check_log_file(path: Path) -> None:
-    """What can be said of ``--log`` before JAX loads: that it is an existing .csv or .npz file, not empty."""
-    if not path.exists():
-        raise click.BadParameter(f"log: file not found: {str(path)!r}", param_hint="'--log'")
-    if not path.is_file():
-        raise click.BadParameter(f"log: expected a file, got a directory {str(path)!r}", param_hint="'--log'")
-    if path.suffix.lower() not in (".csv", ".npz"):
-        raise click.BadParameter(f"log: expected a .csv or .npz file, got {str(path)!r}", param_hint="'--log'")
-    if path.stat().st_size == 0:
-        raise click.BadParameter(f"log: expected a CSV or NPZ log, got an empty file {str(path)!r}",
-                                 param_hint="'--log'")
+    click.echo(f"Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, metrics.json, arrays.npz, "
+               f"{', '.join(p.name for p in saved.written[4:])} to {saved.out}")
 
 
 @cli.command("export-c")
@@ -442,6 +372,11 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
 def schema(system_name, system_file):
     """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
     sensors' noise levels, and the CSV header that `liemef run` expects."""
+    if system_name is not None and system_file is None:  # a ready system: no JAX
+        known = registry.system_schema(system_name)
+        click.echo(f"{system_name}: {known['description']}")
+        click.echo(known["text"])
+        return
     from .studies.logs import resolve_system
     from .systems._file import format_schema
 
@@ -532,8 +467,8 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
 
 _COMPARE_HELP = (
     "Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.\n\n"
-    "Filters: mef (second order, (0)-connection), mef-minus, mef-plus, mef-first, iekf, ekf, ukf-left; and "
-    "iekf-right, ukf-right, ukf-local (the inertial-navigation studies' defaults, with ekf and ukf-left).\n\n"
+    "\b\nFilters (--filters; each study's default set is in its tables):\n"
+    + "\n".join(f"  {name:<11} {description}" for name, description in registry.FILTERS.items()) + "\n\n"
     + "\n\n".join(f"{s.name}: {s.help}" for s in registry.STUDIES["comparison"].values())
     + "\n\nTrials where a filter fails are counted and named, and left out of the statistics. Exit status 1 when "
     "no trial of any filter is usable.")

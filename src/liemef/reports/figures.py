@@ -20,6 +20,58 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+def run_figure(arrays: Mapping, title: str = "") -> Figure:
+    """``liemef run``'s figure, from its saved arrays (:func:`liemef.studies.logs.state_bands`, saved with the
+    prefix ``plot_``): per state component the estimate (green) with its +-3 sigma band from K and the
+    measurements (blue points) where the sensors read that component; roll, pitch and yaw in place of an SO(3)
+    rotation vector, angles unwrapped. For a pose, a panel on the right with the x-y path (and the measured
+    positions)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    ts = np.asarray(arrays["ts"])
+    names, units = [str(v) for v in arrays["plot_names"]], [str(v) for v in arrays["plot_units"]]
+    values, std = np.asarray(arrays["plot_values"]), np.asarray(arrays["plot_std"])
+    measured = arrays.get("plot_measured")
+    path = "plot_path" in arrays
+    rows = len(names)
+    fig = Figure(figsize=(12 if path else 7, 1.9 * rows + 0.8), layout="constrained")
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(rows, 2 if path else 1, width_ratios=(3, 2) if path else None)
+    axes = []
+    for k, (name, unit) in enumerate(zip(names, units, strict=True)):
+        ax = fig.add_subplot(grid[k, 0], sharex=axes[0] if axes else None)
+        ax.fill_between(ts, values[:, k] - 3 * std[:, k], values[:, k] + 3 * std[:, k], color="tab:green", alpha=0.2,
+                        lw=0, label="+-3 sigma (K)")
+        if measured is not None and np.isfinite(measured[:, k]).any():
+            ok = np.isfinite(measured[:, k])
+            ax.plot(ts[ok], measured[ok, k], ".", color="tab:blue", ms=2.5, label="measured")
+        ax.plot(ts, values[:, k], color="tab:green", lw=1.0, label="filtered")
+        ax.set_ylabel(f"{name} [{unit}]" if unit else name)
+        ax.grid(True, lw=0.3, alpha=0.5)
+        axes.append(ax)
+    axes[-1].set_xlabel("t [s]")
+    axes[0].legend(loc="upper left", fontsize="small", ncols=3)
+    if path:
+        ax = fig.add_subplot(grid[:, 1])
+        xy = np.asarray(arrays["plot_path"])
+        if "plot_path_measured" in arrays:
+            m = np.asarray(arrays["plot_path_measured"])
+            ok = np.isfinite(m).all(axis=1)
+            ax.plot(m[ok, 0], m[ok, 1], ".", color="tab:blue", ms=3, label="measured")
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:green", lw=1.0, label="filtered")
+        ax.plot(xy[:1, 0], xy[:1, 1], "o", color="tab:green", ms=4, label="start")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title("x-y path", fontsize="small")
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax.legend(loc="best", fontsize="small")
+    if title:
+        fig.suptitle(title, fontsize="medium")
+    return fig
+
+
 def optimum_figure(arrays: dict):
     """Mean distance of each filter's estimate from the exact minimum-energy estimate over time (log scale),
     from saved arrays."""

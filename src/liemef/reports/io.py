@@ -384,12 +384,15 @@ def _read_npz(p: Path, layout: LogLayout) -> RecordedLog:
 
 def read_log(path: str | os.PathLike, system_or_input_dim, output_dim: int | None = None) -> RecordedLog:
     """A recorded log (CSV or NPZ, see the module docstring) for ``system`` (its input and output names are
-    the columns) or for ``input_dim`` inputs and ``output_dim`` outputs (columns ``u1..um``, ``y1..yp``).
+    the columns), for a :class:`LogLayout` of columns, or for ``input_dim`` inputs and ``output_dim`` outputs
+    (columns ``u1..um``, ``y1..yp``).
 
     Empty fields and NaN are missing samples. ValueError on a missing file, missing columns, non-numbers,
     infinities or unsorted time stamps, naming what was expected and what came."""
     if isinstance(system_or_input_dim, int | np.integer):
         layout = LogLayout.of(None, system_or_input_dim, output_dim)
+    elif isinstance(system_or_input_dim, LogLayout):  # the columns alone: read without the system (nor JAX)
+        layout = system_or_input_dim
     else:
         layout = LogLayout.of(system_or_input_dim)
     p = _existing_file(path, "log")

@@ -95,8 +95,9 @@ def save_figure(fig: Figure, path: str | os.PathLike, dpi: int = 130) -> Path:
 def write_figures(out: str | os.PathLike, figures: Sequence[Mapping] | None = None) -> list[Path]:
     """Draw the figures of the result saved in the folder ``out`` from its ``arrays.npz``.
 
-    ``figures`` are dicts with ``file``, ``components`` and ``title``; by default the ``figures`` listed in
-    the folder's ``metrics.json``.
+    ``figures`` are dicts with ``file``, ``components`` and ``title`` (and ``kind`` ``"run"`` for
+    :func:`liemef.reports.figures.run_figure`); by default the ``figures`` listed in the folder's
+    ``metrics.json``.
     """
     d = Path(out)
     arrays = io.read_arrays(d / io.ARRAYS_FILE)
@@ -104,6 +105,11 @@ def write_figures(out: str | os.PathLike, figures: Sequence[Mapping] | None = No
         figures = io.read_metrics(d / io.METRICS_FILE).get("figures", [])
     written = []
     for spec in figures:
-        fig = state_figure(arrays, spec["components"], spec.get("title", ""))
+        if spec.get("kind") == "run":  # liemef run's figure: bands from K, roll/pitch/yaw, the x-y path
+            from .figures import run_figure
+
+            fig = run_figure(arrays, spec.get("title", ""))
+        else:
+            fig = state_figure(arrays, spec["components"], spec.get("title", ""))
         written.append(save_figure(fig, d / spec["file"]))
     return written

@@ -199,5 +199,35 @@ SYSTEMS: dict[str, str] = {
 """The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``) with their descriptions; each
 is built by :data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""
 
+
+
+def system_schema(name: str) -> dict:
+    """The log schema of the ready system ``name`` (:data:`SYSTEMS`), without JAX: its description, ``inputs``,
+    ``outputs``, sensor ``blocks`` ``[name, start, stop]``, ``coords_dim``, ``tangent_dim`` and the ``text`` that
+    ``liemef schema`` prints (:func:`liemef.studies.logs.system_schema`, generated into
+    :mod:`liemef.studies._schemas`). A ValueError for an unknown name."""
+    from ._schemas import SCHEMAS
+
+    if name not in SCHEMAS:
+        raise ValueError(f"system: expected one of {sorted(SCHEMAS)}, got {name!r}")
+    return SCHEMAS[name]
+
+
+FILTERS: dict[str, str] = {
+    "mef": "minimum-energy filter, second order, (0)-connection (the default)",
+    "mef-minus": "minimum-energy filter, second order, (-)-connection",
+    "mef-plus": "minimum-energy filter, second order, (+)-connection",
+    "mef-first": "first-order minimum-energy filter (continuous-time left-invariant EKF)",
+    "iekf": "invariant EKF (left-invariant error), discrete",
+    "iekf-right": "invariant EKF with the right-invariant error (ukfm's iekf of inertial navigation), discrete",
+    "ekf": "EKF in local coordinates (rotation multiplicative, position additive), discrete",
+    "ukf-left": "UKF-M with the left retraction (ukfm's ukf_left), discrete",
+    "ukf-right": "UKF-M with the right retraction (ukfm's ukf_right), discrete",
+    "ukf-local": "UKF-M in local coordinates (rotation multiplicative, position additive; ukfm's ukf_so3xr6), "
+                 "discrete",
+}
+"""The filters of the comparisons (``liemef compare --filters``) with their descriptions; each is built by
+:data:`liemef.studies.compare._common.FILTERS`."""
+
 DATASETS = ("broad", "wifibot")
 """The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""

@@ -13,26 +13,23 @@ from ... import _validate
 from ...filters import AbstractFilter, MinimumEnergyFilter
 from ...filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_ekf, ukf_m
 from ...metrics._stats import json_number
+from .. import registry
 
-FILTERS = {
-    "mef": ("minimum-energy filter, second order, (0)-connection (the default)",
-            lambda s: MinimumEnergyFilter(s)),
-    "mef-minus": ("minimum-energy filter, second order, (-)-connection",
-                  lambda s: MinimumEnergyFilter(s, connection="minus")),
-    "mef-plus": ("minimum-energy filter, second order, (+)-connection",
-                 lambda s: MinimumEnergyFilter(s, connection="plus")),
-    "mef-first": ("first-order minimum-energy filter (continuous-time left-invariant EKF)",
-                  lambda s: MinimumEnergyFilter(s, order="first")),
-    "iekf": ("invariant EKF (left-invariant error), discrete", invariant_ekf),
-    "iekf-right": ("invariant EKF with the right-invariant error (ukfm's iekf of inertial navigation), discrete",
-                   lambda s: ExtendedKalmanFilter(s, "right")),
-    "ekf": ("EKF in local coordinates (rotation multiplicative, position additive), discrete", local_ekf),
-    "ukf-left": ("UKF-M with the left retraction (ukfm's ukf_left), discrete", ukf_m),
-    "ukf-right": ("UKF-M with the right retraction (ukfm's ukf_right), discrete", lambda s: ukf_m(s, "right")),
-    "ukf-local": ("UKF-M in local coordinates (rotation multiplicative, position additive; ukfm's ukf_so3xr6), "
-                  "discrete", lambda s: ukf_m(s, "local")),
+_FACTORIES = {
+    "mef": lambda s: MinimumEnergyFilter(s),
+    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus"),
+    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus"),
+    "mef-first": lambda s: MinimumEnergyFilter(s, order="first"),
+    "iekf": invariant_ekf,
+    "iekf-right": lambda s: ExtendedKalmanFilter(s, "right"),
+    "ekf": local_ekf,
+    "ukf-left": ukf_m,
+    "ukf-right": lambda s: ukf_m(s, "right"),
+    "ukf-local": lambda s: ukf_m(s, "local"),
 }
-"""Filter names of the comparisons: a description and a factory from a system."""
+FILTERS = {name: (description, _FACTORIES[name]) for name, description in registry.FILTERS.items()}
+"""Filter names of the comparisons: a description (declared in :data:`liemef.studies.registry.FILTERS`) and a
+factory from a system."""
 
 
 def make_filter(name: str, system) -> AbstractFilter:
@@ -157,6 +154,32 @@ def bootstrap_interval(x: np.ndarray, stat, *, n_boot: int = 2000, prob: float =
     s = np.array([stat(x[i]) for i in idx])
     lo, hi = np.percentile(s, [50 * (1 - prob), 50 * (1 + prob)])
     return [float(lo), float(hi)]
+
+
+FAR_FACTOR = 10.0
+"""A NEES is flagged "far above" (below) its chi-square bounds beyond FAR_FACTOR times the upper bound (below the
+lower bound divided by it): the filter's K does not describe its error, whatever its status says."""
+
+
+def nees_flag(mean: float | None, bounds) -> str | None:
+    """How a mean NEES (per dimension) sits against its 95 % chi-square ``bounds`` (lo, hi): ``"within"``,
+    ``"above"``, ``"below"``, ``"far above"`` or ``"far below"`` (beyond :data:`FAR_FACTOR`); None without a
+    value. The bounds are those of one step's average over the trials; a mean over time as well is tighter, so
+    "above" and "below" are the conservative reading."""
+    if mean is None or not math.isfinite(mean):
+        return None
+    lo, hi = bounds
+    if mean > hi:
+        return "far above" if mean > FAR_FACTOR * hi else "above"
+    if mean < lo:
+        return "far below" if mean < lo / FAR_FACTOR else "below"
+    return "within"
+
+
+def nees_cell(mean: float | None, bounds, digits: int = 3) -> str:
+    """A table cell of a mean NEES, marked when far outside its bounds (:func:`nees_flag`)."""
+    flag = nees_flag(mean, bounds)
+    return fmt(mean, digits) + (f" ({flag}!)" if flag is not None and flag.startswith("far") else "")
 
 
 def fmt(v, digits: int = 4) -> str:

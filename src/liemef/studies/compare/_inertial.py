@@ -40,6 +40,8 @@ from ._common import (
     check_counts,
     fmt,
     make_filter,
+    nees_cell,
+    nees_flag,
     paired_comparison,
     parse_filters,
     versus_published,
@@ -189,7 +191,7 @@ def summarize(config: I.InertialConfig, name: str, out: dict, trials: dict, prob
         return {"mean": float(x.mean()), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
 
     pooled = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
-    entry = {"filter": FILTERS[name][0], "runs": int(ok.size), "healthy": n}
+    entry = {"filter": FILTERS[name][0], "runs": int(ok.size), "status_ok": n}
     for key, _, _ in METRICS:
         entry[key] = dist(trials[key])
     for key in ("attitude_rms", "position_rms", "velocity_rms", "attitude_rms_steady", "position_rms_steady"):
@@ -199,6 +201,7 @@ def summarize(config: I.InertialConfig, name: str, out: dict, trials: dict, prob
     for key, _ in NEES:
         entry[key] = {**dist(trials[key]), "interval": bootstrap_interval(trials[key][ok], np.mean),
                       "chi2_bounds": list(chi2_bounds(3, max(n, 1), prob, per_dof=True))}
+        entry[key]["flag"] = nees_flag(entry[key]["mean"], entry[key]["chi2_bounds"])
     codes = out["code"]
     failed = np.flatnonzero(codes != 0)
     entry["diverged"] = {"count": int(failed.size),
@@ -232,7 +235,7 @@ def compare_inertial(study: InertialComparison | None = None, *, progress: bool 
         if progress:
             e = per_filter[name]
             print(f"  {name:10s} attitude {fmt(e['attitude_rms']['pooled'])} deg, position "
-                  f"{fmt(e['position_rms']['pooled'])} m (pooled, all n, {e['healthy']} trials); NEES "
+                  f"{fmt(e['position_rms']['pooled'])} m (pooled, all n, {e['status_ok']} trials with status ok); NEES "
                   f"{fmt(e['nees_attitude']['mean'], 3)} / {fmt(e['nees_position']['mean'], 3)}; "
                   f"{e['diverged']['count']} diverged; {elapsed:.1f} s", flush=True)
     winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}) for key, label, _ in METRICS}
@@ -268,8 +271,10 @@ def markdown(result: dict) -> str:
     lines = [f"# Filters on ukfm's inertial-navigation benchmark ({st['runs']} trials, seed {st['seed']})", "",
              f"{st['scenario']}; {st['keys']}. Per trial: rms over all n (ukfm's figure) and over t >= "
              f"{st['steady']:g} s; pooled = sqrt(mean over trials and steps) with a 95 % bootstrap interval over the "
-             "trials; NEES: mean over n >= 1 and the healthy trials, divided by 3.", "",
-             "| filter | healthy | attitude rms [deg] (95 %) | position rms [m] (95 %) | attitude NEES | "
+             "trials; NEES: mean over n >= 1 and the trials with status ok, divided by 3. Status ok: the trials the "
+             "filter ran through without a failure (finite, K symmetric and positive definite), not that it "
+             "converged.", "",
+             "| filter | status ok | attitude rms [deg] (95 %) | position rms [m] (95 %) | attitude NEES | "
              "position NEES | position NEES, ukfm's M | attitude rms t >= steady [deg] | position rms t >= "
              "steady [m] |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, e in pf.items():
@@ -277,14 +282,15 @@ def markdown(result: dict) -> str:
         for key in ("attitude_rms", "position_rms"):
             lo, hi = e[key]["pooled_interval"]
             cells.append(f"{fmt(e[key]['pooled'])} ({fmt(lo, 3)}-{fmt(hi, 3)})")
-        nees = [fmt(e[key]["mean"], 3) for key, _ in NEES]
+        nees = [nees_cell(e[key]["mean"], e[key]["chi2_bounds"]) for key, _ in NEES]
         steady = [fmt(e[key]["pooled"]) for key in ("attitude_rms_steady", "position_rms_steady")]
-        lines.append(f"| {name} | {e['healthy']}/{e['runs']} | {cells[0]} | {cells[1]} | {' | '.join(nees)} | "
+        lines.append(f"| {name} | {e['status_ok']}/{e['runs']} | {cells[0]} | {cells[1]} | {' | '.join(nees)} | "
                      f"{' | '.join(steady)} |")
     e0 = next(iter(pf.values()))
     lo, hi = e0["nees_attitude"]["chi2_bounds"]
     lines += ["", f"NEES: 1 for a consistent filter; the 95 % chi-square bounds of one step's average over the "
-              f"trials: {lo:.3f}-{hi:.3f}. ukfm's M: ukfm's map of a right-invariant filter's covariance, with "
+              f"trials: {lo:.3f}-{hi:.3f}; '(far above!)' marks a NEES beyond 10 times the upper bound. ukfm's M: "
+              "ukfm's map of a right-invariant filter's covariance, with "
               "+[p_hat]_x where the first-order map has a minus sign (the same as the first for the others)."]
     with_pub = {n: e["published"] for n, e in pf.items() if "published" in e}
     if with_pub:
@@ -309,14 +315,14 @@ def markdown(result: dict) -> str:
 
 def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     """One row per filter: the means, pooled values, NEES and counts."""
-    header = ["filter", "runs", "healthy", "diverged"]
+    header = ["filter", "runs", "status_ok", "diverged"]
     for key, _, _ in METRICS:
         header += [f"{key}_mean", f"{key}_p5", f"{key}_p95"]
     header += ["attitude_pooled", "position_pooled", "attitude_steady_pooled", "position_steady_pooled"]
     header += [key for key, _ in NEES]
     rows = []
     for name, e in result["filters"].items():
-        row = [name, e["runs"], e["healthy"], e["diverged"]["count"]]
+        row = [name, e["runs"], e["status_ok"], e["diverged"]["count"]]
         for key, _, _ in METRICS:
             row += [e[key]["mean"], e[key]["p5"], e[key]["p95"]]
         row += [e[k]["pooled"] for k in ("attitude_rms", "position_rms", "attitude_rms_steady", "position_rms_steady")]
