@@ -181,6 +181,40 @@ def test_compare_inertial_basin_at_a_tiny_size(tmp_path):
     assert "| iekf-right |" in md and "NEES per degree of freedom" in md
 
 
+def test_the_inertial_basin_settings_on_a_tiny_config():
+    st = InertialBasin(runs=2, duration=2.0, angles_deg=[0, 90, 179], filters="mef,ekf", prior_std_deg=45)
+    assert st.angles_deg == (0.0, 90.0, 179.0) and st.filters == ("mef", "ekf")
+    assert st.config.n_states == 200 and st.config.obs_indices.tolist() == [100]
+    np.testing.assert_allclose(np.diag(st.K0), [math.radians(45) ** 2] * 3 + [0.0] * 3 + [1.0 / 3.0] * 3)
+    with pytest.raises(ValueError, match="duration"):
+        InertialBasin(duration=0.5)  # no observation within the run
+    with pytest.raises(ValueError, match="tolerance_deg"):
+        InertialBasin(tolerance_deg=-1.0)
+    with pytest.raises(ValueError, match="runs"):
+        InertialBasin(runs=0)
+
+
+@pytest.mark.slow  # about 3 min on a shared core: two 3000-step compilations (MEF, EKF)
+def test_from_120_deg_the_mef_converges_and_the_ekf_does_not():
+    """The first three trials of the measured basin (docs/comparisons.md, inertial-basin: 10 trials, seed 0) at
+    120 deg: the MEF converged in 10 of 10 there, the SO(3) x R^6 EKF in 0 of 10 with no failure reported."""
+    from liemef.studies.compare import make_filter
+    from liemef.studies.compare._basins import basin_trials, convergence
+    from liemef.studies.compare._inertial_basin import _trial_fn
+
+    st = InertialBasin(runs=10, angles_deg=(120.0,), filters="mef,ekf")
+    s = I.setup(st.config)
+    fn = _trial_fn(st.config)
+    keys = jax.random.split(jax.random.key(st.seed), st.runs)[:3]
+    g0 = jax.tree_util.tree_map(lambda a: a[0], s.truth)
+    for name, converged in (("mef", [True] * 3), ("ekf", [False] * 3)):
+        flt = make_filter(name, s.system)
+        err, code, _ = basin_trials(fn, flt, flt.init(g0, st.K0), keys, 120.0, 1)
+        ok, _ = convergence(st.config.ts, err, code, st.tolerance_deg)
+        assert ok.tolist() == converged, name
+        assert np.all(code == 0), name  # the EKF stays healthy: a wrong estimate, no failure reported
+
+
 def test_the_local_chart_of_se23_is_ukfms_so3_times_r6():
     """ukfm's chart: the rotation error in the world frame, C = Exp(e_R) C_hat, the vectors additive."""
     from liemef.filters.baselines import retraction
