@@ -86,6 +86,39 @@ def test_convergence_is_staying_below_the_tolerance_to_the_end():
     assert not ok[2]
 
 
+def test_a_basin_row_counts_the_trials_that_converge_the_same_way_in_every_basin_study():
+    from liemef.metrics import wilson_interval
+    from liemef.studies.compare._basins import basin_row, fraction_and_time, last_quarter, progress_line
+
+    ts = np.linspace(0.0, 10.0, 11)
+    assert last_quarter(ts).tolist() == [False] * 8 + [True] * 3  # t >= 7.5
+    err = np.array([[9, 8, 4, 3, 6, 2, 1, 1, 1, 1, 1], [9, 1, 1, 1, 1, 1, 1, 1, 1, 7, 1],
+                    [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1], [9, 9, 9, 1, 1, 1, 1, 1, 1, 1, 1]], float)
+    code = np.array([0, 0, 0, 2])  # the last trial's filter failed: not converged whatever its errors
+    row = basin_row(90.0, *convergence(ts, err, code, 5.0), code)
+    assert (row["converged"], row["trials"], row["failed"]) == (2, 4, 1) and row["fraction"] == 0.5
+    assert row["wilson95"] == list(wilson_interval(2, 4))
+    assert row["time_median_s"] == 2.5 and row["time_p90_s"] == pytest.approx(4.5)  # converged at 5 s and 0 s
+    none = basin_row(179.0, *convergence(ts, 10 + err, np.zeros(4), 5.0), np.zeros(4))
+    assert none["converged"] == 0 and none["time_median_s"] is None and none["wilson95"][0] == 0.0
+    frac, times = fraction_and_time([row, none])
+    assert frac == [0.5, 0.0] and times[0] == 2.5 and np.isnan(times[1])
+    assert progress_line("mef", [row, none], 3.0) == "  mef        converged: 90 deg 2/4, 179 deg 0/4; 1 failed; 3.0 s"
+
+
+def test_distribution_and_pooled_rms_of_per_trial_metrics():
+    from liemef.studies.compare._common import distribution, pooled_rms
+
+    x = np.array([1.0, np.nan, 3.0, 2.0])  # a failed trial is NaN and left out
+    d = distribution(x)
+    assert d["mean"] == 2.0 and d["p5"] == pytest.approx(1.1) and d["p95"] == pytest.approx(2.9)
+    assert distribution(np.full(3, np.nan)) == {"mean": None, "p5": None, "p95": None}
+    # per-trial rms over windows of one length pool to the rms over every trial and step
+    series = np.random.default_rng(0).normal(size=(5, 40))
+    per_trial = np.sqrt(np.mean(series**2, axis=1))
+    assert pooled_rms(per_trial) == pytest.approx(np.sqrt(np.mean(series**2)), rel=1e-14)
+
+
 @pytest.mark.parametrize("filters", [
     "iekf,ekf",
     pytest.param("mef,mef-first,mef-minus,mef-plus,iekf,ekf,ukf-left", marks=pytest.mark.slow),

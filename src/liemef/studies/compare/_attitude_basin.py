@@ -50,7 +50,7 @@ import numpy as np
 from ...filters import MinimumEnergyFilter
 from ...filters.baselines import Madgwick, Mahony
 from ...groups import R3, SO3, TSO3
-from ...metrics import chi2_bounds, left_error, nees, wilson_interval
+from ...metrics import chi2_bounds, left_error, nees
 from ...metrics._stats import json_number
 from ...reports import io
 from ...simulation import simulate_core
@@ -58,7 +58,15 @@ from ...systems import attitude_gyro_bias
 from ...systems.attitude_bias import GYRO_STD
 from .. import optimum
 from ..experiments import attitude as A
-from ._basins import basin_figure, convergence
+from ._basins import (
+    basin_figure,
+    basin_row,
+    basin_trials,
+    convergence,
+    fraction_and_time,
+    last_quarter,
+    progress_line,
+)
 from ._common import FILTERS, check_counts, fmt, parse_names
 
 SCHEMA = "liemef.compare.attitude-basin/1"
@@ -242,13 +250,11 @@ def _description(name: str) -> str:
 
 
 def _row(angle: float, ok: np.ndarray, t_conv: np.ndarray, code: np.ndarray, nees_last: np.ndarray | None) -> dict:
-    n, k = ok.size, int(ok.sum())
-    times = t_conv[ok]
+    """:func:`~liemef.studies.compare._basins.basin_row` with the mean NEES per degree of freedom over the last
+    quarter of the trials that converge (``nees_last`` per trial; None without it or when none converges)."""
+    k = int(ok.sum())
     nees_mean = None if nees_last is None or k == 0 else json_number(float(np.mean(nees_last[ok])))
-    return {"angle_deg": angle, "converged": k, "trials": n, "fraction": k / n, "nees_per_dof": nees_mean,
-            "wilson95": list(wilson_interval(k, n)), "failed": int(np.sum(code != 0)),
-            "time_median_s": json_number(float(np.median(times))) if k else None,
-            "time_p90_s": json_number(float(np.percentile(times, 90))) if k else None}
+    return {**basin_row(angle, ok, t_conv, code), "nees_per_dof": nees_mean}
 
 
 def _system(st: AttitudeBasin, name: str):
@@ -310,26 +316,19 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
                     err, code = _ahrs_trials(flt, logs_fn, keys, alpha_rad, st.batch_size, ts)
                 else:
                     state0 = flt.init(g0, K0)
-                    parts = [fn(flt, state0, keys[i:i + st.batch_size], alpha_rad)
-                             for i in range(0, st.runs, st.batch_size)]
-                    err = np.concatenate([np.asarray(p[0]) for p in parts])
-                    code = np.concatenate([np.asarray(p[1]) for p in parts])
-                    last = ts >= ts[0] + 0.75 * (ts[-1] - ts[0])
-                    nees_last = np.concatenate([np.asarray(p[2]) for p in parts])[:, last].mean(axis=1)
+                    err, code, nees_dof = basin_trials(fn, flt, state0, keys, a, st.batch_size)
+                    nees_last = nees_dof[:, last_quarter(ts)].mean(axis=1)
                 ok, t_conv = convergence(ts, err, code, st.tolerance_deg)
                 rows.append(_row(a, ok, t_conv, code, nees_last))
                 if with_optimum and name not in AHRS:
                     rows[-1].update(_optimum_distances(st, flt, state0, make_log, system, K0,
                                                        keys[:st.optimum_runs], alpha_rad, map_cache))
             per_filter[name] = {"filter": _description(name), "angles": rows, "elapsed_s": time.perf_counter() - t0}
-            frac.append([r["fraction"] for r in rows])
-            t_med.append([np.nan if r["time_median_s"] is None else r["time_median_s"] for r in rows])
+            fr, tm = fraction_and_time(rows)
+            frac.append(fr)
+            t_med.append(tm)
             if progress:
-                failed = sum(r["failed"] for r in rows)
-                print(f"  {name:10s} converged: " + ", ".join(f"{r['angle_deg']:g} deg {r['converged']}/{r['trials']}"
-                                                              for r in rows)
-                      + (f"; {failed} failed" if failed else "") + f"; {per_filter[name]['elapsed_s']:.1f} s",
-                      flush=True)
+                print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
         systems[sname] = {"description": SYSTEMS[sname], "setup": setup, "samples": int(len(ts)),
                           "filters": per_filter}
         key = sname.replace("-", "_")

@@ -53,17 +53,7 @@ class HeadingBasin:
     batch_size: int = 50
 
     def __post_init__(self):
-        check_counts(self, "runs", "batch_size")
-        angles = tuple(float(a) for a in self.angles_deg)
-        if not angles or any(not (math.isfinite(a) and 0.0 <= a <= 180.0) for a in angles):
-            raise ValueError(f"angles_deg: expected angles in [0, 180] deg, got {self.angles_deg!r}")
-        for name in ("prior_std_deg", "tolerance_deg"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a positive angle in deg, got {v!r}")
-        object.__setattr__(self, "angles_deg", angles)
-        object.__setattr__(self, "filters", parse_filters(self.filters, DEFAULT_FILTERS))
-        self.config  # noqa: B018  (checks the duration)
+        check_basin_settings(self, DEFAULT_FILTERS)
 
     @property
     def config(self) -> L.LocalizationConfig:
@@ -86,13 +76,71 @@ def _trial_fn(config: L.LocalizationConfig):
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0, None)))
 
 
+# --- what the basin studies share (heading-basin, attitude-basin, inertial-basin) ---------------------------
+def check_basin_settings(settings, default_filters) -> None:
+    """Check and normalize a basin study's common settings: ``runs`` and ``batch_size`` (integers >= 1),
+    ``angles_deg`` (a non-empty sequence in [0, 180] deg, stored as a tuple of floats), ``prior_std_deg`` and
+    ``tolerance_deg`` (positive angles), ``filters`` (:func:`~liemef.studies.compare._common.parse_filters`, default
+    ``default_filters``), and the duration through the settings' ``config``."""
+    check_counts(settings, "runs", "batch_size")
+    angles = tuple(float(a) for a in settings.angles_deg)
+    if not angles or any(not (math.isfinite(a) and 0.0 <= a <= 180.0) for a in angles):
+        raise ValueError(f"angles_deg: expected angles in [0, 180] deg, got {settings.angles_deg!r}")
+    for name in ("prior_std_deg", "tolerance_deg"):
+        v = getattr(settings, name)
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected a positive angle in deg, got {v!r}")
+    object.__setattr__(settings, "angles_deg", angles)
+    object.__setattr__(settings, "filters", parse_filters(settings.filters, default_filters))
+    settings.config  # noqa: B018  (checks the duration)
+
+
+def last_quarter(ts: np.ndarray) -> np.ndarray:
+    """The samples of the last quarter of the run: t >= t_0 + 3/4 (t_end - t_0)."""
+    ts = np.asarray(ts)
+    return ts >= ts[0] + 0.75 * (ts[-1] - ts[0])
+
+
+def basin_trials(fn, flt, state0, keys, angle_deg: float, batch_size: int) -> tuple[np.ndarray, ...]:
+    """The outputs of a study's trial function ``fn(flt, state0, keys, alpha)`` (vmapped over the keys, the angle
+    in rad a traced argument) over all ``keys`` at ``angle_deg``, in batches of ``batch_size``, concatenated."""
+    alpha = jnp.asarray(math.radians(angle_deg))
+    parts = [fn(flt, state0, keys[i:i + batch_size], alpha) for i in range(0, keys.shape[0], batch_size)]
+    return tuple(np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(len(parts[0])))
+
+
+def basin_row(angle: float, ok: np.ndarray, t_conv: np.ndarray, code: np.ndarray) -> dict:
+    """One angle's row: converged k of n, the fraction with its 95 % Wilson interval, the failed trials, and the
+    median and 90th percentile of the time to converge over the trials that converge (None when none does)."""
+    n, k = ok.size, int(ok.sum())
+    times = t_conv[ok]
+    return {"angle_deg": angle, "converged": k, "trials": n, "fraction": k / n,
+            "wilson95": list(wilson_interval(k, n)), "failed": int(np.sum(code != 0)),
+            "time_median_s": json_number(float(np.median(times))) if k else None,
+            "time_p90_s": json_number(float(np.percentile(times, 90))) if k else None}
+
+
+def fraction_and_time(rows: list[dict]) -> tuple[list[float], list[float]]:
+    """Per angle: the fraction converged and the median time to converge (NaN when none converges), for the
+    figure's arrays."""
+    return ([r["fraction"] for r in rows],
+            [np.nan if r["time_median_s"] is None else r["time_median_s"] for r in rows])
+
+
+def progress_line(name: str, rows: list[dict], elapsed: float) -> str:
+    """The progress line of one filter: converged k/n per angle, the failures and the time taken."""
+    failed = sum(r["failed"] for r in rows)
+    return (f"  {name:10s} converged: " + ", ".join(f"{r['angle_deg']:g} deg {r['converged']}/{r['trials']}"
+                                                     for r in rows)
+            + (f"; {failed} failed" if failed else "") + f"; {elapsed:.1f} s")
+
+
 def convergence(ts: np.ndarray, abs_err: np.ndarray, code: np.ndarray, tolerance: float) -> tuple[np.ndarray,
                                                                                                   np.ndarray]:
     """Per trial: whether it converges (healthy, |error| < tolerance over the last quarter) and its time to
     converge (the first time after which |error| stays below the tolerance; NaN when it does not converge)."""
     bad = ~(abs_err < tolerance)  # NaN counts as bad
-    last_quarter = ts >= ts[0] + 0.75 * (ts[-1] - ts[0])
-    ok = (code == 0) & ~np.any(bad[:, last_quarter], axis=1)
+    ok = (code == 0) & ~np.any(bad[:, last_quarter(ts)], axis=1)
     # index of the last bad sample, -1 when none
     last_bad = np.where(bad.any(axis=1), bad.shape[1] - 1 - np.argmax(bad[:, ::-1], axis=1), -1)
     t_conv = ts[np.minimum(last_bad + 1, ts.size - 1)]
@@ -113,28 +161,16 @@ def compare_heading_basin(study: HeadingBasin | None = None, *, progress: bool =
         t0 = time.perf_counter()
         flt = make_filter(name, s.system)
         state0 = flt.init(s.truth[0], K0)
-        rows, fr, tm = [], [], []
+        rows = []
         for a in st.angles_deg:
-            parts = [fn(flt, state0, keys[i:i + st.batch_size], jnp.asarray(math.radians(a)))
-                     for i in range(0, st.runs, st.batch_size)]
-            err = np.concatenate([np.asarray(p[0]) for p in parts])
-            code = np.concatenate([np.asarray(p[1]) for p in parts])
-            ok, t_conv = convergence(config.ts, err, code, st.tolerance_deg)
-            k = int(ok.sum())
-            times = t_conv[ok]
-            rows.append({"angle_deg": a, "converged": k, "trials": st.runs, "fraction": k / st.runs,
-                         "wilson95": list(wilson_interval(k, st.runs)), "failed": int(np.sum(code != 0)),
-                         "time_median_s": json_number(float(np.median(times))) if k else None,
-                         "time_p90_s": json_number(float(np.percentile(times, 90))) if k else None})
-            fr.append(k / st.runs)
-            tm.append(float(np.median(times)) if k else np.nan)
+            err, code = basin_trials(fn, flt, state0, keys, a, st.batch_size)
+            rows.append(basin_row(a, *convergence(config.ts, err, code, st.tolerance_deg), code))
         per_filter[name] = {"filter": FILTERS[name][0], "angles": rows, "elapsed_s": time.perf_counter() - t0}
+        fr, tm = fraction_and_time(rows)
         frac.append(fr)
         t_med.append(tm)
         if progress:
-            print(f"  {name:10s} converged: " + ", ".join(f"{r['angle_deg']:g} deg {r['converged']}/{r['trials']}"
-                                                          for r in rows) + f"; {per_filter[name]['elapsed_s']:.1f} s",
-                  flush=True)
+            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
     return {"study": {**dataclasses.asdict(st),
                       "scenario": "ukfm 2D localization benchmark with the initial heading error set to +-alpha "
                                   "(sign drawn per trial), position exact",

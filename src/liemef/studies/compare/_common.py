@@ -180,6 +180,20 @@ def nees_cell(mean: float | None, bounds, digits: int = 3) -> str:
     """A table cell of a mean NEES, marked when far outside its bounds (:func:`nees_flag`)."""
     flag = nees_flag(mean, bounds)
     return fmt(mean, digits) + (f" ({flag}!)" if flag is not None and flag.startswith("far") else "")
+def distribution(x: np.ndarray) -> dict:
+    """``mean``, ``p5`` and ``p95`` of the finite values of a per-trial metric (all None when none is finite: a
+    failed trial is NaN)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return {"mean": None, "p5": None, "p95": None}
+    return {"mean": float(x.mean()), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
+
+
+def pooled_rms(x: np.ndarray) -> float:
+    """sqrt(mean(x^2)) over the trials: for per-trial rms over windows of the same length, the rms pooled over the
+    trials and the steps (ukfm's figure)."""
+    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def fmt(v, digits: int = 4) -> str:

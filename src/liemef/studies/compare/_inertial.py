@@ -38,12 +38,14 @@ from ._common import (
     FILTERS,
     bootstrap_interval,
     check_counts,
+    distribution,
     fmt,
     make_filter,
     nees_cell,
     nees_flag,
     paired_comparison,
     parse_filters,
+    pooled_rms,
     versus_published,
     winners_markdown,
 )
@@ -184,22 +186,15 @@ def summarize(config: I.InertialConfig, name: str, out: dict, trials: dict, prob
     ok = np.isfinite(trials["attitude_rms"])
     n = int(ok.sum())
 
-    def dist(x):
-        x = x[np.isfinite(x)]
-        if x.size == 0:
-            return {"mean": None, "p5": None, "p95": None}
-        return {"mean": float(x.mean()), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
-
-    pooled = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     entry = {"filter": FILTERS[name][0], "runs": int(ok.size), "status_ok": n}
     for key, _, _ in METRICS:
-        entry[key] = dist(trials[key])
+        entry[key] = distribution(trials[key])
     for key in ("attitude_rms", "position_rms", "velocity_rms", "attitude_rms_steady", "position_rms_steady"):
         x = trials[key][ok]
-        entry[key]["pooled"] = json_number(pooled(x)) if n else None
-        entry[key]["pooled_interval"] = bootstrap_interval(x, pooled)
+        entry[key]["pooled"] = json_number(pooled_rms(x)) if n else None
+        entry[key]["pooled_interval"] = bootstrap_interval(x, pooled_rms)
     for key, _ in NEES:
-        entry[key] = {**dist(trials[key]), "interval": bootstrap_interval(trials[key][ok], np.mean),
+        entry[key] = {**distribution(trials[key]), "interval": bootstrap_interval(trials[key][ok], np.mean),
                       "chi2_bounds": list(chi2_bounds(3, max(n, 1), prob, per_dof=True))}
         entry[key]["flag"] = nees_flag(entry[key]["mean"], entry[key]["chi2_bounds"])
     codes = out["code"]

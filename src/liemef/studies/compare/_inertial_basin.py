@@ -29,7 +29,6 @@ from dataclasses import dataclass
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ...groups import SE23, SO3
@@ -37,8 +36,8 @@ from ...metrics import left_error, nees
 from ..experiments import inertial as I
 from . import _attitude_basin
 from ._attitude_basin import _axis, _row
-from ._basins import convergence
-from ._common import FILTERS, check_counts, make_filter, parse_filters
+from ._basins import basin_trials, check_basin_settings, convergence, fraction_and_time, last_quarter, progress_line
+from ._common import FILTERS, make_filter
 
 SYSTEM = "inertial-navigation"
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf-right", "ekf", "ukf-left", "ukf-right",
@@ -60,17 +59,7 @@ class InertialBasin:
     batch_size: int = 1  # liemef.studies.compare._inertial.BATCH_NOTE
 
     def __post_init__(self):
-        check_counts(self, "runs", "batch_size")
-        angles = tuple(float(a) for a in self.angles_deg)
-        if not angles or any(not (math.isfinite(a) and 0.0 <= a <= 180.0) for a in angles):
-            raise ValueError(f"angles_deg: expected angles in [0, 180] deg, got {self.angles_deg!r}")
-        for name in ("prior_std_deg", "tolerance_deg"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: expected a positive angle in deg, got {v!r}")
-        object.__setattr__(self, "angles_deg", angles)
-        object.__setattr__(self, "filters", parse_filters(self.filters, DEFAULT_FILTERS))
-        self.config  # noqa: B018  (checks the duration)
+        check_basin_settings(self, DEFAULT_FILTERS)
 
     @property
     def config(self) -> I.InertialConfig:
@@ -111,7 +100,7 @@ def compare_inertial_basin(study: InertialBasin | None = None, *, progress: bool
     keys = jax.random.split(jax.random.key(st.seed), st.runs)
     fn = _trial_fn(config)
     g0 = jax.tree_util.tree_map(lambda a: a[0], s.truth)
-    last = ts >= ts[0] + 0.75 * (ts[-1] - ts[0])
+    last = last_quarter(ts)
     per_filter, frac, t_med = {}, [], []
     for name in st.filters:
         t0 = time.perf_counter()
@@ -119,19 +108,14 @@ def compare_inertial_basin(study: InertialBasin | None = None, *, progress: bool
         state0 = flt.init(g0, st.K0)
         rows = []
         for a in st.angles_deg:
-            parts = [fn(flt, state0, keys[i:i + st.batch_size], jnp.asarray(math.radians(a)))
-                     for i in range(0, st.runs, st.batch_size)]
-            err, code, nees_dof = (np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(3))
-            ok, t_conv = convergence(ts, err, code, st.tolerance_deg)
-            rows.append(_row(a, ok, t_conv, code, nees_dof[:, last].mean(axis=1)))
+            err, code, nees_dof = basin_trials(fn, flt, state0, keys, a, st.batch_size)
+            rows.append(_row(a, *convergence(ts, err, code, st.tolerance_deg), code, nees_dof[:, last].mean(axis=1)))
         per_filter[name] = {"filter": FILTERS[name][0], "angles": rows, "elapsed_s": time.perf_counter() - t0}
-        frac.append([r["fraction"] for r in rows])
-        t_med.append([np.nan if r["time_median_s"] is None else r["time_median_s"] for r in rows])
+        fr, tm = fraction_and_time(rows)
+        frac.append(fr)
+        t_med.append(tm)
         if progress:
-            failed = sum(r["failed"] for r in rows)
-            print(f"  {name:10s} converged: " + ", ".join(f"{r['angle_deg']:g} deg {r['converged']}/{r['trials']}"
-                                                          for r in rows)
-                  + (f"; {failed} failed" if failed else "") + f"; {per_filter[name]['elapsed_s']:.1f} s", flush=True)
+            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
     key = SYSTEM.replace("-", "_")
     setup = (f"ukfm's inertial-navigation benchmark (../shared/scenarios/ukfm_inertial_navigation.md), "
              f"{config.duration:g} s at {1 / config.dt:g} Hz, landmarks at {1 / config.obs_period:g} Hz; K0 = "

@@ -34,12 +34,14 @@ from ._common import (
     FILTERS,
     bootstrap_interval,
     check_counts,
+    distribution,
     fmt,
     make_filter,
     nees_cell,
     nees_flag,
     paired_comparison,
     parse_filters,
+    pooled_rms,
     versus_published,
     winners_markdown,
 )
@@ -147,22 +149,16 @@ def summarize(config: L.LocalizationConfig, name: str, out: dict, trials: dict, 
     ok = np.isfinite(trials["heading_rms"])
     n = int(ok.sum())
 
-    def dist(x):
-        x = x[np.isfinite(x)]
-        if x.size == 0:
-            return {"mean": None, "p5": None, "p95": None}
-        return {"mean": float(x.mean()), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
-
-    pooled = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     entry = {"filter": FILTERS[name][0], "runs": int(ok.size), "status_ok": n}
     for key, _, _ in METRICS:
-        entry[key] = dist(trials[key])
+        entry[key] = distribution(trials[key])
     for key in ("heading_rms", "position_rms"):
         x = trials[key][ok]
-        entry[key]["pooled"] = json_number(pooled(x)) if n else None
-        entry[key]["pooled_interval"] = bootstrap_interval(x, pooled)
+        entry[key]["pooled"] = json_number(pooled_rms(x)) if n else None
+        entry[key]["pooled_interval"] = bootstrap_interval(x, pooled_rms)
     for key, dof in (("nees_heading", 1), ("nees_position", 2)):
-        entry[key] = {**dist(trials[key]), "chi2_bounds": list(chi2_bounds(dof, max(n, 1), prob, per_dof=True))}
+        entry[key] = {**distribution(trials[key]),
+                      "chi2_bounds": list(chi2_bounds(dof, max(n, 1), prob, per_dof=True))}
         entry[key]["flag"] = nees_flag(entry[key]["mean"], entry[key]["chi2_bounds"])
     codes = out["code"]
     failed = np.flatnonzero(codes != 0)
