@@ -118,3 +118,26 @@ def test_layers_in_the_contract_are_the_packages_of_the_tree():
     present = {p.stem if p.is_file() else p.name for p in SRC.iterdir()
                if (p.suffix == ".py" and p.stem != "__init__") or (p.is_dir() and (p / "__init__.py").exists())}
     assert named == present, set(itertools.chain(named - present, present - named))
+
+
+@pytest.mark.parametrize("low, high", [("liemef.reports", "liemef.studies"), ("liemef.metrics", "liemef.reports"),
+                                       ("liemef.filters", "liemef.reports")])
+def test_the_reports_sit_between_the_computing_and_the_studies(low, high):
+    graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
+    assert not graph.chain_exists(importer=low, imported=high, as_packages=True)
+
+
+def test_nothing_below_the_reports_loads_matplotlib():
+    """Every module of the layers below the reports imports without loading matplotlib, even indirectly."""
+    import subprocess
+    import sys
+
+    above = ("liemef.reports", "liemef.studies", "liemef.cli", "liemef.__main__")
+    graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
+    below = sorted(m for m in graph.modules if m != "liemef" and not m.startswith(above))
+    assert "liemef.filters" in below and "liemef.metrics" in below
+    code = ("import importlib, sys\n"
+            f"for m in {below!r}:\n    importlib.import_module(m)\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

@@ -194,7 +194,8 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
               help="Trials per compiled vmap batch (the results do not depend on it).")
 @click.option("--out", type=click.Path(path_type=Path),
               help="Write montecarlo.npz/.json/.md/.csv to this folder (created if missing).")
-@click.option("--duration", type=float, help="Final time T in seconds (default: the paper's).")
+@click.option("--duration", type=float,
+              help=f"Final time T in seconds (default: the paper's); {registry.DURATION_RULE}.")
 @click.option("--quick", is_flag=True, help="Start from the experiment's reduced config.")
 @SETTINGS
 @FORCE
@@ -212,7 +213,7 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
     if exp.trial_fn is None:
         with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
         raise click.UsageError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
-    config = experiment_config(exp, quick, {"duration": duration}, settings)
+    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True)
     target = outputs.claim(out, "montecarlo", force) if out is not None else None
     result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size, progress=progress)
     click.echo(f"{exp.name}: {exp.title}\n  {exp.paper}")

@@ -61,6 +61,12 @@ def error_stats(ts: Float[ArrayLike, " N"], errors: Float[ArrayLike, "N c"],
     return {"mean": mean, "std": jnp.sqrt(var), "rms": jnp.sqrt(ms), "count": n}
 
 
+STATS = ("mean", "std", "rms")
+"""The statistics over time of :func:`error_stats`, in the order statistics arrays stack them."""
+PERCENTILES = (5, 25, 50, 75, 95)
+"""The percentiles across Monte Carlo trials that statistics and tables report."""
+
+
 def json_number(x: float) -> float | None:
     """``x`` as a JSON number: a float, or None (JSON null) if it is NaN or infinite."""
     x = float(x)

@@ -62,12 +62,21 @@ def parse_settings(items: Sequence[str], base: Any) -> dict:
     return out
 
 
-def experiment_config(experiment, quick: bool = False, options: dict | None = None, items: Sequence[str] = ()):
+def experiment_config(experiment, quick: bool = False, options: dict | None = None, items: Sequence[str] = (),
+                      windows_follow: bool = False):
     """The config of ``experiment`` (its reduced one when ``quick``) with ``options`` (None values left out) and
-    the ``KEY=VALUE`` ``items`` replaced; ValueError from the config's own checks."""
+    the ``KEY=VALUE`` ``items`` replaced; ValueError from the config's own checks.
+
+    With ``windows_follow`` (``liemef montecarlo``), a new ``duration`` T moves the statistics windows that would
+    start at or after it (:data:`liemef.studies.registry.DURATION_RULE`, ``RunConfig.window_changes``): their
+    times scale by T / T0, T0 the base config's duration, unless the window is set itself. Without a new
+    duration nothing changes."""
     base = experiment.quick() if quick else experiment.default_config
     overrides = {k: v for k, v in (options or {}).items() if v is not None}
     overrides.update(parse_settings(items, base))
+    if windows_follow and "duration" in overrides and hasattr(base, "window_changes"):
+        changes = base.window_changes(overrides["duration"])
+        overrides = {**{k: v for k, v in changes.items() if k not in overrides}, **overrides}
     return experiment.quick(**overrides) if quick else experiment.config(**overrides)
 
 

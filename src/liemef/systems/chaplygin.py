@@ -37,6 +37,11 @@ SENSORS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "gps": (("x1", "y1", "x2", "y2"), ("m", "m", "m", "m")),
 }
 """Output names and units of each sensor."""
+STATE_NAMES = ("theta", "x", "y", "omega", "v")
+"""The state coordinates: the pose (theta, x, y), then the velocities (omega, v)."""
+CONNECTIONS = ("zero", "minus")
+"""The paper's two connections: (0) (lambda = 1/2, Prop. 1) and (-) (lambda = 0, Sec. 5; with :func:`constraint_K0`
+it keeps the nonholonomic constraint)."""
 
 
 class ChaplyginSleigh(AbstractSystem):
@@ -94,7 +99,7 @@ class ChaplyginSleigh(AbstractSystem):
     @property
     def state_names(self) -> tuple[str, ...]:
         """The pose (theta, x, y), then the velocities (omega, v)."""
-        return ("theta", "x", "y", "omega", "v")
+        return STATE_NAMES
 
     @property
     def state_units(self) -> tuple[str, ...]:

@@ -34,6 +34,30 @@ class RunConfig:
     duration: float
     dt: float
 
+    window_times = ()
+    """The fields that hold times (s) of the statistics windows (a start, or a window (start, stop)): they follow
+    a shorter run (:meth:`window_changes`)."""
+
+    def window_changes(self, duration: float) -> dict:
+        """The window fields moved into a run of ``duration`` s instead of :attr:`duration`: a window of
+        :attr:`window_times` that would start at or after the new final time (so hold no sample) has each of
+        its times ``t`` scaled to ``t * duration / self.duration``, keeping its place in the run (the steady
+        window 10-50 s of a 50 s run becomes 1-5 s of a 5 s run); a window that starts before it is kept (its
+        statistics cover its part of the run). Empty when nothing moves, or for a duration that is not a finite
+        number > 0 (the config's check names it). ``liemef montecarlo --duration`` applies it
+        (:func:`liemef.studies.settings.experiment_config`)."""
+        ok = isinstance(duration, int | float) and not isinstance(duration, bool) and math.isfinite(duration)
+        if not ok or duration <= 0:
+            return {}
+        scale = lambda t: float(t) * duration / self.duration  # noqa: E731
+        out = {}
+        for name in self.window_times:
+            value = getattr(self, name)
+            window = isinstance(value, tuple | list)
+            if (value[0] if window else value) >= duration:
+                out[name] = tuple(scale(t) for t in value) if window else scale(value)
+        return out
+
     def _check_run(self, positive: tuple[str, ...] = ()) -> None:
         """ValueErrors for a seed not an integer in [0, 2**63 - 1], ``duration``, ``dt`` and the ``positive``
         fields not finite numbers > 0, a run shorter than one step, an unknown ``order`` or ``integrator``."""

@@ -128,6 +128,8 @@ class AttitudeConfig(RunConfig):
     filter_omega0: tuple[float, ...] = (0.5, 0.6, 0.4)
     steady: tuple[float, float] = (10.0, 50.0)
 
+    window_times = ("steady",)  # follow a new duration (RunConfig.window_changes)
+
     def __post_init__(self):
         self._check_run(positive=("sigma_eps", "sigma_delta"))
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))

@@ -154,6 +154,8 @@ class InertialConfig(RunConfig):
     steady: float = 10.0
     rng: str = "jax"
 
+    window_times = ("steady",)  # follow a new duration (RunConfig.window_changes)
+
     def __post_init__(self):
         self._check_run(positive=("radius", "period", "gravity", "obs_period", "obs_std", "rot0_std", "p0_std"))
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))

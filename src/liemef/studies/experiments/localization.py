@@ -112,6 +112,8 @@ class LocalizationConfig(RunConfig):
     steady: float = 20.0
     rng: str = "jax"
 
+    window_times = ("steady",)  # follow a new duration (RunConfig.window_changes)
+
     def __post_init__(self):
         self._check_run(positive=("radius", "gps_period", "gps_std", "theta0_std"))
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))

@@ -96,6 +96,8 @@ class TSE2Config(RunConfig):
     substeps: int = 1
     steady: tuple[float, float] = (10.0, 50.0)
 
+    window_times = ("steady",)  # follow a new duration (RunConfig.window_changes)
+
     def __post_init__(self):
         self._check_run()
         _validate.choice("connection", self.connection, set(CARTAN_SCHOUTEN))
