@@ -12,8 +12,8 @@ position fixes, in two variants:
 
 **Lever arm.** The position is taken as the IMU's. A least-squares fit of the lever arm $r$ in
 $R\tilde a - g = \ddot p + R([\dot\omega]_\times + [\omega]_\times^2) r$ (the world specific force against the
-second difference of the smoothed optical position) gives $|r| \le 1.2$ cm on every trial (about 0.8 cm along the
-body z axis): below the 1 cm the recorded fixes are weighted with, so none is modelled (:func:`lever_arm`,
+second difference of the smoothed optical position) gives $|r|$ = 0.7-1.1 cm on every trial, nearly all along the
+body z axis: about the 1 cm the recorded fixes are weighted with, so none is modelled (:func:`lever_arm`,
 reported per trial).
 
 **Timing.** Every sample acts at its own time, as ``compare broad``'s ``mef-vel`` and ``vqf-broad``: IMU sample
