@@ -210,6 +210,10 @@ def test_failures_of_a_comparison_count_every_trial():
                                                    "1.500 s); left out of the statistics"]
     none = {"recordings": {"1": {"filters": {"mef": {"failed": 2, "runs": 2}}}}}
     assert failures(none)[1:] == (2, 2)
+    ins = {"per_trial": {"16": {"variants": {"recorded": {"filters": {"mef": {"ok": True}, "ekf": {
+        "ok": False, "status": "non-finite at t = 3 s"}}}, "noisy": {"filters": {"mef": {"ok": True}}}}}}}
+    lines, failed, total = failures(ins)
+    assert (failed, total) == (1, 3) and lines == ["trial 16 (recorded): ekf failed: non-finite at t = 3 s; no figures"]
 
 
 def test_python_m_liemef_is_the_command_line():

@@ -159,6 +159,15 @@ def test_compare_inertial_navigation_at_a_tiny_size(tmp_path):
     assert winner == min(meta["filters"], key=lambda n: meta["filters"][n]["attitude_rms"]["mean"])
     md = (out / "inertial.md").read_text()
     assert "| iekf-right |" in md and "## Winners" in md and "NaN" not in md
+    pytest.importorskip("evo")
+    # evo's APE is liemef's own error on every state: the translation part of Q^-1 P has the norm |p - p_hat|, its
+    # rotation angle |Log(C^T C_hat)|
+    np.testing.assert_allclose(arrays["ape_translation"], arrays["position_rms"], rtol=1e-9)
+    np.testing.assert_allclose(arrays["ape_rotation"], arrays["attitude_rms"], rtol=1e-6)
+    assert "## APE and RPE (evo)" in md
+    for e in meta["filters"].values():
+        assert e["evo"]["ape_translation"]["mean"] == pytest.approx(e["position_rms"]["mean"], rel=1e-9)
+        assert 0.0 < e["evo"]["rpe_translation"]["mean"] and math.isfinite(e["evo"]["rpe_rotation"]["mean"])
 
 
 @pytest.mark.slow  # about 1.5 min on a shared core

@@ -168,6 +168,15 @@ for _name, _title, _settings, _help in (
      "BROAD's indexing) and ahrs's Madgwick and Mahony (default and published gains), one weight set for all "
      "trials (--set params=tune.json: a `liemef tune` file, each trial run with the fold tuned without it); "
      "writes broad.md, broad.csv, broad.json and arrays.npz."),
+    ("broad-ins", "inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes at 10 Hz",
+     ("trials", "seconds", "attitude_filters", "variants", "fix_rate", "noise_std", "realdata", "ukf_trials",
+      "ukf_variants"),
+     "inertial navigation on SE_2(3) with gyro and accelerometer biases, driven by the real IMU of the BROAD "
+     "recordings, with the optical positions at 10 Hz as position fixes, as recorded and with added white noise "
+     "(noise_std m, --seed): the MEF (both orders), the right-invariant EKF, the EKF and the UKF-M (left, right), "
+     "with stated prior weights; attitude, velocity and position rms against the optical truth, NEES, APE and RPE "
+     "by evo, and the attitude beside compare broad's mef-vel and vqf-broad on the same samples; writes "
+     "broad_ins.md, broad_ins.csv, broad_ins.json and arrays.npz."),
     ("wifibot", "UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
      ("recordings", "gps_rate", "gps_std", "realdata"),
      "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "

@@ -14,6 +14,8 @@ Studies (:data:`STUDIES`):
 * ``inertial-basin``: the convergence basin in the initial attitude error on the same scenario
   (:class:`InertialBasin`);
 * ``broad``: the attitude filters on the BROAD recordings (:class:`BroadComparison`);
+* ``broad-ins``: inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes
+  (:class:`BroadInsComparison`);
 * ``wifibot``: the planar filters on UKF-M's Wifibot runs with synthetic GPS (:class:`WifibotComparison`).
 """
 
@@ -22,10 +24,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import registry
-from . import _attitude_basin, _basins, _broad, _inertial, _inertial_basin, _localization, _wifibot
+from . import _attitude_basin, _basins, _broad, _broad_ins, _inertial, _inertial_basin, _localization, _wifibot
 from ._attitude_basin import AttitudeBasin, compare_attitude_basin
 from ._basins import HeadingBasin, compare_heading_basin
 from ._broad import BroadComparison, compare_broad
+from ._broad_ins import BroadInsComparison, compare_broad_ins
 from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters
 from ._inertial import InertialComparison, compare_inertial
 from ._inertial_basin import InertialBasin, compare_inertial_basin
@@ -52,6 +55,7 @@ _PARTS = {
     "inertial-navigation": (InertialComparison, compare_inertial, _inertial.markdown, _inertial.save),
     "inertial-basin": (InertialBasin, compare_inertial_basin, _inertial_basin.markdown, _inertial_basin.save),
     "broad": (BroadComparison, compare_broad, _broad.markdown, _broad.save),
+    "broad-ins": (BroadInsComparison, compare_broad_ins, _broad_ins.markdown, _broad_ins.save),
     "wifibot": (WifibotComparison, compare_wifibot, _wifibot.markdown, _wifibot.save),
 }
 STUDIES = {name: Study(registry.get("comparison", name).title, *_PARTS[name]) for name in registry.names("comparison")}
@@ -79,6 +83,12 @@ def failures(result: dict) -> tuple[list[str], int, int]:
             failed, total = failed + (not r["ok"]), total + 1
             if not r["ok"]:
                 lines.append(f"trial {tid}: {name} failed: {r['status']}; its errors are of the states before")
+    for tid, per in result.get("per_trial", {}).items():
+        for variant, ve in per["variants"].items():
+            for name, r in ve["filters"].items():
+                failed, total = failed + (not r["ok"]), total + 1
+                if not r["ok"]:
+                    lines.append(f"trial {tid} ({variant}): {name} failed: {r['status']}; no figures")
     for name, e in result.get("filters", {}).items():
         n = e.get("diverged", {}).get("count", 0)
         if "runs" in e:
@@ -99,5 +109,6 @@ __all__ = ["STUDIES", "Study", "failures", "FILTERS", "make_filter", "parse_filt
            "bootstrap_interval",
            "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
            "compare_heading_basin", "AttitudeBasin", "compare_attitude_basin", "BroadComparison", "compare_broad",
+           "BroadInsComparison", "compare_broad_ins",
            "WifibotComparison", "compare_wifibot", "InertialComparison", "compare_inertial", "InertialBasin",
            "compare_inertial_basin"]

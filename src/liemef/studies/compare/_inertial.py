@@ -14,7 +14,9 @@ ukfm's position NEES (:func:`~liemef.studies.experiments.inertial.series`) and t
 percentiles 5 and 95, the pooled rms with a bootstrap interval, the NEES with the chi-square bounds of a
 consistent filter, ukfm's figures beside ours (on ukfm's own runs, per seed; on independent trials, within Monte
 Carlo error: :func:`~liemef.studies.compare._common.versus_published`), and per metric the winner with its paired
-lead over each other filter (:func:`~liemef.studies.compare.paired_comparison`).
+lead over each other filter (:func:`~liemef.studies.compare.paired_comparison`). Beside liemef's own errors, when
+evo is installed (the test and dev extras): each trial's APE and RPE (over 1 s) by evo's library
+(:func:`trajectory_errors`, :func:`liemef.metrics.ape_rpe`), their means over the trials with a bootstrap interval.
 """
 
 from __future__ import annotations
@@ -112,7 +114,8 @@ def _trial_fn(config: I.InertialConfig, right: bool, ukfm_name: str | None):
         log, g0 = I.sensor_log(config, s.truth, s.u_true, draws)
         K0 = state0.K if ukfm_name is None else I.ukfm_initial_K(ukfm_name, config, g0)
         traj = flt.scan(eqx.tree_at(lambda st: (st.g_hat, st.K), state0, (g0, K0)), log.ts, log.us, log.ys)
-        return I.series(s.truth, traj.g_hat, traj.K, right=right), traj.status.code, traj.status.time
+        return (I.series(s.truth, traj.g_hat, traj.K, right=right), traj.status.code, traj.status.time,
+                traj.g_hat.wxyz_p)
 
     return eqx.filter_jit(eqx.filter_vmap(one, in_axes=(None, None, 0)))
 
@@ -121,7 +124,8 @@ def run_filter(name: str, config: I.InertialConfig, draws: I.Draws, batch_size: 
                initial: str = "consistent") -> dict[str, np.ndarray]:
     """One filter on the trials of ``draws`` (:func:`~liemef.studies.experiments.inertial.stacked_draws`), from
     ``initial`` K0 (:class:`InertialComparison`): its error series (runs, N, 6)
-    (:func:`~liemef.studies.experiments.inertial.series`), status codes and failure times."""
+    (:func:`~liemef.studies.experiments.inertial.series`), status codes, failure times and the estimates
+    ``wxyz_p`` (runs, N, 10) (quaternion, velocity, position: :class:`~liemef.groups.SE23`)."""
     s = I.setup(config)
     flt = make_filter(name, s.system)
     state0 = flt.init(jax.tree_util.tree_map(lambda a: a[0], s.truth), config.K0)
@@ -130,8 +134,37 @@ def run_filter(name: str, config: I.InertialConfig, draws: I.Draws, batch_size: 
     runs = draws.rot0.shape[0]
     parts = [fn(flt, state0, jax.tree_util.tree_map(lambda a, i=i: a[i:i + batch_size], draws))
              for i in range(0, runs, batch_size)]
-    ser, code, t_fail = (np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(3))
-    return {"series": ser, "code": code, "time": t_fail}
+    ser, code, t_fail, est = (np.concatenate([np.asarray(p[k]) for p in parts]) for k in range(4))
+    return {"series": ser, "code": code, "time": t_fail, "wxyz_p": est}
+
+
+EVO_KEYS = (("ape_translation", "APE translation", "m"), ("ape_rotation", "APE rotation", "deg"),
+            ("rpe_translation", "RPE translation", "m"), ("rpe_rotation", "RPE rotation", "deg"))
+"""The trajectory errors by evo (:func:`liemef.metrics.ape_rpe`), each as its rmse over a trial's poses."""
+
+
+def trajectory_errors(config: I.InertialConfig, out: dict[str, np.ndarray], delta_s: float = 1.0
+                      ) -> dict[str, np.ndarray] | None:
+    """APE and RPE (:data:`EVO_KEYS`, rmse per trial) of each healthy trial's estimates against the truth by evo's
+    library (:func:`liemef.metrics.ape_rpe`), on all N states; RPE over ``delta_s`` seconds of states. NaN for a
+    failed trial; None when evo is not installed."""
+    try:
+        import evo  # noqa: F401
+    except ImportError:
+        return None
+    from ...groups import SE23
+    from ...metrics import ape_rpe
+
+    truth = I.setup(config).truth
+    delta = max(1, int(round(delta_s / config.dt)))
+    res = {key: np.full(out["code"].shape[0], np.nan) for key, _, _ in EVO_KEYS}
+    for i, est in enumerate(out["wxyz_p"]):
+        if out["code"][i] != 0 or not np.isfinite(est).all():
+            continue
+        r = ape_rpe(config.ts, SE23(est), config.ts, truth, delta=delta, max_diff=1e-6)
+        for key, _, _ in EVO_KEYS:
+            res[key][i] = r[key]["rmse"]
+    return res
 
 
 def per_trial(config: I.InertialConfig, out: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -223,6 +256,12 @@ def compare_inertial(study: InertialComparison | None = None, *, progress: bool 
         trials[name] = per_trial(config, out)
         per_filter[name] = summarize(config, name, out, trials[name], same_runs=same, overlap=overlap, seed=st.seed)
         per_filter[name]["elapsed_s"] = elapsed
+        evo_res = trajectory_errors(config, out)
+        if evo_res is not None:
+            trials[name].update(evo_res)
+            per_filter[name]["evo"] = {key: {"mean": json_number(float(np.nanmean(v))) if np.isfinite(v).any()
+                                             else None, "interval": bootstrap_interval(v[np.isfinite(v)], np.mean)}
+                                       for key, v in evo_res.items()}
         ok = np.isfinite(trials[name]["attitude_rms"])
         ab = np.abs(out["series"][ok][..., [0, 2]])
         bands[name] = (np.percentile(ab, (5, 50, 95), axis=0) if ok.any()
@@ -301,6 +340,21 @@ def markdown(result: dict) -> str:
         for name, pub in with_pub.items():
             cells = [f"{fmt(pub[pkey]['ours'])} | {_published_cell(pub, pkey)}" for _, pkey in PUBLISHED_KEYS]
             lines.append(f"| {name} | {pub['ukfm_filter']} | " + " | ".join(cells) + " |")
+    with_evo = {n: e["evo"] for n, e in pf.items() if "evo" in e}
+    if with_evo:
+        lines += ["", "## APE and RPE (evo)", "",
+                  "By evo's library (liemef.metrics.ape_rpe), per trial on all states against the truth, then the mean "
+                  "over the healthy trials with its 95 % bootstrap interval: APE = rmse of the pose error "
+                  "Q_k^-1 P_k, RPE = rmse of the relative pose error over 1 s (100 states). Translation in m, "
+                  "rotation in deg.", "",
+                  "| filter | " + " | ".join(f"{label} [{unit}]" for _, label, unit in EVO_KEYS) + " |",
+                  "|---|" + "---:|" * len(EVO_KEYS)]
+        for name, ev in with_evo.items():
+            cells = []
+            for key, _, _ in EVO_KEYS:
+                lo, hi = ev[key]["interval"]
+                cells.append(f"{fmt(ev[key]['mean'])} ({fmt(lo, 3)}-{fmt(hi, 3)})")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "## Winners", "", "Per metric, the lowest mean across the trials; the lead over each other "
               "filter is the paired mean difference over the same trials with its 95 % interval. 'Outside the "
               "spread' means the interval excludes 0.", ""]
@@ -315,6 +369,8 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
         header += [f"{key}_mean", f"{key}_p5", f"{key}_p95"]
     header += ["attitude_pooled", "position_pooled", "attitude_steady_pooled", "position_steady_pooled"]
     header += [key for key, _ in NEES]
+    evo = all("evo" in e for e in result["filters"].values())
+    header += [f"{key}_rmse_mean" for key, _, _ in EVO_KEYS] if evo else []
     rows = []
     for name, e in result["filters"].items():
         row = [name, e["runs"], e["status_ok"], e["diverged"]["count"]]
@@ -322,6 +378,7 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
             row += [e[key]["mean"], e[key]["p5"], e[key]["p95"]]
         row += [e[k]["pooled"] for k in ("attitude_rms", "position_rms", "attitude_rms_steady", "position_rms_steady")]
         row += [e[key]["mean"] for key, _ in NEES]
+        row += [e["evo"][key]["mean"] for key, _, _ in EVO_KEYS] if evo else []
         rows.append(row)
     return header, rows
 
@@ -345,5 +402,5 @@ def save(result: dict, out: str | Path) -> list[Path]:
     return written
 
 
-__all__ = ["InertialComparison", "compare_inertial", "markdown", "save", "run_filter", "per_trial",
+__all__ = ["InertialComparison", "compare_inertial", "markdown", "save", "run_filter", "per_trial", "trajectory_errors",
            "DEFAULT_FILTERS"]

@@ -1,0 +1,638 @@
+r"""``liemef compare broad-ins``: inertial navigation on SE_2(3) with the real IMU of the BROAD recordings.
+
+BROAD (Laidig et al. 2021, CC BY 4.0) records an IMU at 285.7 Hz with optical motion capture: the attitude
+``opt_quat`` and the position ``opt_pos`` (m, ENU world), both aligned to the IMU frame by the authors (the
+dataset README). Here the real gyro and accelerometer drive :func:`~liemef.systems.inertial_navigation` with gyro
+and accelerometer biases ($SE_2(3) \times \mathbb R^6$), and the optical positions, taken at 10 Hz, are its
+position fixes, in two variants:
+
+* ``recorded``: the optical positions as recorded;
+* ``noisy``: the same plus white noise of ``noise_std`` m per axis (default :data:`ADDED_NOISE_STD` = 0.1 m),
+  drawn by ``numpy.random.default_rng([seed, trial])``.
+
+**Lever arm.** The position is taken as the IMU's. A least-squares fit of the lever arm $r$ in
+$R\tilde a - g = \ddot p + R([\dot\omega]_\times + [\omega]_\times^2) r$ (the world specific force against the
+second difference of the smoothed optical position) gives $|r|$ = 0.7-1.1 cm on every trial, nearly all along the
+body z axis: about the 1 cm the recorded fixes are weighted with, so none is modelled (:func:`lever_arm`,
+reported per trial).
+
+**Timing.** Every sample acts at its own time, as ``compare broad``'s ``mef-vel`` and ``vqf-broad``: IMU sample
+k is the rate and specific force over the interval that ends at $t_k$ (``us[k]`` = sample k + 1, BROAD's
+``gyro="backward"``), and the minimum-energy filters take the fixes with ``updates="discrete"`` (state k has
+seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (their state k + 1 has seen it).
+
+**Weights: one set for all trials, stated priors, nothing fitted to these recordings** (:func:`system_of`):
+
+* gyro 0.01 rad/s per sample at BROAD's rate (the top of the consumer-MEMS range in
+  :mod:`liemef.systems.inertial`; about twice the white noise BROAD's gyro shows at rest, 0.0015-0.004 rad/s,
+  for scale-factor and cross-axis errors in motion, as :data:`~liemef.systems.attitude_bias.VELOCITY_GYRO_STD`
+  argues);
+* accelerometer 0.02 m/s^2/sqrt(Hz) (:data:`~liemef.systems.attitude_bias.ACC_DENSITY`: a MEMS accelerometer's
+  white noise plus its scale and misalignment errors in motion; 0.34 m/s^2 per sample at 285.7 Hz);
+* bias random walks: :func:`~liemef.systems.inertial_navigation`'s defaults (1e-4 rad/s/sqrt(s), 1e-3
+  m/s^2/sqrt(s));
+* a fix: :data:`RECORDED_FIX_STD` = 1 cm per axis as recorded (motion capture plus the unmodelled lever arm),
+  $\sqrt{0.01^2 + \sigma^2}$ with the added noise $\sigma$;
+* gravity 9.81 m/s^2 (Berlin's is 9.813; the accelerometer bias absorbs the rest).
+
+**Initial state** at the first sample with both optical attitude and position (within the initial rest phase of
+every trial; the run starts there): the optical attitude and position, zero velocity (at rest), the gyro bias
+the mean gyro over the rest phase up to the first movement (no truth used), zero accelerometer bias;
+K0 = :data:`K0` = diag((0.01 rad)^2 I3, (0.05 m/s)^2 I3, (0.01 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3).
+
+**Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``):
+
+* attitude: BROAD's total, heading and inclination rms of $q_{est} \otimes q_{ref}^{-1}$
+  (:func:`~liemef.studies.compare._broad.broad_errors`), the same definition as the attitude-only filters';
+* velocity: the central difference of the optical positions over $\pm$ :data:`VELOCITY_HALF_WINDOW` = 50 ms
+  (14 samples; :func:`truth_velocity`), rms of $|\hat v - v|$;
+* position: rms of $|\hat p - p|$;
+* NEES of the left error $\xi = \log(\hat x^{-1} x)$ on $SE_2(3)$ under K's $9 \times 9$ pose block: attitude,
+  velocity and position blocks each divided by 3, and the whole divided by 9 (1 for a consistent filter; the
+  differenced truth velocity adds its own noise, a few mm/s);
+* APE and RPE by evo (:func:`liemef.metrics.ape_rpe`, when evo is installed) on the 10 Hz subsample of the
+  scored samples: APE translation (m) and rotation (deg); RPE over 10 pairs (1 s where no dropout intervenes).
+
+**The attitude-only filters** of ``compare broad`` (default ``mef-vel`` and ``vqf-broad``, gyro, accelerometer
+and magnetometer, no positions) run on the same trials, scored by the same errors over the same samples: the
+question is whether the filter that models acceleration (and sees positions) has the lower attitude error on the
+translation trials 10 and 16. They use the magnetometer, the inertial filters do not: their heading is observable
+only through horizontal acceleration, so the inclination error is the like-for-like figure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...filters import MinimumEnergyFilter
+from ...groups import SE23, SO3, Rn
+from ...reports import io
+from ...systems import inertial_navigation
+from ...systems.inertial import SE23B
+from .. import datasets
+from ._common import FILTERS, fmt, parse_names, realdata_present
+
+SCHEMA = "liemef.compare.broad-ins/1"
+"""Version tag of ``broad_ins.json``."""
+FIX_RATE = 10.0
+"""Default rate of the position fixes (Hz)."""
+ADDED_NOISE_STD = 0.1
+"""Default std (m, per axis) of the white noise added to the fixes in the ``noisy`` variant."""
+RECORDED_FIX_STD = 0.01
+"""Std (m, per axis) the filters give a recorded optical fix: motion capture and the unmodelled lever arm."""
+GYRO_STD = 0.01
+"""Gyro std per sample at BROAD's rate (rad/s), a stated prior (module docstring)."""
+ACC_DENSITY = 0.02
+"""Accelerometer noise density (m/s^2/sqrt(Hz)), a stated prior (module docstring)."""
+GRAVITY = 9.81
+"""Gravity (m/s^2)."""
+VELOCITY_HALF_WINDOW = 0.05
+"""Half the window (s) of the central difference that gives the true velocity."""
+K0 = np.diag([0.01**2] * 3 + [0.05**2] * 3 + [0.01**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3)
+"""K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2)."""
+VARIANTS = ("recorded", "noisy")
+"""The fixes: the optical positions as recorded, and with added white noise."""
+RPE_DELTA = 10
+"""RPE over this many pairs of the 10 Hz subsample (1 s)."""
+
+INS_FILTERS = {
+    "mef": ("minimum-energy filter, second order, (0)-connection, samples at their own time",
+            lambda s: MinimumEnergyFilter(s, updates="discrete")),
+    "mef-first": ("first-order minimum-energy filter, samples at their own time",
+                  lambda s: MinimumEnergyFilter(s, order="first", updates="discrete")),
+    **{n: FILTERS[n] for n in ("iekf-right", "iekf", "ekf", "ukf-left", "ukf-right", "ukf-local")},
+}
+"""The inertial filters of the study: a description and a factory from the system."""
+DEFAULT_FILTERS = ("mef", "mef-first", "iekf-right", "ekf", "ukf-left", "ukf-right")
+"""The inertial filters run by default: the MEF (both orders) and the baselines of ``compare
+inertial-navigation`` (the right-invariant EKF, the EKF in SO(3) x R^6 coordinates, the UKF-M left and right)."""
+ATTITUDE_FILTERS = ("mef-vel", "vqf-broad")
+"""The attitude-only filters of ``compare broad`` run beside them by default."""
+METRICS = (("total", "attitude total", "deg"), ("heading", "attitude heading", "deg"),
+           ("inclination", "attitude inclination", "deg"), ("velocity", "velocity", "m/s"),
+           ("position", "position", "m"))
+NEES_KEYS = ("nees_attitude", "nees_velocity", "nees_position", "nees_pose")
+
+
+@dataclass(frozen=True)
+class BroadInsComparison:
+    """The study's settings: ``trials`` (ids present; default every one), ``seconds`` (the head of each trial
+    from its first optical pose; default whole trials), ``filters`` (of :data:`INS_FILTERS`),
+    ``attitude_filters`` (of ``compare broad``'s filters, or ``"none"``), ``variants`` (of :data:`VARIANTS`),
+    ``fix_rate`` (Hz), ``noise_std`` (m, the ``noisy`` variant's added noise), ``seed`` (of that noise),
+    ``realdata`` (the folder; default :func:`liemef.studies.datasets.realdata_dir`), and ``ukf_trials`` and
+    ``ukf_variants``: the trials and variants the UKF-M filters run on (default all; the UKF-M costs about ten
+    times the EKF here, so a slow machine may limit it, e.g. to ``10,16`` and ``recorded``)."""
+
+    trials: tuple[str, ...] | str | None = None
+    seconds: float | None = None
+    filters: tuple[str, ...] | str | None = None
+    attitude_filters: tuple[str, ...] | str | None = None
+    variants: tuple[str, ...] | str | None = None
+    fix_rate: float = FIX_RATE
+    noise_std: float = ADDED_NOISE_STD
+    seed: int = 0
+    realdata: str | None = None
+    ukf_trials: tuple[str, ...] | str | None = None
+    ukf_variants: tuple[str, ...] | str | None = None
+
+    def __post_init__(self):
+        from ._broad import BROAD_FILTERS
+
+        folder, present = realdata_present(self.realdata, datasets.broad_trials, datasets.BROAD_DIR)
+        trials = _trial_ids("trials", self.trials, present, folder)
+        ukf = trials if self.ukf_trials is None else _trial_ids("ukf_trials", self.ukf_trials, present, folder)
+        names = parse_names("filters", self.filters, INS_FILTERS, DEFAULT_FILTERS)
+        att = self.attitude_filters
+        att = () if att in ("none", "") or att == () else parse_names("attitude_filters", att, BROAD_FILTERS,
+                                                                     ATTITUDE_FILTERS)
+        variants = parse_names("variants", self.variants, VARIANTS, VARIANTS)
+        ukf_variants = parse_names("ukf_variants", self.ukf_variants, VARIANTS, variants)
+        for key in ("fix_rate", "noise_std"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{key}: expected a number > 0, got {v!r}")
+        if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
+                                             and self.seconds > 0):
+            raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
+        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
+            raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        for key, v in (("trials", trials), ("ukf_trials", ukf), ("ukf_variants", ukf_variants), ("filters", names),
+                       ("attitude_filters", att),
+                       ("variants", variants), ("realdata", str(folder)), ("fix_rate", float(self.fix_rate)),
+                       ("noise_std", float(self.noise_std))):
+            object.__setattr__(self, key, v)
+
+
+def _trial_ids(what, trials, present, folder) -> tuple[str, ...]:
+    if trials is None:
+        return tuple(present)
+    if isinstance(trials, str | int):
+        trials = tuple(t.strip() for t in str(trials).split(","))
+    trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
+    unknown = [t for t in trials if t not in present]
+    if not trials or unknown:
+        raise ValueError(f"{what}: expected BROAD trials present in {folder} from {list(present)}, got "
+                         f"{list(trials)}")
+    return trials
+
+
+# --- the data ---------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class InsTrial:
+    """A BROAD trial from its first sample with both optical attitude and position (``start``, in samples of the
+    file): the :class:`~liemef.studies.datasets.BroadTrial` from there and the optical positions ``pos`` (N, 3)
+    in m (NaN rows where the tracking dropped out)."""
+
+    trial: datasets.BroadTrial
+    pos: np.ndarray
+    start: int
+
+
+def load_trial(path, seconds: float | None = None) -> InsTrial:
+    """:class:`InsTrial` of the BROAD file ``path`` (its first ``seconds`` from the start if given). ValueError
+    naming ``path`` if the file has no ``opt_pos`` of the right shape or no sample with a full optical pose."""
+    import scipy.io
+
+    tr = datasets.broad(path)
+    d = scipy.io.loadmat(path, variable_names=["opt_pos"], squeeze_me=True)
+    pos = np.asarray(d.get("opt_pos", np.zeros((0, 3))), dtype=np.float64)
+    N = tr.ts.shape[0]
+    if pos.shape != (N, 3):
+        raise ValueError(f"path: {str(path)!r}: expected opt_pos of shape ({N}, 3), got {pos.shape}")
+    ok = np.isfinite(tr.quat_true).all(axis=1) & np.isfinite(pos).all(axis=1)
+    if not ok.any():
+        raise ValueError(f"path: {str(path)!r}: expected a sample with both optical attitude and position, got none")
+    k0 = int(np.argmax(ok))
+    k1 = N if seconds is None else min(N, k0 + max(2, int(round(seconds * tr.rate))))
+    cut = datasets.BroadTrial(tr.ts[k0:k1], tr.gyr[k0:k1], tr.acc[k0:k1], tr.mag[k0:k1], tr.quat_true[k0:k1],
+                              tr.movement[k0:k1], tr.rate, tr.name)
+    return InsTrial(cut, pos[k0:k1], k0)
+
+
+def truth_velocity(pos: np.ndarray, rate: float, half_window: float = VELOCITY_HALF_WINDOW) -> np.ndarray:
+    """The true velocity (N, 3) in m/s: ``(p[k + m] - p[k - m]) / (2 m / rate)`` with ``m = round(half_window
+    rate)`` samples (at least 1); NaN where either position is missing or out of range."""
+    m = max(1, int(round(half_window * rate)))
+    v = np.full(pos.shape, np.nan)
+    if pos.shape[0] > 2 * m:
+        v[m:-m] = (pos[2 * m:] - pos[:-2 * m]) * (rate / (2 * m))
+    return v
+
+
+def fix_indices(ts: np.ndarray, rate: float) -> np.ndarray:
+    """The samples nearest to ``t_0 + j / rate`` (j = 0, 1, ...), each once."""
+    grid = np.arange(0.0, ts[-1] - ts[0] + 1e-12, 1.0 / rate)
+    idx = np.unique(np.searchsorted(ts - ts[0], grid - 0.5 * (ts[1] - ts[0])))
+    return idx[idx < ts.shape[0]]
+
+
+def fixes(data: InsTrial, tid: str, rate: float, noise_std: float | None, seed: int) -> np.ndarray:
+    """The position fixes (N, 3): the optical position at :func:`fix_indices`, plus white noise of ``noise_std``
+    m per axis (``numpy.random.default_rng([seed, int(tid)])``, one draw per fix whether or not the optical
+    position is present) unless ``noise_std`` is None; NaN elsewhere and where the tracking dropped out."""
+    ts = data.trial.ts
+    idx = fix_indices(ts, rate)
+    ys = np.full((ts.shape[0], 3), np.nan)
+    y = data.pos[idx].copy()
+    if noise_std is not None:
+        key = int(tid) if str(tid).isdigit() else sum(map(ord, str(tid)))
+        y = y + noise_std * np.random.default_rng([seed, key]).standard_normal(y.shape)
+    ys[idx] = y
+    return ys
+
+
+def ins_log(data: InsTrial, ys: np.ndarray) -> io.RecordedLog:
+    """The filters' log: ``us[k]`` = (gyro, accelerometer) sample k + 1, the rate and specific force over the
+    interval ending at $t_{k+1}$ (the last one held), and the fixes ``ys``."""
+    tr = data.trial
+    u = np.concatenate([tr.gyr, tr.acc], axis=1)
+    us = np.concatenate([u[1:], u[-1:]], axis=0)
+    return io.RecordedLog(ts=tr.ts.copy(), us=us, ys=ys)
+
+
+def system_of(rate: float, fix_std: float):
+    """:func:`~liemef.systems.inertial_navigation` with biases, the study's priors (module docstring) and
+    position fixes of ``fix_std`` m per axis. The accelerometer's prior is a density, given as its std per sample
+    at ``rate`` beside the gyro's."""
+    return inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_DENSITY * math.sqrt(rate), imu_rate=rate,
+                               biases=True, gnss_std=fix_std, gravity=GRAVITY)
+
+
+def initial_state(data: InsTrial) -> SE23B:
+    """The initial estimate (module docstring): the first optical pose, zero velocity, the gyro bias the mean gyro
+    over the rest phase, zero accelerometer bias."""
+    tr = data.trial
+    rest = tr.rest
+    bg = tr.gyr[rest].mean(axis=0) if rest.any() else np.zeros(3)
+    q = tr.quat_true[0] / np.linalg.norm(tr.quat_true[0])
+    x = SE23.from_rotation_velocity_position(SO3(q), np.zeros(3), data.pos[0])
+    return SE23B((x, Rn[6](np.concatenate([bg, np.zeros(3)]))))
+
+
+def lever_arm(data: InsTrial, smooth: float = 0.05) -> tuple[np.ndarray, float, float]:
+    r"""The least-squares lever arm $r$ (m, body frame) of the IMU from the optical position's point, from
+    $R\tilde a - g e_z - \ddot p = R([\dot\omega]_\times + [\omega]_\times^2) r$ with the smoothed second difference
+    of the positions (a box filter of ``smooth`` s applied twice) over the samples with the optical pose; also the
+    rms residual before and after (m/s^2). A diagnostic, not used by the filters."""
+    from scipy.ndimage import uniform_filter1d
+
+    tr = data.trial
+    n, rate = tr.ts.shape[0], tr.rate
+    w = max(1, int(round(smooth * rate)))
+    okq = np.isfinite(tr.quat_true).all(axis=1)
+    okp = np.isfinite(data.pos).all(axis=1)
+    k = np.arange(n)
+    p = np.stack([np.interp(k, k[okp], data.pos[okp, i]) for i in range(3)], axis=1)
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(np.where(okq[:, None], tr.quat_true, [1.0, 0, 0, 0])[:, [1, 2, 3, 0]]).as_matrix()
+    sm = lambda x: uniform_filter1d(uniform_filter1d(x, w, axis=0), w, axis=0)  # noqa: E731
+    ps, aw = sm(p), sm(np.einsum("nij,nj->ni", R, tr.acc) - [0.0, 0.0, GRAVITY])
+    pdd = np.zeros_like(p)
+    pdd[1:-1] = (ps[2:] - 2 * ps[1:-1] + ps[:-2]) * rate**2
+    om = sm(tr.gyr)
+    al = np.zeros_like(om)
+    al[1:-1] = (om[2:] - om[:-2]) * rate / 2
+
+    def skew(v):
+        z = np.zeros(v.shape[0])
+        return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1), np.stack([v[:, 2], z, -v[:, 0]], -1),
+                         np.stack([-v[:, 1], v[:, 0], z], -1)], -2)
+
+    use = (uniform_filter1d((okq & okp).astype(float), 6 * w) > 0.999) & (k >= 6 * w) & (k < n - 6 * w)
+    if use.sum() < 10:
+        return np.full(3, np.nan), math.nan, math.nan
+    e = (aw - pdd)[use]
+    A = np.einsum("nij,njk->nik", R, skew(al) + skew(om) @ skew(om))[use]
+    r, *_ = np.linalg.lstsq(A.reshape(-1, 3), e.reshape(-1), rcond=None)
+    rms = lambda x: float(np.sqrt(np.mean(np.sum(x**2, axis=1))))  # noqa: E731
+    return r, rms(e), rms(e - np.einsum("nij,j->ni", A, r))
+
+
+# --- the errors -------------------------------------------------------------------------------------------------
+def scored(data: InsTrial) -> np.ndarray:
+    """(N,) bool: the samples scored for position (and, where the velocity's truth is present too, velocity and
+    NEES): BROAD's movement mask where the optical attitude and position are present. The attitude figures use
+    BROAD's own samples, the movement mask where the optical attitude is present, as ``compare broad``."""
+    tr = data.trial
+    return tr.movement & np.isfinite(tr.quat_true).all(axis=1) & np.isfinite(data.pos).all(axis=1)
+
+
+def errors(data: InsTrial, traj) -> tuple[dict, np.ndarray]:
+    """One run's figures against the optical truth (module docstring) and its attitude error per second (for the
+    figure): ``total``, ``heading``, ``inclination`` (deg), ``velocity`` (m/s), ``position`` (m) rms, the NEES
+    (:data:`NEES_KEYS`) and ``samples``, the samples scored."""
+    from ._broad import broad_errors, error_per_second
+
+    tr = data.trial
+    x = traj.g_hat.factors[0]
+    q = np.asarray(x.wxyz_p[:, :4])
+    v_hat, p_hat = np.asarray(x.velocity()), np.asarray(x.position())
+    mask = scored(data)
+    v_true = truth_velocity(data.pos, tr.rate)
+    vmask = mask & np.isfinite(v_true).all(axis=1)
+    out = broad_errors(q, tr.quat_true, tr.movement)  # as compare broad: movement mask, optical attitude present
+    rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if e.size else None  # noqa: E731
+    out["velocity"] = rms(v_hat[vmask] - v_true[vmask])
+    out["position"] = rms(p_hat[mask] - data.pos[mask])
+    out["samples"] = int(mask.sum())
+    if vmask.any():
+        i = np.flatnonzero(vmask)
+        q_true = tr.quat_true[i] / np.linalg.norm(tr.quat_true[i], axis=1, keepdims=True)
+        true = np.concatenate([q_true, v_true[i], data.pos[i]], axis=1)
+        values = _nees_blocks(true, np.asarray(x.wxyz_p)[i], np.asarray(traj.K)[i][:, :9, :9])
+        out.update({key: float(v) for key, v in zip(NEES_KEYS, values.mean(axis=0), strict=True)})
+    else:
+        out.update(dict.fromkeys(NEES_KEYS))
+    return out, error_per_second(tr.ts, q, tr.quat_true, tr.movement)
+
+
+_CHUNK = 4096
+"""Rows per call of the compiled NEES (one compilation for every trial's length)."""
+
+
+@functools.cache
+def _nees_fn():
+    import jax
+    import jax.numpy as jnp
+
+    from ...metrics import left_error, nees
+
+    def f(true, est, K):
+        xi = left_error(SE23(true), SE23(est))
+        return jnp.stack([nees(xi[:, a:b], K[:, a:b, a:b]) / (b - a) for a, b in ((0, 3), (3, 6), (6, 9), (0, 9))],
+                         axis=1)
+
+    return jax.jit(f)
+
+
+def _nees_blocks(true: np.ndarray, est: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(M, 4): the attitude, velocity and position NEES / 3 and the pose NEES / 9 of the left error of the
+    :class:`~liemef.groups.SE23` rows ``est`` (M, 10) against ``true`` (M, 10) under ``K`` (M, 9, 9), in chunks of
+    :data:`_CHUNK` rows (padded with the identity) so that every trial uses one compiled function."""
+    f, m, out = _nees_fn(), true.shape[0], []
+    pad_row = np.array([1.0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    for a in range(0, m, _CHUNK):
+        n = min(_CHUNK, m - a)
+        T, E, C = (np.concatenate([x[a:a + n], np.broadcast_to(p, (_CHUNK - n, *p.shape))])
+                   for x, p in ((true, pad_row), (est, pad_row), (K, np.eye(9))))
+        out.append(np.asarray(f(T, E, C))[:n])
+    return np.concatenate(out)
+
+
+def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int = RPE_DELTA) -> dict | None:
+    """APE and RPE by evo (:func:`liemef.metrics.ape_rpe`) of a run against the optical poses, on the samples of
+    :func:`fix_indices` at ``rate`` that are scored (:func:`scored`); RPE over ``delta`` pairs. None when evo is
+    not installed or fewer than ``delta + 1`` samples qualify."""
+    try:
+        import evo  # noqa: F401
+    except ImportError:
+        return None
+    from ...metrics import ape_rpe
+
+    tr = data.trial
+    i = fix_indices(tr.ts, rate)
+    i = i[scored(data)[i]]
+    x = traj.g_hat.factors[0]
+    wxyz = np.asarray(x.wxyz_p[:, :4])[i]
+    ok = np.isfinite(wxyz).all(axis=1)
+    i, wxyz = i[ok], wxyz[ok]
+    if i.size < delta + 1:
+        return None
+    q_true = tr.quat_true[i] / np.linalg.norm(tr.quat_true[i], axis=1, keepdims=True)
+    p_est = np.asarray(x.position())[i]
+    xyzw = lambda q: np.concatenate([q[:, 1:], q[:, :1]], axis=1)  # noqa: E731
+    return ape_rpe(tr.ts[i], (p_est, xyzw(wxyz)), tr.ts[i], (data.pos[i], xyzw(q_true)), max_diff=1e-6,
+                   delta=delta)
+
+
+def _evo_summary(res: dict | None) -> dict | None:
+    if res is None:
+        return None
+    return {"ape_translation_rmse": res["ape_translation"]["rmse"], "ape_rotation_rmse": res["ape_rotation"]["rmse"],
+            "rpe_translation_rmse": res["rpe_translation"]["rmse"], "rpe_rotation_rmse": res["rpe_rotation"]["rmse"],
+            "pairs": res["pairs"]}
+
+
+# --- the study --------------------------------------------------------------------------------------------------
+def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float):
+    """The inertial filter ``name`` (:data:`INS_FILTERS`) on ``log`` from :func:`initial_state` and :data:`K0`."""
+    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std))
+    return flt.run(flt.init(initial_state(data), K0), log.ts, log.us, log.ys)
+
+
+def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool = True) -> dict:
+    """Run the study; returns ``{"study", "per_trial", "means", "attitude_only", "arrays"}``."""
+    st = BroadInsComparison() if study is None else study
+    paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
+    per_trial, arrays = {}, {}
+    for tid in st.trials:
+        data = load_trial(paths[tid], st.seconds)
+        r, before, after = lever_arm(data)
+        entry = {"file": data.trial.name, "start_sample": data.start,
+                 "seconds": float(data.trial.ts[-1] - data.trial.ts[0]),
+                 "lever_arm_m": [float(c) for c in r], "lever_arm_residual": [before, after],
+                 "fixes": int(fix_indices(data.trial.ts, st.fix_rate).size), "variants": {}}
+        for variant in st.variants:
+            noise = None if variant == "recorded" else st.noise_std
+            fix_std = RECORDED_FIX_STD if noise is None else math.hypot(RECORDED_FIX_STD, noise)
+            log = ins_log(data, fixes(data, tid, st.fix_rate, noise, st.seed))
+            rows = {}
+            for name in st.filters:
+                if name.startswith("ukf") and (tid not in st.ukf_trials or variant not in st.ukf_variants):
+                    continue
+                t0 = time.perf_counter()
+                traj = run_ins(name, data, log, fix_std)
+                ok = bool(int(traj.status.code) == 0)
+                run_s = time.perf_counter() - t0
+                if ok:
+                    figs, per_s = errors(data, traj)
+                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate))
+                else:
+                    figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
+                    figs.update(dict.fromkeys(NEES_KEYS))
+                rows[name] = {"filter": INS_FILTERS[name][0], "ok": ok,
+                              "status": "ok" if ok else traj.status.message(log.ts), **figs, "evo": evo_res,
+                              "run_s": run_s, "elapsed_s": time.perf_counter() - t0}
+                if per_s is not None:
+                    arrays[f"{tid}/{variant}/{name}/error_1s"] = per_s
+                if progress:
+                    f = rows[name]
+                    print(f"  trial {tid} {variant:8s} {name:10s} attitude {fmt(f['total'])} (incl. "
+                          f"{fmt(f['inclination'])}) deg, velocity {fmt(f['velocity'])} m/s, position "
+                          f"{fmt(f['position'])} m, NEES {fmt(f['nees_pose'], 3)}; run {f['run_s']:.1f} s, "
+                          f"with the scoring {f['elapsed_s']:.1f} s",
+                          flush=True)
+            entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": rows}
+        per_trial[tid] = entry
+    attitude_only = _attitude_only(st, progress)
+    return {"study": {**dataclasses.asdict(st), "system": "inertial_navigation(biases=True)",
+                      "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
+                                 "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
+                                 "for all trials", "K0": "diag(0.01^2 I3, 0.05^2 I3, 0.01^2 I3, 0.002^2 I3, 0.1^2 I3)",
+                      "initial": "first optical pose, zero velocity, gyro bias = mean gyro over the rest phase, zero "
+                                 "accelerometer bias",
+                      "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
+                      f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
+            "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
+
+
+def _attitude_only(st: BroadInsComparison, progress: bool) -> dict:
+    """``compare broad``'s attitude-only filters on the same trials: their total, heading and inclination rms over
+    the same samples (the movement mask lies after every trial's first optical pose; with ``seconds``, the
+    run covers the same span from the file's start)."""
+    if not st.attitude_filters:
+        return {}
+    from ._broad import BroadComparison, compare_broad
+
+    paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
+    out = {}
+    for tid in st.trials:
+        seconds = None
+        if st.seconds is not None:
+            data = load_trial(paths[tid], st.seconds)
+            seconds = (data.start + data.trial.ts.shape[0]) / data.trial.rate
+        res = compare_broad(BroadComparison(trials=(tid,), seconds=seconds, filters=st.attitude_filters,
+                                            realdata=st.realdata), progress=progress)
+        out[tid] = {n: {k: r[k] for k in ("ok", "total", "heading", "inclination")}
+                    for n, r in res["trials"][tid]["filters"].items()}
+    return out
+
+
+def _means(st: BroadInsComparison, per_trial: dict) -> dict:
+    """Per variant and filter, the mean over the trials of each figure (None if a trial is missing or failed),
+    and the trials it covers."""
+    keys = [k for k, _, _ in METRICS] + list(NEES_KEYS)
+    evo_keys = ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse", "rpe_rotation_rmse")
+    out = {}
+    for variant in st.variants:
+        out[variant] = {}
+        for name in st.filters:
+            rows = [per_trial[t]["variants"][variant]["filters"].get(name) for t in st.trials]
+            rows = [r for r in rows if r is not None]
+            m = {"trials": len(rows)}
+            for k in keys:
+                v = [r[k] for r in rows]
+                m[k] = None if not v or any(x is None for x in v) else float(np.mean(v))
+            for k in evo_keys:
+                v = [None if r["evo"] is None else r["evo"][k] for r in rows]
+                m[k] = None if not v or any(x is None for x in v) else float(np.mean(v))
+            out[variant][name] = m
+    return out
+
+
+# --- tables and files -------------------------------------------------------------------------------------------
+def markdown(result: dict) -> str:
+    """Per variant: the means over the trials, the figures per trial, and the attitude against the attitude-only
+    filters."""
+    st = result["study"]
+    trials = list(st["trials"])
+    lines = ["# Inertial navigation on BROAD's real IMU (Laidig et al. 2021, CC BY 4.0)", "",
+             f"System: {st['system']}; weights: {st['weights']}; K0 = {st['K0']}; initial: {st['initial']}. "
+             f"Position fixes at {st['fix_rate']:g} Hz from the optical positions (recorded: weighted "
+             f"{st['fix_std_recorded_m']} m; noisy: plus white noise of {st['noise_std']:g} m per axis, seed "
+             f"{st['seed']}). Errors over BROAD's movement mask where the optical truth is present: attitude as "
+             f"BROAD (total, heading, inclination rms), velocity against the {st['velocity_truth']} of the optical "
+             "positions, position; NEES of the left error on SE_2(3) under K (per block / 3, pose / 9); APE and RPE "
+             f"by evo on the {st['fix_rate']:g} Hz subsample (RPE over {st['rpe_delta_pairs']} pairs). One "
+             "recording per trial: no Monte Carlo spread.", ""]
+    for variant in st["variants"]:
+        means = result["means"][variant]
+        lines += [f"## Fixes {variant}: means over the trials", "",
+                  "| filter | trials | attitude [deg] | heading [deg] | inclination [deg] | velocity [m/s] | position "
+                  "[m] | NEES att. | NEES vel. | NEES pos. | NEES pose | APE trans. [m] | APE rot. [deg] | RPE trans. "
+                  "[m] | RPE rot. [deg] |", "|---|---:|" + "---:|" * 13]
+        for name, m in means.items():
+            cells = [fmt(m[k]) for k, _, _ in METRICS] + [fmt(m[k], 3) for k in NEES_KEYS]
+            cells += [fmt(m[k]) for k in ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse",
+                                          "rpe_rotation_rmse")]
+            lines.append(f"| {name} | {m['trials']} | " + " | ".join(cells) + " |")
+        lines += ["", f"Per trial (fixes {variant}): attitude total / inclination [deg], velocity [m/s], position "
+                  "[m].", "", "| filter | " + " | ".join(trials) + " |", "|---|" + "---:|" * len(trials)]
+        for name in st["filters"]:
+            cells = []
+            for t in trials:
+                r = result["per_trial"][t]["variants"][variant]["filters"].get(name)
+                if r is None:
+                    cells.append("not run")
+                elif not r["ok"]:
+                    cells.append(f"failed: {r['status']}")
+                else:
+                    cells.append(f"{fmt(r['total'])} / {fmt(r['inclination'])}, {fmt(r['velocity'])}, "
+                                 f"{fmt(r['position'])}")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append("")
+    att = result.get("attitude_only") or {}
+    if att:
+        names = list(next(iter(att.values())))
+        lines += ["## Attitude against the attitude-only filters", "",
+                  "Total / inclination rms [deg] over the same samples, BROAD's definition. The attitude-only filters "
+                  "(`compare broad`) use the magnetometer and no position; the inertial filters the positions and "
+                  "no magnetometer, so their heading is observable only through horizontal acceleration: the "
+                  "inclination is the like-for-like figure. Trials 10 and 16 are the translation trials.", "",
+                  "| trial | " + " | ".join(f"{n} ({v})" for v in st["variants"] for n in st["filters"])
+                  + " | " + " | ".join(names) + " |",
+                  "|---|" + "---:|" * (len(st["variants"]) * len(st["filters"]) + len(names))]
+        for t in trials:
+            cells = []
+            for v in st["variants"]:
+                for n in st["filters"]:
+                    r = result["per_trial"][t]["variants"][v]["filters"].get(n)
+                    cells.append("-" if r is None or not r["ok"] else f"{fmt(r['total'])} / {fmt(r['inclination'])}")
+            for n in names:
+                r = att[t][n]
+                cells.append("-" if not r["ok"] else f"{fmt(r['total'])} / {fmt(r['inclination'])}")
+            lines.append(f"| {t} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["## Lever arm (diagnostic)", "", "Least-squares lever arm of the IMU from the optical position's point "
+              "(body frame, cm) and the rms of the specific-force residual before / after it [m/s^2].", "",
+              "| trial | r [cm] | residual |", "|---|---|---|"]
+    for t in trials:
+        e = result["per_trial"][t]
+        r = ", ".join(f"{100 * c:.2f}" for c in e["lever_arm_m"])
+        lines.append(f"| {t} | ({r}) | {fmt(e['lever_arm_residual'][0])} / {fmt(e['lever_arm_residual'][1])} |")
+    return "\n".join(lines + [""])
+
+
+def csv_rows(result: dict) -> tuple[list[str], list[list]]:
+    """One row per trial, variant and filter (inertial), then one per trial and attitude-only filter."""
+    evo_keys = ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse", "rpe_rotation_rmse")
+    header = (["trial", "variant", "filter", "ok"] + [k for k, _, _ in METRICS] + list(NEES_KEYS) + list(evo_keys)
+              + ["elapsed_s"])
+    rows = []
+    for t, e in result["per_trial"].items():
+        for v, ve in e["variants"].items():
+            for n, r in ve["filters"].items():
+                ev = r["evo"] or {}
+                rows.append([t, v, n, r["ok"], *(r[k] for k, _, _ in METRICS), *(r[k] for k in NEES_KEYS),
+                             *(ev.get(k) for k in evo_keys), r["elapsed_s"]])
+    for t, per in (result.get("attitude_only") or {}).items():
+        for n, r in per.items():
+            rows.append([t, "attitude-only", n, r["ok"], r["total"], r["heading"], r["inclination"]]
+                        + [None] * (len(header) - 7))
+    return header, rows
+
+
+def save(result: dict, out: str | Path) -> list[Path]:
+    """Write ``broad_ins.json``, ``broad_ins.md``, ``broad_ins.csv`` and ``arrays.npz`` (each run's attitude error
+    per second) to ``out``."""
+    out = io.ensure_dir(out)
+    header, rows = csv_rows(result)
+    return [io.write_npz(out / "arrays.npz", result["arrays"]),
+            io.write_json(out / "broad_ins.json", {"schema": SCHEMA, **{k: v for k, v in result.items()
+                                                                        if k != "arrays"}}),
+            io.write_text(out / "broad_ins.md", markdown(result)),
+            io.write_rows(out / "broad_ins.csv", header, rows)]
+
+
+__all__ = ["BroadInsComparison", "compare_broad_ins", "markdown", "save", "load_trial", "InsTrial", "truth_velocity",
+           "fix_indices", "fixes", "ins_log", "system_of", "initial_state", "lever_arm", "errors",
+           "trajectory_errors", "run_ins", "INS_FILTERS", "DEFAULT_FILTERS", "ATTITUDE_FILTERS", "K0", "VARIANTS"]

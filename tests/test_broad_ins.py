@@ -1,0 +1,189 @@
+"""``liemef compare broad-ins``: inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes
+(liemef.studies.compare._broad_ins), and the APE/RPE of ``compare inertial-navigation``.
+
+* The truth's velocity is the central difference: exact on a parabola; a missing position makes it NaN.
+* The fixes are the optical positions at 10 Hz, each once, with seeded noise of the stated std.
+* The scoring: an estimate equal to the truth has zero errors and NEES; a position offset shows as itself in the
+  position rms and in evo's APE, not in its RPE.
+* On the real data (skipped when the folder is absent): the first optical pose and the lever-arm diagnostic; the
+  whole study at a small size (slow).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from liemef import cli
+from liemef.groups import SE23, SO3, Rn
+from liemef.studies import datasets
+from liemef.studies.compare import _broad_ins as B
+from liemef.systems.inertial import SE23B
+
+RATE = 285.714
+
+
+def _synthetic(seconds: float = 4.0) -> B.InsTrial:
+    """A trial that turns about z at 0.5 rad/s and moves on a parabola, all of it in motion but the first 0.5 s;
+    one optical dropout row."""
+    n = int(seconds * RATE)
+    ts = np.arange(n) / RATE
+    half = 0.25 * ts  # half the angle 0.5 t
+    quat = np.stack([np.cos(half), 0 * ts, 0 * ts, np.sin(half)], axis=1)
+    pos = np.stack([0.3 * ts**2, -0.1 * ts, 1.0 + 0 * ts], axis=1)
+    quat[n // 2] = np.nan
+    movement = ts >= 0.5
+    tr = datasets.BroadTrial(ts=ts, gyr=np.tile([0.0, 0.0, 0.5], (n, 1)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
+                             mag=np.tile([0.0, 20.0, -40.0], (n, 1)), quat_true=quat, movement=movement, rate=RATE,
+                             name="synthetic")
+    return B.InsTrial(tr, pos, 0)
+
+
+def _perfect_run(data: B.InsTrial, offset=(0.0, 0.0, 0.0)):
+    """A filter run whose estimate is the truth (the position moved by ``offset``), with K = I."""
+    tr = data.trial
+    q = np.where(np.isfinite(tr.quat_true), tr.quat_true, [1.0, 0.0, 0.0, 0.0])
+    v = np.nan_to_num(B.truth_velocity(data.pos, tr.rate))
+    x = SE23.from_rotation_velocity_position(SO3(q), v, data.pos + np.asarray(offset))
+    n = tr.ts.shape[0]
+    g = SE23B((x, Rn[6](jnp.zeros((n, 6)))))
+    return SimpleNamespace(g_hat=g, K=np.broadcast_to(np.eye(15), (n, 15, 15)))
+
+
+def test_the_true_velocity_is_the_central_difference():
+    rate = 100.0
+    t = np.arange(200) / rate
+    pos = np.stack([0.5 * 2.0 * t**2, 3.0 * t, np.ones_like(t)], axis=1)
+    v = B.truth_velocity(pos, rate, half_window=0.05)
+    m = 5
+    assert np.isnan(v[:m]).all() and np.isnan(v[-m:]).all() and np.isfinite(v[m:-m]).all()
+    np.testing.assert_allclose(v[m:-m, 0], 2.0 * t[m:-m], rtol=0, atol=1e-12)  # exact on a parabola
+    np.testing.assert_allclose(v[m:-m, 1], 3.0, rtol=0, atol=1e-12)
+    pos[100] = np.nan
+    v = B.truth_velocity(pos, rate, half_window=0.05)
+    assert np.isnan(v[95]).all() and np.isnan(v[105]).all() and np.isfinite(v[100]).all()
+
+
+def test_the_fixes_are_the_optical_positions_at_10_hz_with_seeded_noise():
+    data = _synthetic()
+    ts = data.trial.ts
+    idx = B.fix_indices(ts, 10.0)
+    assert idx[0] == 0 and np.all(np.abs(ts[idx] - np.arange(idx.size) / 10.0) <= 0.5 / RATE + 1e-12)
+    assert idx.size == 40  # 0, 0.1, ..., 3.9 s
+    rec = B.fixes(data, "16", 10.0, None, 0)
+    have = np.isfinite(rec).all(axis=1)
+    np.testing.assert_array_equal(np.flatnonzero(have), idx)
+    np.testing.assert_array_equal(rec[idx], data.pos[idx])
+    noisy = B.fixes(data, "16", 10.0, 0.1, 0)
+    np.testing.assert_array_equal(noisy, B.fixes(data, "16", 10.0, 0.1, 0))  # seeded
+    assert not np.array_equal(noisy[idx], B.fixes(data, "10", 10.0, 0.1, 0)[idx])  # a stream per trial
+    e = noisy[idx] - data.pos[idx]
+    assert 0.07 < e.std() < 0.13  # 120 draws of std 0.1
+    log = B.ins_log(data, rec)
+    np.testing.assert_array_equal(log.us[:-1, :3], data.trial.gyr[1:])  # sample k + 1 over [t_k, t_k+1]
+    np.testing.assert_array_equal(log.us[:, 3:], np.concatenate([data.trial.acc[1:], data.trial.acc[-1:]]))
+
+
+def test_the_truth_scores_zero_and_an_offset_scores_itself():
+    data = _synthetic()
+    figs, per_s = B.errors(data, _perfect_run(data))
+    for key in ("total", "heading", "inclination", "velocity", "position"):
+        assert figs[key] == pytest.approx(0.0, abs=1e-6), key
+    for key in B.NEES_KEYS:
+        assert figs[key] == pytest.approx(0.0, abs=1e-12), key
+    assert figs["samples"] == int(B.scored(data).sum()) < data.trial.ts.shape[0]
+    off = (0.03, -0.04, 0.0)  # 5 cm
+    figs, _ = B.errors(data, _perfect_run(data, off))
+    assert figs["position"] == pytest.approx(0.05, rel=1e-9)
+    assert figs["total"] == pytest.approx(0.0, abs=1e-6)
+    # the left error's position block is R^T (p - p_hat) with K = I: NEES / 3 = |offset|^2 / 3
+    assert figs["nees_position"] == pytest.approx(0.05**2 / 3, rel=1e-6)
+    assert np.nanmax(per_s) < 1e-4
+    pytest.importorskip("evo")
+    ev = B.trajectory_errors(data, _perfect_run(data, off))
+    assert ev["ape_translation"]["rmse"] == pytest.approx(0.05, rel=1e-9)
+    assert ev["rpe_translation"]["rmse"] == pytest.approx(0.0, abs=1e-9)
+    assert ev["ape_rotation"]["rmse"] == pytest.approx(0.0, abs=1e-5)
+
+
+def test_the_initial_state_is_the_first_optical_pose_at_rest():
+    data = _synthetic()
+    g0 = B.initial_state(data)
+    x, b = g0.factors
+    np.testing.assert_allclose(np.asarray(x.position()), data.pos[0])
+    np.testing.assert_allclose(np.asarray(x.velocity()), 0.0)
+    np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.5, 0.0, 0.0, 0.0])  # mean gyro over the rest phase
+    sysm = B.system_of(RATE, 0.01)
+    assert sysm.group is SE23B and sysm.output_dim == 3
+    np.testing.assert_allclose(np.linalg.eigvalsh(B.K0), np.sort(np.diag(B.K0)))
+
+
+def test_compare_inertial_navigation_reports_evo_errors_of_an_offset():
+    pytest.importorskip("evo")
+    from liemef.studies.compare._inertial import EVO_KEYS, trajectory_errors
+    from liemef.studies.experiments import inertial as I
+
+    c = I.InertialConfig(duration=3.0, steady=1.0)
+    truth = I.setup(c).truth
+    est = np.asarray(truth.wxyz_p).copy()
+    est[:, 7:10] += [0.0, 0.3, 0.4]  # a constant 0.5 m position offset
+    out = {"wxyz_p": np.stack([est, est]), "code": np.array([0, 3])}
+    r = trajectory_errors(c, out)
+    assert set(r) == {k for k, _, _ in EVO_KEYS}
+    assert r["ape_translation"][0] == pytest.approx(0.5, rel=1e-9) and np.isnan(r["ape_translation"][1])
+    assert r["rpe_translation"][0] == pytest.approx(0.0, abs=1e-9)
+    assert r["ape_rotation"][0] == pytest.approx(0.0, abs=1e-5)
+
+
+def _broad_present(tid: str = "16"):
+    if datasets.realdata_dir() is None or tid not in datasets.broad_trials():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    return datasets.broad_trials()[tid]
+
+
+def test_a_broad_trial_starts_at_its_first_optical_pose_near_the_imu():
+    path = _broad_present("16")
+    data = B.load_trial(path, seconds=60.0)
+    assert data.start == 1662  # trial 16's optical attitude is missing before
+    assert np.isfinite(data.trial.quat_true[0]).all() and np.isfinite(data.pos[0]).all()
+    assert data.trial.ts.shape[0] == data.pos.shape[0] == round(60.0 * data.trial.rate)
+    r, before, after = B.lever_arm(data)
+    assert np.linalg.norm(r) < 0.02 and after <= before  # the optical point is the IMU's to about a centimetre
+    with pytest.raises(ValueError, match="trials"):
+        B.BroadInsComparison(trials="99")
+    with pytest.raises(ValueError, match="variants"):
+        B.BroadInsComparison(trials="16", variants="noisier")
+    with pytest.raises(ValueError, match="noise_std"):
+        B.BroadInsComparison(trials="16", noise_std=0.0)
+    st = B.BroadInsComparison(trials=16, ukf_trials="16", attitude_filters="none")
+    assert st.trials == ("16",) and st.attitude_filters == () and st.ukf_variants == B.VARIANTS
+
+
+@pytest.mark.slow  # about 3 min on a shared core: compiles two SE_2(3) x R^6 filters and VQF's run
+def test_compare_broad_ins_on_a_short_slice(tmp_path):
+    _broad_present("16")
+    out = tmp_path / "bins"
+    res = CliRunner().invoke(cli.cli, ["compare", "broad-ins", "--set", "trials=16", "--set", "seconds=45",
+                                       "--filters", "mef,iekf-right", "--set", "attitude_filters=vqf-broad",
+                                       "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    for f in ("broad_ins.md", "broad_ins.csv", "broad_ins.json", "arrays.npz"):
+        assert (out / f).stat().st_size > 0, f
+    meta = json.loads((out / "broad_ins.json").read_text())
+    assert meta["schema"] == B.SCHEMA
+    t = meta["per_trial"]["16"]
+    for variant, bound in (("recorded", 0.03), ("noisy", 0.15)):
+        for name in ("mef", "iekf-right"):
+            r = t["variants"][variant]["filters"][name]
+            assert r["ok"] and r["position"] < bound and r["inclination"] < 3.0, (variant, name)
+            assert r["velocity"] < 0.5 and math.isfinite(r["nees_pose"])
+    assert t["variants"]["noisy"]["added_noise_m"] == 0.1
+    assert meta["attitude_only"]["16"]["vqf-broad"]["ok"]
+    md = (out / "broad_ins.md").read_text()
+    assert "## Attitude against the attitude-only filters" in md and "NaN" not in md
