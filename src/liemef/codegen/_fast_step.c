@@ -17,7 +17,12 @@
  *   The leaves of the FilterState packed in x (a C-contiguous float64 array), by spec: one (kind, offset, shape,
  *   typenum) per leaf, kind 0 a float64 view of x, 1 a float64 scalar, 2 a scalar of typenum, 3 an array of
  *   typenum (a copy): the objects NumPy's indexing and astype give (views keep x's memory alive), at a tenth of
- *   their cost. Integer and boolean leaves are stored as doubles holding their exact values. */
+ *   their cost. Integer and boolean leaves are stored as doubles holding their exact values.
+ *
+ * state(x, spec, tree) -> object
+ *   The FilterState itself: leaves(x, spec) put into tree, where a node is a leaf's index (an int), a tuple
+ *   (None, None, kids) for a tuple of kids, or (cls, names, kids) for object.__new__(cls) with the __dict__
+ *   {names[k]: kids[k]}: what a generated Python reader does with object.__new__ and object.__setattr__. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -191,7 +196,58 @@ static PyObject *leaves(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     return out;
 }
 
+static PyObject *build(PyObject *tree, PyObject *leaves, PyObject *empty)
+{
+    if (PyLong_CheckExact(tree)) {
+        Py_ssize_t i = PyLong_AsSsize_t(tree);
+        if (i < 0 || i >= PyList_GET_SIZE(leaves))
+            return PyErr_Occurred() ? NULL : PyErr_Format(PyExc_ValueError, "state: a leaf index out of range");
+        PyObject *v = PyList_GET_ITEM(leaves, i);
+        Py_INCREF(v);
+        return v;
+    }
+    if (!PyTuple_Check(tree) || PyTuple_GET_SIZE(tree) != 3 || !PyTuple_Check(PyTuple_GET_ITEM(tree, 2)))
+        return PyErr_Format(PyExc_ValueError, "state: a node is an index or (cls, names, kids)");
+    PyObject *cls = PyTuple_GET_ITEM(tree, 0), *names = PyTuple_GET_ITEM(tree, 1), *kids = PyTuple_GET_ITEM(tree, 2);
+    Py_ssize_t n = PyTuple_GET_SIZE(kids);
+    if (cls == Py_None) {
+        PyObject *out = PyTuple_New(n);
+        for (Py_ssize_t k = 0; out != NULL && k < n; k++) {
+            PyObject *v = build(PyTuple_GET_ITEM(kids, k), leaves, empty);
+            if (v == NULL) Py_CLEAR(out);
+            else PyTuple_SET_ITEM(out, k, v);
+        }
+        return out;
+    }
+    if (!PyType_Check(cls) || !PyTuple_Check(names) || PyTuple_GET_SIZE(names) != n)
+        return PyErr_Format(PyExc_ValueError, "state: a node (cls, names, kids) with a type and a name per kid");
+    PyObject *d = PyDict_New();
+    for (Py_ssize_t k = 0; d != NULL && k < n; k++) {
+        PyObject *v = build(PyTuple_GET_ITEM(kids, k), leaves, empty);
+        if (v == NULL || PyDict_SetItem(d, PyTuple_GET_ITEM(names, k), v) != 0) Py_CLEAR(d);
+        Py_XDECREF(v);
+    }
+    if (d == NULL) return NULL;
+    PyObject *obj = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty, NULL); /* object.__new__(cls) */
+    if (obj == NULL || PyObject_GenericSetDict(obj, d, NULL) != 0) Py_CLEAR(obj);
+    Py_DECREF(d);
+    return obj;
+}
+
+static PyObject *state(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 3) return PyErr_Format(PyExc_TypeError, "state(x, spec, tree)");
+    PyObject *got = leaves(self, args, 2);
+    if (got == NULL) return NULL;
+    PyObject *empty = PyTuple_New(0);
+    PyObject *out = empty != NULL ? build(args[2], got, empty) : NULL;
+    Py_XDECREF(empty);
+    Py_DECREF(got);
+    return out;
+}
+
 static PyMethodDef methods[] = {
+    {"state", (PyCFunction)(void (*)(void))state, METH_FASTCALL, "A packed FilterState, made."},
     {"step", (PyCFunction)(void (*)(void))step, METH_FASTCALL, "One online step by a kernel's kernel_step."},
     {"leaves", (PyCFunction)(void (*)(void))leaves, METH_FASTCALL, "The leaves of a packed FilterState."},
     {NULL, NULL, 0, NULL},

@@ -512,6 +512,28 @@ def reject_infinite(z: np.ndarray, m: int, p: int) -> None:
         _validate.array(name, z[off:off + n], (n,), missing=True)
 
 
+def _fields(td, obj) -> list[str]:
+    """The fields of a state node that :func:`_state_reader` builds (an equinox Module without static fields),
+    in the order of its children; UnsupportedPrimitive for any other node."""
+    cls, aux = td.node_data()
+    fields = [f.name for f in dataclasses.fields(cls)] if isinstance(obj, eqx.Module) else None
+    if fields is None or len(aux) != 1 or aux[0] or len(fields) != len(td.children()):
+        raise UnsupportedPrimitive(f"a state node {cls.__name__} with static fields")
+    return fields
+
+
+def _tree(td, obj, leaf_index) -> object:
+    """The node description ``state`` of ``_fast_step.c`` builds ``td`` from: a leaf's index, (None, None, kids)
+    for a tuple, (cls, field names, kids) for a Module."""
+    if td.num_nodes == 1 and td.num_leaves == 1:
+        return next(leaf_index)
+    cls, kids = td.node_data()[0], td.children()
+    if cls is tuple:
+        return (None, None, tuple(_tree(c, o, leaf_index) for c, o in zip(kids, obj, strict=True)))
+    fields = _fields(td, obj)
+    return (cls, tuple(fields), tuple(_tree(c, vars(obj)[f], leaf_index) for c, f in zip(kids, fields, strict=True)))
+
+
 def _state_reader(sslots: tuple[Slot, ...], sdef, template):
     """A function from one packed vector to its FilterState: generated for the layout, since the online step
     reads a state at each call and a loop over the slots, then ``sdef.unflatten``, cost three times as much.
@@ -548,13 +570,10 @@ def _state_reader(sslots: tuple[Slot, ...], sdef, template):
     def node(td, obj) -> str:  # the expression of one node (statements for it appended to lines)
         if td.num_nodes == 1 and td.num_leaves == 1:
             return next(leaf_exprs)
-        cls, aux = td.node_data()
-        kids = td.children()
+        cls, kids = td.node_data()[0], td.children()
         if cls is tuple:
             return "(" + "".join(node(c, o) + ", " for c, o in zip(kids, obj, strict=True)) + ")"
-        fields = [f.name for f in dataclasses.fields(cls)] if isinstance(obj, eqx.Module) else None
-        if fields is None or len(aux) != 1 or aux[0] or len(fields) != len(kids):
-            raise UnsupportedPrimitive(f"a state node {cls.__name__} with static fields")
+        fields = _fields(td, obj)
         values = [node(c, vars(obj)[f]) for c, f in zip(kids, fields, strict=True)]
         name = f"n{len(lines)}"
         namespace[f"C{len(lines)}"] = cls
@@ -565,6 +584,9 @@ def _state_reader(sslots: tuple[Slot, ...], sdef, template):
 
     try:
         root = node(sdef, template)
+        if "c_leaves" in namespace:  # the whole state made in C (._fast_step.c's state)
+            namespace.update(c_state=_fast.module().state, TREE=_tree(sdef, template, itertools.count()))
+            head, lines, root = "def read(x):\n", [], "c_state(x, SPEC, TREE)"
         exec(head + "".join(lines) + f"    return {root}\n", namespace)
         read = namespace["read"]
         probe = np.arange(sum(sl.size for sl in sslots), dtype=np.float64)
@@ -761,8 +783,13 @@ class Kernel:
             xs, addresses, counter, block = self._block = self._new_block()
             i = next(counter)
         address = addresses[i]
-        if ctl is not None and u_next is None and y_next is None:  # advance's fast step, inlined
+        if ctl is not None and u_next is None and y_next is None:  # advance's fast step and state, inlined
             code = self._fast.step(ctl, got[1], address, t, u, y, dt, gap)
+            if code >= 0 and self._reader is not None:
+                x = xs[i]
+                st = self._reader(x)
+                _side.put(st, "packed", (x, address, self))
+                return st
             if code >= 0:
                 return self.state(xs[i], address)
             ctl = None  # refused (or an infinite sample): the checked path says why
