@@ -145,10 +145,12 @@ def _trace(flt: AbstractFilter) -> _Traced:
         st = jax.tree_util.tree_unflatten(sdef, leaves)
         return jax.tree_util.tree_leaves(f._interval(st, t, dt, u0, u1, y0, y1, gap))
 
-    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    closed = jax.make_jaxpr(interval)([jnp.asarray(x) for x in pleaves], [jnp.asarray(x) for x in sleaves],
-                                      f64(0.0), f64(0.01), f64(np.inf), jnp.zeros(m), jnp.zeros(m), jnp.zeros(p),
-                                      jnp.zeros(p))
+    # abstract arguments: the trace needs shapes and dtypes only (jnp.asarray of each leaf compiled a small XLA
+    # conversion per shape and dtype: nine of them, 0.3-0.5 s of a first build)
+    spec = lambda shape, dtype=jnp.float64: jax.ShapeDtypeStruct(shape, dtype)  # noqa: E731
+    closed = jax.make_jaxpr(interval)([spec(x.shape, x.dtype) for x in pleaves],
+                                      [spec(x.shape, x.dtype) for x in sleaves], spec(()), spec(()), spec(()),
+                                      spec((m,)), spec((m,)), spec((p,)), spec((p,)))
     closed, used = _dce(closed)
     return _Traced(closed, used, pleaves, sleaves, pslots, sslots, pdef, sdef, state, n_theta, n_state, m, p,
                    f"{_title(flt)} on {type(sysm).__name__}")
