@@ -11,10 +11,13 @@ The Monte Carlo workload of Rigo et al. 2022's experiment: second order, RKMK4 w
 
 ``montecarlo`` is the end-to-end command ``liemef montecarlo tse2`` (simulation, filter by the C engine through
 ``scan(engine=None)``, error statistics), second call (compile excluded). ``memory`` is the bytes a trial
-holds: its kept states (packed, 8 bytes a number) and its log. The target: the filter at >= 2e6 trial-steps/s.
-Figures from one run on a shared machine; ``loadavg_1min`` says how shared.
+holds: its kept states (packed, 8 bytes a number) and its log. The target (issue 22): the filter at >= 4e6
+trial-steps/s on the 2 cores, decided on the median of the ``--repeats`` calls (``c_trial_steps_per_s``; the
+fastest call's figure is ``c_trial_steps_per_s_best``). Figures from one run on a shared machine;
+``loadavg_1min`` says how shared. ``--quick`` times only the C engine on 256 trials of 2 s (no XLA, no
+``montecarlo``): the figure ``bench_tse2.py`` reports.
 
-    python benchmarks/bench_batch.py [--duration 5] [--batches 1 4 16 64 256] [--keep-every 10]
+    python benchmarks/bench_batch.py [--duration 5] [--batches 1 4 16 64 256] [--keep-every 10] [--quick]
 """
 
 from __future__ import annotations
@@ -56,14 +59,25 @@ def logs(system, ts, B, seed=0):
     return np.asarray(log.us), np.asarray(log.ys), q0, sim_s
 
 
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), platform.machine())
+    except OSError:
+        return platform.processor() or platform.machine()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=5.0)
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 4, 16, 64, 256])
     ap.add_argument("--keep-every", type=int, default=10)
     ap.add_argument("--xla-max", type=int, default=64, help="largest batch also timed with the XLA engine")
-    ap.add_argument("--repeats", type=int, default=3, help="timed calls of the C engine per batch (the median)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed calls of the C engine per batch (the median)")
+    ap.add_argument("--quick", action="store_true", help="the C engine on 256 trials of 2 s only")
     args = ap.parse_args()
+    if args.quick:
+        args.duration, args.batches, args.xla_max = 2.0, [256], 0
 
     system = PlanarRigidBody()
     flt = liemef.MinimumEnergyFilter(system)
@@ -91,6 +105,9 @@ def main():
             dt = float(np.median(times))
             assert np.all(np.asarray(traj.status.code) == 0), "a benchmark trial failed"
             row[f"{engine}_trial_steps_per_s"] = round(B * steps / dt)
+            if engine == "c":
+                row["c_trial_steps_per_s_best"] = round(B * steps / min(times))
+                row["c_trial_steps_per_s_all"] = [round(B * steps / x) for x in times]
             row[f"{engine}_us_per_trial_step"] = round(dt / (B * steps) * 1e6, 4)
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -103,22 +120,24 @@ def main():
               "all_states_bytes_per_trial": int((steps + 1) * n_state * 8),
               "log_bytes_per_trial": int((steps + 1) * (system.input_dim + system.output_dim) * 8)}
 
-    exp = resolve_experiment("tse2")
-    cfg = exp.config(duration=args.duration)
-    mc_runs, mc_batch = 256, 64
-    montecarlo(exp, cfg, runs=mc_batch, batch_size=mc_batch, progress=False)  # compile
-    t0 = time.perf_counter()
-    montecarlo(exp, cfg, runs=mc_runs, batch_size=mc_batch, progress=False)
-    mc_s = time.perf_counter() - t0
+    mc = None
+    if not args.quick:
+        exp = resolve_experiment("tse2")
+        cfg = exp.config(duration=args.duration)
+        mc_runs, mc_batch = 256, 64
+        montecarlo(exp, cfg, runs=mc_batch, batch_size=mc_batch, progress=False)  # compile
+        t0 = time.perf_counter()
+        montecarlo(exp, cfg, runs=mc_runs, batch_size=mc_batch, progress=False)
+        mc_s = time.perf_counter() - t0
+        mc = {"runs": mc_runs, "batch_size": mc_batch, "seconds": round(mc_s, 3),
+              "trial_steps_per_s": round(mc_runs * steps / mc_s)}
 
-    best = max(r["c_trial_steps_per_s"] for r in rows)
+    best = max(r["c_trial_steps_per_s"] for r in rows)  # the best batch size's median
     out = {"steps_per_trial": steps, "keep_every": args.keep_every, "threads": threads, "batches": rows,
-           "memory": memory,
-           "montecarlo": {"runs": mc_runs, "batch_size": mc_batch, "seconds": round(mc_s, 3),
-                          "trial_steps_per_s": round(mc_runs * steps / mc_s)},
-           "targets": {"filter_trial_steps_per_s>=2e6": best >= 2e6, "best_filter_trial_steps_per_s": best},
+           "memory": memory, "montecarlo": mc, "best_filter_trial_steps_per_s": best,
+           "targets": {"filter_trial_steps_per_s>=4e6": best >= 4e6, "best_filter_trial_steps_per_s": best},
            "machine": {"python": platform.python_version(), "jax": jax.__version__, "liemef": liemef.__version__,
-                       "cores": threads, "loadavg_1min": round(os.getloadavg()[0], 2)}}
+                       "cores": threads, "cpu_model": _cpu_model(), "loadavg_1min": round(os.getloadavg()[0], 2)}}
     print(json.dumps(out, indent=2))
 
 

@@ -421,8 +421,8 @@ def test_online_states_are_values():
         flt.step(state, 0.0, u_int, ys[0], 1e-3, engine="c", y_next=np.where(np.arange(7) == 2, -np.inf, 0.0))
     kern = liemef.engines.kernel(flt, "c")
     x = kern.packed(ref)
-    assert kern._read.__name__ == "read"  # the generated reader, not the fallback
-    assert_trees_close(kern._read(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)
+    assert kern._reader.__name__ == "read"  # the generated reader, not the fallback
+    assert_trees_close(kern._reader(x), kern.sdef.unflatten(jax.tree_util.tree_leaves(ref)), tol=0.0)
 
 
 def test_state_reader_falls_back_on_static_fields():

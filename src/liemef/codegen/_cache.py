@@ -253,6 +253,24 @@ def load(lib: Library):
         Path(tmp).unlink(missing_ok=True)
 
 
+def load_module(lib: Library, name: str):
+    """Import the checked bytes of ``lib`` as the CPython extension module ``name`` (its ``PyInit_<name>``), by
+    the same private copy as :func:`load`: what is imported is what was checked."""
+    import importlib.machinery
+    import importlib.util
+
+    fd, tmp = tempfile.mkstemp(dir=lib.path.parent, prefix=f".load.{os.getpid()}.{next(_LOADS)}.", suffix=".so")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(lib.data)
+        loader = importlib.machinery.ExtensionFileLoader(name, tmp)
+        module = importlib.util.module_from_spec(importlib.util.spec_from_file_location(name, tmp, loader=loader))
+        loader.exec_module(module)
+        return module
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
 def _after_fork() -> None:
     global _LOCK
     _LOCK = threading.Lock()
@@ -262,4 +280,5 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_after_fork)
 
 
-__all__ = ["EngineWarning", "Library", "cache_dir", "folder", "install", "load", "read_verified", "refusal"]
+__all__ = ["EngineWarning", "Library", "cache_dir", "folder", "install", "load", "load_module", "read_verified",
+           "refusal"]

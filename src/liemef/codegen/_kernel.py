@@ -52,10 +52,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
-from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples
-from . import _cache
+from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
+from . import _cache, _fast
 from ._cache import Library, cache_dir
 from ._export import _dce, compiler
+from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
 
@@ -144,10 +145,12 @@ def _trace(flt: AbstractFilter) -> _Traced:
         st = jax.tree_util.tree_unflatten(sdef, leaves)
         return jax.tree_util.tree_leaves(f._interval(st, t, dt, u0, u1, y0, y1, gap))
 
-    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-    closed = jax.make_jaxpr(interval)([jnp.asarray(x) for x in pleaves], [jnp.asarray(x) for x in sleaves],
-                                      f64(0.0), f64(0.01), f64(np.inf), jnp.zeros(m), jnp.zeros(m), jnp.zeros(p),
-                                      jnp.zeros(p))
+    # abstract arguments: the trace needs shapes and dtypes only (jnp.asarray of each leaf compiled a small XLA
+    # conversion per shape and dtype: nine of them, 0.3-0.5 s of a first build)
+    spec = lambda shape, dtype=jnp.float64: jax.ShapeDtypeStruct(shape, dtype)  # noqa: E731
+    closed = jax.make_jaxpr(interval)([spec(x.shape, x.dtype) for x in pleaves],
+                                      [spec(x.shape, x.dtype) for x in sleaves], spec(()), spec(()), spec(()),
+                                      spec((m,)), spec((m,)), spec((p,)), spec((p,)))
     closed, used = _dce(closed)
     return _Traced(closed, used, pleaves, sleaves, pslots, sslots, pdef, sdef, state, n_theta, n_state, m, p,
                    f"{_title(flt)} on {type(sysm).__name__}")
@@ -486,7 +489,7 @@ def _ptr(a: np.ndarray):
 
 
 ROWS_PER_BLOCK = 8
-"""Online steps' new states per preallocated block (:meth:`Kernel._row`): a block's address costs 1.5 us once
+"""Online steps' new states per preallocated block (:meth:`Kernel._new_block`): a block's address costs 1.5 us once
 (0.2 us a step), and a state kept alone keeps its whole block alive (8 rows of 600 bytes for TSE(2), about
 what the state's 16 leaf objects take anyway), so that keeping every 100th state costs no more than keeping
 every 8th."""
@@ -511,6 +514,28 @@ def reject_infinite(z: np.ndarray, m: int, p: int) -> None:
         _validate.array(name, z[off:off + n], (n,), missing=True)
 
 
+def _fields(td, obj) -> list[str]:
+    """The fields of a state node that :func:`_state_reader` builds (an equinox Module without static fields),
+    in the order of its children; UnsupportedPrimitive for any other node."""
+    cls, aux = td.node_data()
+    fields = [f.name for f in dataclasses.fields(cls)] if isinstance(obj, eqx.Module) else None
+    if fields is None or len(aux) != 1 or aux[0] or len(fields) != len(td.children()):
+        raise UnsupportedPrimitive(f"a state node {cls.__name__} with static fields")
+    return fields
+
+
+def _tree(td, obj, leaf_index) -> object:
+    """The node description ``state`` of ``_fast_step.c`` builds ``td`` from: a leaf's index, (None, None, kids)
+    for a tuple, (cls, field names, kids) for a Module."""
+    if td.num_nodes == 1 and td.num_leaves == 1:
+        return next(leaf_index)
+    cls, kids = td.node_data()[0], td.children()
+    if cls is tuple:
+        return (None, None, tuple(_tree(c, o, leaf_index) for c, o in zip(kids, obj, strict=True)))
+    fields = _fields(td, obj)
+    return (cls, tuple(fields), tuple(_tree(c, vars(obj)[f], leaf_index) for c, f in zip(kids, fields, strict=True)))
+
+
 def _state_reader(sslots: tuple[Slot, ...], sdef, template):
     """A function from one packed vector to its FilterState: generated for the layout, since the online step
     reads a state at each call and a loop over the slots, then ``sdef.unflatten``, cost three times as much.
@@ -533,27 +558,37 @@ def _state_reader(sslots: tuple[Slot, ...], sdef, template):
     head = "def read(x):\n    xi = x[int_pos].astype(int_dtype)\n"
     exec(head + f"    return [{', '.join(exprs)}]\n", namespace)
     leaves = namespace["read"]
+    fast = _fast.module()
+    if fast is not None and int_dtype in (np.dtype(np.bool_), np.dtype(np.int32), np.dtype(np.int64)):
+        # the leaves made in C (._fast_step.c's leaves): the same objects (checked below against the NumPy
+        # expressions' on the probe), at a tenth of the cost
+        namespace.update(c_leaves=fast.leaves, SPEC=tuple(
+            ((0 if sl.shape else 1) if sl.dtype == np.float64 else (3 if sl.shape else 2), sl.offset, sl.shape,
+             sl.dtype.num) for sl in sslots))
+        head = f"def read(x):\n    {''.join(f'l{i}, ' for i in range(len(sslots)))}= c_leaves(x, SPEC)\n"
+        exprs = [f"l{i}" for i in range(len(sslots))]
     lines, leaf_exprs = [], iter(exprs)
 
     def node(td, obj) -> str:  # the expression of one node (statements for it appended to lines)
         if td.num_nodes == 1 and td.num_leaves == 1:
             return next(leaf_exprs)
-        cls, aux = td.node_data()
-        kids = td.children()
+        cls, kids = td.node_data()[0], td.children()
         if cls is tuple:
             return "(" + "".join(node(c, o) + ", " for c, o in zip(kids, obj, strict=True)) + ")"
-        fields = [f.name for f in dataclasses.fields(cls)] if isinstance(obj, eqx.Module) else None
-        if fields is None or len(aux) != 1 or aux[0] or len(fields) != len(kids):
-            raise UnsupportedPrimitive(f"a state node {cls.__name__} with static fields")
+        fields = _fields(td, obj)
         values = [node(c, vars(obj)[f]) for c, f in zip(kids, fields, strict=True)]
         name = f"n{len(lines)}"
         namespace[f"C{len(lines)}"] = cls
-        lines.append(f"    {name} = new(C{len(lines)})\n" + "".join(f"    set({name}, {f!r}, {v})\n"
-                                                             for f, v in zip(fields, values, strict=True)))
+        # the fields as one __dict__ (what setting them one by one leaves, in a third of the time)
+        lines.append(f"    {name} = new(C{len(lines)})\n    set({name}, '__dict__', {{"
+                     + ", ".join(f"{f!r}: {v}" for f, v in zip(fields, values, strict=True)) + "})\n")
         return name
 
     try:
         root = node(sdef, template)
+        if "c_leaves" in namespace:  # the whole state made in C (._fast_step.c's state)
+            namespace.update(c_state=_fast.module().state, TREE=_tree(sdef, template, itertools.count()))
+            head, lines, root = "def read(x):\n", [], "c_state(x, SPEC, TREE)"
         exec(head + "".join(lines) + f"    return {root}\n", namespace)
         read = namespace["read"]
         probe = np.arange(sum(sl.size for sl in sslots), dtype=np.float64)
@@ -582,11 +617,15 @@ class Kernel:
         self.n_theta = sum(s.size for s in pslots)
         self.n_state = sum(s.size for s in sslots)
         self.m, self.p = input_dim, output_dim
-        self._read = _state_reader(sslots, sdef, traced.state)
+        self._reader = None  # the state reader, made on first use (:meth:`state`)
         self._optimizer: threading.Thread | None = None
         self._source: str | None = None  # the C source while the -O2 build is under way
         self.optimize_error: str | None = None
+        # where the fast step (._fast) finds kernel_step: a pointer each _load sets, so that states and online
+        # filters made before the -O2 build run by it once it serves
+        self._step_cell = ctypes.c_void_p()
         self._load(lib)
+        self._fast = None  # the fast step's module (._fast), loaded on the first online step (fast_ctl)
         self._block = self._new_block()
 
     def _load(self, built: Library | Path) -> None:
@@ -605,6 +644,7 @@ class Kernel:
         # c_step: the C kernel_step on addresses, (theta, x, xo, t, dt, gap, z) -> status code (-2: an infinite
         # sample, xo untouched), for an engine that keeps packed states of its own (liemef.engines.OnlineFilter)
         self.lib, self._scan, self.c_step, self._batch = lib, scan, step, batch
+        self._step_cell.value = _fast.address(step)
         self.path = built.path if isinstance(built, Library) else Path(built)
 
     def _optimize(self, source: str) -> None:
@@ -676,7 +716,9 @@ class Kernel:
     def state(self, x: np.ndarray, address: int | None = None) -> FilterState:
         """The FilterState of one packed vector (kept beside it, so that the next step need not pack it again;
         ``address``: where ``x`` is, if known)."""
-        st = self._read(x)
+        if self._reader is None:
+            self._reader = _state_reader(self.sslots, self.sdef, self.traced.state)
+        st = self._reader(x)
         _side.put(st, "packed", (x, x.ctypes.data if address is None else address, self))
         return st
 
@@ -690,35 +732,72 @@ class Kernel:
         got = _side.get(state, "packed")
         return got is not None and got[2] is self
 
-    def _row(self) -> tuple[np.ndarray, int]:
-        """A fresh row for one online step (its new state, then its samples) and the row's address, cut from a
-        preallocated block: the address of a new array costs over a microsecond (``ndarray.ctypes``), a block's
-        is taken once. A block lives while a state in it does (its leaves are views)."""
-        while True:
-            block, address, counter = self._block
-            i = next(counter)
-            if i < block.shape[0]:
-                return block[i], address + i * block.strides[0]
-            self._block = self._new_block()
-
     def _new_block(self):
+        """A preallocated block of rows for online steps (:meth:`step`): each row a new state, then its
+        samples. The address of a new array costs over a microsecond (``ndarray.ctypes``), a block's is taken
+        once; each row's state view and address are cut once for the whole block. A block lives while a state
+        in it does (its leaves are views)."""
         block = np.empty((ROWS_PER_BLOCK, self.n_state + max(1, 2 * (self.m + self.p))))
-        return block, block.ctypes.data, itertools.count()
+        address, stride = block.ctypes.data, block.strides[0]
+        return (list(block[:, :self.n_state]), [address + i * stride for i in range(ROWS_PER_BLOCK)],
+                itertools.count(), block)
 
-    def step(self, theta_address: int, state: FilterState, t: float, dt: float, gap: float, u, y, u_next, y_next
+    def fast_ctl(self, theta_address: int) -> tuple | None:
+        """The ``ctl`` of the fast step (:mod:`._fast`) for the parameter vector at ``theta_address``, or None
+        where the extension is not available (the ctypes path serves)."""
+        self._fast = _fast.module()  # built and cached on first use
+        if self._fast is None:
+            return None
+        return (ctypes.addressof(self._step_cell), theta_address, self.n_state, self.m, self.p)
+
+    def advance(self, ctl, theta_address: int, x: int, xo: int, z: np.ndarray, t, dt, gap, u, y, u_next, y_next
+                ) -> int:
+        """One online step from the packed state at address ``x`` into the buffer at ``xo`` (S + 2 (m + p)
+        doubles, ``z`` the view of its samples part): by the fast step where it takes the arguments as they are,
+        else with every argument checked here (ValueError naming the first bad one, as the XLA engine's step
+        names it) and the ctypes call. Returns the kernel's status code; xo is untouched when it raises."""
+        if ctl is not None and u_next is None and y_next is None:
+            code = self._fast.step(ctl, x, xo, t, u, y, dt, gap)
+            if code != FALLBACK:
+                if code == -2:
+                    reject_infinite(z, self.m, self.p)
+                return code
+        t, dt = check_time(t, dt)
+        fill_samples(z, self.m, self.p, u, y, u_next, y_next)
+        code = self.c_step(theta_address, x, xo, t, dt, float(gap), xo + 8 * self.n_state)
+        if code == -2:
+            reject_infinite(z, self.m, self.p)
+        return code
+
+    def step(self, flt, theta_address: int, ctl, state: FilterState, t, dt, gap, u, y, u_next, y_next
              ) -> FilterState:
-        """One online step from ``state`` (``theta_address``: where the parameter vector is; samples as given,
-        checked here): the C ``kernel_step``, and the new state."""
+        """One online step of ``flt`` from ``state`` (``theta_address``: where the parameter vector is, ``ctl``
+        its :meth:`fast_ctl`; the state, time and samples as given, checked here): the C ``kernel_step``, and
+        the new state, in a row of a preallocated block (:meth:`_new_block`)."""
         got = _side.get(state, "packed")
         if got is None or got[2] is not self:
+            type(flt)._check_state(flt, state)
             x = self.pack(state)
             got = (x, x.ctypes.data)
-        row, address = self._row()
-        S = self.n_state
-        fill_samples(row[S:], self.m, self.p, u, y, u_next, y_next)
-        if self.c_step(theta_address, got[1], address, t, dt, gap, address + 8 * S) == -2:
-            reject_infinite(row[S:], self.m, self.p)
-        return self.state(row[:S], address)
+        xs, addresses, counter, block = self._block
+        i = next(counter)
+        if i >= ROWS_PER_BLOCK:
+            xs, addresses, counter, block = self._block = self._new_block()
+            i = next(counter)
+        address = addresses[i]
+        if ctl is not None and u_next is None and y_next is None:  # advance's fast step and state, inlined
+            code = self._fast.step(ctl, got[1], address, t, u, y, dt, gap)
+            if code >= 0 and self._reader is not None:
+                x = xs[i]
+                st = self._reader(x)
+                _side.put(st, "packed", (x, address, self))
+                return st
+            if code >= 0:
+                return self.state(xs[i], address)
+            ctl = None  # refused (or an infinite sample): the checked path says why
+        self.advance(ctl, theta_address, got[1], address, block[i, self.n_state:], t, dt, gap, u, y, u_next,
+                     y_next)
+        return self.state(xs[i], address)
 
     # --- calls ------------------------------------------------------------------------------------------------
     def scan(self, theta, x, ts, us, ys, gap: float, keep: int) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ from .. import _validate
 from ..filters import FilterState, Trajectory
 from ..filters._base import check_log, check_samples, check_time
 from . import _c, _xla
-from ._select import kernel, theta_address
+from ._select import LAZY, _entry, fast_ctl, kernel
 
 
 class LogGapWarning(UserWarning):
@@ -125,12 +125,12 @@ def step(flt, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: floa
     # the hot path of a robot loop: methods are reached through the class, since reading a method off an
     # equinox Module builds a bound-method Module each time (microseconds)
     cls = type(flt)
+    kern, _, address, _, ctl = _entry(flt, engine, check_time, (t, dt))
+    if kern is not None:  # the state, time and samples are checked as the kernel takes them
+        if ctl is LAZY:
+            ctl = fast_ctl(flt)
+        return kern.step(flt, address, ctl, state, t, dt, gap, u, y, u_next, y_next)
     t, dt = check_time(t, dt)
-    kern = kernel(flt, engine)
-    if kern is not None:  # the samples are checked as the kernel copies them in, infinities by the C step
-        if not kern.made(state):
-            cls._check_state(flt, state)
-        return kern.step(theta_address(flt), state, t, dt, float(gap), u, y, u_next, y_next)
     cls._check_state(flt, state)
     u, y, u1, y1 = check_samples(flt.system.input_dim, flt.system.output_dim, u, y, u_next, y_next)
     return _xla.step(flt, state, t, dt, gap, u, y, u1, y1)

@@ -13,9 +13,9 @@ import math
 
 import numpy as np
 
-from ..codegen._kernel import fill_samples, reject_infinite
-from ..filters._base import AbstractFilter, FilterState, check_time
-from ._select import kernel, theta_address
+from ..codegen import _fast
+from ..filters._base import AbstractFilter, FilterState
+from ._select import fast_ctl, kernel, theta_address
 
 
 class OnlineFilter:
@@ -34,16 +34,24 @@ class OnlineFilter:
         if self._kern is None:
             self._state = state
             return
-        self._fill, self._reject = fill_samples, reject_infinite
         kern = self._kern
         self._theta_address = theta_address(flt)
-        self._x = np.array(kern.pack(state))
-        self._xo = np.empty_like(self._x)
-        self._z = np.zeros(max(1, 2 * (self.m + self.p)))
-        self._addresses = (self._x.ctypes.data, self._xo.ctypes.data, self._z.ctypes.data)
+        self._ctl = fast_ctl(flt)
+        self._step = _fast.module().step if self._ctl is not None else None
+        # two buffers of a packed state and its samples (S + 2 (m + p) doubles), swapped at each step
+        width = kern.n_state + max(1, 2 * (self.m + self.p))
+        self._bufs = (np.zeros(width), np.zeros(width))
+        self._bufs[0][:kern.n_state] = kern.pack(state)
+        self._addresses = (self._bufs[0].ctypes.data, self._bufs[1].ctypes.data)
+        self._zs = (self._bufs[0][kern.n_state:], self._bufs[1][kern.n_state:])
+        self._cur = 0
         k_slot = kern.sslots[kern.paths.index(".K")]
         self._k = (k_slot.offset, k_slot.shape)
         self._code = kern.sslots[kern.paths.index(".status.code")].offset
+
+    @property
+    def _x(self) -> np.ndarray:
+        return self._bufs[self._cur][:self._kern.n_state]
 
     def step(self, t: float, u, y, dt: float, *, u_next=None, y_next=None, gap: float = math.inf) -> int:
         """Advance ``[t, t + dt]`` with the samples ``u`` (m,) and ``y`` (p,) (NaN: missing, as in
@@ -52,14 +60,18 @@ class OnlineFilter:
             self._state = self.filter.step(self._state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap,
                                            engine="xla")
             return int(self._state.status.code)
-        t, dt = check_time(t, dt)
-        self._fill(self._z, self.m, self.p, u, y, u_next, y_next)
-        x, xo, za = self._addresses
-        code = self._kern.c_step(self._theta_address, x, xo, t, dt, float(gap), za)
-        if code == -2:
-            self._reject(self._z, self.m, self.p)
-        self._x, self._xo = self._xo, self._x
-        self._addresses = (xo, x, za)
+        cur = self._cur
+        x, xo = self._addresses if cur == 0 else self._addresses[::-1]
+        ctl = self._ctl
+        if ctl is not None and u_next is None and y_next is None:  # the fast step (Kernel.advance's), inlined
+            code = self._step(ctl, x, xo, t, u, y, dt, gap)
+            if code >= 0:
+                self._cur = 1 - cur
+                return code
+            ctl = None  # refused (or an infinite sample): the checked path says why
+        code = self._kern.advance(ctl, self._theta_address, x, xo, self._zs[1 - cur], t, dt, gap, u, y,
+                                  u_next, y_next)
+        self._cur = 1 - cur
         return code
 
     @property

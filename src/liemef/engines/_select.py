@@ -32,13 +32,27 @@ def engine_of(engine: str | None) -> str:
 def _asked(engine: str | None) -> str:
     """The engine asked for, checked (``"auto"`` kept as it is)."""
     if engine is None:
-        engine = os.environ.get("LIEMEF_ENGINE") or "auto"
+        engine = _environment() or "auto"
         where = "LIEMEF_ENGINE"
     else:
         where = "engine"
     if engine not in ENGINES:
         raise ValueError(f"{where}: expected one of {list(ENGINES)}, got {engine!r}")
     return engine
+
+
+try:  # os.environ's own table (CPython's, on every platform): a read in 0.1 us, not 1-2 us through the Mapping
+    _ENVIRON, _KEY = os.environ._data, os.environ.encodekey("LIEMEF_ENGINE")
+except AttributeError:  # pragma: no cover - another Python
+    _ENVIRON = None
+
+
+def _environment() -> str | None:
+    """``$LIEMEF_ENGINE`` as ``os.environ`` holds it now (the online step reads it at each call)."""
+    if _ENVIRON is None:  # pragma: no cover
+        return os.environ.get("LIEMEF_ENGINE")
+    value = _ENVIRON.get(_KEY)
+    return None if value is None else os.environ.decodevalue(value)
 
 
 @functools.cache
@@ -51,14 +65,29 @@ def kernel(flt, engine: str | None):
     engine's decision alone, the same for every filter (a filter says how its interval advances, not what runs
     it). ``"auto"`` without a C compiler, or with a kernel that cannot be built, warns (:class:`EngineWarning`,
     once per filter) and gives None."""
+    return _entry(flt, engine)[0]
+
+
+_XLA = (None, None, None, None, None)
+LAZY = object()
+"""The fast step's ``ctl`` in a new entry: made on the first online step (:func:`fast_ctl`), so that a filter
+that only runs logs never builds the extension."""
+
+
+def _entry(flt, engine: str | None, check=None, args=()) -> tuple:
+    """:func:`kernel`'s decision as kept beside ``flt``: (kernel, theta, theta's address, the error of a fallback,
+    the fast step's ``ctl``); all None for XLA. ``check(*args)`` runs before a kernel is built (a first call's
+    boundary check)."""
     engine = _asked(engine)
     if engine == "xla":
-        return None
+        return _XLA
     cached = _side.get(flt, "kernel")
     if cached is not None:
         if cached[0] is None and engine == "c":
             raise cached[3]  # "auto" fell back earlier: "c" says why, as on a first call
-        return cached[0]
+        return cached
+    if check is not None:
+        check(*args)
     error = None
     try:
         if engine == "auto" and _no_compiler():
@@ -72,10 +101,14 @@ def kernel(flt, engine: str | None):
                       stacklevel=4)
         kern, error = None, err
     if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(flt)):
-        return kern  # a traced filter (scan under a transformation): its parameters come as data
-    theta = kern.theta(flt) if kern is not None else None
-    _side.put(flt, "kernel", (kern, theta, theta.ctypes.data if kern is not None else None, error))
-    return kern
+        return (kern, None, None, None, None)  # a traced filter (scan under a transformation): parameters as data
+    if kern is None:
+        entry = (None, None, None, error, None)
+    else:
+        theta = kern.theta(flt)
+        entry = (kern, theta, theta.ctypes.data, None, LAZY)
+    _side.put(flt, "kernel", entry)
+    return entry
 
 
 def theta(flt):
@@ -86,3 +119,14 @@ def theta(flt):
 def theta_address(flt) -> int:
     """The address of :func:`theta`'s vector, for the C step."""
     return _side.get(flt, "kernel")[2]
+
+
+def fast_ctl(flt):
+    """The fast step's ``ctl`` for ``flt``'s kernel (:meth:`~liemef.codegen._kernel.Kernel.fast_ctl`; None:
+    the ctypes path), made on first use and kept in its entry."""
+    entry = _side.get(flt, "kernel")
+    if entry[4] is not LAZY:
+        return entry[4]
+    ctl = entry[0].fast_ctl(entry[2])
+    _side.put(flt, "kernel", entry[:4] + (ctl,))
+    return ctl
