@@ -142,6 +142,22 @@ K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
 """K0 of the bounded-velocity model: K0's attitude and bias, and (0.1 m/s)^2 on the velocity (at rest)."""
 
 
+
+def trial_ids(what: str, trials, present, folder) -> tuple[str, ...]:
+    """The BROAD trial ids of the setting ``what``: every trial ``present`` when ``trials`` is None, else the
+    ones given (a tuple, or a comma-separated string); ids are two digits ("07"), and a number (7, 24) means the
+    same trial. A ValueError names ``what`` when none is given or one is not present in ``folder``."""
+    if trials is None:
+        return tuple(present)
+    if isinstance(trials, str | int):
+        trials = tuple(t.strip() for t in str(trials).split(","))
+    trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
+    unknown = [t for t in trials if t not in present]
+    if not trials or unknown:
+        raise ValueError(f"{what}: expected BROAD trials present in {folder} from {list(present)}, got "
+                         f"{list(trials)}")
+    return trials
+
 @dataclass(frozen=True)
 class BroadComparison:
     """The study's settings: ``trials`` (ids of the trials present, read from the files by
@@ -159,17 +175,7 @@ class BroadComparison:
 
     def __post_init__(self):
         folder, present = realdata_present(self.realdata, datasets.broad_trials, datasets.BROAD_DIR)
-        trials = self.trials
-        if trials is None:
-            trials = tuple(present)
-        elif isinstance(trials, str | int):
-            trials = tuple(t.strip() for t in str(trials).split(","))
-        # ids are two digits ("07"); a number given on the command line (7, 24) means the same trial
-        trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
-        unknown = [t for t in trials if t not in present]
-        if not trials or unknown:
-            raise ValueError(f"trials: expected BROAD trials present in {folder} from {list(present)}, got "
-                             f"{list(trials)}")
+        trials = trial_ids("trials", self.trials, present, folder)
         names = parse_names("filters", self.filters, BROAD_FILTERS, DEFAULT_FILTERS)
         if self.params is not None:
             from ..tune import load

@@ -77,6 +77,7 @@ from ...reports import io
 from ...systems import inertial_navigation
 from ...systems.inertial import SE23B
 from .. import datasets
+from ._broad import trial_ids
 from ._common import FILTERS, fmt, parse_names, realdata_present
 
 SCHEMA = "liemef.compare.broad-ins/1"
@@ -147,8 +148,8 @@ class BroadInsComparison:
         from ._broad import BROAD_FILTERS
 
         folder, present = realdata_present(self.realdata, datasets.broad_trials, datasets.BROAD_DIR)
-        trials = _trial_ids("trials", self.trials, present, folder)
-        ukf = trials if self.ukf_trials is None else _trial_ids("ukf_trials", self.ukf_trials, present, folder)
+        trials = trial_ids("trials", self.trials, present, folder)
+        ukf = trials if self.ukf_trials is None else trial_ids("ukf_trials", self.ukf_trials, present, folder)
         names = parse_names("filters", self.filters, INS_FILTERS, DEFAULT_FILTERS)
         att = self.attitude_filters
         att = () if att in ("none", "") or att == () else parse_names("attitude_filters", att, BROAD_FILTERS,
@@ -169,19 +170,6 @@ class BroadInsComparison:
                        ("variants", variants), ("realdata", str(folder)), ("fix_rate", float(self.fix_rate)),
                        ("noise_std", float(self.noise_std))):
             object.__setattr__(self, key, v)
-
-
-def _trial_ids(what, trials, present, folder) -> tuple[str, ...]:
-    if trials is None:
-        return tuple(present)
-    if isinstance(trials, str | int):
-        trials = tuple(t.strip() for t in str(trials).split(","))
-    trials = tuple(f"{int(t):02d}" if str(t).strip().isdigit() else str(t) for t in trials)
-    unknown = [t for t in trials if t not in present]
-    if not trials or unknown:
-        raise ValueError(f"{what}: expected BROAD trials present in {folder} from {list(present)}, got "
-                         f"{list(trials)}")
-    return trials
 
 
 # --- the data ---------------------------------------------------------------------------------------------------
