@@ -89,6 +89,27 @@ class RunConfig:
         return np.arange(int(round(self.duration / self.dt)) + 1) * self.dt
 
 
+class UkfmGrid(RunConfig):
+    """A run on ukfm's time grid (its benchmarks' convention): N = round(T / dt) states at t_n = n dt, so the
+    last time is T - dt, and a sensor of period p observed at the indices m, 2m, ... < N (m = round(p / dt);
+    ukfm's y_0 is never used)."""
+
+    @property
+    def n_states(self) -> int:
+        """N = round(T / dt)."""
+        return int(round(self.duration / self.dt))
+
+    @property
+    def ts(self) -> np.ndarray:
+        """t_n = n dt, n = 0..N-1 (ukfm's grid: the last time is T - dt)."""
+        return np.arange(self.n_states) * self.dt
+
+    def every(self, period: float) -> np.ndarray:
+        """The state indices m, 2m, ... < N of a sensor of ``period`` s (m = round(period / dt))."""
+        m = int(round(period / self.dt))
+        return np.arange(m, self.n_states, m)
+
+
 @dataclass(frozen=True)
 class FigureSpec:
     """A figure of state panels drawn from a result's arrays (``liemef.reports.plots``): for each component, truth,

@@ -57,7 +57,7 @@ from ...groups import SE23, SO3
 from ...metrics import left_error, nees
 from ...simulation import SensorLog
 from ...systems import inertial_navigation
-from ._base import RunConfig
+from ._base import UkfmGrid
 
 NAMES = ("attitude", "velocity", "position", "nees_attitude", "nees_position", "nees_position_ukfm")
 """The trial's series (:func:`series`)."""
@@ -110,7 +110,7 @@ PUBLISHED_INITIAL_ERRORS = ((18.87, 1.555), (11.60, 0.645), (13.55, 1.911), (21.
 
 
 @dataclass(frozen=True)
-class InertialConfig(RunConfig):
+class InertialConfig(UkfmGrid):
     r"""ukfm's inertial-navigation benchmark (module docstring); defaults are the scenario's.
 
     Fields:
@@ -184,20 +184,9 @@ class InertialConfig(RunConfig):
                              f"{self.duration:g} s")
 
     @property
-    def n_states(self) -> int:
-        """N = round(T / dt)."""
-        return int(round(self.duration / self.dt))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """t_n = n dt, n = 0..N-1 (ukfm's grid: the last time is T - dt)."""
-        return np.arange(self.n_states) * self.dt
-
-    @property
     def obs_indices(self) -> np.ndarray:
         """The IMU indices of the observations the filters use: m, 2m, ... < N (ukfm's y_0 is never used)."""
-        m = int(round(self.obs_period / self.dt))
-        return np.arange(m, self.n_states, m)
+        return self.every(self.obs_period)
 
     @property
     def K0(self) -> np.ndarray:

@@ -58,7 +58,7 @@ from ...reports import figures, io
 from ...simulation import SensorLog, Truth
 from ...systems import planar_localization
 from .. import registry
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, RunConfig, TrialSpec, register
+from ._base import Experiment, FigureSpec, Output, Reproduction, Result, TrialSpec, UkfmGrid, register
 from ._evaluate import evaluate
 from ._montecarlo import MonteCarloResult, montecarlo
 
@@ -79,7 +79,7 @@ RNGS = ("jax", "numpy")
 
 
 @dataclass(frozen=True)
-class LocalizationConfig(RunConfig):
+class LocalizationConfig(UkfmGrid):
     r"""The ukfm 2D localization benchmark (module docstring); defaults are the scenario's.
 
     Fields:
@@ -132,20 +132,9 @@ class LocalizationConfig(RunConfig):
             raise ValueError(f"steady: expected a start within the run [0, {self.ts[-1]:g}] s, got {self.steady}")
 
     @property
-    def n_states(self) -> int:
-        """N = round(T / dt)."""
-        return int(round(self.duration / self.dt))
-
-    @property
-    def ts(self) -> np.ndarray:
-        """t_n = n dt, n = 0..N-1 (ukfm's grid: the last time is T - dt)."""
-        return np.arange(self.n_states) * self.dt
-
-    @property
     def gps_indices(self) -> np.ndarray:
         """The odometry indices of the fixes the filter uses: m, 2m, ... < N (ukfm's y_0 is never used)."""
-        m = int(round(self.gps_period / self.dt))
-        return np.arange(m, self.n_states, m)
+        return self.every(self.gps_period)
 
     @property
     def windows(self) -> tuple[Window, ...]:
