@@ -204,18 +204,11 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
     """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
     and rms over time of each error component, then across trials their mean, spread and percentiles. Exit
     status 1 when no trial is usable (every one diverged): then --out holds failure.json alone."""
-    from .reports import io
-    from .studies.experiments import EXPERIMENTS, get_experiment, montecarlo
-    from .studies.logs import FAILURE_SCHEMA
-    from .studies.settings import experiment_config
+    from .studies.runs import montecarlo_to
 
-    exp = get_experiment(experiment)
-    if exp.trial_fn is None:
-        with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
-        raise click.UsageError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
-    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True)
-    target = outputs.claim(out, "montecarlo", force) if out is not None else None
-    result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size, progress=progress)
+    saved = montecarlo_to(out, experiment, runs, seed=seed, batch_size=batch_size, duration=duration, quick=quick,
+                          settings=settings, force=force, progress=progress)
+    exp, result = saved.experiment, saved.result
     click.echo(f"{exp.name}: {exp.title}\n  {exp.paper}")
     click.echo(result.format())
     click.echo(f"{result.runs} trials in {result.elapsed:.1f} s ({result.runs / result.elapsed:.1f} trials/s "
@@ -224,14 +217,9 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
         click.echo(f"WARNING: {result.divergence_summary()} (trials "
                    f"{', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the statistics",
                    err=True)
-    unusable = result.n_nonfinite == result.runs
-    if target is not None:
-        with outputs.staged(target, manifest=not unusable) as d:
-            written = [io.write_json(d / "failure.json", {
-                "schema": FAILURE_SCHEMA, "command": "montecarlo", "message": result.divergence_summary(),
-                "diverged": result.diverged(), "liemef_version": __version__})] if unusable else result.save(d)
-        _echo_written(written, target.path)
-    if unusable:
+    if saved.out is not None:
+        _echo_written(saved.written, saved.out)
+    if not saved.usable:
         raise click.ClickException(f"no usable trial: {result.divergence_summary()}")
 
 
