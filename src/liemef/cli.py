@@ -92,11 +92,6 @@ def _echo_written(files, out: Path) -> None:
     click.echo(f"Wrote {', '.join(p.name for p in files)} to {out}")
 
 
-def _show(text: str, stage: Path, out: Path) -> str:
-    """``text`` with the temporary folder's path replaced by the final one."""
-    return text.replace(str(stage), str(out))
-
-
 FORCE = click.option("--force", is_flag=True, help="Replace --out even if it holds files of another command.")
 SETTINGS = click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
                         help="Override any config field (repeatable), e.g. --set dt=0.01 --set alpha=0.1.")
@@ -153,35 +148,24 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
         raise click.UsageError("Missing argument 'EXPERIMENT|all' (or --list).")
     if out is None:
         raise click.UsageError("Missing option '--out'.")
+    from .studies import runs as _runs
+
     options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
     if experiment == "all":
-        given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
-        if given:
-            raise click.UsageError(f"{', '.join(given)}: config options apply to one experiment, not to 'all' (each "
-                                   "runs its own reduced or full config)")
-    from .studies.experiments import INDEX_FILE, Failure, get_experiment, reproduce_all
-    from .studies.settings import experiment_config
-
-    if experiment == "all":
-        target = outputs.claim(out, "reproduce", force)
-        with outputs.staged(target) as d:
-            reps = reproduce_all(d, quick=quick is not False, progress=progress, runs=runs,
-                                 echo=lambda text: click.echo(_show(text, d, target.path) + "\n"))
-        failed = [r for r in reps if isinstance(r, Failure)]
-        click.echo(f"Wrote {len(reps) - len(failed)} of {len(reps)} experiments and {INDEX_FILE} to {target.path}")
+        saved = _runs.reproduce_all_to(out, quick=quick is not False, runs=runs, settings=settings, force=force,
+                                       progress=progress, echo=lambda text: click.echo(text + "\n"), **options)
+        failed = saved.failed
+        click.echo(f"Wrote {len(saved.done) - len(failed)} of {len(saved.done)} experiments and {saved.index.name} "
+                   f"to {saved.out}")
         for r in failed:
             click.echo(f"FAILED {r.experiment}: {r.error}", err=True)
         if failed:
             raise click.ClickException(f"{len(failed)} experiment(s) failed: {', '.join(r.experiment for r in failed)}")
         return
-    exp = get_experiment(experiment)
-    config = experiment_config(exp, bool(quick), options, settings)
-    runs = (exp.quick_runs if quick else exp.runs) if runs is None else runs
-    target = outputs.claim(out, "reproduce", force)
-    with outputs.staged(target) as d:
-        rep = exp.reproduce(d, config, runs=runs, progress=progress)
-    click.echo(_show(rep.text, d, target.path))
-    for w in rep.warnings:
+    one = _runs.reproduce_to(out, experiment, quick=bool(quick), runs=runs, settings=settings, force=force,
+                             progress=progress, **options)
+    click.echo(one.text)
+    for w in one.warnings:
         click.echo(w, err=True)
 
 

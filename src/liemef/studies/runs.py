@@ -67,3 +67,84 @@ def montecarlo_to(out: str | os.PathLike | None, experiment: str, runs: int = 10
                 "diverged": result.diverged(), "liemef_version": __version__})]
         written = [target.path / p.name for p in written]
     return SavedMonteCarlo(exp, result, None if target is None else target.path, written, usable)
+
+
+@dataclass(frozen=True)
+class SavedReproduction:
+    """What :func:`reproduce_to` did: the ``reproduction``
+    (:class:`~liemef.studies.experiments.Reproduction`), its ``text`` (the error table and the files, naming
+    the final folder), its ``warnings`` and the folder ``out``."""
+
+    reproduction: Any = field(repr=False)
+    text: str
+    warnings: tuple[str, ...]
+    out: Path
+
+
+@dataclass(frozen=True)
+class SavedReproductions:
+    """What :func:`reproduce_all_to` did: one :class:`~liemef.studies.experiments.Reproduction` or
+    :class:`~liemef.studies.experiments.Failure` per experiment (``done``), the folder ``out`` and its
+    ``index`` (``index.md``)."""
+
+    done: list = field(repr=False)
+    out: Path
+    index: Path
+
+    @property
+    def failed(self) -> list:
+        """The :class:`~liemef.studies.experiments.Failure` entries of :attr:`done`."""
+        from .experiments import Failure
+
+        return [r for r in self.done if isinstance(r, Failure)]
+
+
+def _shown(text: str, stage: Path, out: Path) -> str:
+    """``text`` with the temporary folder's path replaced by the final one."""
+    return text.replace(str(stage), str(out))
+
+
+def reproduce_to(out: str | os.PathLike, experiment: str, *, quick: bool = False, runs: int | None = None,
+                 seed: int | None = None, duration: float | None = None, connection: str | None = None,
+                 order: str | None = None, settings=(), force: bool = False,
+                 progress: bool = False) -> SavedReproduction:
+    """Reproduce the registered ``experiment`` into ``out`` (:meth:`~liemef.studies.experiments.Experiment.
+    reproduce`): its config (``quick``: the reduced one) with ``seed``, ``duration``, ``connection`` and
+    ``order`` (None: the config's) and the ``KEY=VALUE`` ``settings`` replaced, and ``runs`` Monte Carlo
+    trials (None: the experiment's own number; 0: the seeded run only)."""
+    from .experiments import get_experiment
+    from .settings import experiment_config
+
+    exp = get_experiment(experiment)
+    options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
+    config = experiment_config(exp, quick, options, settings)
+    runs = (exp.quick_runs if quick else exp.runs) if runs is None else runs
+    target = outputs.claim(out, "reproduce", force)
+    with outputs.staged(target) as d:
+        rep = exp.reproduce(d, config, runs=runs, progress=progress)
+    return SavedReproduction(rep, _shown(rep.text, d, target.path), tuple(rep.warnings), target.path)
+
+
+def reproduce_all_to(out: str | os.PathLike, *, quick: bool = True, runs: int | None = None, settings=(),
+                     force: bool = False, progress: bool = False, echo=None, seed: int | None = None,
+                     duration: float | None = None, connection: str | None = None,
+                     order: str | None = None) -> SavedReproductions:
+    """Every registered experiment into a subfolder of ``out``, then ``index.md``
+    (:func:`~liemef.studies.experiments.reproduce_all`), each at its reduced size (``quick``) or its full one;
+    ``runs`` overrides every experiment's number of Monte Carlo trials; ``echo(text)`` receives each
+    reproduction's text (naming the final folder) as it finishes. Any of ``seed``, ``duration``,
+    ``connection``, ``order`` (not None) or ``settings`` is a ValueError, before JAX is imported: they apply to
+    one experiment. An
+    experiment that raises is recorded as a :class:`~liemef.studies.experiments.Failure`; the others still run."""
+    options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
+    given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
+    if given:
+        raise ValueError(f"{', '.join(given)}: config options apply to one experiment, not to 'all' (each runs its "
+                         "own reduced or full config)")
+    from .experiments import INDEX_FILE, reproduce_all
+
+    target = outputs.claim(out, "reproduce", force)
+    with outputs.staged(target) as d:
+        shown = None if echo is None else (lambda text: echo(_shown(text, d, target.path)))
+        done = reproduce_all(d, quick=quick, progress=progress, runs=runs, echo=shown)
+    return SavedReproductions(done, target.path, target.path / INDEX_FILE)
