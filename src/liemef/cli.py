@@ -15,7 +15,6 @@ Exit status: 0 ok, 1 a failed run (or a Monte Carlo or comparison with no usable
 from __future__ import annotations
 
 import math
-import re
 import signal
 import sys
 from pathlib import Path
@@ -29,8 +28,6 @@ from .studies import registry
 EXPERIMENTS = registry.names("experiment")
 COMPARISONS = registry.names("comparison")
 SYSTEMS = tuple(sorted(registry.SYSTEMS))
-C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
-"""What ``liemef export-c --name`` accepts: the prefix of every name of the exported C."""
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
 
 
@@ -302,41 +299,17 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
     and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
     of the source (export again for new ones). The two files are written in place, each whole or not at all
     (the folder may be your project's). See docs/export-c.md."""
-    given = name is not None
-    if not given and (system_name or system_file):
-        name = (system_name or system_file.stem).replace("-", "_")
-    if name is not None and not re.fullmatch(C_IDENTIFIER, name):
-        raise click.BadParameter(f"expected a C identifier (letters, digits and _, not starting with a digit), got "
-                                 f"{name!r}" + ("" if given else " (from the system's name: give --name)"),
-                                 param_hint="'--name'")
-    substeps = _substeps(substeps)
-    if not math.isfinite(alpha) or alpha < 0:
-        raise click.BadParameter(f"expected a number >= 0, got {alpha}", param_hint="'--alpha'")
-    from .reports import io
+    from .studies.runs import export_c_to
 
     try:
-        d = io.ensure_dir(out)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--out'") from err
-    from .codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
-    from .filters import MinimumEnergyFilter
-    from .studies.logs import resolve_system
-
-    source = resolve_system(system_name, system_file)
-    flt = MinimumEnergyFilter(source.system, connection=connection, order=order, integrator=integrator, alpha=alpha,
-                              substeps=substeps, max_substeps=max_substeps)
-    try:
-        exported = export_c(flt, d, name, backend=backend)
-    except UnsupportedPrimitive as err:
-        raise click.ClickException(f"{source.label}: the filter step uses what the C translator does not cover: "
-                                   f"{err}. See docs/export-c.md (supported primitives)") from err
-    except OSError as err:
-        raise click.BadParameter(f"cannot write to {str(d)!r} ({err.strerror or err})", param_hint="'--out'") from err
-    if backend == "auto":
-        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
-    click.echo(f"Exported {source.label} ({flt!r}) as C99 ({backend} code):")
-    click.echo(f"  {exported.header}\n  {exported.source}")
-    click.echo(exported.api_summary(source.system))
+        saved = export_c_to(out, system=system_name, system_file=system_file, name=name, connection=connection,
+                            order=order, integrator=integrator, alpha=alpha, substeps=_substeps(substeps),
+                            max_substeps=max_substeps, backend=backend)
+    except NotImplementedError as err:  # liemef.codegen.UnsupportedPrimitive: the step uses what C lacks
+        raise click.ClickException(str(err)) from err
+    click.echo(f"Exported {saved.source.label} ({saved.filter!r}) as C99 ({saved.backend} code):")
+    click.echo(f"  {saved.exported.header}\n  {saved.exported.source}")
+    click.echo(saved.exported.api_summary(saved.source.system))
 
 
 @cli.command("schema")

@@ -148,3 +148,66 @@ def reproduce_all_to(out: str | os.PathLike, *, quick: bool = True, runs: int | 
         shown = None if echo is None else (lambda text: echo(_shown(text, d, target.path)))
         done = reproduce_all(d, quick=quick, progress=progress, runs=runs, echo=shown)
     return SavedReproductions(done, target.path, target.path / INDEX_FILE)
+
+
+C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
+"""What :func:`export_c_to` accepts as ``name`` (``liemef export-c --name``): the prefix of every name of the
+exported C."""
+
+
+@dataclass(frozen=True)
+class SavedC:
+    """What :func:`export_c_to` did: the ``exported`` files (:class:`liemef.codegen.ExportedC`), the ``filter``
+    exported, the ``source`` system (:class:`liemef.studies.logs.LogSystem`) and the C ``backend`` used
+    (``"scalar"`` or ``"array"``, ``"auto"`` resolved)."""
+
+    exported: Any
+    filter: Any = field(repr=False)
+    source: Any = field(repr=False)
+    backend: str
+
+
+def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
+                name: str | None = None, connection: str = "zero", order: str = "second", integrator: str = "rkmk4",
+                alpha: float = 0.0, substeps: int | str = "auto", max_substeps: int = 256,
+                backend: str = "auto") -> SavedC:
+    """The minimum-energy filter of a ready ``system`` or of your own ``system_file`` (exactly one) as C99:
+    ``NAME.h`` and ``NAME.c`` in the folder ``out`` (created if missing; each file whole or not at all), by
+    :func:`liemef.codegen.export_c`. ``name`` is a C identifier (default: the system's name with - replaced by
+    _). Bad input is a ValueError naming its option (``err.option``), the name and ``alpha`` checked before JAX
+    is imported; a step the C translator does not cover is :class:`liemef.codegen.UnsupportedPrimitive`, naming
+    the system and what it uses, with nothing written."""
+    import math
+    import re
+
+    from .settings import OptionError
+
+    given = name is not None
+    if not given and (system or system_file):
+        name = (system or Path(system_file).stem).replace("-", "_")
+    if name is not None and not re.fullmatch(C_IDENTIFIER, name):
+        raise OptionError(f"expected a C identifier (letters, digits and _, not starting with a digit), got {name!r}"
+                          + ("" if given else " (from the system's name: give --name)"), "--name")
+    if not math.isfinite(alpha) or alpha < 0:
+        raise OptionError(f"expected a number >= 0, got {alpha}", "--alpha")
+    try:
+        d = io.ensure_dir(out)
+    except ValueError as err:
+        raise OptionError(str(err), "--out") from err
+    from ..codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
+    from ..filters import MinimumEnergyFilter
+    from .logs import resolve_system
+
+    source = resolve_system(system, system_file)
+    flt = MinimumEnergyFilter(source.system, connection=connection, order=order, integrator=integrator, alpha=alpha,
+                              substeps=substeps, max_substeps=max_substeps)
+    try:
+        exported = export_c(flt, d, name, backend=backend)
+    except UnsupportedPrimitive as err:
+        raise UnsupportedPrimitive(f"{source.label}: the filter step uses what the C translator does not cover: "
+                                   f"{err}. See docs/export-c.md (supported primitives)") from err
+    except OSError as err:
+        raise OptionError(f"cannot write to {str(d)!r} ({err.strerror or err})", "--out") from err
+    if backend == "auto":
+        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
+    return SavedC(exported, flt, source, backend)
