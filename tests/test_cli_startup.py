@@ -222,3 +222,14 @@ def test_the_compare_help_lists_the_registry_filters():
     text = cli.cli.commands["compare"].help
     for name, description in registry.FILTERS.items():
         assert f"  {name:<11} {description}" in text
+
+
+def test_the_tune_choices_are_the_library_s():
+    """`liemef tune`'s data, objectives and systems (declared in the JAX-free registry) are what
+    liemef.studies.tune fits."""
+    from liemef.studies import tune
+
+    params = {p.name: p for p in cli.cli.commands["tune"].params}
+    assert list(params["data"].type.choices) == list(registry.TUNE_DATA) == ["broad"]
+    assert list(params["objective"].type.choices) == list(tune.OBJECTIVES) == list(registry.TUNE_OBJECTIVES)
+    assert list(params["system_name"].type.choices) == list(tune.SYSTEMS) == list(registry.TUNE_SYSTEMS)

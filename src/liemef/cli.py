@@ -360,11 +360,11 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
 
 
 @cli.command("tune")
-@click.argument("data", type=click.Choice(("broad",)))
+@click.argument("data", type=click.Choice(registry.TUNE_DATA))
 @click.option("--out", required=True, type=click.Path(path_type=Path),
               help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md.")
-@click.option("--objective", type=click.Choice(("truth", "nll")), default="truth", show_default=True,
-              help="truth: BROAD's total attitude rms; nll: the innovations' negative log-likelihood (no truth).")
+@click.option("--objective", type=click.Choice(tuple(registry.TUNE_OBJECTIVES)), default="truth", show_default=True,
+              help="; ".join(f"{k}: {v}" for k, v in registry.TUNE_OBJECTIVES.items()) + ".")
 @click.option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present).")
 @click.option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's).")
 @click.option("--seconds", type=float, default=90.0, show_default=True,
@@ -373,10 +373,9 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
               help="Evaluations of the shared search (each runs every trial).")
 @click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
               help="Evaluations of each leave-one-out fold's refinement.")
-@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
-              default="attitude-imu", show_default=True,
-              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
-                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
+@click.option("--system", "system_name", type=click.Choice(tuple(registry.TUNE_SYSTEMS)), default="attitude-imu",
+              show_default=True, help="The model: " + " or ".join(f"{k} ({v})" for k, v in
+                                                                    registry.TUNE_SYSTEMS.items()) + ".")
 @click.option("--updates", type=click.Choice(_names.UPDATES), default="hold", show_default=True,
               help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                    "ending at t_k), as compare broad's mef-imu-d.")
@@ -388,27 +387,14 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
     """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
     search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
     set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
-    if system_name == "attitude-velocity" and updates != "discrete":
-        raise click.UsageError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
-                               f"mef-vel), got {updates}")
-    target = outputs.claim(out, "tune", force)
-    from .reports import io
-    from .studies import tune as _tune
+    from .studies.runs import tune_to
 
-    try:
-        recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
-                                      None if realdata is None else str(realdata),
-                                      gyro="backward" if updates == "discrete" else "forward", system=system_name)
-        kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
-        result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
-                            updates=updates, **kw)
-    except ValueError as err:
-        raise click.UsageError(str(err)) from err
-    with outputs.staged(target) as d:
-        _tune.save(result, d / "tune.json")
-        io.write_text(d / "tune.md", _tune.markdown(result))
-    click.echo(_tune.markdown(result))
-    click.echo(f"Wrote tune.json and tune.md to {target.path}")
+    saved = tune_to(out, data, objective=objective, trials=None if not trials else trials.split(","),
+                    names=None if not names else [n.strip() for n in names.split(",")], seconds=seconds,
+                    maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates, realdata=realdata,
+                    force=force, progress=progress)
+    click.echo(saved.markdown)
+    click.echo(f"Wrote {' and '.join(p.name for p in saved.written)} to {saved.out}")
 
 
 _COMPARE_HELP = (

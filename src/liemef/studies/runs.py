@@ -211,3 +211,46 @@ def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_fil
     if backend == "auto":
         backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
     return SavedC(exported, flt, source, backend)
+
+
+@dataclass(frozen=True)
+class SavedTune:
+    """What :func:`tune_to` did: the tuning ``result`` (:func:`liemef.studies.tune.tune`'s), its ``markdown``
+    report, the folder ``out`` and the files ``written`` there (``tune.json``, ``tune.md``)."""
+
+    result: dict = field(repr=False)
+    markdown: str = field(repr=False)
+    out: Path
+    written: list[Path]
+
+
+def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "truth", trials=None,
+            names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int = 12,
+            system: str = "attitude-imu", updates: str = "hold", realdata: str | os.PathLike | None = None,
+            force: bool = False, progress: bool = False) -> SavedTune:
+    """Fit ``system``'s noise levels (:data:`liemef.studies.registry.TUNE_SYSTEMS`) to the recordings ``data``
+    (:data:`~liemef.studies.registry.TUNE_DATA`: the BROAD ``trials`` present, each id a string; None: all) with
+    leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first ``seconds``;
+    0 or None: whole trials), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
+    ``names``: the parameters to tune (None: the system's defaults). ``attitude-velocity`` takes
+    ``updates="discrete"`` only. Bad input is a ValueError before anything is written."""
+    from .registry import TUNE_DATA
+
+    if data not in TUNE_DATA:
+        raise ValueError(f"data: expected one of {list(TUNE_DATA)}, got {data!r}")
+    if system == "attitude-velocity" and updates != "discrete":
+        raise ValueError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
+                         f"mef-vel), got {updates}")
+    target = outputs.claim(out, "tune", force)
+    from . import tune
+
+    recs = tune.broad_recordings(None if not trials else list(trials), seconds or None,
+                                 None if realdata is None else str(realdata),
+                                 gyro="backward" if updates == "discrete" else "forward", system=system)
+    kw = {} if not names else {"names": tuple(names)}
+    result = tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
+                       updates=updates, **kw)
+    text = tune.markdown(result)
+    with outputs.staged(target) as d:
+        written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
+    return SavedTune(result, text, target.path, [target.path / p.name for p in written])
