@@ -420,22 +420,16 @@ _COMPARE_HELP = (
 @FORCE
 @_progress("One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, force, progress):
-    from .studies.compare import STUDIES, failures
-    from .studies.settings import comparison_settings
+    from .studies.runs import compare_to
 
-    spec = STUDIES[study]
-    st = comparison_settings(study, spec.settings, runs=runs, seed=seed, filters=filters, items=settings)
-    target = outputs.claim(out, "compare", force)
-    result = spec.run(st, progress=progress)
-    click.echo(spec.markdown(result))
-    lines, failed, total = failures(result)
-    with outputs.staged(target) as d:
-        written = spec.save(result, d)
-    for line in lines:
+    saved = compare_to(out, study, runs=runs, seed=seed, filters=filters, settings=settings, force=force,
+                       progress=progress)
+    click.echo(saved.markdown)
+    for line in saved.warnings:
         click.echo(f"WARNING: {line}", err=True)
-    _echo_written(written, target.path)
-    if total and failed == total:
-        raise click.ClickException(f"no usable trial: every filter failed in all {total} trials")
+    _echo_written(saved.written, saved.out)
+    if not saved.usable:
+        raise click.ClickException(f"no usable trial: every filter failed in all {saved.total} trials")
 
 
 @cli.group("campaign")

@@ -254,3 +254,46 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     with outputs.staged(target) as d:
         written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
     return SavedTune(result, text, target.path, [target.path / p.name for p in written])
+
+
+@dataclass(frozen=True)
+class SavedComparison:
+    """What :func:`compare_to` did: the comparison's ``result``, its ``markdown`` report, the folder ``out``,
+    the files ``written`` there, one ``warnings`` line per filter that failed somewhere, and how many (filter,
+    trial) pairs ``failed`` of the ``total`` run (:func:`liemef.studies.compare.failures`)."""
+
+    result: dict = field(repr=False)
+    markdown: str = field(repr=False)
+    out: Path
+    written: list[Path]
+    warnings: list[str]
+    failed: int
+    total: int
+
+    @property
+    def usable(self) -> bool:
+        """False when every trial of every filter failed."""
+        return not (self.total and self.failed == self.total)
+
+
+def compare_to(out: str | os.PathLike, study: str, *, runs: int | None = None, seed: int = 0,
+               filters: str | None = None, settings=(), force: bool = False,
+               progress: bool = False) -> SavedComparison:
+    """Run the comparison ``study`` (:data:`liemef.studies.compare.STUDIES`) with ``runs`` trials from ``seed``,
+    the ``filters`` (comma-separated names; None: the study's) and the ``KEY=VALUE`` ``settings``, and write its
+    tables, data and figures to ``out``. Bad input is a ValueError before anything is written or run."""
+    from . import registry
+    from .compare import STUDIES, failures
+    from .settings import comparison_settings
+
+    registry.get("comparison", study)
+    spec = STUDIES[study]
+    st = comparison_settings(study, spec.settings, runs=runs, seed=seed, filters=filters, items=settings)
+    target = outputs.claim(out, "compare", force)
+    result = spec.run(st, progress=progress)
+    text = spec.markdown(result)
+    lines, failed, total = failures(result)
+    with outputs.staged(target) as d:
+        written = spec.save(result, d)
+    return SavedComparison(result, text, target.path, [target.path / Path(p).name for p in written], lines, failed,
+                           total)
