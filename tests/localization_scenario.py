@@ -23,3 +23,18 @@ def localization_log(seed: int, t_end: float = 40.0):
     fix = np.arange(100, ts.size, 100)
     ys[fix] = truth[fix, 1:] + rng.standard_normal((fix.size, 2))
     return ts, truth, us, ys, np.radians(45.0) * rng.standard_normal()
+
+
+def circle_samples(N: int, fixes, gps_std: float):
+    """The circle above from (0, 0) heading east, N samples at 100 Hz from t = 0, drawn with numpy's
+    ``RandomState(0)`` (the logs of `liemef run`'s tests): ts (N,), the true positions p (N, 2), the headings th
+    (N,), the odometry us (N, 3) with stds (0.01 m/s, 0.01 m/s, 1 deg/s) and ys (N, 2), GPS fixes at the sample
+    indices ``fixes`` with std ``gps_std`` and NaN elsewhere."""
+    rng = np.random.RandomState(0)
+    dt, v, w = 1 / F_ODO, 2 * np.pi * RADIUS / PERIOD, 2 * np.pi / PERIOD
+    th = np.arange(N) * w * dt
+    p = np.concatenate([[[0.0, 0.0]], np.cumsum(v * dt * np.column_stack([np.cos(th), np.sin(th)]), axis=0)[:-1]])
+    us = np.column_stack([v + 0.01 * rng.randn(N), 0.01 * rng.randn(N), w + np.pi / 180 * rng.randn(N)])
+    ys = np.full((N, 2), np.nan)
+    ys[fixes] = p[fixes] + gps_std * rng.randn(len(ys[fixes]), 2)
+    return np.arange(N) * dt, p, th, us, ys

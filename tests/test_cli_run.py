@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from liemef.cli import cli
 from liemef.reports import io
 from liemef.systems import planar_localization
+from localization_scenario import circle_samples
 
 
 def invoke(*args):
@@ -18,18 +19,11 @@ def invoke(*args):
 
 def localization_log(path, outlier=False, N=1000):
     """A circle at 0.785 m/s with 100 Hz odometry and 1 Hz GPS (empty fields elsewhere)."""
-    rng = np.random.RandomState(0)
-    dt, v, w = 0.01, 2 * np.pi * 5 / 40, 2 * np.pi / 40
-    th = np.arange(N) * w * dt
-    p = np.concatenate([[[0.0, 0.0]], np.cumsum(v * dt * np.column_stack([np.cos(th), np.sin(th)]), axis=0)[:-1]])
-    us = np.column_stack([v + 0.01 * rng.randn(N), 0.01 * rng.randn(N), w + np.pi / 180 * rng.randn(N)])
-    ys = np.full((N, 2), np.nan)
-    idx = np.arange(100, N, 100)
-    ys[idx] = p[idx] + rng.randn(len(idx), 2)
+    ts, p, th, us, ys = circle_samples(N, np.arange(100, N, 100), 1.0)
     if outlier:
         ys[500] = [1e4, 0.0]
-    io.write_log(path, planar_localization(), np.arange(N) * dt, us, ys)
-    return np.arange(N) * dt, p, th
+    io.write_log(path, planar_localization(), ts, us, ys)
+    return ts, p, th
 
 
 @pytest.fixture(scope="module")

@@ -222,3 +222,33 @@ def test_the_compare_help_lists_the_registry_filters():
     text = cli.cli.commands["compare"].help
     for name, description in registry.FILTERS.items():
         assert f"  {name:<11} {description}" in text
+
+
+def test_the_tune_choices_are_the_library_s():
+    """`liemef tune`'s data, objectives and systems (declared in the JAX-free registry) are what
+    liemef.studies.tune fits."""
+    from liemef.studies import tune
+
+    params = {p.name: p for p in cli.cli.commands["tune"].params}
+    assert list(params["data"].type.choices) == list(registry.TUNE_DATA) == ["broad"]
+    assert list(params["objective"].type.choices) == list(tune.OBJECTIVES) == list(registry.TUNE_OBJECTIVES)
+    assert list(params["system_name"].type.choices) == list(tune.SYSTEMS) == list(registry.TUNE_SYSTEMS)
+
+
+def test_reproduce_all_refuses_config_options_before_jax(tmp_path):
+    """studies.runs (what the commands call) loads without JAX, and `reproduce all` with a config option is
+    bad input answered before JAX is imported."""
+    res = python(f"""
+        import sys
+        from liemef.cli import main
+        try:
+            main(["reproduce", "all", "--out", {str(tmp_path / "o")!r}, "--seed", "3"])
+        except SystemExit as exit:
+            print("exit", exit.code)
+        import liemef.studies.runs
+        print("loaded:", sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib') or m in {HEAVY!r}
+                                and m != "numpy"))
+    """)
+    assert "exit 2" in res.stdout and "loaded: []" in res.stdout, res.stdout + res.stderr  # numpy reads files
+    assert "--seed: config options apply to one experiment" in res.stderr
+    assert not (tmp_path / "o").exists()

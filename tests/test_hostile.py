@@ -27,6 +27,7 @@ from liemef.studies.experiments import tse2
 from liemef.studies.experiments._montecarlo import trial_keys
 from liemef.systems import ChaplyginSleigh, PlanarRigidBody, RigidBodyAttitude, System, planar_localization
 from liemef.systems._file import load_system_file
+from localization_scenario import circle_samples
 
 
 def _raises(fn, *words):
@@ -340,17 +341,10 @@ def test_an_initial_guess_that_fails_is_named(guess, shown, tmp_path):
 def _hostile_log(path, outlier=True, N=600):
     """A circle at 0.785 m/s, 100 Hz odometry with input sample 150 NaN, GPS at 2 Hz (std 0.3 m) with fix 200 at
     (1e4, 1e4) m if ``outlier``, and no samples in [3, 4.5) s. Returns the times kept and the true positions."""
-    rng = np.random.RandomState(0)
-    dt, v, w = 0.01, 2 * np.pi * 5 / 40, 2 * np.pi / 40
-    th = np.arange(N) * w * dt
-    p = np.concatenate([[[0.0, 0.0]], np.cumsum(v * dt * np.column_stack([np.cos(th), np.sin(th)]), axis=0)[:-1]])
-    us = np.column_stack([v + 0.01 * rng.randn(N), 0.01 * rng.randn(N), w + np.pi / 180 * rng.randn(N)])
-    ys = np.full((N, 2), np.nan)
-    ys[::50] = p[::50] + 0.3 * rng.randn(len(ys[::50]), 2)
+    ts, p, _, us, ys = circle_samples(N, slice(None, None, 50), 0.3)
     us[150] = np.nan
     if outlier:
         ys[200] = [1e4, 1e4]
-    ts = np.arange(N) * dt
     keep = (ts < 3) | (ts >= 4.5)
     io.write_log(path, planar_localization(), ts[keep], us[keep], ys[keep])
     return ts[keep], p[keep]

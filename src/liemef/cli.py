@@ -15,7 +15,6 @@ Exit status: 0 ok, 1 a failed run (or a Monte Carlo or comparison with no usable
 from __future__ import annotations
 
 import math
-import re
 import signal
 import sys
 from pathlib import Path
@@ -29,8 +28,6 @@ from .studies import registry
 EXPERIMENTS = registry.names("experiment")
 COMPARISONS = registry.names("comparison")
 SYSTEMS = tuple(sorted(registry.SYSTEMS))
-C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
-"""What ``liemef export-c --name`` accepts: the prefix of every name of the exported C."""
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
 
 
@@ -92,11 +89,6 @@ def _echo_written(files, out: Path) -> None:
     click.echo(f"Wrote {', '.join(p.name for p in files)} to {out}")
 
 
-def _show(text: str, stage: Path, out: Path) -> str:
-    """``text`` with the temporary folder's path replaced by the final one."""
-    return text.replace(str(stage), str(out))
-
-
 FORCE = click.option("--force", is_flag=True, help="Replace --out even if it holds files of another command.")
 SETTINGS = click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
                         help="Override any config field (repeatable), e.g. --set dt=0.01 --set alpha=0.1.")
@@ -153,35 +145,24 @@ def reproduce(experiment, list_, out, quick, runs, seed, duration, connection, o
         raise click.UsageError("Missing argument 'EXPERIMENT|all' (or --list).")
     if out is None:
         raise click.UsageError("Missing option '--out'.")
+    from .studies import runs as _runs
+
     options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
     if experiment == "all":
-        given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
-        if given:
-            raise click.UsageError(f"{', '.join(given)}: config options apply to one experiment, not to 'all' (each "
-                                   "runs its own reduced or full config)")
-    from .studies.experiments import INDEX_FILE, Failure, get_experiment, reproduce_all
-    from .studies.settings import experiment_config
-
-    if experiment == "all":
-        target = outputs.claim(out, "reproduce", force)
-        with outputs.staged(target) as d:
-            reps = reproduce_all(d, quick=quick is not False, progress=progress, runs=runs,
-                                 echo=lambda text: click.echo(_show(text, d, target.path) + "\n"))
-        failed = [r for r in reps if isinstance(r, Failure)]
-        click.echo(f"Wrote {len(reps) - len(failed)} of {len(reps)} experiments and {INDEX_FILE} to {target.path}")
+        saved = _runs.reproduce_all_to(out, quick=quick is not False, runs=runs, settings=settings, force=force,
+                                       progress=progress, echo=lambda text: click.echo(text + "\n"), **options)
+        failed = saved.failed
+        click.echo(f"Wrote {len(saved.done) - len(failed)} of {len(saved.done)} experiments and {saved.index.name} "
+                   f"to {saved.out}")
         for r in failed:
             click.echo(f"FAILED {r.experiment}: {r.error}", err=True)
         if failed:
             raise click.ClickException(f"{len(failed)} experiment(s) failed: {', '.join(r.experiment for r in failed)}")
         return
-    exp = get_experiment(experiment)
-    config = experiment_config(exp, bool(quick), options, settings)
-    runs = (exp.quick_runs if quick else exp.runs) if runs is None else runs
-    target = outputs.claim(out, "reproduce", force)
-    with outputs.staged(target) as d:
-        rep = exp.reproduce(d, config, runs=runs, progress=progress)
-    click.echo(_show(rep.text, d, target.path))
-    for w in rep.warnings:
+    one = _runs.reproduce_to(out, experiment, quick=bool(quick), runs=runs, settings=settings, force=force,
+                             progress=progress, **options)
+    click.echo(one.text)
+    for w in one.warnings:
         click.echo(w, err=True)
 
 
@@ -204,18 +185,11 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
     """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
     and rms over time of each error component, then across trials their mean, spread and percentiles. Exit
     status 1 when no trial is usable (every one diverged): then --out holds failure.json alone."""
-    from .reports import io
-    from .studies.experiments import EXPERIMENTS, get_experiment, montecarlo
-    from .studies.logs import FAILURE_SCHEMA
-    from .studies.settings import experiment_config
+    from .studies.runs import montecarlo_to
 
-    exp = get_experiment(experiment)
-    if exp.trial_fn is None:
-        with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
-        raise click.UsageError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
-    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True)
-    target = outputs.claim(out, "montecarlo", force) if out is not None else None
-    result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size, progress=progress)
+    saved = montecarlo_to(out, experiment, runs, seed=seed, batch_size=batch_size, duration=duration, quick=quick,
+                          settings=settings, force=force, progress=progress)
+    exp, result = saved.experiment, saved.result
     click.echo(f"{exp.name}: {exp.title}\n  {exp.paper}")
     click.echo(result.format())
     click.echo(f"{result.runs} trials in {result.elapsed:.1f} s ({result.runs / result.elapsed:.1f} trials/s "
@@ -224,14 +198,9 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
         click.echo(f"WARNING: {result.divergence_summary()} (trials "
                    f"{', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the statistics",
                    err=True)
-    unusable = result.n_nonfinite == result.runs
-    if target is not None:
-        with outputs.staged(target, manifest=not unusable) as d:
-            written = [io.write_json(d / "failure.json", {
-                "schema": FAILURE_SCHEMA, "command": "montecarlo", "message": result.divergence_summary(),
-                "diverged": result.diverged(), "liemef_version": __version__})] if unusable else result.save(d)
-        _echo_written(written, target.path)
-    if unusable:
+    if saved.out is not None:
+        _echo_written(saved.written, saved.out)
+    if not saved.usable:
         raise click.ClickException(f"no usable trial: {result.divergence_summary()}")
 
 
@@ -330,41 +299,17 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
     and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
     of the source (export again for new ones). The two files are written in place, each whole or not at all
     (the folder may be your project's). See docs/export-c.md."""
-    given = name is not None
-    if not given and (system_name or system_file):
-        name = (system_name or system_file.stem).replace("-", "_")
-    if name is not None and not re.fullmatch(C_IDENTIFIER, name):
-        raise click.BadParameter(f"expected a C identifier (letters, digits and _, not starting with a digit), got "
-                                 f"{name!r}" + ("" if given else " (from the system's name: give --name)"),
-                                 param_hint="'--name'")
-    substeps = _substeps(substeps)
-    if not math.isfinite(alpha) or alpha < 0:
-        raise click.BadParameter(f"expected a number >= 0, got {alpha}", param_hint="'--alpha'")
-    from .reports import io
+    from .studies.runs import export_c_to
 
     try:
-        d = io.ensure_dir(out)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'--out'") from err
-    from .codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
-    from .filters import MinimumEnergyFilter
-    from .studies.logs import resolve_system
-
-    source = resolve_system(system_name, system_file)
-    flt = MinimumEnergyFilter(source.system, connection=connection, order=order, integrator=integrator, alpha=alpha,
-                              substeps=substeps, max_substeps=max_substeps)
-    try:
-        exported = export_c(flt, d, name, backend=backend)
-    except UnsupportedPrimitive as err:
-        raise click.ClickException(f"{source.label}: the filter step uses what the C translator does not cover: "
-                                   f"{err}. See docs/export-c.md (supported primitives)") from err
-    except OSError as err:
-        raise click.BadParameter(f"cannot write to {str(d)!r} ({err.strerror or err})", param_hint="'--out'") from err
-    if backend == "auto":
-        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
-    click.echo(f"Exported {source.label} ({flt!r}) as C99 ({backend} code):")
-    click.echo(f"  {exported.header}\n  {exported.source}")
-    click.echo(exported.api_summary(source.system))
+        saved = export_c_to(out, system=system_name, system_file=system_file, name=name, connection=connection,
+                            order=order, integrator=integrator, alpha=alpha, substeps=_substeps(substeps),
+                            max_substeps=max_substeps, backend=backend)
+    except NotImplementedError as err:  # liemef.codegen.UnsupportedPrimitive: the step uses what C lacks
+        raise click.ClickException(str(err)) from err
+    click.echo(f"Exported {saved.source.label} ({saved.filter!r}) as C99 ({saved.backend} code):")
+    click.echo(f"  {saved.exported.header}\n  {saved.exported.source}")
+    click.echo(saved.exported.api_summary(saved.source.system))
 
 
 @cli.command("schema")
@@ -415,11 +360,11 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
 
 
 @cli.command("tune")
-@click.argument("data", type=click.Choice(("broad",)))
+@click.argument("data", type=click.Choice(registry.TUNE_DATA))
 @click.option("--out", required=True, type=click.Path(path_type=Path),
               help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md.")
-@click.option("--objective", type=click.Choice(("truth", "nll")), default="truth", show_default=True,
-              help="truth: BROAD's total attitude rms; nll: the innovations' negative log-likelihood (no truth).")
+@click.option("--objective", type=click.Choice(tuple(registry.TUNE_OBJECTIVES)), default="truth", show_default=True,
+              help="; ".join(f"{k}: {v}" for k, v in registry.TUNE_OBJECTIVES.items()) + ".")
 @click.option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present).")
 @click.option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's).")
 @click.option("--seconds", type=float, default=90.0, show_default=True,
@@ -428,10 +373,9 @@ def dataset(kind, path, out, truth, seconds, gps_std, norms):
               help="Evaluations of the shared search (each runs every trial).")
 @click.option("--fold-maxfev", type=click.IntRange(min=1), default=12, show_default=True,
               help="Evaluations of each leave-one-out fold's refinement.")
-@click.option("--system", "system_name", type=click.Choice(("attitude-imu", "attitude-velocity")),
-              default="attitude-imu", show_default=True,
-              help="The model: attitude-imu (direction sensors with noise from their norms) or attitude-velocity "
-                   "(linear acceleration as a bounded velocity; always with --updates discrete).")
+@click.option("--system", "system_name", type=click.Choice(tuple(registry.TUNE_SYSTEMS)), default="attitude-imu",
+              show_default=True, help="The model: " + " or ".join(f"{k} ({v})" for k, v in
+                                                                    registry.TUNE_SYSTEMS.items()) + ".")
 @click.option("--updates", type=click.Choice(_names.UPDATES), default="hold", show_default=True,
               help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                    "ending at t_k), as compare broad's mef-imu-d.")
@@ -443,27 +387,14 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
     """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
     search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
     set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`)."""
-    if system_name == "attitude-velocity" and updates != "discrete":
-        raise click.UsageError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
-                               f"mef-vel), got {updates}")
-    target = outputs.claim(out, "tune", force)
-    from .reports import io
-    from .studies import tune as _tune
+    from .studies.runs import tune_to
 
-    try:
-        recs = _tune.broad_recordings(None if not trials else trials.split(","), seconds or None,
-                                      None if realdata is None else str(realdata),
-                                      gyro="backward" if updates == "discrete" else "forward", system=system_name)
-        kw = {} if not names else {"names": tuple(n.strip() for n in names.split(","))}
-        result = _tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
-                            updates=updates, **kw)
-    except ValueError as err:
-        raise click.UsageError(str(err)) from err
-    with outputs.staged(target) as d:
-        _tune.save(result, d / "tune.json")
-        io.write_text(d / "tune.md", _tune.markdown(result))
-    click.echo(_tune.markdown(result))
-    click.echo(f"Wrote tune.json and tune.md to {target.path}")
+    saved = tune_to(out, data, objective=objective, trials=None if not trials else trials.split(","),
+                    names=None if not names else [n.strip() for n in names.split(",")], seconds=seconds,
+                    maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates, realdata=realdata,
+                    force=force, progress=progress)
+    click.echo(saved.markdown)
+    click.echo(f"Wrote {' and '.join(p.name for p in saved.written)} to {saved.out}")
 
 
 _COMPARE_HELP = (
@@ -489,22 +420,16 @@ _COMPARE_HELP = (
 @FORCE
 @_progress("One line per filter.")
 def compare_cmd(study, out, runs, seed, filters, settings, force, progress):
-    from .studies.compare import STUDIES, failures
-    from .studies.settings import comparison_settings
+    from .studies.runs import compare_to
 
-    spec = STUDIES[study]
-    st = comparison_settings(study, spec.settings, runs=runs, seed=seed, filters=filters, items=settings)
-    target = outputs.claim(out, "compare", force)
-    result = spec.run(st, progress=progress)
-    click.echo(spec.markdown(result))
-    lines, failed, total = failures(result)
-    with outputs.staged(target) as d:
-        written = spec.save(result, d)
-    for line in lines:
+    saved = compare_to(out, study, runs=runs, seed=seed, filters=filters, settings=settings, force=force,
+                       progress=progress)
+    click.echo(saved.markdown)
+    for line in saved.warnings:
         click.echo(f"WARNING: {line}", err=True)
-    _echo_written(written, target.path)
-    if total and failed == total:
-        raise click.ClickException(f"no usable trial: every filter failed in all {total} trials")
+    _echo_written(saved.written, saved.out)
+    if not saved.usable:
+        raise click.ClickException(f"no usable trial: every filter failed in all {saved.total} trials")
 
 
 @cli.group("campaign")

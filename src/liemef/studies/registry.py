@@ -245,3 +245,17 @@ FILTERS: dict[str, str] = {
 
 DATASETS = ("broad", "wifibot")
 """The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""
+
+TUNE_DATA = ("broad",)
+"""The recordings ``liemef tune DATA`` fits noise levels to (:func:`liemef.studies.tune.broad_recordings`)."""
+TUNE_OBJECTIVES: dict[str, str] = {
+    "truth": "BROAD's total attitude rms",
+    "nll": "the innovations' negative log-likelihood (no truth)",
+}
+"""The objectives of ``liemef tune --objective`` with their descriptions (:data:`liemef.studies.tune.OBJECTIVES`)."""
+TUNE_SYSTEMS: dict[str, str] = {
+    "attitude-imu": "direction sensors with noise from their norms",
+    "attitude-velocity": "linear acceleration as a bounded velocity; always with --updates discrete",
+}
+"""The models ``liemef tune --system`` fits, with their descriptions (the keys of
+:data:`liemef.studies.tune.SYSTEMS`)."""

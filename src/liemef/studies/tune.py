@@ -40,8 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from ..reports import io
+from . import registry
 
-OBJECTIVES = ("truth", "nll")
+OBJECTIVES = tuple(registry.TUNE_OBJECTIVES)
+"""The objectives :func:`tune` minimizes, declared with their descriptions in
+:data:`liemef.studies.registry.TUNE_OBJECTIVES`."""
 PARAMETERS = {
     "acc_std": (1e-3, 1.0),
     "mag_std": (1e-3, 1.0),
@@ -65,7 +68,8 @@ SYSTEMS = {
                           "velocity_std"),
 }
 """The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
-:func:`liemef.systems.attitude_velocity`) and the parameters each takes."""
+:func:`liemef.systems.attitude_velocity`) and the parameters each takes; the same names, in the same order, as
+:data:`liemef.studies.registry.TUNE_SYSTEMS` (the command line's choices)."""
 DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
                  "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
 """The parameters :func:`tune` fits by default, per system."""

@@ -1,0 +1,299 @@
+"""A study run into an output folder: what ``liemef montecarlo``, ``reproduce``, ``export-c`` and ``tune`` do,
+as functions a script calls alike (``liemef run``'s is :func:`liemef.studies.logs.filter_log_to`).
+
+>>> from liemef.studies import runs
+>>> saved = runs.montecarlo_to("out", "tse2", runs=20, quick=True)       # doctest: +SKIP
+>>> print(saved.result.format())                                       # doctest: +SKIP
+
+Each writes its folder whole or not at all (:mod:`liemef.reports.outputs`: staged beside ``out``, renamed into
+place with a ``manifest.json``; a folder holding another command's files is refused unless ``force``). Bad input
+is a ValueError (naming its option as ``err.option`` where there is one) raised before anything is written. This
+module loads without JAX: JAX is imported only when a study runs.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..reports import io, outputs
+
+
+@dataclass(frozen=True)
+class SavedMonteCarlo:
+    """What :func:`montecarlo_to` did: the ``experiment`` run, its ``result``
+    (:class:`~liemef.studies.experiments.MonteCarloResult`), the folder ``out`` (None: nothing written) and the
+    files ``written`` there; ``usable`` is False when every trial diverged (then ``written`` is ``failure.json``
+    alone)."""
+
+    experiment: Any = field(repr=False)
+    result: Any = field(repr=False)
+    out: Path | None
+    written: list[Path]
+    usable: bool
+
+
+def montecarlo_to(out: str | os.PathLike | None, experiment: str, runs: int = 100, *, seed: int = 0,
+                  batch_size: int | None = None, duration: float | None = None, quick: bool = False,
+                  settings=(), force: bool = False, progress: bool = False) -> SavedMonteCarlo:
+    """``runs`` seeded trials of the registered ``experiment`` (:func:`liemef.studies.experiments.montecarlo`)
+    at its config (``quick``: its reduced one) with ``duration`` and the ``KEY=VALUE`` ``settings`` replaced
+    (the statistics windows follow a shorter duration, :data:`liemef.studies.registry.DURATION_RULE`), written
+    to ``out`` (None: not written) as ``montecarlo.{npz,json,md,csv}``. When no trial is usable (every one
+    diverged) ``out`` holds ``failure.json`` alone and the result says ``usable=False``. A ValueError for an
+    experiment without a Monte Carlo trial or a bad setting, before anything is written."""
+    from .experiments import EXPERIMENTS, get_experiment, montecarlo
+    from .logs import FAILURE_SCHEMA
+    from .registry import DEFAULT_BATCH_SIZE
+    from .settings import experiment_config
+
+    exp = get_experiment(experiment)
+    if exp.trial_fn is None:
+        with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
+        raise ValueError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
+    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True)
+    target = outputs.claim(out, "montecarlo", force) if out is not None else None
+    result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size or DEFAULT_BATCH_SIZE,
+                        progress=progress)
+    usable = result.n_nonfinite < result.runs
+    written: list[Path] = []
+    if target is not None:
+        with outputs.staged(target, manifest=usable) as d:
+            written = result.save(d) if usable else [io.write_json(d / "failure.json", {
+                "schema": FAILURE_SCHEMA, "command": "montecarlo", "message": result.divergence_summary(),
+                "diverged": result.diverged(), "liemef_version": __version__})]
+        written = [target.path / p.name for p in written]
+    return SavedMonteCarlo(exp, result, None if target is None else target.path, written, usable)
+
+
+@dataclass(frozen=True)
+class SavedReproduction:
+    """What :func:`reproduce_to` did: the ``reproduction``
+    (:class:`~liemef.studies.experiments.Reproduction`), its ``text`` (the error table and the files, naming
+    the final folder), its ``warnings`` and the folder ``out``."""
+
+    reproduction: Any = field(repr=False)
+    text: str
+    warnings: tuple[str, ...]
+    out: Path
+
+
+@dataclass(frozen=True)
+class SavedReproductions:
+    """What :func:`reproduce_all_to` did: one :class:`~liemef.studies.experiments.Reproduction` or
+    :class:`~liemef.studies.experiments.Failure` per experiment (``done``), the folder ``out`` and its
+    ``index`` (``index.md``)."""
+
+    done: list = field(repr=False)
+    out: Path
+    index: Path
+
+    @property
+    def failed(self) -> list:
+        """The :class:`~liemef.studies.experiments.Failure` entries of :attr:`done`."""
+        from .experiments import Failure
+
+        return [r for r in self.done if isinstance(r, Failure)]
+
+
+def _shown(text: str, stage: Path, out: Path) -> str:
+    """``text`` with the temporary folder's path replaced by the final one."""
+    return text.replace(str(stage), str(out))
+
+
+def reproduce_to(out: str | os.PathLike, experiment: str, *, quick: bool = False, runs: int | None = None,
+                 seed: int | None = None, duration: float | None = None, connection: str | None = None,
+                 order: str | None = None, settings=(), force: bool = False,
+                 progress: bool = False) -> SavedReproduction:
+    """Reproduce the registered ``experiment`` into ``out`` (:meth:`~liemef.studies.experiments.Experiment.
+    reproduce`): its config (``quick``: the reduced one) with ``seed``, ``duration``, ``connection`` and
+    ``order`` (None: the config's) and the ``KEY=VALUE`` ``settings`` replaced, and ``runs`` Monte Carlo
+    trials (None: the experiment's own number; 0: the seeded run only)."""
+    from .experiments import get_experiment
+    from .settings import experiment_config
+
+    exp = get_experiment(experiment)
+    options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
+    config = experiment_config(exp, quick, options, settings)
+    runs = (exp.quick_runs if quick else exp.runs) if runs is None else runs
+    target = outputs.claim(out, "reproduce", force)
+    with outputs.staged(target) as d:
+        rep = exp.reproduce(d, config, runs=runs, progress=progress)
+    return SavedReproduction(rep, _shown(rep.text, d, target.path), tuple(rep.warnings), target.path)
+
+
+def reproduce_all_to(out: str | os.PathLike, *, quick: bool = True, runs: int | None = None, settings=(),
+                     force: bool = False, progress: bool = False, echo=None, seed: int | None = None,
+                     duration: float | None = None, connection: str | None = None,
+                     order: str | None = None) -> SavedReproductions:
+    """Every registered experiment into a subfolder of ``out``, then ``index.md``
+    (:func:`~liemef.studies.experiments.reproduce_all`), each at its reduced size (``quick``) or its full one;
+    ``runs`` overrides every experiment's number of Monte Carlo trials; ``echo(text)`` receives each
+    reproduction's text (naming the final folder) as it finishes. Any of ``seed``, ``duration``,
+    ``connection``, ``order`` (not None) or ``settings`` is a ValueError, before JAX is imported: they apply to
+    one experiment. An
+    experiment that raises is recorded as a :class:`~liemef.studies.experiments.Failure`; the others still run."""
+    options = {"seed": seed, "duration": duration, "connection": connection, "order": order}
+    given = [f"--{k}" for k, v in options.items() if v is not None] + (["--set"] if settings else [])
+    if given:
+        raise ValueError(f"{', '.join(given)}: config options apply to one experiment, not to 'all' (each runs its "
+                         "own reduced or full config)")
+    from .experiments import INDEX_FILE, reproduce_all
+
+    target = outputs.claim(out, "reproduce", force)
+    with outputs.staged(target) as d:
+        shown = None if echo is None else (lambda text: echo(_shown(text, d, target.path)))
+        done = reproduce_all(d, quick=quick, progress=progress, runs=runs, echo=shown)
+    return SavedReproductions(done, target.path, target.path / INDEX_FILE)
+
+
+C_IDENTIFIER = r"[A-Za-z_][A-Za-z0-9_]*"
+"""What :func:`export_c_to` accepts as ``name`` (``liemef export-c --name``): the prefix of every name of the
+exported C."""
+
+
+@dataclass(frozen=True)
+class SavedC:
+    """What :func:`export_c_to` did: the ``exported`` files (:class:`liemef.codegen.ExportedC`), the ``filter``
+    exported, the ``source`` system (:class:`liemef.studies.logs.LogSystem`) and the C ``backend`` used
+    (``"scalar"`` or ``"array"``, ``"auto"`` resolved)."""
+
+    exported: Any
+    filter: Any = field(repr=False)
+    source: Any = field(repr=False)
+    backend: str
+
+
+def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
+                name: str | None = None, connection: str = "zero", order: str = "second", integrator: str = "rkmk4",
+                alpha: float = 0.0, substeps: int | str = "auto", max_substeps: int = 256,
+                backend: str = "auto") -> SavedC:
+    """The minimum-energy filter of a ready ``system`` or of your own ``system_file`` (exactly one) as C99:
+    ``NAME.h`` and ``NAME.c`` in the folder ``out`` (created if missing; each file whole or not at all), by
+    :func:`liemef.codegen.export_c`. ``name`` is a C identifier (default: the system's name with - replaced by
+    _). Bad input is a ValueError naming its option (``err.option``), the name and ``alpha`` checked before JAX
+    is imported; a step the C translator does not cover is :class:`liemef.codegen.UnsupportedPrimitive`, naming
+    the system and what it uses, with nothing written."""
+    import math
+    import re
+
+    from .settings import OptionError
+
+    given = name is not None
+    if not given and (system or system_file):
+        name = (system or Path(system_file).stem).replace("-", "_")
+    if name is not None and not re.fullmatch(C_IDENTIFIER, name):
+        raise OptionError(f"expected a C identifier (letters, digits and _, not starting with a digit), got {name!r}"
+                          + ("" if given else " (from the system's name: give --name)"), "--name")
+    if not math.isfinite(alpha) or alpha < 0:
+        raise OptionError(f"expected a number >= 0, got {alpha}", "--alpha")
+    try:
+        d = io.ensure_dir(out)
+    except ValueError as err:
+        raise OptionError(str(err), "--out") from err
+    from ..codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
+    from ..filters import MinimumEnergyFilter
+    from .logs import resolve_system
+
+    source = resolve_system(system, system_file)
+    flt = MinimumEnergyFilter(source.system, connection=connection, order=order, integrator=integrator, alpha=alpha,
+                              substeps=substeps, max_substeps=max_substeps)
+    try:
+        exported = export_c(flt, d, name, backend=backend)
+    except UnsupportedPrimitive as err:
+        raise UnsupportedPrimitive(f"{source.label}: the filter step uses what the C translator does not cover: "
+                                   f"{err}. See docs/export-c.md (supported primitives)") from err
+    except OSError as err:
+        raise OptionError(f"cannot write to {str(d)!r} ({err.strerror or err})", "--out") from err
+    if backend == "auto":
+        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
+    return SavedC(exported, flt, source, backend)
+
+
+@dataclass(frozen=True)
+class SavedTune:
+    """What :func:`tune_to` did: the tuning ``result`` (:func:`liemef.studies.tune.tune`'s), its ``markdown``
+    report, the folder ``out`` and the files ``written`` there (``tune.json``, ``tune.md``)."""
+
+    result: dict = field(repr=False)
+    markdown: str = field(repr=False)
+    out: Path
+    written: list[Path]
+
+
+def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "truth", trials=None,
+            names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int = 12,
+            system: str = "attitude-imu", updates: str = "hold", realdata: str | os.PathLike | None = None,
+            force: bool = False, progress: bool = False) -> SavedTune:
+    """Fit ``system``'s noise levels (:data:`liemef.studies.registry.TUNE_SYSTEMS`) to the recordings ``data``
+    (:data:`~liemef.studies.registry.TUNE_DATA`: the BROAD ``trials`` present, each id a string; None: all) with
+    leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first ``seconds``;
+    0 or None: whole trials), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
+    ``names``: the parameters to tune (None: the system's defaults). ``attitude-velocity`` takes
+    ``updates="discrete"`` only. Bad input is a ValueError before anything is written."""
+    from .registry import TUNE_DATA
+
+    if data not in TUNE_DATA:
+        raise ValueError(f"data: expected one of {list(TUNE_DATA)}, got {data!r}")
+    if system == "attitude-velocity" and updates != "discrete":
+        raise ValueError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
+                         f"mef-vel), got {updates}")
+    target = outputs.claim(out, "tune", force)
+    from . import tune
+
+    recs = tune.broad_recordings(None if not trials else list(trials), seconds or None,
+                                 None if realdata is None else str(realdata),
+                                 gyro="backward" if updates == "discrete" else "forward", system=system)
+    kw = {} if not names else {"names": tuple(names)}
+    result = tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
+                       updates=updates, **kw)
+    text = tune.markdown(result)
+    with outputs.staged(target) as d:
+        written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
+    return SavedTune(result, text, target.path, [target.path / p.name for p in written])
+
+
+@dataclass(frozen=True)
+class SavedComparison:
+    """What :func:`compare_to` did: the comparison's ``result``, its ``markdown`` report, the folder ``out``,
+    the files ``written`` there, one ``warnings`` line per filter that failed somewhere, and how many (filter,
+    trial) pairs ``failed`` of the ``total`` run (:func:`liemef.studies.compare.failures`)."""
+
+    result: dict = field(repr=False)
+    markdown: str = field(repr=False)
+    out: Path
+    written: list[Path]
+    warnings: list[str]
+    failed: int
+    total: int
+
+    @property
+    def usable(self) -> bool:
+        """False when every trial of every filter failed."""
+        return not (self.total and self.failed == self.total)
+
+
+def compare_to(out: str | os.PathLike, study: str, *, runs: int | None = None, seed: int = 0,
+               filters: str | None = None, settings=(), force: bool = False,
+               progress: bool = False) -> SavedComparison:
+    """Run the comparison ``study`` (:data:`liemef.studies.compare.STUDIES`) with ``runs`` trials from ``seed``,
+    the ``filters`` (comma-separated names; None: the study's) and the ``KEY=VALUE`` ``settings``, and write its
+    tables, data and figures to ``out``. Bad input is a ValueError before anything is written or run."""
+    from . import registry
+    from .compare import STUDIES, failures
+    from .settings import comparison_settings
+
+    registry.get("comparison", study)
+    spec = STUDIES[study]
+    st = comparison_settings(study, spec.settings, runs=runs, seed=seed, filters=filters, items=settings)
+    target = outputs.claim(out, "compare", force)
+    result = spec.run(st, progress=progress)
+    text = spec.markdown(result)
+    lines, failed, total = failures(result)
+    with outputs.staged(target) as d:
+        written = spec.save(result, d)
+    return SavedComparison(result, text, target.path, [target.path / Path(p).name for p in written], lines, failed,
+                           total)
