@@ -24,6 +24,15 @@ demo: $(STAMP)
 # next run; kept in the checkout, so that the tests leave the user's ~/.cache/liemef alone.
 JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(CURDIR)/.cache/liemef
 
+# Where `make test`'s time goes (cold caches): compiling, not computing. Besides the filters' own programs, each
+# eager jnp operation on a new shape is a small XLA compile of its own, about 80 ms of CPU each (the first
+# `liemef run` of tests/test_cli_run.py spends ~40 % of its time in ~190 of them, from the studies' eager
+# vmap/jacfwd); collecting the tests compiles 75 more in each xdist worker. Measured and left out, because they
+# change the numbers or save nothing cold: --xla_backend_optimization_level=0 and
+# --xla_cpu_use_fusion_emitters=false (28 % less CPU on an XLA filter run, but other bits),
+# --xla_llvm_disable_expensive_passes (no gain), jax_persistent_cache_min_compile_time_secs=0 (the two workers
+# compile the same small programs at the same time: no gain cold). `make test-slow` runs only the
+# `@pytest.mark.slow` tests: the full-size studies and the heaviest variants of fast tests.
 test: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q --durations=30
 
