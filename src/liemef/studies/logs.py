@@ -303,7 +303,8 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
         J = jax.jacfwd(lambda xi: plotted(g.rplus(xi)))(jnp.zeros(G.tangent_dim))
         return plotted(g), jnp.sqrt(jnp.clip(jnp.einsum("ij,jk,ik->i", J, 0.5 * (KK + KK.T), J), 0.0))
 
-    values, std = (np.asarray(a) for a in jax.vmap(one)(g_hat, jnp.asarray(K)))
+    # one compiled program: an eager vmap of jacfwd dispatches (and compiles) each primitive on its own
+    values, std = (np.asarray(a) for a in jax.jit(jax.vmap(one))(g_hat, jnp.asarray(K)))
     values = continuous_angles(values, angles)
     out = {"names": np.array(names), "units": np.array(units), "values": values, "std": std}
     if measured is not None:
@@ -343,7 +344,8 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
         return out
     y0 = np.where(present[rows], ys[rows], 0.0)
     g = jax.tree_util.tree_map(lambda a: a[rows], traj.g_hat)
-    H = np.asarray(jax.vmap(lambda gg, y, t: left_jacobian(lambda x: system.output_seen_from(y, x, t), gg)[1])(
+    H = np.asarray(jax.jit(jax.vmap(
+        lambda gg, y, t: left_jacobian(lambda x: system.output_seen_from(y, x, t), gg)[1]))(
         g, y0, ts[rows]))
     K = np.asarray(traj.K)[rows]
     dt = np.diff(ts, append=np.nan)[rows]
@@ -535,7 +537,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     filt = continuous_angles(np.asarray(traj.coords()), angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(jax.vmap(system.residual)(log.ys, jax.vmap(system.output)(traj.g_hat, log.ts), log.ts))
+    innov = np.asarray(jax.jit(lambda ys, g, ts: jax.vmap(system.residual)(ys, jax.vmap(system.output)(g, ts), ts))(
+        log.ys, traj.g_hat, log.ts))
     onames, ounits = system.output_names, system.output_units
     text, table = innovation_table(innov, onames, ounits)
     outliers = innovation_outliers(flt, log, traj, innov)
