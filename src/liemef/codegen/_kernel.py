@@ -39,7 +39,6 @@ import hashlib
 import itertools
 import os
 import platform
-import subprocess
 import tempfile
 import threading
 import weakref
@@ -55,7 +54,7 @@ from .. import _side, _validate
 from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _fast
 from ._cache import Library, cache_dir
-from ._export import _dce, compiler
+from ._export import _dce, compiler, run_compiler
 from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
@@ -459,13 +458,13 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
     with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:  # 0700
         Path(tmp, "kernel.c").write_text(source)
         # relative names in the build folder: the same source gives the same bytes in any process
-        cmd = [compiler(), *flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if res.returncode != 0 and "-march=native" in flags:  # a compiler without them (some ARM clangs)
-            cmd = [c for c in cmd if c not in NATIVE]
-            res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if res.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
+        args = [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+        try:
+            run_compiler(args, cwd=tmp)
+        except RuntimeError:
+            if "-march=native" not in flags:
+                raise
+            run_compiler([c for c in args if c not in NATIVE], cwd=tmp)  # a compiler without them (some ARM clangs)
         data = Path(tmp, "kernel.so").read_bytes()
     return _cache.install(lib, data, tr.key, kind, {"filter": tr.title, "compiler": compiler(),
                                                       "flags": list(flags)})
