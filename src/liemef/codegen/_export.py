@@ -30,6 +30,7 @@ import numpy as np
 from .._names import C_BACKENDS
 from ..filters._base import AbstractFilter, FilterState
 from ..filters._status import CAUSES, DEFINITE_TOL
+from . import _cache
 from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
@@ -418,7 +419,7 @@ class CFilter:
     def __init__(self, exported: ExportedC, library: str | os.PathLike | None = None, flags=CFLAGS):
         self.exported = exported
         lib_path = library if library is not None else build_shared(exported, flags=flags)
-        self.lib = ctypes.CDLL(str(lib_path))
+        self.lib = _cache.dlopen(lib_path)
         members = []
         for f in exported.fields:
             t = _CT[f.dtype]
