@@ -237,18 +237,24 @@ def _write_private(path: Path, data: bytes) -> None:
 _LOADS = itertools.count()
 
 
+def dlopen(path: str | os.PathLike):
+    """The shared library at ``path``, loaded with ctypes: the one ctypes loader of :mod:`liemef.codegen` (the
+    engine's checked copies by :func:`load`, an export's library by :class:`~liemef.codegen.CFilter`)."""
+    import ctypes
+
+    return ctypes.CDLL(os.fspath(path))
+
+
 def load(lib: Library):
     """``dlopen`` the checked bytes of ``lib``: a fresh private copy of them (0600, a name used once, in the
     library's checked folder) is loaded and removed, so that what is mapped is what was checked. (Not a Linux
     memory file: ``/proc/self/fd/N`` names are reused, and the dynamic loader takes a library whose name it has
     loaded before for that one.)"""
-    import ctypes
-
     fd, tmp = tempfile.mkstemp(dir=lib.path.parent, prefix=f".load.{os.getpid()}.{next(_LOADS)}.", suffix=".so")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(lib.data)
-        return ctypes.CDLL(tmp)
+        return dlopen(tmp)
     finally:
         Path(tmp).unlink(missing_ok=True)
 
@@ -280,5 +286,5 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_after_fork)
 
 
-__all__ = ["EngineWarning", "Library", "cache_dir", "folder", "install", "load", "load_module", "read_verified",
-           "refusal"]
+__all__ = ["EngineWarning", "Library", "cache_dir", "dlopen", "folder", "install", "load", "load_module",
+           "read_verified", "refusal"]

@@ -30,6 +30,7 @@ import numpy as np
 from .._names import C_BACKENDS
 from ..filters._base import AbstractFilter, FilterState
 from ..filters._status import CAUSES, DEFINITE_TOL
+from . import _cache
 from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
@@ -378,20 +379,29 @@ def compiler() -> str | None:
     return None
 
 
+def run_compiler(args, cwd: str | os.PathLike | None = None) -> None:
+    """Run the system C compiler (:func:`compiler`) with ``args`` (in ``cwd``): the one compiler runner of
+    :mod:`liemef.codegen` (exports, engine kernels, the fast step's extension). RuntimeError if there is no
+    compiler, or with the command and the compiler's message if it fails."""
+    cc = compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
+    cmd = [cc, *args]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=cwd)
+    if res.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
+
+
 def build_shared(exported: ExportedC, out: str | os.PathLike | None = None, flags=CFLAGS) -> Path:
     """Compile an export into a shared library (``cc -shared -fPIC`` with ``flags``); a RuntimeError with the
     compiler's message if it fails."""
-    cc = compiler()
-    if cc is None:
+    if compiler() is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     # a fresh name each time: the dynamic loader caches libraries by path, so a new export in the same place
     # must not be served the old one
     lib = Path(out) if out is not None else Path(tempfile.mkstemp(dir=exported.source.parent,
                                                                   prefix=f".{exported.prefix}.", suffix=".so")[1])
-    cmd = [cc, *flags, "-fPIC", "-shared", "-o", str(lib), str(exported.source), "-lm"]
-    res = subprocess.run(cmd, capture_output=True, text=True)
-    if res.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
+    run_compiler([*flags, "-fPIC", "-shared", "-o", str(lib), str(exported.source), "-lm"])
     return lib
 
 
@@ -409,7 +419,7 @@ class CFilter:
     def __init__(self, exported: ExportedC, library: str | os.PathLike | None = None, flags=CFLAGS):
         self.exported = exported
         lib_path = library if library is not None else build_shared(exported, flags=flags)
-        self.lib = ctypes.CDLL(str(lib_path))
+        self.lib = _cache.dlopen(lib_path)
         members = []
         for f in exported.fields:
             t = _CT[f.dtype]

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import subprocess
 import sys
 import sysconfig
 import tempfile
@@ -27,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _cache
-from ._export import compiler
+from ._export import compiler, run_compiler
 
 FALLBACK = -1000
 """What ``step`` returns when it did nothing: the caller takes its checked path."""
@@ -83,9 +82,6 @@ def _library() -> _cache.Library:
         return got
     with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:
         Path(tmp, "fast.c").write_text(source)
-        cmd = [cc, *FLAGS, f"-I{include}", f"-I{np_include}", "-o", "fast.so", "fast.c"]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if res.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
+        run_compiler([*FLAGS, f"-I{include}", f"-I{np_include}", "-o", "fast.so", "fast.c"], cwd=tmp)
         data = Path(tmp, "fast.so").read_bytes()
     return _cache.install(lib, data, key, "fast", {"compiler": cc, "flags": list(FLAGS), "python": sys.version})

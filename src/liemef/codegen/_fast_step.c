@@ -21,8 +21,12 @@
  *
  * state(x, spec, tree) -> object
  *   The FilterState itself: leaves(x, spec) put into tree, where a node is a leaf's index (an int), a tuple
- *   (None, None, kids) for a tuple of kids, or (cls, names, kids) for object.__new__(cls) with the __dict__
- *   {names[k]: kids[k]}: what a generated Python reader does with object.__new__ and object.__setattr__. */
+ *   (None, None, kids) for a tuple of kids, or (cls, names, kids) for object.__new__(cls) with each
+ *   names[k] set to kids[k] by object.__setattr__: what a generated Python reader does with them.
+ *
+ * step_state(ctl, x, xo, t, u, y, dt, gap, xrow, spec, tree) -> object
+ *   step(...), then, if it stepped (a code >= 0), state(xrow, spec, tree) of the new state (xrow: the array
+ *   whose memory is xo's state); else step's negative code. One call for flt.step. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #define NPY_NO_DEPRECATED_API NPY_1_7_API_VERSION
@@ -221,16 +225,15 @@ static PyObject *build(PyObject *tree, PyObject *leaves, PyObject *empty)
     }
     if (!PyType_Check(cls) || !PyTuple_Check(names) || PyTuple_GET_SIZE(names) != n)
         return PyErr_Format(PyExc_ValueError, "state: a node (cls, names, kids) with a type and a name per kid");
-    PyObject *d = PyDict_New();
-    for (Py_ssize_t k = 0; d != NULL && k < n; k++) {
+    /* object.__new__(cls), then each field as object.__setattr__ sets it (the class's own __setattr__, frozen,
+     * is not called): in field order, the attributes go to the instance's shared-key values as __init__ leaves
+     * them, without a dict of their own */
+    PyObject *obj = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty, NULL);
+    for (Py_ssize_t k = 0; obj != NULL && k < n; k++) {
         PyObject *v = build(PyTuple_GET_ITEM(kids, k), leaves, empty);
-        if (v == NULL || PyDict_SetItem(d, PyTuple_GET_ITEM(names, k), v) != 0) Py_CLEAR(d);
+        if (v == NULL || PyObject_GenericSetAttr(obj, PyTuple_GET_ITEM(names, k), v) != 0) Py_CLEAR(obj);
         Py_XDECREF(v);
     }
-    if (d == NULL) return NULL;
-    PyObject *obj = PyBaseObject_Type.tp_new((PyTypeObject *)cls, empty, NULL); /* object.__new__(cls) */
-    if (obj == NULL || PyObject_GenericSetDict(obj, d, NULL) != 0) Py_CLEAR(obj);
-    Py_DECREF(d);
     return obj;
 }
 
@@ -246,10 +249,23 @@ static PyObject *state(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     return out;
 }
 
+/* step(...) and then, if it stepped (a status code >= 0), state(xrow, spec, tree) of the new state: one call */
+static PyObject *step_state(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 11) return fallback();
+    PyObject *code = step(self, args, 8);
+    if (code == NULL) return NULL;
+    long c = PyLong_AsLong(code);
+    if (c < 0) return code; /* FALLBACK or -2: the caller's checked path */
+    Py_DECREF(code);
+    return state(self, args + 8, 3);
+}
+
 static PyMethodDef methods[] = {
     {"state", (PyCFunction)(void (*)(void))state, METH_FASTCALL, "A packed FilterState, made."},
     {"step", (PyCFunction)(void (*)(void))step, METH_FASTCALL, "One online step by a kernel's kernel_step."},
     {"leaves", (PyCFunction)(void (*)(void))leaves, METH_FASTCALL, "The leaves of a packed FilterState."},
+    {"step_state", (PyCFunction)(void (*)(void))step_state, METH_FASTCALL, "step, then state of the new row."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -243,6 +243,30 @@ def _broadcast_in_dim(x, shape, dims):
     return np.broadcast_to(x.reshape(expanded), tuple(shape))
 
 
+
+def _scatter_window(xs, p):
+    """A ``scatter`` (set) of one window at one known index vector inside the operand, as ``x.at[i:i+a, j:j+b]
+    .set(u)`` traces: the operand with the window replaced; None for any other scatter (batched indices,
+    batching dims, an update function, a window that does not fit: XLA decides those)."""
+    x, idx, upd = xs
+    dn = p["dimension_numbers"]
+    if (p.get("update_jaxpr") is not None or dn.operand_batching_dims or idx.ndim != 1
+            or upd.ndim != len(dn.update_window_dims) or idx.size != len(dn.scatter_dims_to_operand_dims)):
+        return None
+    window, sizes = [], iter(upd.shape)
+    for d in range(x.ndim):
+        window.append(1 if d in dn.inserted_window_dims else next(sizes, None))
+    if None in window or next(sizes, None) is not None:
+        return None
+    start = [0] * x.ndim
+    for i, d in zip(idx.tolist(), dn.scatter_dims_to_operand_dims, strict=True):
+        start[d] = int(i)
+    if any(s < 0 or s + w > n for s, w, n in zip(start, window, x.shape, strict=True)):
+        return None
+    out = x.copy()
+    out[tuple(slice(s, s + w) for s, w in zip(start, window, strict=True))] = upd.reshape(window)
+    return [out]
+
 # NumPy versions of the primitives that move elements, for index maps and constant folding (an eager JAX call
 # costs milliseconds each: thousands of them made an export take seconds)
 _NP_STRUCTURAL = {
@@ -259,6 +283,7 @@ _NP_STRUCTURAL = {
     "stack": lambda xs, p: [np.stack(xs, axis=p["axis"])],
     "unstack": lambda xs, p: [np.take(xs[0], i, axis=p["axis"]) for i in range(xs[0].shape[p["axis"]])],
     "split": lambda xs, p: np.split(xs[0], np.cumsum(p["sizes"])[:-1].astype(int), axis=p["axis"]),
+    "scatter": _scatter_window,
 }
 _NP_ELEMENTWISE = {
     "add": np.add, "add_any": np.add, "sub": np.subtract, "mul": np.multiply, "neg": np.negative,
@@ -445,8 +470,10 @@ def element_ids(eqn, ins) -> tuple[list[int], dict, list[np.ndarray], bool]:
             args.append(np.asarray(v.const, v.dtype))
     if name in ("scatter-add", "scatter_add"):
         # ids cannot be added: a scatter (set) with unique indices moves the same elements
-        with jax.ensure_compile_time_eval():
-            outs = [jax.lax.scatter_p.bind(*args, **params)]
+        outs = _scatter_window(args, {**params, "update_jaxpr": None})
+        if outs is None:
+            with jax.ensure_compile_time_eval():
+                outs = [jax.lax.scatter_p.bind(*args, **params)]
         add_into = True
     else:
         outs = _np_eval(name, params, args, [np.float64] * len(eqn.outvars))

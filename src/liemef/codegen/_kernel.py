@@ -39,7 +39,6 @@ import hashlib
 import itertools
 import os
 import platform
-import subprocess
 import tempfile
 import threading
 import weakref
@@ -55,7 +54,7 @@ from .. import _side, _validate
 from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _fast
 from ._cache import Library, cache_dir
-from ._export import _dce, compiler
+from ._export import _dce, compiler, run_compiler
 from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
@@ -459,13 +458,13 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
     with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:  # 0700
         Path(tmp, "kernel.c").write_text(source)
         # relative names in the build folder: the same source gives the same bytes in any process
-        cmd = [compiler(), *flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
-        res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if res.returncode != 0 and "-march=native" in flags:  # a compiler without them (some ARM clangs)
-            cmd = [c for c in cmd if c not in NATIVE]
-            res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
-        if res.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-4000:]}")
+        args = [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+        try:
+            run_compiler(args, cwd=tmp)
+        except RuntimeError:
+            if "-march=native" not in flags:
+                raise
+            run_compiler([c for c in args if c not in NATIVE], cwd=tmp)  # a compiler without them (some ARM clangs)
         data = Path(tmp, "kernel.so").read_bytes()
     return _cache.install(lib, data, tr.key, kind, {"filter": tr.title, "compiler": compiler(),
                                                       "flags": list(flags)})
@@ -591,6 +590,7 @@ def _state_reader(sslots: tuple[Slot, ...], sdef, template):
             head, lines, root = "def read(x):\n", [], "c_state(x, SPEC, TREE)"
         exec(head + "".join(lines) + f"    return {root}\n", namespace)
         read = namespace["read"]
+        read.c_state = (namespace["SPEC"], namespace["TREE"]) if "TREE" in namespace else None
         probe = np.arange(sum(sl.size for sl in sslots), dtype=np.float64)
         built, want = read(probe), sdef.unflatten(leaves(probe))
         same = jax.tree_util.tree_structure(built) == sdef and all(
@@ -618,6 +618,7 @@ class Kernel:
         self.n_state = sum(s.size for s in sslots)
         self.m, self.p = input_dim, output_dim
         self._reader = None  # the state reader, made on first use (:meth:`state`)
+        self._c_state = None  # (SPEC, TREE) of the reader made in C (._fast_step.c's state), once it is made
         self._optimizer: threading.Thread | None = None
         self._source: str | None = None  # the C source while the -O2 build is under way
         self.optimize_error: str | None = None
@@ -718,6 +719,8 @@ class Kernel:
         ``address``: where ``x`` is, if known)."""
         if self._reader is None:
             self._reader = _state_reader(self.sslots, self.sdef, self.traced.state)
+            # the C reader's layout, for step's one-call path (None: the Python reader serves)
+            self._c_state = getattr(self._reader, "c_state", None)
         st = self._reader(x)
         _side.put(st, "packed", (x, x.ctypes.data if address is None else address, self))
         return st
@@ -786,14 +789,18 @@ class Kernel:
             i = next(counter)
         address = addresses[i]
         if ctl is not None and u_next is None and y_next is None:  # advance's fast step and state, inlined
-            code = self._fast.step(ctl, got[1], address, t, u, y, dt, gap)
-            if code >= 0 and self._reader is not None:
+            c_state = self._c_state
+            if c_state is not None:  # the step and the new state in one call
                 x = xs[i]
-                st = self._reader(x)
-                _side.put(st, "packed", (x, address, self))
-                return st
-            if code >= 0:
-                return self.state(xs[i], address)
+                st = self._fast.step_state(ctl, got[1], address, t, u, y, dt, gap, x, c_state[0], c_state[1])
+                if type(st) is not int:
+                    _side.put(st, "packed", (x, address, self))
+                    return st
+                code = st
+            else:
+                code = self._fast.step(ctl, got[1], address, t, u, y, dt, gap)
+                if code >= 0:
+                    return self.state(xs[i], address)
             ctl = None  # refused (or an infinite sample): the checked path says why
         self.advance(ctl, theta_address, got[1], address, block[i, self.n_state:], t, dt, gap, u, y, u_next,
                      y_next)

@@ -33,6 +33,8 @@ products), so that large state dimensions are better served by the array transla
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 from jax.extend import core as jcore
 
@@ -66,12 +68,21 @@ from ._jaxpr_c import (
 _SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
                 "exp", "log", "eq", "ne", "lt", "le", "gt", "ge", "and", "or", "not", "is_finite",
                 "stop_gradient"}
+_FOLDABLE = frozenset(_SCALAR_FOLD | {"sel", "convert", "ipow"})
+_F64 = np.dtype(np.float64)
+# float64 folds that Python's own arithmetic does exactly as NumPy's (IEEE double, round to nearest): no
+# ufunc call and error-state context per folded constant (a first build folds thousands)
+_SIMPLIFIED = frozenset({"mul", "add", "add_any", "sub", "div", "neg", "sel", "and", "or", "stop_gradient", "copy",
+                         "copy_p", "reduce_precision", "optimization_barrier", "real", "ipow", "convert"})
+"""The operations :meth:`ScalarTranslator._simplify` may rewrite (the others it leaves at once)."""
+_PY_F64 = {"add": float.__add__, "add_any": float.__add__, "sub": float.__sub__, "mul": float.__mul__}
 
 
 LOOKUP_MIN = 8
 """A run-time index into a constant operand over more places than this reads a C array (fewer: selects)."""
 UNROLL_MAX = 20000
 """The most equations an unrolled ``scan`` (:meth:`ScalarTranslator.unrolled_scan`) may copy."""
+_F64_BYTES = struct.Struct("=d").pack  # as np.float64(v).tobytes(): native order
 _CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
 
 
@@ -112,7 +123,7 @@ class ScalarTranslator:
         i = len(self.op)
         self.op.append(op)
         self.args.append(args)
-        self.dtype.append(np.dtype(dtype))
+        self.dtype.append(dtype if type(dtype) is np.dtype else np.dtype(dtype))
         self.value.append(value)
         self.scope_of.append(self.scope)
         if op not in ("const", "leaf"):
@@ -120,17 +131,22 @@ class ScalarTranslator:
         return i
 
     def const(self, value, dtype) -> int:
-        dt = np.dtype(dtype)
-        v = np.asarray(value, dt).item()
-        key = ("const", dt.str, repr(v) if dt.kind != "f" else np.float64(v).tobytes())
+        dt = dtype if type(dtype) is np.dtype else np.dtype(dtype)
+        if type(value) is float and dt is _F64:  # the common case, without a NumPy round trip
+            v = value
+            key = ("const", _F64.str, _F64_BYTES(v))
+        else:
+            v = np.asarray(value, dt).item()
+            key = ("const", dt.str, repr(v) if dt.kind != "f" else np.float64(v).tobytes())
         s = self.scope
         while s.parent is not None:
             s = s.parent
-        if key not in s.cse:
+        got = s.cse.get(key)
+        if got is None:
             saved, self.scope = self.scope, s
-            s.cse[key] = self._new("const", (), dt, v)
+            got = s.cse[key] = self._new("const", (), dt, v)
             self.scope = saved
-        return s.cse[key]
+        return got
 
     def leaf(self, expr: str, dtype) -> int:
         return self._new("leaf", (), dtype, expr)
@@ -143,11 +159,16 @@ class ScalarTranslator:
 
     def node(self, op: str, args: tuple, dtype, param=None) -> int:
         """A node ``op(args)`` after folding, simplification and lookup of an equal node in scope."""
-        dt = np.dtype(dtype)
-        if all(self.is_const(a) for a in args) and op in _SCALAR_FOLD | {"sel", "convert", "ipow"}:
-            folded = self._fold(op, args, dt, param)
-            if folded is not None:
-                return self.const(folded, dt)
+        dt = dtype if type(dtype) is np.dtype else np.dtype(dtype)
+        if op in _FOLDABLE:
+            ops = self.op
+            for a in args:
+                if ops[a] != "const":
+                    break
+            else:
+                folded = self._fold(op, args, dt, param)
+                if folded is not None:
+                    return self.const(folded, dt)
         simple = self._simplify(op, args, dt, param)
         if simple is not None:
             return simple
@@ -162,6 +183,9 @@ class ScalarTranslator:
         return i
 
     def _fold(self, op, args, dt, param):
+        if dt is _F64 and op in _PY_F64 and all(self.dtype[a] is _F64 for a in args):
+            v = self.value
+            return _PY_F64[op](float(v[args[0]]), float(v[args[1]]))
         xs = [np.asarray(self.cval(a), self.dtype[a]) for a in args]
         with np.errstate(all="ignore"):
             if op == "sel":
@@ -174,8 +198,11 @@ class ScalarTranslator:
             return None if out is None else out[0]
 
     def _simplify(self, op, a, dt, param):
-        c = [self.is_const(x) for x in a]
-        v = [self.cval(x) if k else None for x, k in zip(a, c, strict=True)]
+        if op not in _SIMPLIFIED:
+            return None
+        ops, values = self.op, self.value
+        c = [ops[x] == "const" for x in a]
+        v = [values[x] if k else None for x, k in zip(a, c, strict=True)]
         if op == "mul":
             for k in (0, 1):
                 if c[k] and v[k] == 0:
@@ -302,10 +329,14 @@ class ScalarTranslator:
         return [read(a) for a in jaxpr.outvars]
 
     def _known(self, x: np.ndarray) -> bool:
-        return all(self.is_const(i) for i in x.ravel())
+        ops = self.op
+        for i in x.ravel().tolist():
+            if ops[i] != "const":
+                return False
+        return True
 
     def _values(self, x: np.ndarray, dtype) -> np.ndarray:
-        return np.array([self.cval(i) for i in x.ravel()], dtype=dtype).reshape(x.shape)
+        return np.array(list(map(self.value.__getitem__, x.ravel().tolist())), dtype=dtype).reshape(x.shape)
 
     def equation(self, eqn, ins: list[np.ndarray]) -> list[np.ndarray]:
         name, params = eqn.primitive.name, eqn.params
