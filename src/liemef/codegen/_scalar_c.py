@@ -1052,21 +1052,23 @@ class ScalarTranslator:
             return f"{pad}const {lane_type(dt)} n{i} = {v};"
         split = self._split_select(i)
         if split is not None:
-            return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {split};"
+            expr, read = split  # the nodes it reads through may be read by nothing else: (void), for -Wall
+            return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {expr};" + "".join(f" (void)n{k};" for k in read)
         if dt == np.bool_:
             return f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;"
         return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};"
 
     _SPLIT_THROUGH = ("add", "sub", "mul", "div", "neg")
 
-    def _split_select(self, i: int) -> str | None:
+    def _split_select(self, i: int) -> tuple[str, list[int]] | None:
         """For a function with no vector form (``sin``, ``exp``, ...) of a select with a constant arm, possibly
         through arithmetic with constants and shared values (``sin(where(small, 1.0, x) / 2)``, as Lie groups'
         guarded series write it): the lane's expression as a select of the function of each arm,
-        ``c ? sin(1.0 / 2) : sin(x / 2)``, or None. Lane by lane the same value (the function of the arm the
-        select takes, computed the same way); the constant arm is folded, so the lane calls the function only
-        where it takes the other arm (a guarded series' common case calls none), and the call on the other arm
-        is the one the code makes elsewhere (``sin(x)`` beside ``sin(where(small, 1.0, x))``)."""
+        ``c ? sin(1.0 / 2) : sin(x / 2)``, and the nodes it reads through; or None. Lane by lane the same value
+        (the function of the arm the select takes, computed the same way); the constant arm is folded, so the
+        lane calls the function only where it takes the other arm (a guarded series' common case calls none),
+        and the call on the other arm is the one the code makes elsewhere (``sin(x)`` beside
+        ``sin(where(small, 1.0, x))``)."""
         args = self.args[i]
         if len(args) != 1 or self.dtype[i].kind != "f" or self.dtype[args[0]].kind != "f":
             return None
@@ -1089,7 +1091,7 @@ class ScalarTranslator:
                 sub[k] = f"({self.rhs(k, sub)})"
             return self.rhs(i, sub)
 
-        return f"({self.expr(c)}) ? ({through(on_true)}) : ({through(on_false)})"
+        return f"({self.expr(c)}) ? ({through(on_true)}) : ({through(on_false)})", [j, *chain]
 
     def _write(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
         """The C of a scope's statements: scalar code, or lane code while ``self.lanes`` (:meth:`emit_lanes`),
