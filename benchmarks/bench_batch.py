@@ -15,7 +15,15 @@ holds: its kept states (packed, 8 bytes a number) and its log. The target (issue
 trial-steps/s on the 2 cores, decided on the median of the ``--repeats`` calls (``c_trial_steps_per_s``; the
 fastest call's figure is ``c_trial_steps_per_s_best``). Figures from one run on a shared machine;
 ``loadavg_1min`` says how shared. ``--quick`` times only the C engine on 256 trials of 2 s (no XLA, no
-``montecarlo``): the figure ``bench_tse2.py`` reports.
+``montecarlo``): the figure ``bench_tse2.py`` reports. Beside it, per batch size, the C calls alone
+(``c_kernel_trial_steps_per_s``: ``Kernel.batch``, no Python before or after, the -O2 kernel waited for), on
+one thread (``thread_scaling`` the ratio) and their CPU time per trial-step (``*_cpu_us_per_trial_step``).
+
+On an AMD EPYC of the first Zen generation (2 cores) the target is out of reach with the same numbers: its
+floating-point units are 128 bits wide, so a group of 4 AVX2 lanes does at best twice a scalar trial's
+arithmetic per instruction; the batch kernel is at 2.5x the scalar kernel per trial, 0.71 us of CPU a
+trial-step (at most 2.8e6 trial-steps/s on two cores). The breakdown: ``docs/performance.md``, "Where the
+batch's time goes".
 
     python benchmarks/bench_batch.py [--duration 5] [--batches 1 4 16 64 256] [--keep-every 10] [--quick]
 """
