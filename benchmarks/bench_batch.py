@@ -15,7 +15,15 @@ holds: its kept states (packed, 8 bytes a number) and its log. The target (issue
 trial-steps/s on the 2 cores, decided on the median of the ``--repeats`` calls (``c_trial_steps_per_s``; the
 fastest call's figure is ``c_trial_steps_per_s_best``). Figures from one run on a shared machine;
 ``loadavg_1min`` says how shared. ``--quick`` times only the C engine on 256 trials of 2 s (no XLA, no
-``montecarlo``): the figure ``bench_tse2.py`` reports.
+``montecarlo``): the figure ``bench_tse2.py`` reports. Beside it, per batch size, the C calls alone
+(``c_kernel_trial_steps_per_s``: ``Kernel.batch``, no Python before or after, the -O2 kernel waited for), on
+one thread (``thread_scaling`` the ratio) and their CPU time per trial-step (``*_cpu_us_per_trial_step``).
+
+On an AMD EPYC of the first Zen generation (2 cores) the target is out of reach with the same numbers: its
+floating-point units are 128 bits wide, so a group of 4 AVX2 lanes does at best twice a scalar trial's
+arithmetic per instruction; the batch kernel is at 2.5x the scalar kernel per trial, 0.71 us of CPU a
+trial-step (at most 2.8e6 trial-steps/s on two cores). The breakdown: ``docs/performance.md``, "Where the
+batch's time goes".
 
     python benchmarks/bench_batch.py [--duration 5] [--batches 1 4 16 64 256] [--keep-every 10] [--quick]
 """
@@ -67,6 +75,30 @@ def _cpu_model() -> str:
         return platform.processor() or platform.machine()
 
 
+def kernel_only(flt, states, ts, us, ys, keep_every, threads, repeats) -> dict:
+    """The C calls alone (``Kernel.batch``: the trials' threads and SIMD groups, no Python before or after),
+    on ``threads`` threads and on one: the fastest of ``repeats`` calls each. The -O2 kernel is waited for
+    first (on a fresh kernel cache it builds in the background, on a core the timing would share), and
+    whether the SIMD groups serve is said (``lanes``; else why not). ``*_cpu_us_per_trial_step``: the
+    process's CPU time per trial-step (every thread's), which a shared machine moves less than wall time."""
+    kern = liemef.engines.kernel(flt, "c").wait()
+    B, steps = us.shape[0], len(ts) - 1
+    x = np.stack([kern.pack(jax.tree_util.tree_map(lambda a, b=b: np.asarray(a)[b], states)) for b in range(B)])
+    theta, us, ys = kern.theta(flt), np.ascontiguousarray(us, np.float64), np.ascontiguousarray(ys, np.float64)
+    out = {"lanes": kern.lanes() is not None, "lanes_error": kern.lanes_error, "kernel_optimized": kern.optimized}
+    for name, th in (("c_kernel", threads), ("c_kernel_1thread", 1)):
+        times, cpu = [], []
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            kern.batch(theta, x, ts, us, ys, np.inf, keep_every, threads=th)
+            times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+        out[f"{name}_trial_steps_per_s"] = round(B * steps / min(times))
+        out[f"{name}_cpu_us_per_trial_step"] = round(min(cpu) / (B * steps) * 1e6, 4)
+    out["thread_scaling"] = round(out["c_kernel_trial_steps_per_s"] / out["c_kernel_1thread_trial_steps_per_s"], 3)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=5.0)
@@ -94,6 +126,8 @@ def main():
             if engine == "xla" and B > args.xla_max:
                 continue
             flt.run_batch(states, ts[:3], us[:, :3], ys[:, :3], engine=engine, keep_every=1)  # build / compile
+            if engine == "c":
+                row.update(kernel_only(flt, states, ts, us, ys, args.keep_every, threads, args.repeats))
             if engine == "xla":
                 jax.block_until_ready(flt.run_batch(states, ts, us, ys, engine=engine, keep_every=args.keep_every))
             times = []

@@ -151,6 +151,29 @@ def test_run_batch_equals_single_runs(system):
         assert kern.lanes() is not None
 
 
+def test_lane_groups_compute_each_trials_bits():
+    """The batch kernel's SIMD groups give each trial the bits of the one-at-a-time kernel: TSE(2), whose
+    exponential's guarded series (``sin(where(small, 1.0, x))``) the lanes split into a select of the function
+    of each arm, with trials of small and of large rotations in one group."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make())
+    kern = _kernel.kernel_for(flt).wait()
+    assert "? (sin((" in _kernel._translate_lanes(kern.traced)  # the split form is emitted
+    logs = [_log(flt, n=40, seed=30 + b) for b in range(8)]
+    for b, lg in enumerate(logs):
+        lg[2][:] *= (1.0, 40.0)[b % 2]  # rotations of 2e-3 and of 8e-2 rad an interval, within each group
+    ts = logs[0][1]
+    x = np.stack([kern.pack(lg[0]) for lg in logs])
+    us, ys = np.stack([lg[2] for lg in logs]), np.stack([lg[3] for lg in logs])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        lanes = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1)
+        single = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1, lanes=False)
+    assert kern.lanes() is not None, kern.lanes_error
+    for a, b in zip(lanes, single, strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert (lanes[2] == 0).all()
+
+
 def _drift(g, u, t):
     return jnp.array([g.x[1], -0.1 * g.x[1] + u[0]])
 

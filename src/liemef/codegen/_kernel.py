@@ -313,7 +313,10 @@ scalar kernel's values)."""
 
 def _translate_lanes(tr: _Traced, lanes: int = LANES) -> str:
     """The C source of the batch kernel: ``lanes`` trials of one interval at once (:meth:`ScalarTranslator.
-    emit_lanes`), and the scan of groups of ``lanes`` trials over a shared time grid."""
+    emit_lanes`), and the scan of groups of ``lanes`` trials over a shared time grid. A group's state stays in
+    lane form (one vector a number, the trials side by side) from its first interval to its last: it is
+    turned to and from the packed rows (a trial's numbers side by side) only where a row is read or kept, and
+    the samples are read straight into lane form."""
     closed, used, sslots = tr.closed, tr.used, tr.sslots
     m, p, S = tr.m, tr.p, tr.n_state
     names = ([f"p{i}" for i in range(len(tr.pleaves))] + [f"s{i}" for i in range(len(tr.sleaves))]
@@ -323,31 +326,36 @@ def _translate_lanes(tr: _Traced, lanes: int = LANES) -> str:
     shared = tuple(f"p{i}" for i in range(len(tr.pleaves))) + ("t", "dt", "gap")
     core, sc = scalar_jaxpr_to_c("lanes_core", closed, in_names, [f"o{i}" for i in range(len(tr.sleaves))],
                                  translator=ScalarTranslator(), zero_patterns=patterns, lanes=shared)
-    pre, post, refs = [], [], {"t": "&t", "dt": "&dt", "gap": "&gap"}
+    params, refs = [], {"t": "&t", "dt": "&dt", "gap": "&gap"}
     for i, sl in enumerate(tr.pslots):
         if sl.dtype == np.float64:
             refs[f"p{i}"] = f"theta + {sl.offset}"
         else:
-            pre.append(f"    {ctype(sl.dtype)} p{i}[{max(sl.size, 1)}];")
-            pre.append(f"    for (int i = 0; i < {sl.size}; i++) p{i}[i] = ({ctype(sl.dtype)})theta[{sl.offset} + i];")
+            params.append(f"    {ctype(sl.dtype)} p{i}[{max(sl.size, 1)}];")
+            params.append(f"    for (int i = 0; i < {sl.size}; i++) "
+                          f"p{i}[i] = ({ctype(sl.dtype)})theta[{sl.offset} + i];")
             refs[f"p{i}"] = f"p{i}"
+    decl, load, keep_row, store, step = [], [], [], [], []
+    pad = " " * 8
     for i, sl in enumerate(sslots):
-        lt = lane_type(sl.dtype)
-        pre.append(f"    {lt} s{i}[{max(sl.size, 1)}], o{i}[{max(sl.size, 1)}];")
-        get, put = ("x[l * S + {o} + j] != 0 ? -1 : 0", "o{i}[j][l] != 0") if sl.dtype == np.bool_ else \
-            ("x[l * S + {o} + j]", "(double)o{i}[j][l]")  # a boolean lane is a mask of -1 and 0
-        pre.append(f"    for (int j = 0; j < {sl.size}; j++) for (int l = 0; l < LANES; l++) "
-                   f"s{i}[j][l] = {get.format(o=sl.offset)};")
-        post.append(f"    for (int j = 0; j < {sl.size}; j++) for (int l = 0; l < LANES; l++) "
-                    f"xo[l * S + {sl.offset} + j] = {put.format(i=i)};")
+        get, put = ("{src} != 0 ? -1 : 0", "s{i}[j][l] != 0") if sl.dtype == np.bool_ else \
+            ("{src}", "(double)s{i}[j][l]")  # a boolean lane is a mask of -1 and 0
+        loop = f"for (int j = 0; j < {sl.size}; j++) for (int l = 0; l < LANES; l++) "
+        decl.append(f"{pad}{lane_type(sl.dtype)} s{i}[{max(sl.size, 1)}], o{i}[{max(sl.size, 1)}];")
+        load.append(f"{pad}{loop}s{i}[j][l] = {get.format(src=f'x[(size_t)(b + l) * S + {sl.offset} + j]')};")
+        keep_row.append(f"{pad}        {loop}row[(size_t)l * rows_per * S + {sl.offset} + j] = {put.format(i=i)};")
+        store.append(f"{pad}{loop}x[(size_t)(b + l) * S + {sl.offset} + j] = {put.format(i=i)};")
+        step.append(f"{pad}    memcpy(s{i}, o{i}, sizeof s{i});")
         refs[f"s{i}"] = f"s{i}"
-    for nm, dim in (("u0", m), ("u1", m), ("y0", p), ("y1", p)):
-        pre.append(f"    lane_f64 {nm}[{max(dim, 1)}];")
-        pre.append(f"    for (int j = 0; j < {dim}; j++) for (int l = 0; l < LANES; l++) "
-                   f"{nm}[j][l] = {nm}_[l * {dim} + j];")
+    samples = []
+    for nm, src, dim, k in (("u0", "us", m, "k"), ("u1", "us", m, "k + 1"),
+                            ("y0", "ys", p, "k"), ("y1", "ys", p, "k + 1")):
+        samples.append(f"{pad}    for (int j = 0; j < {dim}; j++) for (int l = 0; l < LANES; l++) "
+                       f"{nm}[j][l] = {src}[((size_t)(b + l) * n + ({k})) * {dim} + j];")
         refs[nm] = nm
     call = [refs[a] for a in in_names] + [f"o{i}" for i in range(len(sslots))]
     code_slot = _code_slot(tr)
+    nl = chr(10)
     return f"""/* The batch kernel (liemef.codegen._kernel): LANES trials of one sample interval at once, of
  * {tr.title}. */
 #include <math.h>
@@ -356,55 +364,35 @@ def _translate_lanes(tr: _Traced, lanes: int = LANES) -> str:
 #include <string.h>
 {HELPERS}
 {lane_typedefs(lanes)}
-{chr(10).join(sc.table_lines)}
+{nl.join(sc.table_lines)}
 {core}
 #define S {S}
 #define CODE {code_slot.offset}
-
-/* LANES packed states x (LANES x S) into xo; samples u0_, u1_ (LANES x {m}), y0_, y1_ (LANES x {p}) */
-static void lanes_advance(const double *restrict theta, const double *restrict x, double *restrict xo, double t,
-                          double dt, double gap, const double *u0_, const double *u1_, const double *y0_,
-                          const double *y1_)
-{{
-{chr(10).join(pre)}
-    lanes_core({', '.join(call)});
-{chr(10).join(post)}
-}}
 
 /* groups of LANES trials from lo (hi - lo a multiple of LANES), as kernel_batch with a shared theta */
 void lanes_batch(const double *theta, int lo, int hi, double *x, int n, const double *ts, const double *us,
                  const double *ys, double gap, int keep, double *rows, int rows_per, int *codes)
 {{
+{nl.join(params)}
     for (int b = lo; b + LANES <= hi; b += LANES) {{
-        double a[LANES * S], c[LANES * S];
-        double u0[LANES * {max(m, 1)}], u1[LANES * {max(m, 1)}], y0[LANES * {max(p, 1)}], y1[LANES * {max(p, 1)}];
-        double *cur = a, *nxt = c;
-        memcpy(a, x + (size_t)b * S, sizeof a);
+{nl.join(decl)}
+        lane_f64 u0[{max(m, 1)}], u1[{max(m, 1)}], y0[{max(p, 1)}], y1[{max(p, 1)}];
+{nl.join(load)}
         for (int l = 0; l < LANES; l++)
-            if (rows != NULL) memcpy(rows + (size_t)(b + l) * rows_per * S, a + l * S, sizeof(double) * S);
+            if (rows != NULL)
+                memcpy(rows + (size_t)(b + l) * rows_per * S, x + (size_t)(b + l) * S, sizeof(double) * S);
         for (int k = 0; k + 1 < n; k++) {{
-            for (int l = 0; l < LANES; l++) {{
-                const double *ub = us + (size_t)(b + l) * n * {m}, *yb = ys + (size_t)(b + l) * n * {p};
-                for (int j = 0; j < {m}; j++) {{
-                    u0[l * {m} + j] = ub[(size_t)k * {m} + j];
-                    u1[l * {m} + j] = ub[(size_t)(k + 1) * {m} + j];
-                }}
-                for (int j = 0; j < {p}; j++) {{
-                    y0[l * {p} + j] = yb[(size_t)k * {p} + j];
-                    y1[l * {p} + j] = yb[(size_t)(k + 1) * {p} + j];
-                }}
+{nl.join(samples)}
+            const double t = ts[k], dt = ts[k + 1] - ts[k];
+            lanes_core({', '.join(call)});
+{nl.join(step)}
+            if (rows != NULL && (k + 1) % keep == 0) {{
+                double *row = rows + ((size_t)b * rows_per + (size_t)((k + 1) / keep)) * S;
+{nl.join(keep_row)}
             }}
-            lanes_advance(theta, cur, nxt, ts[k], ts[k + 1] - ts[k], gap, u0, u1, y0, y1);
-            double *tmp = cur;
-            cur = nxt;
-            nxt = tmp;
-            if (rows != NULL && (k + 1) % keep == 0)
-                for (int l = 0; l < LANES; l++)
-                    memcpy(rows + ((size_t)(b + l) * rows_per + (size_t)((k + 1) / keep)) * S, cur + l * S,
-                           sizeof(double) * S);
         }}
-        memcpy(x + (size_t)b * S, cur, sizeof a);
-        for (int l = 0; l < LANES; l++) codes[b + l] = (int)cur[l * S + CODE];
+{nl.join(store)}
+        for (int l = 0; l < LANES; l++) codes[b + l] = (int)x[(size_t)(b + l) * S + CODE];
     }}
 }}
 """

@@ -280,9 +280,11 @@ class ScalarTranslator:
         name = self.value[i] if op == "leaf" else f"n{i}"
         return f"{name}[l]" if self.lanes and i not in self.shared else name
 
-    def rhs(self, i: int) -> str:
+    def rhs(self, i: int, sub: dict[int, str] | None = None) -> str:
+        """The C expression computing node ``i`` from its operands (``sub``: C expressions to read for some of
+        them instead of their names)."""
         op, a, dt = self.op[i], self.args[i], self.dtype[i]
-        e = [self.expr(x) for x in a]
+        e = [self.expr(x) if sub is None or x not in sub else sub[x] for x in a]
         if op == "sel":
             return f"({e[0]}) ? ({e[1]}) : ({e[2]})"
         if op == "convert":
@@ -1079,9 +1081,48 @@ class ScalarTranslator:
         v = self._vrhs(i)
         if v is not None:
             return f"{pad}const {lane_type(dt)} n{i} = {v};"
+        split = self._split_select(i)
+        if split is not None:
+            expr, read = split  # the nodes it reads through may be read by nothing else: (void), for -Wall
+            return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {expr};" + "".join(f" (void)n{k};" for k in read)
         if dt == np.bool_:
             return f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;"
         return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};"
+
+    _SPLIT_THROUGH = ("add", "sub", "mul", "div", "neg")
+
+    def _split_select(self, i: int) -> tuple[str, list[int]] | None:
+        """For a function with no vector form (``sin``, ``exp``, ...) of a select with a constant arm, possibly
+        through arithmetic with constants and shared values (``sin(where(small, 1.0, x) / 2)``, as Lie groups'
+        guarded series write it): the lane's expression as a select of the function of each arm,
+        ``c ? sin(1.0 / 2) : sin(x / 2)``, and the nodes it reads through; or None. Lane by lane the same value
+        (the function of the arm the select takes, computed the same way); the constant arm is folded, so the
+        lane calls the function only where it takes the other arm (a guarded series' common case calls none),
+        and the call on the other arm is the one the code makes elsewhere (``sin(x)`` beside
+        ``sin(where(small, 1.0, x))``)."""
+        args = self.args[i]
+        if len(args) != 1 or self.dtype[i].kind != "f" or self.dtype[args[0]].kind != "f":
+            return None
+        chain, j = [], args[0]
+        while self.op[j] != "sel" and self.op[j] in self._SPLIT_THROUGH and len(chain) < 4:
+            lane_args = [x for x in self.args[j] if not (self.is_const(x) or x in self.shared)]
+            if len(lane_args) != 1:
+                return None
+            chain.append(j)
+            j = lane_args[0]
+        if self.op[j] != "sel" or j in self.shared:
+            return None
+        c, on_true, on_false = self.args[j]
+        if not (self.is_const(on_true) or self.is_const(on_false)):
+            return None
+
+        def through(arm: int) -> str:
+            sub = {j: f"({self.expr(arm)})"}
+            for k in reversed(chain):  # innermost first
+                sub[k] = f"({self.rhs(k, sub)})"
+            return self.rhs(i, sub)
+
+        return f"({self.expr(c)}) ? ({through(on_true)}) : ({through(on_false)})", [j, *chain]
 
     def _write(self, scope: Scope, live: set[int], lines: list[str], depth: int) -> None:
         """The C of a scope's statements: scalar code, or lane code while ``self.lanes`` (:meth:`emit_lanes`),
