@@ -219,7 +219,7 @@ def test_c_step_equals_the_jax_step_at_random_states_full_matrix(build, system, 
 @pytest.mark.parametrize("system", [
     "tse2", *(pytest.param(s, marks=pytest.mark.slow) for s in sorted(SYSTEMS) if s != "tse2")])
 def test_c_step_of_the_array_backend_equals_the_jax_step(build, system):
-    # the loops over arrays that backend="auto" uses for n > 12 (codegen.SCALAR_MAX_N), on the ready systems
+    # the loops over arrays that backend="auto" uses for n > 15 (codegen.SCALAR_MAX_N), on the ready systems
     flt, cf = build(system, "second", "zero", backend="array")
     check_against_jax(flt, cf, seed=sorted(SYSTEMS).index(system))
 
@@ -414,6 +414,27 @@ def test_exported_c_builds_warning_free_with_gcc_and_clang(build, tmp_path):
                                   capture_output=True, text=True)
             assert proc.returncode == 0 and proc.stderr == "", f"{key} with {cc}:\n{proc.stderr}"
             assert obj.stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_inertial_navigation_with_biases_exports_as_scalar_code_warning_free(tmp_path, monkeypatch):
+    # n = 15 (SE_2(3) x R^6): backend="auto" must take the scalar translator (the array loops ran 43x slower than
+    # the C engine's kernel in benchmarks/bench_3d.py), and its 28k lines must build warning-free
+    from liemef.codegen import _export
+    from liemef.systems import inertial_navigation
+
+    flt = liemef.MinimumEnergyFilter(inertial_navigation(biases=True, gnss_std=0.5, mag_std=0.02))
+    assert flt.n == 15 <= codegen.SCALAR_MAX_N
+
+    def no_array(*args, **kwargs):
+        raise AssertionError("backend='auto' took the array translator at n = 15")
+
+    monkeypatch.setattr(_export, "jaxpr_to_c", no_array)
+    exported = codegen.export_c(flt, tmp_path, "ins_biases")
+    for cc in [cc for cc in COMPILERS if shutil.which(cc)]:
+        proc = subprocess.run([cc, *codegen.CFLAGS, "-c", "-o", str(tmp_path / f"ins.{cc}.o"),
+                               str(exported.source)], capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stderr == "", f"{cc}:\n{proc.stderr}"
 
 
 def test_export_c_options_reach_the_filter(tmp_path):

@@ -135,8 +135,11 @@ BACKENDS = C_BACKENDS
 subexpressions removed: the fast one, :mod:`._scalar_c`), ``"array"`` (loops over arrays: compact code whose
 size grows with the number of operations, not of scalar operations, for large state dimensions;
 :mod:`._jaxpr_c`) and ``"auto"``: scalar up to :data:`SCALAR_MAX_N`, array above."""
-SCALAR_MAX_N = 12
-"""The largest algebra dimension n that ``backend="auto"`` exports as scalar code (its size grows as n^3)."""
+SCALAR_MAX_N = 15
+"""The largest algebra dimension n that ``backend="auto"`` exports as scalar code (its size grows as n^3): 15
+takes in inertial navigation with biases (SE_2(3) x R^6), whose scalar step has 28k lines (the
+dense R^12's has 46k: the group's structural zeros fold away), where the array loops ran 43x slower than the C
+engine's kernel, itself that same scalar code (benchmarks/bench_3d.py)."""
 
 
 def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "liemef_filter", *,
