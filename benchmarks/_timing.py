@@ -1,9 +1,11 @@
-"""What every speed benchmark shares: one core before JAX starts, a fresh kernel cache, and timing a filter's
-``run`` (first call, then the median of further runs by the -O2 kernel)."""
+"""What every speed benchmark shares: one core before JAX starts, a fresh kernel cache, timing a filter's
+``run`` (first call, then the median of further runs by the -O2 kernel), and the CPU model to print beside
+the figures."""
 
 from __future__ import annotations
 
 import os
+import platform
 import tempfile
 import time
 
@@ -45,3 +47,13 @@ def time_run(flt, args, engine, repeats: int) -> dict:
     steps = len(args[1]) - 1
     return {"first_call_s": round(first, 3), "us_per_step": round(float(np.median(runs)) / steps * 1e6, 3),
             "steps": steps}
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), else what :mod:`platform` knows."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")),
+                        platform.processor() or platform.machine())
+    except OSError:
+        return platform.processor() or platform.machine()

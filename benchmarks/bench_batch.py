@@ -34,6 +34,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 
 import jax
@@ -45,6 +46,9 @@ from liemef.simulation import simulate_core
 from liemef.studies.experiments import montecarlo
 from liemef.studies.experiments._montecarlo import resolve_experiment
 from liemef.systems import PlanarRigidBody, tse2_state
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import cpu_model  # noqa: E402
 
 
 def tse2_input(t):
@@ -65,14 +69,6 @@ def logs(system, ts, B, seed=0):
     rng = np.random.default_rng(seed)
     q0 = np.array([np.pi / 8, 1.1, 2.1, 0.1, -0.1, -0.1]) + 0.05 * rng.standard_normal((B, 6))
     return np.asarray(log.us), np.asarray(log.ys), q0, sim_s
-
-
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), platform.machine())
-    except OSError:
-        return platform.processor() or platform.machine()
 
 
 def kernel_only(flt, states, ts, us, ys, keep_every, threads, repeats) -> dict:
@@ -171,7 +167,7 @@ def main():
            "memory": memory, "montecarlo": mc, "best_filter_trial_steps_per_s": best,
            "targets": {"filter_trial_steps_per_s>=4e6": best >= 4e6, "best_filter_trial_steps_per_s": best},
            "machine": {"python": platform.python_version(), "jax": jax.__version__, "liemef": liemef.__version__,
-                       "cores": threads, "cpu_model": _cpu_model(), "loadavg_1min": round(os.getloadavg()[0], 2)}}
+                       "cores": threads, "cpu_model": cpu_model(), "loadavg_1min": round(os.getloadavg()[0], 2)}}
     print(json.dumps(out, indent=2))
 
 

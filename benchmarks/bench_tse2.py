@@ -101,6 +101,7 @@ from liemef.systems import PlanarRigidBody, tse2_state  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import c_reference  # noqa: E402
+from _timing import cpu_model  # noqa: E402
 
 
 def tse2_input(t):
@@ -332,14 +333,6 @@ def batch_throughput(repeats: int) -> dict:
     if out.returncode != 0:
         return {"error": out.stderr[-2000:]}
     return json.loads(out.stdout[out.stdout.index("\n{\n"):] if "\n{\n" in out.stdout else out.stdout)
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), platform.processor())
-    except OSError:
-        return platform.processor() or platform.machine()
 
 
 def main():
