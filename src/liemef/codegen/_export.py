@@ -63,7 +63,8 @@ class Field:
 
 @dataclass(frozen=True)
 class ExportedC:
-    """The files :func:`export_c` wrote and the layout of its state struct."""
+    """The files :func:`export_c` wrote, the layout of its state struct and the translator ``backend`` that
+    wrote them (``"scalar"`` or ``"array"``, ``"auto"`` resolved)."""
 
     header: Path
     source: Path
@@ -74,6 +75,7 @@ class ExportedC:
     output_dim: int
     group_params: int
     coords_dim: int
+    backend: str
 
     def api_summary(self, system) -> str:
         """The exported C API with its sizes, the state's members, the status codes and the order of u and y
@@ -371,7 +373,7 @@ void {P}_coords(const double *g, double *q) {{ {P}_coords_core(g, q); }}
             fh.write(text)
         os.replace(tmp, path)
     return ExportedC(header=h_path, source=c_path, prefix=P, fields=fields, n=n, input_dim=m, output_dim=p,
-                     group_params=g_size, coords_dim=c)
+                     group_params=g_size, coords_dim=c, backend=backend)
 
 
 def compiler() -> str | None:

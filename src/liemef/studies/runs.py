@@ -158,13 +158,17 @@ exported C."""
 @dataclass(frozen=True)
 class SavedC:
     """What :func:`export_c_to` did: the ``exported`` files (:class:`liemef.codegen.ExportedC`), the ``filter``
-    exported, the ``source`` system (:class:`liemef.studies.logs.LogSystem`) and the C ``backend`` used
-    (``"scalar"`` or ``"array"``, ``"auto"`` resolved)."""
+    exported and the ``source`` system (:class:`liemef.studies.logs.LogSystem`)."""
 
     exported: Any
     filter: Any = field(repr=False)
     source: Any = field(repr=False)
-    backend: str
+
+    @property
+    def backend(self) -> str:
+        """The C translator used (``"scalar"`` or ``"array"``, ``"auto"`` resolved by
+        :func:`liemef.codegen.export_c`)."""
+        return self.exported.backend
 
 
 def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
@@ -194,7 +198,7 @@ def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_fil
         d = io.ensure_dir(out)
     except ValueError as err:
         raise OptionError(str(err), "--out") from err
-    from ..codegen import SCALAR_MAX_N, UnsupportedPrimitive, export_c
+    from ..codegen import UnsupportedPrimitive, export_c
     from ..filters import MinimumEnergyFilter
     from .logs import resolve_system
 
@@ -208,9 +212,7 @@ def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_fil
                                    f"{err}. See docs/export-c.md (supported primitives)") from err
     except OSError as err:
         raise OptionError(f"cannot write to {str(d)!r} ({err.strerror or err})", "--out") from err
-    if backend == "auto":
-        backend = "scalar" if flt.n <= SCALAR_MAX_N else "array"
-    return SavedC(exported, flt, source, backend)
+    return SavedC(exported, flt, source)
 
 
 @dataclass(frozen=True)
