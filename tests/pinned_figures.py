@@ -1,7 +1,9 @@
 """Key figures of the reproductions, Monte Carlo and comparisons, computed small: what ``test_pinned_figures``
 pins bit for bit, so that a restructuring that changes no mathematics provably changes no number.
 
-``python tests/pinned_figures.py`` prints the figures as the JSON of ``tests/pinned_figures.json``. Write that
+``OPENBLAS_CORETYPE=Haswell python tests/pinned_figures.py`` prints the figures as the JSON of
+``tests/pinned_figures.json`` (the Haswell kernels, as tests/conftest.py asks: on an AVX-512 CPU OpenBLAS's own
+kernels move a few figures at 1e-9). Write that
 file anew only for a change that is meant to move numbers, and say which and why in the commit.
 """
 
