@@ -111,6 +111,7 @@ class ScalarTranslator:
         self.counter = [0]
         self.lanes = False  # writing lane code (emit_lanes): every non-shared value is a vector of trials
         self.shared: set[int] = set()  # values with one value for every lane (parameters, times, and from them)
+        self.active: str | None = None  # in lane code inside a cond's arm: the C mask of the lanes that take it
         self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
         self.lookups: dict = {}  # constant operands read at run-time indices: their C arrays, by node ids
 
@@ -996,21 +997,22 @@ class ScalarTranslator:
         and 0), and values from parameters and times alone stay scalars. Arithmetic, comparisons, selects, min
         and max, conversions and ``isfinite``/``abs`` are vector expressions; other functions (sin, sqrt, ...)
         are loops over the lanes. A ``while`` runs until no lane's test holds, and a lane whose test fails keeps
-        its carry (``vmap``'s semantics), so each lane computes the scalar code's values. Outputs are
-        ``(lvalue, node)``, written ``lvalue[l]`` per lane. ``cond`` and array blocks have no lane form
-        (UnsupportedPrimitive)."""
+        its carry (``vmap``'s semantics), so each lane computes the scalar code's values. A ``cond`` runs each arm
+        that some lane takes (one, where the lanes agree: trials on one sample grid) and each lane reads the
+        results of its own arm (:meth:`_write_lane_cond`). Outputs are ``(lvalue, node)``, written
+        ``lvalue[l]`` per lane. Array blocks have no lane form (UnsupportedPrimitive)."""
         root_scope = self.scope
         while root_scope.parent is not None:
             root_scope = root_scope.parent
         live = self._live_all([n for _, n in outputs], root_scope)
         lines: list[str] = []
-        self.lanes = True
+        self.lanes, self.active = True, None
         try:
             self._write(root_scope, live, lines, 1)
             for lv, n in outputs:
                 lines.append(f"    for (int l = 0; l < LANES; l++) {lv}[l] = {self.expr(n)};")
         finally:
-            self.lanes = False
+            self.lanes, self.active = False, None
         return "\n".join(lines) + "\n"
 
     def _vec(self, i: int) -> str:
@@ -1081,12 +1083,19 @@ class ScalarTranslator:
         v = self._vrhs(i)
         if v is not None:
             return f"{pad}const {lane_type(dt)} n{i} = {v};"
+        # in a cond's arm, a lane that does not take it calls no function (an integer division by zero there
+        # would trap): its value is 0, which no lane reads
+        act = f"{self.active}[l] && " if self.active is not None else ""
         split = self._split_select(i)
         if split is not None:
             expr, read = split  # the nodes it reads through may be read by nothing else: (void), for -Wall
+            if act:
+                expr = f"({act}1) ? ({expr}) : 0"
             return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {expr};" + "".join(f" (void)n{k};" for k in read)
         if dt == np.bool_:
-            return f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({self.rhs(i)}) ? -1 : 0;"
+            return f"{pad}lane_i64 n{i}; {loop} n{i}[l] = ({act}({self.rhs(i)})) ? -1 : 0;"
+        if act:
+            return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = ({act}1) ? ({self.rhs(i)}) : 0;"
         return f"{pad}{lane_type(dt)} n{i}; {loop} n{i}[l] = {self.rhs(i)};"
 
     _SPLIT_THROUGH = ("add", "sub", "mul", "div", "neg")
@@ -1139,7 +1148,9 @@ class ScalarTranslator:
                 if i in live:
                     lines.append(self._lane_node(i, pad) if lanes else
                                  f"{pad}const {ctype(self.dtype[i])} n{i} = {self.rhs(i)};")
-            elif lanes and kind in ("block", "cond"):
+            elif lanes and kind == "cond":
+                self._write_lane_cond(st, live, lines, depth)
+            elif lanes and kind == "block":
                 raise UnsupportedPrimitive(f"{kind!r} has no lane form (the batch runs one trial at a time)")
             elif kind == "block":
                 _, bname, total, dtypes, vals, in_flat, blines, copies, outs = st
@@ -1161,7 +1172,9 @@ class ScalarTranslator:
                 lines.append(f"{pad}for (;;) {{")
                 self._write(cs, live, lines, depth + 1)
                 if lanes:
-                    lines.append(f"{pad}    const lane_i64 go = {self._vec(pred)};")
+                    # in a cond's arm, the lanes that do not take it stop at once (their test may never fail)
+                    act = "" if self.active is None else f" & {self.active}"
+                    lines.append(f"{pad}    const lane_i64 go = ({self._vec(pred)}){act};")
                     lines.append(f"{pad}    int any = 0;")
                     lines.append(f"{pad}    for (int l = 0; l < LANES; l++) any |= go[l] != 0;")
                     lines.append(f"{pad}    if (!any) break;")
@@ -1205,6 +1218,53 @@ class ScalarTranslator:
                     lines.append(f"{pad}    break;")
                     lines.append(f"{pad}}}")
                 lines.append(f"{pad}}}")
+
+
+    def _write_lane_cond(self, st, live: set[int], lines: list[str], depth: int) -> None:
+        """The lane code of a ``cond``: each lane takes the arm its index names (as the scalar ``switch``:
+        ``case k``, the last arm the default), every arm that some lane takes runs in lane form, once for all
+        lanes, under the mask of the lanes that take it, and each result is selected lane by lane from the arm
+        its lane took. Where the lanes agree (the usual case: trials on one sample grid) one arm runs. In an
+        arm, a lane that does not take it calls no function and leaves its loops at once (:meth:`_lane_node`),
+        and what it computes there (an infinity, a NaN) is never selected: each lane has the scalar code's
+        bits."""
+        _, i0, arms, dts, leaves = st
+        if not any(leaves[nm] in live for nm in dts):
+            return
+        pad = "    " * depth
+        for nm, dt in dts.items():
+            if leaves[nm] in live:
+                lines.append(f"{pad}{lane_type(dt)} {nm} = {{0}};")
+        ix = self.fresh("ix")
+        if self.is_const(i0) or i0 in self.shared:
+            lines.append(f"{pad}const int {ix} = (int)({self.expr(i0)});")
+            lane_ix = ix
+        else:
+            lines.append(f"{pad}const {lane_type(self.dtype[i0])} {ix} = {self._vec(i0)};")
+            lane_ix = f"(int)({ix}[l] != 0)" if self.dtype[i0] == np.bool_ else f"(int){ix}[l]"
+        outer, last = self.active, len(arms) - 1
+        try:
+            for k, (sc, asg) in enumerate(arms):
+                act = self.fresh("act")
+                takes = f"{lane_ix} == {k}" if k < last else (f"({lane_ix} < 0 || {lane_ix} >= {last})" if last
+                                                                else "1")
+                within = f"{outer}[l] && " if outer is not None else ""
+                lines.append(f"{pad}{{")
+                lines.append(f"{pad}    lane_i64 {act}; int any_{act} = 0;")
+                lines.append(f"{pad}    for (int l = 0; l < LANES; l++) {{ {act}[l] = ({within}{takes}) ? -1 : 0; "
+                             f"any_{act} |= {act}[l] != 0; }}")
+                lines.append(f"{pad}    if (any_{act}) {{")
+                self.active = act
+                self._write(sc, live, lines, depth + 2)
+                for nm, n in asg:
+                    if leaves[nm] in live:
+                        sel = f"LANE_SEL_{LANE_SUFFIX[dts[nm].str]}"
+                        lines.append(f"{pad}        {nm} = {sel}({act}, {self._vec(n)}, {nm});")
+                self.active = outer
+                lines.append(f"{pad}    }}")
+                lines.append(f"{pad}}}")
+        finally:
+            self.active = outer
 
 
 def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: list[str], *,
