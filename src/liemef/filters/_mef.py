@@ -207,21 +207,8 @@ class MinimumEnergyFilter(AbstractFilter):
             # identity, and at 100 Hz against 1 Hz landmarks it was two thirds of a step's arithmetic
             g, K = jax.lax.cond(jnp.any(W_sample != 0), update, lambda gK: gK, (g, K))
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
-        if discrete and all(self.sample):  # static: no output acts over the interval, so none is differentiated
-            def terms_at(gg, KK, u, y, tau):
-                return self._terms(weights, gg, KK, u, y, tau, outputs=False)
-        elif self.constant_E == "weighted":
-            # an output without information in force adds nothing (r, E and W are linear in the weights): the
-            # derivatives of the outputs (their Hessians) are taken only in intervals that have some, not in
-            # the IMU-rate intervals between the samples of a slower sensor
-            in_force = jnp.any(Wy != 0)
-
-            def terms_at(gg, KK, u, y, tau):
-                return jax.lax.cond(in_force, lambda: self._terms(weights, gg, KK, u, y, tau),
-                                    lambda: self._terms(weights, gg, KK, u, y, tau, outputs=False))
-        else:  # "unit": E's constant part Dh^T Dh is there without information too
-            def terms_at(gg, KK, u, y, tau):
-                return self._terms(weights, gg, KK, u, y, tau)
+        # static: with only sample sensors, no output acts over the discrete filter's interval
+        outputs = not (discrete and all(self.sample))
 
         def data(tau):
             if self.interpolation == "hold":
@@ -229,26 +216,46 @@ class MinimumEnergyFilter(AbstractFilter):
             s = (tau - t) / dt
             return u0 + s * (u1 - u0), y0 + s * (y1 - y0)
 
-        def f(gg, KK, tau):
-            u, y = data(tau)
-            tm = terms_at(gg, KK, u, y, tau)
-            return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
+        def f_of(outputs):
+            def f(gg, KK, tau):
+                u, y = data(tau)
+                tm = self._terms(weights, gg, KK, u, y, tau, outputs=outputs)
+                return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
+            return f
 
-        def field_and_rate(gg, KK, tau):
-            # the vector field at a point, and its stiffness rate: the step h is budgeted so that
-            # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
-            u, y = data(tau)
-            tm = terms_at(gg, KK, u, y, tau)
-            xi = tm.lam + mv(KK, tm.r)
-            fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
-            # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
-            rate = jnp.maximum(jnp.maximum(fro(mm(tm.E, KK)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
-                               jnp.linalg.norm(xi) / _XI_BUDGET)
-            # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from a
-            # broken system, is a failure ("K not symmetric"), checked at each interval's start
-            big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
-            skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
-            return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
+        def field_and_rate_of(outputs):
+            def field_and_rate(gg, KK, tau):
+                # the vector field at a point, and its stiffness rate: the step h is budgeted so that
+                # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
+                u, y = data(tau)
+                tm = self._terms(weights, gg, KK, u, y, tau, outputs=outputs)
+                xi = tm.lam + mv(KK, tm.r)
+                fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
+                # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
+                rate = jnp.maximum(jnp.maximum(fro(mm(tm.E, KK)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
+                                   jnp.linalg.norm(xi) / _XI_BUDGET)
+                # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from
+                # a broken system, is a failure ("K not symmetric"), checked at each interval's start
+                big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
+                skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
+                return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
+            return field_and_rate
+
+        f, field_and_rate = f_of(outputs), field_and_rate_of(outputs)
+        if outputs and self.constant_E == "weighted":
+            # An output without information in force adds nothing (r, E and W are linear in the weights, and
+            # vanish with them): the vector field of an interval without is the prediction's, taken whole (its
+            # Riccati equation without the K E K product) and without differentiating the outputs, as between
+            # the samples of a slower sensor. (constant_E="unit" has E = Dh^T Dh without information too.)
+            in_force = jnp.any(Wy != 0)
+            f_out, f_pred = f, f_of(False)
+            far_out, far_pred = field_and_rate, field_and_rate_of(False)
+
+            def f(gg, KK, tau):
+                return jax.lax.cond(in_force, f_out, f_pred, gg, KK, tau)
+
+            def field_and_rate(gg, KK, tau):
+                return jax.lax.cond(in_force, far_out, far_pred, gg, KK, tau)
 
         if self.substeps == "auto":
             # Adaptive sub-steps: each step's size comes from the stiffness where it starts, so an impulsive
