@@ -289,6 +289,41 @@ def test_pose3d_converges_from_a_wrong_start(fixes):
     assert rot[late].max() < 2.0 and pos[late].max() < 0.1, (rot[late].max(), pos[late].max())
 
 
+def _range_inverse(g, t):
+    """1 / (the height): infinite, and its derivatives too, on the plane z = 0."""
+    return 1.0 / g.translation()[2:3]
+
+
+@pytest.mark.parametrize("updates", ["hold", "discrete"])
+def test_an_interval_without_a_sample_takes_no_output_derivative(updates):
+    """Between the samples of a slower sensor no output carries information, so the interval is the prediction
+    alone and the outputs are not differentiated there (at 100 Hz against 1 Hz landmarks they were two thirds of
+    a step's arithmetic): a sensor whose output is infinite at the estimate leaves such an interval healthy and
+    equal to the filter without that sensor; with its sample, the same interval fails as non-finite. (An
+    interval with any sample in force differentiates every output.)"""
+    from liemef.filters import CAUSES
+    from liemef.systems import Noise, Sensor, SensorSystem
+    from liemef.systems.rigid_body_3d import position, twist_dynamics
+
+    fix = Sensor("position", position, Noise.sample(0.5), ("x", "y", "z"), ("m",) * 3)
+    inverse = Sensor("inverse", _range_inverse, Noise.sample(0.1), ("r",), ("1/m",))
+    process = Noise.density(np.full(6, 0.1))
+    inputs = pose3d_module.INPUT_NAMES
+    with_inverse = SensorSystem(SE3, twist_dynamics, [fix, inverse], process, inputs=inputs)
+    without = SensorSystem(SE3, twist_dynamics, [fix], process, inputs=inputs)
+    g0 = SE3.from_coords(jnp.array([0.1, -0.2, 0.3, 1.0, 2.0, 0.0]))  # on z = 0: 1/z is infinite
+    K0 = np.diag([0.1] * 3 + [1.0] * 3)
+    u = np.array([0.1, 0.0, 0.2, 1.0, 0.0, 0.0])
+    a = liemef.MinimumEnergyFilter(with_inverse, updates=updates)
+    b = liemef.MinimumEnergyFilter(without, updates=updates)
+    none = a.step(a.init(g0, K0), 0.0, u, np.full(4, np.nan), 0.01)
+    ref = b.step(b.init(g0, K0), 0.0, u, np.full(3, np.nan), 0.01)
+    assert bool(none.status.ok), none.status.message()
+    assert_trees_close((none.g_hat, none.K), (ref.g_hat, ref.K))
+    sampled = a.step(a.init(g0, K0), 0.0, u, np.array([np.nan, np.nan, np.nan, 1.0]), 0.01)
+    assert int(sampled.status.code) == CAUSES.NONFINITE.code, sampled.status.message()
+
+
 # --- both engines --------------------------------------------------------------------------------------------
 SYSTEMS_3D = {
     "pose3d-position": lambda: pose3d(),
