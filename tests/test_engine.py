@@ -174,6 +174,69 @@ def test_lane_groups_compute_each_trials_bits():
     assert (lanes[2] == 0).all()
 
 
+def _inverse_position(g, t):
+    """1 / (the position): infinite, and its derivatives too, at 0."""
+    return 1.0 / g.x[:1]
+
+
+def _batch_both_ways(flt, starts, ts, us, ys):
+    """The batch kernel's lane groups and the one-at-a-time kernel on the same trials: (lanes, single, kernel)."""
+    kern = _kernel.kernel_for(flt).wait()
+    x = np.stack([kern.pack(flt.init(Rn[2](jnp.asarray(x0)), np.eye(2))) for x0 in starts])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        lanes = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1)
+        single = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1, lanes=False)
+    return lanes, single, kern
+
+
+def _inverse_system():
+    sensors = (Sensor("p", _position, Noise.sample(0.3)), Sensor("inverse", _inverse_position, Noise.sample(0.1)))
+    return SensorSystem(Rn[2], _drift, sensors, Noise.density([0.1, 0.2]), inputs=("a",))
+
+
+def test_lanes_that_take_different_arms_of_a_cond_keep_their_bits():
+    """An interval without a sample in force takes the prediction alone (a ``cond``), so trials of one lane group
+    with their samples at different times take different arms in one step: each lane gets the one-at-a-time
+    kernel's bits. The output 1/x is infinite at the start x = 0: the trials whose first interval has that
+    sample fail there as non-finite, and the infinities of the arm they take reach none of the others."""
+    flt = liemef.MinimumEnergyFilter(_inverse_system())
+    n = 30
+    ts = 0.01 * np.arange(n)
+    us = np.stack([0.1 * np.sin(ts + b)[:, None] for b in range(8)])
+    ys = np.full((8, n, 2), np.nan)
+    for b in range(8):
+        ys[b, 1 + b % 3::3, 0] = 0.05 * b  # positions at times that differ within each group of four
+        ys[b, 5::7, 1] = 2.0
+        if b % 2:
+            ys[b, 0, 1] = 1.0  # the inverse at the start of odd trials only
+    lanes, single, kern = _batch_both_ways(flt, [[0.0, 0.5]] * 8, ts, us, ys)
+    assert kern.lanes() is not None, kern.lanes_error
+    assert "any_act" in _kernel._translate_lanes(kern.traced)  # the cond is in lane form, not one trial at a time
+    for a, b in zip(lanes, single, strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert [int(c) for c in lanes[2]] == [0, CAUSES.index("non-finite")] * 4
+
+
+def test_lanes_that_agree_on_a_cond_keep_their_bits():
+    """Trials on one sample grid take the same arm of each ``cond`` in every step (the batch kernel then runs
+    that arm alone): each lane gets the one-at-a-time kernel's bits, from starts on and off x = 0, where the
+    output 1/x is infinite but has no sample until the estimate has left it."""
+    flt = liemef.MinimumEnergyFilter(_inverse_system())
+    n = 30
+    ts = 0.01 * np.arange(n)
+    us = np.stack([0.1 * np.sin(ts + b)[:, None] for b in range(8)])
+    ys = np.full((8, n, 2), np.nan)
+    for b in range(8):
+        ys[b, 2::4, 0] = 0.05 * b
+        ys[b, 9::10, 1] = 2.0
+    lanes, single, kern = _batch_both_ways(flt, [[0.0, 0.5], [0.3, -0.2]] * 4, ts, us, ys)
+    assert kern.lanes() is not None, kern.lanes_error
+    for a, b in zip(lanes, single, strict=True):
+        assert a.tobytes() == b.tobytes()
+    assert (lanes[2] == 0).all()
+
+
 def _drift(g, u, t):
     return jnp.array([g.x[1], -0.1 * g.x[1] + u[0]])
 
