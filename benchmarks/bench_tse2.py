@@ -52,14 +52,14 @@ from 1.42x to 3.42x the reference and the export from about 1.7x to 2.13x:
   arithmetic at all in its core: about 3,700 scalar operations a step, and 2,200 spill loads and stores).
   Zen 1 executes a 256-bit instruction as two 128-bit halves, Zen 4 at full width: the reference gained,
   the generated code did not. On the Zen 4, in C alone (``P_run`` against ``tse2_ref_run``, alternated in one
-  process, CPU time): the export 1.76-1.84x the reference; the reference built ``-fno-tree-vectorize`` takes
+  process, CPU time): the export 1.76-1.92x the reference; the reference built ``-fno-tree-vectorize`` takes
   0.66-0.77 us a step instead of 0.47-0.49, with 128-bit vectors 0.52-0.54 (the export then 1.25-1.35x and
   1.63-1.66x). Both at plain ``-O2`` (SSE2) the export loses its three-operand instructions too: 2.2x.
 * **Fresh memory.** On the Zen 4 guest the first touch of a fresh page is slow and uneven: 17 MB of new
   NumPy arrays took 0.7 to 40 ms to fill (1,100 page faults, sys time), where reused memory takes 0.75 ms.
   ``run``'s history is fresh memory every call: the kernel wrote packed rows (22.8 MB for 50,000 steps),
   copied into the estimate's and gain's arrays (17.2 MB) and the integer leaves (2.4 MB) before JAX took
-  them: up to 0.9 us a step of sys time in one repeat, none in the next, which is how ``run`` showed 1.8
+  them: up to 0.9 us a step of sys time in one repeat, none in the next: ``run`` could show 1.8
   against the export's 1.1 us. The kernel now writes the kept estimates, gains and codes straight into the
   arrays JAX takes over (``kernel_history``: 17.6 MB, no copy). The export was timed through ``CFilter.run``,
   which allocates and NaN-fills a new 17 MB history every call, while the reference writes into buffers

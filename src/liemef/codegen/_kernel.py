@@ -17,7 +17,8 @@ jaxpr: terms, derivatives as traced, adaptive sub-steps, screening, health check
   doubles, integers exactly), and ``kernel_step``, the same with the samples packed in one vector (the
   online step, infinite samples rejected);
 * ``kernel_scan``: a whole log, keeping every M-th state, stopping at the first failure (a failed state is
-  final);
+  final); ``kernel_history``, the same keeping the states leaf by leaf in the caller's arrays (``run``'s
+  history, written where JAX takes it over);
 * ``kernel_batch``: ``kernel_scan`` over a range of trials (one parameter vector, or one per trial).
 
 The *batch kernel* (a second library, built on first use: :meth:`Kernel.lanes`) runs :data:`LANES` trials
