@@ -50,10 +50,18 @@ def time_run(flt, args, engine, repeats: int) -> dict:
 
 
 def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), else what :mod:`platform` knows."""
+    """The CPU's model name (``/proc/cpuinfo``) with its family and model numbers (a VM may name only "AMD EPYC":
+    family 23 is Zen 1 and 2, 25 Zen 3 and 4), else what :mod:`platform` knows."""
     try:
         with open("/proc/cpuinfo") as fh:
-            return next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")),
-                        platform.processor() or platform.machine())
+            info = {}
+            for ln in fh:
+                if not ln.strip():
+                    break  # the first CPU's block
+                key, _, value = ln.partition(":")
+                info.setdefault(key.strip(), value.strip())
     except OSError:
         return platform.processor() or platform.machine()
+    name = info.get("model name") or platform.processor() or platform.machine()
+    ids = [f"{k} {info[k]}" for k in ("cpu family", "model", "stepping") if k in info]
+    return f"{name} ({', '.join(ids)})" if ids else name

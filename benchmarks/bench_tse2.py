@@ -43,9 +43,27 @@ Targets (issue 22; on the median of the repeats; ``run``, ``step`` and the expor
 * the exported C <= 2x the reference (same compiler and flags);
 * batched throughput >= 4e6 trial-steps/s on the 2 cores (``bench_batch.py``).
 
-Why the figures moved between machines and runs (issue 22), as far as established on the AMD EPYC (Zen 1,
-2 cores) where these targets were set:
+Why the figures moved between machines and runs (issue 22). The targets were set on an AMD EPYC Zen 1 (family
+23, 2 cores) and missed on a Zen 4 (family 25 model 17, AVX-512, 2 cores; a KVM guest), where ``run`` went
+from 1.42x to 3.42x the reference and the export from about 1.7x to 2.13x:
 
+* **The reference is vectorized, the generated code is not.** gcc vectorizes the reference's loops (K E K row
+  by row, 4 doubles to an AVX2 instruction); the generated step is straight-line scalar code (no packed
+  arithmetic at all in its core: about 3,700 scalar operations a step, and 2,200 spill loads and stores).
+  Zen 1 executes a 256-bit instruction as two 128-bit halves, Zen 4 at full width: the reference gained,
+  the generated code did not. On the Zen 4, in C alone (``P_run`` against ``tse2_ref_run``, alternated in one
+  process, CPU time): the export 1.76-1.92x the reference; the reference built ``-fno-tree-vectorize`` takes
+  0.66-0.77 us a step instead of 0.47-0.49, with 128-bit vectors 0.52-0.54 (the export then 1.25-1.35x and
+  1.63-1.66x). Both at plain ``-O2`` (SSE2) the export loses its three-operand instructions too: 2.2x.
+* **Fresh memory.** On the Zen 4 guest the first touch of a fresh page is slow and uneven: 17 MB of new
+  NumPy arrays took 0.7 to 40 ms to fill (1,100 page faults, sys time), where reused memory takes 0.75 ms.
+  ``run``'s history is fresh memory every call: the kernel wrote packed rows (22.8 MB for 50,000 steps),
+  copied into the estimate's and gain's arrays (17.2 MB) and the integer leaves (2.4 MB) before JAX took
+  them: up to 0.9 us a step of sys time in one repeat, none in the next: ``run`` could show 1.8
+  against the export's 1.1 us. The kernel now writes the kept estimates, gains and codes straight into the
+  arrays JAX takes over (``kernel_history``: 17.6 MB, no copy). The export was timed through ``CFilter.run``,
+  which allocates and NaN-fills a new 17 MB history every call, while the reference writes into buffers
+  made before its timed run: both now write into buffers made once (``_export_run``).
 * **Host flags.** The kernel is built with ``-march=native`` (``KERNEL_CFLAGS``). A reference built with plain
   ``-O2`` (x86-64's SSE2 baseline; ``c_reference.generic``) is slower per step than one built for the host, so
   the same kernel is a smaller multiple of it (issue 22: 3.0x against a plain ``-O2`` reference, where this
@@ -59,7 +77,7 @@ Why the figures moved between machines and runs (issue 22), as far as establishe
 * **Timer resolution and noise.** ``perf_counter`` resolves well under a microsecond here, but a single
   online call of a few microseconds is easily doubled by an interrupt or a neighbour: latencies are medians
   over ``--calls`` calls, repeated, and the ``cpu_`` (``process_time``) figures are given beside them.
-* **The Python path.** On this CPU a ctypes call costs about 0.3 us per argument and a small NumPy operation
+* **The Python path.** On the Zen 1 a ctypes call costs about 0.3 us per argument and a small NumPy operation
   0.5-3 us, so the online step (a 2-3 us kernel) was mostly Python: 12 us for ``online.step`` and 54 us for
   ``flt.step``. The step now goes through a small CPython extension (``liemef.codegen._fast``: one call, the
   samples read through the buffer protocol, the state's leaves and nodes made in C); where it cannot be built
@@ -71,6 +89,7 @@ Why the figures moved between machines and runs (issue 22), as far as establishe
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
 import platform
@@ -211,7 +230,7 @@ def time_c_reference(log, g0, repeats=5):
     ...}`` without a C compiler or if a build fails."""
     if c_reference.compiler() is None:
         return {"available": False, "reason": "no C compiler ($CC or cc)"}
-    ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
+    ts, us, ys = (np.ascontiguousarray(a, np.float64) for a in (log.ts, log.us, log.ys))
     g0_leaves = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(g0)])
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -231,11 +250,14 @@ def time_c_reference(log, g0, repeats=5):
         figures = {}
         for label, lib in libs.items():
             ref, exp = [], []
+            run_export = _export_run(cflts[label], exported, len(ts))
+            cflts[label].init(g0_leaves, np.eye(6))
+            run_export(ts, us, ys)  # warm-up, as the reference's first run
             for _ in range(repeats):
                 ref.append(c_reference.time_per_step(lib, "rkmk4", ts, us, ys, g0, np.eye(6), repeats=1))
                 cflts[label].init(g0_leaves, np.eye(6))
                 c0 = time.perf_counter()
-                code, _, _ = cflts[label].run(ts, us, ys)
+                code = run_export(ts, us, ys)
                 exp.append((time.perf_counter() - c0) / (len(ts) - 1) * 1e6)
                 assert code == 0, "the exported filter failed on the benchmark log"
             figures[label] = {"flags": " ".join(c_reference.FLAGS + (NATIVE if label == "native" else ())),
@@ -265,6 +287,24 @@ def time_c_reference(log, g0, repeats=5):
                          "rkmk4_us_per_step": nat["export_c_rkmk4_us_per_step"],
                          "rkmk4_us_per_step_min": nat["export_c_rkmk4_us_per_step_min"],
                          "step_call_ctypes_median_us": round(float(np.median(lat)) * 1e6, 2)}}
+
+
+def _export_run(cflt, exported, N: int):
+    """The export's ``P_run`` over a log of N samples into output buffers made once, as the reference is timed
+    (``c_reference.time_per_step``): ``CFilter.run`` allocates and NaN-fills a fresh (N-1) x 43 history every
+    call, 17 MB here, whose first touch (page faults: 1-40 ms on this VM) is no part of the filter."""
+    g = np.empty((N - 1, exported.group_params))
+    K = np.empty((N - 1, exported.n, exported.n))
+    fn = getattr(cflt.lib, f"{exported.prefix}_run")
+    dp = ctypes.POINTER(ctypes.c_double)
+    fn.argtypes = [ctypes.c_void_p, ctypes.c_int, dp, dp, dp, dp, dp]
+    fn.restype = ctypes.c_int
+    ptr = lambda a: a.ctypes.data_as(dp)  # noqa: E731
+
+    def run(ts, us, ys) -> int:
+        return int(fn(ctypes.addressof(cflt.state), N, ptr(ts), ptr(us), ptr(ys), ptr(g), ptr(K)))
+
+    return run
 
 
 FIRST = """

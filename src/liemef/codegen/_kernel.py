@@ -17,7 +17,8 @@ jaxpr: terms, derivatives as traced, adaptive sub-steps, screening, health check
   doubles, integers exactly), and ``kernel_step``, the same with the samples packed in one vector (the
   online step, infinite samples rejected);
 * ``kernel_scan``: a whole log, keeping every M-th state, stopping at the first failure (a failed state is
-  final);
+  final); ``kernel_history``, the same keeping the states leaf by leaf in the caller's arrays (``run``'s
+  history, written where JAX takes it over);
 * ``kernel_batch``: ``kernel_scan`` over a range of trials (one parameter vector, or one per trial).
 
 The *batch kernel* (a second library, built on first use: :meth:`Kernel.lanes`) runs :data:`LANES` trials
@@ -233,6 +234,8 @@ def _translate(tr: _Traced) -> str:
     call = [refs[a] for a in in_names] + outs
     code_slot = _code_slot(tr)
     S = n_state
+    keep_leaves = "\n".join(f"    if (leaves[{i}] != NULL) memcpy(leaves[{i}] + r * {sl.size}, cur + {sl.offset}, "
+                            f"sizeof(double) * {sl.size});" for i, sl in enumerate(sslots))
     source = f"""/* A liemef engine kernel (liemef.codegen._kernel), generated from the jaxpr of one sample interval of
  * {tr.title}. Parameters (theta: {n_theta}) are run-time data; only their zero pattern is folded. */
 #include <math.h>
@@ -263,17 +266,26 @@ int kernel_step(const double *theta, const double *x, double *xo, double t, doub
     return kernel_advance(theta, x, xo, t, dt, gap, z, z + {m}, z + {2 * m}, z + {2 * m + p});
 }}
 
-/* a log of n samples (ts: n, us: n x {m}, ys: n x {p}): intervals k = 0 .. n-2; rows (when not NULL) receives
- * the state at ts[0], ts[keep], ts[2 keep], ... (1 + (n-1)/keep rows of S); x the final state. A failed state
- * is final: the loop stops at the first failure and the rows after it repeat the failed state. */
-int kernel_scan(const double *theta, double *x, int n, const double *ts, const double *us, const double *ys,
-                double gap, int keep, double *rows)
+/* kept state r: the packed row into rows (when not NULL), and leaf i into leaves[i] (when leaves and leaves[i]
+ * are not NULL: each leaf's kept values side by side, as doubles) */
+static void keep_state(const double *cur, size_t r, double *rows, double *const *leaves)
+{{
+    if (rows != NULL) memcpy(rows + r * S, cur, sizeof(double) * S);
+    if (leaves == NULL) return;
+{keep_leaves}
+}}
+
+/* a log of n samples (ts: n, us: n x {m}, ys: n x {p}): intervals k = 0 .. n-2; the state at ts[0], ts[keep],
+ * ts[2 keep], ... (1 + (n-1)/keep of them) is kept (keep_state); x receives the final state. A failed state
+ * is final: the loop stops at the first failure and the kept states after it repeat the failed state. */
+static int scan_states(const double *theta, double *x, int n, const double *ts, const double *us, const double *ys,
+                       double gap, int keep, double *rows, double *const *leaves)
 {{
     double a[S], b[S];
     double *cur = a, *nxt = b;
     memcpy(a, x, sizeof a);
     int code = (int)cur[CODE];
-    if (rows != NULL) memcpy(rows, cur, sizeof a);
+    keep_state(cur, 0, rows, leaves);
     for (int k = 0; k + 1 < n; k++) {{
         if (code == 0) {{
             code = kernel_advance(theta, cur, nxt, ts[k], ts[k + 1] - ts[k], gap, us + (size_t)k * {m},
@@ -282,10 +294,25 @@ int kernel_scan(const double *theta, double *x, int n, const double *ts, const d
             cur = nxt;
             nxt = tmp;
         }}
-        if (rows != NULL && (k + 1) % keep == 0) memcpy(rows + (size_t)((k + 1) / keep) * S, cur, sizeof a);
+        if ((k + 1) % keep == 0) keep_state(cur, (size_t)((k + 1) / keep), rows, leaves);
     }}
     memcpy(x, cur, sizeof a);
     return code;
+}}
+
+/* scan_states keeping packed rows (rows: 1 + (n-1)/keep rows of S, or NULL) */
+int kernel_scan(const double *theta, double *x, int n, const double *ts, const double *us, const double *ys,
+                double gap, int keep, double *rows)
+{{
+    return scan_states(theta, x, n, ts, us, ys, gap, keep, rows, NULL);
+}}
+
+/* scan_states keeping leaf by leaf (leaves: one pointer a state leaf, NULL for a leaf not kept): a run's
+ * history goes straight into the arrays it is returned in */
+int kernel_history(const double *theta, double *x, int n, const double *ts, const double *us, const double *ys,
+                   double gap, int keep, double *const *leaves)
+{{
+    return scan_states(theta, x, n, ts, us, ys, gap, keep, NULL, leaves);
 }}
 
 /* trials lo .. hi-1 of a batch: theta + b * theta_stride (0: shared), x: B x S, us: B x n x {m}, ys: B x n x {p},
@@ -630,6 +657,10 @@ class Kernel:
         batch.argtypes = [_dp, ctypes.c_int, ctypes.c_int, ctypes.c_int, _dp, ctypes.c_int, _dp, _dp, _dp,
                           ctypes.c_double, ctypes.c_int, _dp, ctypes.c_int, ctypes.POINTER(ctypes.c_int)]
         batch.restype = None
+        history = lib.kernel_history
+        history.argtypes = [_dp, _dp, ctypes.c_int, _dp, _dp, _dp, ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
+        history.restype = ctypes.c_int
+        self._history = history
         # c_step: the C kernel_step on addresses, (theta, x, xo, t, dt, gap, z) -> status code (-2: an infinite
         # sample, xo untouched), for an engine that keeps packed states of its own (liemef.engines.OnlineFilter)
         self.lib, self._scan, self.c_step, self._batch = lib, scan, step, batch
@@ -802,6 +833,22 @@ class Kernel:
         x = np.array(x, np.float64)
         self._scan(_ptr(theta), _ptr(x), N, _ptr(ts), _ptr(us), _ptr(ys), gap, keep, _ptr(rows))
         return rows, x
+
+    def history(self, theta, x, ts, us, ys, gap: float, keep: int, leaves: list) -> np.ndarray:
+        """A whole log from packed state ``x``, its kept states written leaf by leaf into ``leaves`` (one entry a
+        state leaf: a C-ordered float64 array of shape (1 + (N-1)/keep,) + the leaf's shape, or None for a leaf
+        not kept): no packed rows to copy from. Returns the final packed state."""
+        R = 1 + (ts.shape[0] - 1) // keep
+        if len(leaves) != len(self.sslots):
+            raise ValueError(f"leaves: expected {len(self.sslots)} entries (one a state leaf), got {len(leaves)}")
+        for a, sl in zip(leaves, self.sslots, strict=True):
+            if a is not None and (a.dtype != np.float64 or a.shape != (R, *sl.shape) or not a.flags.c_contiguous):
+                raise ValueError(f"leaves: expected C-ordered float64 arrays of shape {(R, *sl.shape)} or None, "
+                                 f"got {a.dtype} {a.shape}")
+        outs = (ctypes.c_void_p * max(1, len(leaves)))(*[None if a is None else a.ctypes.data for a in leaves])
+        x = np.array(x, np.float64)
+        self._history(_ptr(theta), _ptr(x), ts.shape[0], _ptr(ts), _ptr(us), _ptr(ys), gap, keep, outs)
+        return x
 
     def lanes(self):
         """The batch kernel (``lanes_batch``: :data:`LANES` trials at once in SIMD), built on first use; None
