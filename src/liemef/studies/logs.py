@@ -604,6 +604,31 @@ class SavedRun:
     out: Path
     written: list[Path]
 
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef run`` prints, in order: each line with True where it goes to stderr (a warning)."""
+        run = self.run
+        lines = [(f"Filtered {self.log.ts.shape[0]} samples of {run.log_file} with {run.source.label} "
+                  f"({run.filter})", False)]
+        if run.rejected():
+            lines.append(("Gate rejected samples: " + ", ".join(f"{k} {v}" for k, v in run.rejected().items()),
+                          False))
+        lines += [(f"WARNING: {w}", True) for w in run.warnings()]
+        if not run.ok:
+            return lines
+        return lines + [("Innovation y - h(g_hat) over the present samples:", False), (run.innovation_text, False),
+                        (f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
+                         f"{run.report['substeps_max']} in one)", False),
+                        ("Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, metrics.json, "
+                         f"arrays.npz, {', '.join(p.name for p in self.written[4:])} to {self.out}", False)]
+
+    @property
+    def error(self) -> str | None:
+        """Why the run failed (``liemef run`` exits with status 1), or None."""
+        if self.run.ok:
+            return None
+        return (f"{self.run.message} (cause: {self.run.report['cause']}). No estimates were written; see "
+                f"{self.out / 'failure.json'}")
+
 
 def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,
                   system_file: str | os.PathLike | None = None, topics: str | os.PathLike | None = None,

@@ -108,6 +108,20 @@ class CampaignResult:
 
         return ("setting", "label", "trials", "diverged", *MonteCarloResult.TABLE_HEADER)
 
+    error = None
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef campaign run`` prints at the end, in order: each line with True where it goes to stderr
+        (a setting's diverged trials)."""
+        rate = "--" if self.rate is None else f"{self.rate:.3g}"
+        return [(self.to_markdown(), False),
+                (f"{self.computed} tasks computed, {self.reused} reused from earlier runs; {self.elapsed:.1f} s, "
+                 f"{rate} trial-steps/s on {self.workers} worker(s)", False),
+                *((f"WARNING: setting {s.index} ({s.label}): {r.divergence_summary()}; left out of its statistics",
+                   True) for s, r in zip(self.settings, self.results, strict=True) if r.n_nonfinite),
+                (f"Wrote {self.campaign.out}/summary.md, summary.csv, result.json and settings/*/montecarlo.*",
+                 False)]
+
     def to_markdown(self) -> str:
         """Per window, a table with a row per setting: diverged trials, then per error component the mean
         across trials of its rms over time, with the spread (std across trials)."""
