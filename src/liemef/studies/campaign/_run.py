@@ -29,7 +29,7 @@ import numpy as np
 
 from ... import __version__
 from ...reports import io
-from ._spec import SCHEMA, Campaign, CampaignError, Setting, Task
+from ._spec import RESULT_SCHEMA, Campaign, CampaignError, Setting, Task
 from ._store import RESULT_FILE, CampaignLock, Entry, Store
 from ._task import TaskInput, TaskOutput, config_of, experiment_of, run_task
 
@@ -156,7 +156,7 @@ class CampaignResult:
         """``result.json``: complete, what was computed and reused, throughput, and per setting its folder and
         divergence counts."""
         num = lambda v: None if v is None or not math.isfinite(v) else float(v)  # noqa: E731
-        return {"schema": SCHEMA, "name": self.campaign.name, "complete": True,
+        return {"schema": RESULT_SCHEMA, "name": self.campaign.name, "complete": True,
                 "fingerprint": self.campaign.fingerprint(),
                 "tasks": {"total": self.computed + self.reused, "computed": self.computed, "reused": self.reused},
                 "throughput": {"trial_steps": self.trial_steps, "trial_steps_computed": self.steps_computed,
