@@ -144,7 +144,8 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     from tqdm.auto import tqdm
 
     from ..engines import LogGapWarning
-    from ..filters import Trajectory
+    from ..filters import CAUSES, Trajectory
+    from ..filters._base import nan_after_failure
 
     N = log.ts.shape[0]
     bar = tqdm(total=N, desc="filtering", unit="sample", disable=None if progress and N - 1 > chunk else True,
@@ -170,10 +171,11 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     parts = [(first.g_hat, first.K)] + pieces[1:]
     g_hat, K = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
     n = K.shape[0]
-    if n < N:  # stopped at a failure: the rest of the log has no estimate
-        g_hat = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.full((N - n,) + a.shape[1:], jnp.nan)]),
-                                       g_hat)
-        K = jnp.concatenate([K, jnp.full((N - n,) + K.shape[1:], jnp.nan)])
+    if n < N:  # stopped at a failure: the rest of the log has no estimate, NaN as the failed rows of a run
+        codes = jnp.where(jnp.arange(N) < n, CAUSES.OK.code, traj.status.code)
+        g_hat, K = nan_after_failure(codes, jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.zeros((N - n,) + a.shape[1:], a.dtype)]), (g_hat, K)),
+            first_given=False)
     return Trajectory(ts=jnp.asarray(log.ts), g_hat=g_hat, K=K, status=traj.status, final=traj.final)
 
 
