@@ -188,12 +188,9 @@ def schema(system_name, system_file):
         click.echo(f"{system_name}: {known['description']}")
         click.echo(known["text"])
         return
-    from .studies.logs import resolve_system
-    from .systems._file import format_schema
+    from .studies.logs import schema_text
 
-    source = resolve_system(system_name, system_file)
-    click.echo(f"{source.label}: {source.description}")
-    click.echo(format_schema(source.system))
+    click.echo(schema_text(system_name, system_file))
 
 
 @_command(cli, "dataset")

@@ -93,6 +93,15 @@ def resolve_system(name: str | None = None, file: str | os.PathLike | None = Non
     return LogSystem(user.system, path.stem, f"user system from {path}", user=user)
 
 
+def schema_text(name: str | None = None, file: str | os.PathLike | None = None) -> str:
+    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`):
+    its label and description, then its log columns, units, roles and noise levels, and the CSV header."""
+    from ..systems._file import format_schema
+
+    source = resolve_system(name, file)
+    return f"{source.label}: {source.description}\n{format_schema(source.system)}"
+
+
 def system_schema(name: str) -> dict:
     """What ``liemef run`` and ``liemef schema`` need of the ready system ``name`` before JAX loads: its
     description, log columns (inputs, outputs and sensor blocks, :class:`liemef.reports.io.LogLayout`), state
