@@ -43,8 +43,8 @@ _SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "sim
                          "engines", "metrics", "studies", "reports"})
 # Modules (dotted below the package) that load without JAX: importing them does not run _config.
 _JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "_validate", "studies", "studies.registry",
-                        "studies.logs", "studies.runs", "studies.settings", "studies._schemas", "reports",
-                        "reports.outputs", "reports.io"})
+                        "studies.commands", "studies.logs", "studies.runs", "studies.settings", "studies._schemas",
+                        "reports", "reports.outputs", "reports.io"})
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
     from . import (  # noqa: F401

@@ -93,6 +93,15 @@ def resolve_system(name: str | None = None, file: str | os.PathLike | None = Non
     return LogSystem(user.system, path.stem, f"user system from {path}", user=user)
 
 
+def schema_text(name: str | None = None, file: str | os.PathLike | None = None) -> str:
+    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`):
+    its label and description, then its log columns, units, roles and noise levels, and the CSV header."""
+    from ..systems._file import format_schema
+
+    source = resolve_system(name, file)
+    return f"{source.label}: {source.description}\n{format_schema(source.system)}"
+
+
 def system_schema(name: str) -> dict:
     """What ``liemef run`` and ``liemef schema`` need of the ready system ``name`` before JAX loads: its
     description, log columns (inputs, outputs and sensor blocks, :class:`liemef.reports.io.LogLayout`), state
@@ -144,7 +153,8 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     from tqdm.auto import tqdm
 
     from ..engines import LogGapWarning
-    from ..filters import Trajectory
+    from ..filters import CAUSES, Trajectory
+    from ..filters._base import nan_after_failure
 
     N = log.ts.shape[0]
     bar = tqdm(total=N, desc="filtering", unit="sample", disable=None if progress and N - 1 > chunk else True,
@@ -170,10 +180,11 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     parts = [(first.g_hat, first.K)] + pieces[1:]
     g_hat, K = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *parts)
     n = K.shape[0]
-    if n < N:  # stopped at a failure: the rest of the log has no estimate
-        g_hat = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, jnp.full((N - n,) + a.shape[1:], jnp.nan)]),
-                                       g_hat)
-        K = jnp.concatenate([K, jnp.full((N - n,) + K.shape[1:], jnp.nan)])
+    if n < N:  # stopped at a failure: the rest of the log has no estimate, NaN as the failed rows of a run
+        codes = jnp.where(jnp.arange(N) < n, CAUSES.OK.code, traj.status.code)
+        g_hat, K = nan_after_failure(codes, jax.tree_util.tree_map(
+            lambda a: jnp.concatenate([a, jnp.zeros((N - n,) + a.shape[1:], a.dtype)]), (g_hat, K)),
+            first_given=False)
     return Trajectory(ts=jnp.asarray(log.ts), g_hat=g_hat, K=K, status=traj.status, final=traj.final)
 
 
@@ -603,6 +614,31 @@ class SavedRun:
     log: Any = field(repr=False)
     out: Path
     written: list[Path]
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef run`` prints, in order: each line with True where it goes to stderr (a warning)."""
+        run = self.run
+        lines = [(f"Filtered {self.log.ts.shape[0]} samples of {run.log_file} with {run.source.label} "
+                  f"({run.filter})", False)]
+        if run.rejected():
+            lines.append(("Gate rejected samples: " + ", ".join(f"{k} {v}" for k, v in run.rejected().items()),
+                          False))
+        lines += [(f"WARNING: {w}", True) for w in run.warnings()]
+        if not run.ok:
+            return lines
+        return lines + [("Innovation y - h(g_hat) over the present samples:", False), (run.innovation_text, False),
+                        (f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
+                         f"{run.report['substeps_max']} in one)", False),
+                        ("Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, metrics.json, "
+                         f"arrays.npz, {', '.join(p.name for p in self.written[4:])} to {self.out}", False)]
+
+    @property
+    def error(self) -> str | None:
+        """Why the run failed (``liemef run`` exits with status 1), or None."""
+        if self.run.ok:
+            return None
+        return (f"{self.run.message} (cause: {self.run.report['cause']}). No estimates were written; see "
+                f"{self.out / 'failure.json'}")
 
 
 def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,

@@ -22,6 +22,11 @@ from .. import __version__
 from ..reports import io, outputs
 
 
+def wrote(files, out: Path) -> str:
+    """The line that names the ``files`` written to ``out``."""
+    return f"Wrote {', '.join(Path(p).name for p in files)} to {out}"
+
+
 @dataclass(frozen=True)
 class SavedMonteCarlo:
     """What :func:`montecarlo_to` did: the ``experiment`` run, its ``result``
@@ -34,6 +39,25 @@ class SavedMonteCarlo:
     out: Path | None
     written: list[Path]
     usable: bool
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef montecarlo`` prints, in order: each line with True where it goes to stderr (a warning)."""
+        exp, result = self.experiment, self.result
+        lines = [(f"{exp.name}: {exp.title}\n  {exp.paper}", False), (result.format(), False),
+                 (f"{result.runs} trials in {result.elapsed:.1f} s ({result.runs / result.elapsed:.1f} trials/s "
+                  f"including compilation), {result.batch_size} per batch", False)]
+        if result.n_nonfinite:
+            lines.append((f"WARNING: {result.divergence_summary()} (trials "
+                          f"{', '.join(map(str, result.nonfinite_trials[:20]))}); they are left out of the "
+                          "statistics", True))
+        if self.out is not None:
+            lines.append((wrote(self.written, self.out), False))
+        return lines
+
+    @property
+    def error(self) -> str | None:
+        """Why ``liemef montecarlo`` exits with status 1 (no usable trial), or None."""
+        return None if self.usable else f"no usable trial: {self.result.divergence_summary()}"
 
 
 def montecarlo_to(out: str | os.PathLike | None, experiment: str, runs: int = 100, *, seed: int = 0,
@@ -79,6 +103,11 @@ class SavedReproduction:
     text: str
     warnings: tuple[str, ...]
     out: Path
+    error = None
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef reproduce`` prints, in order: each line with True where it goes to stderr (a warning)."""
+        return [(self.text, False), *((w, True) for w in self.warnings)]
 
 
 @dataclass(frozen=True)
@@ -97,6 +126,20 @@ class SavedReproductions:
         from .experiments import Failure
 
         return [r for r in self.done if isinstance(r, Failure)]
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef reproduce all`` prints at the end: each line with True where it goes to stderr."""
+        failed = self.failed
+        return [(f"Wrote {len(self.done) - len(failed)} of {len(self.done)} experiments and {self.index.name} to "
+                 f"{self.out}", False), *((f"FAILED {r.experiment}: {r.error}", True) for r in failed)]
+
+    @property
+    def error(self) -> str | None:
+        """Why ``liemef reproduce all`` exits with status 1 (an experiment failed), or None."""
+        failed = self.failed
+        if not failed:
+            return None
+        return f"{len(failed)} experiment(s) failed: {', '.join(r.experiment for r in failed)}"
 
 
 def _shown(text: str, stage: Path, out: Path) -> str:
@@ -170,6 +213,14 @@ class SavedC:
         :func:`liemef.codegen.export_c`)."""
         return self.exported.backend
 
+    error = None
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef export-c`` prints: the files and the C API."""
+        return [(f"Exported {self.source.label} ({self.filter!r}) as C99 ({self.backend} code):", False),
+                (f"  {self.exported.header}\n  {self.exported.source}", False),
+                (self.exported.api_summary(self.source.system), False)]
+
 
 def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
                 name: str | None = None, connection: str = "zero", order: str = "second", integrator: str = "rkmk4",
@@ -224,6 +275,11 @@ class SavedTune:
     markdown: str = field(repr=False)
     out: Path
     written: list[Path]
+    error = None
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef tune`` prints: the report and the files."""
+        return [(self.markdown, False), (f"Wrote {' and '.join(p.name for p in self.written)} to {self.out}", False)]
 
 
 def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "truth", trials=None,
@@ -276,6 +332,16 @@ class SavedComparison:
     def usable(self) -> bool:
         """False when every trial of every filter failed."""
         return not (self.total and self.failed == self.total)
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef compare`` prints, in order: each line with True where it goes to stderr (a warning)."""
+        return [(self.markdown, False), *((f"WARNING: {line}", True) for line in self.warnings),
+                (wrote(self.written, self.out), False)]
+
+    @property
+    def error(self) -> str | None:
+        """Why ``liemef compare`` exits with status 1 (no usable trial), or None."""
+        return None if self.usable else f"no usable trial: every filter failed in all {self.total} trials"
 
 
 def compare_to(out: str | os.PathLike, study: str, *, runs: int | None = None, seed: int = 0,

@@ -72,7 +72,7 @@ from ... import _validate
 from ...groups import R3, SO3, TSO3, LieGroup
 from ...systems import AbstractSystem
 from .. import FilterState, Trajectory
-from .._base import check_dt, check_element, check_log, check_time
+from .._base import check_dt, check_element, check_log, check_time, nan_after_failure
 from .._status import CAUSES, Status
 
 MADGWICK_GAIN = 0.041
@@ -243,7 +243,7 @@ class _AhrsFilter(eqx.Module):
         N = ts.shape[0]
         n, st = self.n, state.status
         q, b = self._split(state.g_hat)
-        Q, B = np.full((N, 4), np.nan), np.full((N, 3), np.nan)
+        Q, B = np.zeros((N, 4)), np.zeros((N, 3))
         Q[0], B[0] = q, b
         dts = np.diff(ts)
         failed, k_fail, done = int(st.code) != CAUSES.OK.code, -1, 0
@@ -273,10 +273,9 @@ class _AhrsFilter(eqx.Module):
             substeps_capped=st.substeps_capped, gaps=st.gaps,
             longest_gap=jnp.maximum(st.longest_gap, jnp.asarray(float(dts[:done].max()) if done else 0.0)),
             inputs_held=st.inputs_held)
-        good = np.isfinite(Q).all(axis=1)
-        last = int(np.flatnonzero(good)[-1])
-        K = np.zeros((N, n, n))
-        K[~good] = np.nan
+        last = done - (k_fail >= 0)  # the last row filled; the rows after it hold the failed status's NaN
+        codes = np.where(np.arange(N) <= last, CAUSES.OK.code, code).astype(np.int32)
+        Q, B, K = nan_after_failure(codes, (Q, B, np.zeros((N, n, n))), first_given=True)
         final = FilterState(g_hat=self._join(Q[last], B[last]), K=jnp.zeros((n, n)), u_last=jnp.asarray(u_last),
                             status=status)
         M = keep_every

@@ -29,7 +29,7 @@ import numpy as np
 
 from ... import __version__
 from ...reports import io
-from ._spec import SCHEMA, Campaign, CampaignError, Setting, Task
+from ._spec import RESULT_SCHEMA, Campaign, CampaignError, Setting, Task
 from ._store import RESULT_FILE, CampaignLock, Entry, Store
 from ._task import TaskInput, TaskOutput, config_of, experiment_of, run_task
 
@@ -108,6 +108,20 @@ class CampaignResult:
 
         return ("setting", "label", "trials", "diverged", *MonteCarloResult.TABLE_HEADER)
 
+    error = None
+
+    def messages(self) -> list[tuple[str, bool]]:
+        """What ``liemef campaign run`` prints at the end, in order: each line with True where it goes to stderr
+        (a setting's diverged trials)."""
+        rate = "--" if self.rate is None else f"{self.rate:.3g}"
+        return [(self.to_markdown(), False),
+                (f"{self.computed} tasks computed, {self.reused} reused from earlier runs; {self.elapsed:.1f} s, "
+                 f"{rate} trial-steps/s on {self.workers} worker(s)", False),
+                *((f"WARNING: setting {s.index} ({s.label}): {r.divergence_summary()}; left out of its statistics",
+                   True) for s, r in zip(self.settings, self.results, strict=True) if r.n_nonfinite),
+                (f"Wrote {self.campaign.out}/summary.md, summary.csv, result.json and settings/*/montecarlo.*",
+                 False)]
+
     def to_markdown(self) -> str:
         """Per window, a table with a row per setting: diverged trials, then per error component the mean
         across trials of its rms over time, with the spread (std across trials)."""
@@ -142,7 +156,7 @@ class CampaignResult:
         """``result.json``: complete, what was computed and reused, throughput, and per setting its folder and
         divergence counts."""
         num = lambda v: None if v is None or not math.isfinite(v) else float(v)  # noqa: E731
-        return {"schema": SCHEMA, "name": self.campaign.name, "complete": True,
+        return {"schema": RESULT_SCHEMA, "name": self.campaign.name, "complete": True,
                 "fingerprint": self.campaign.fingerprint(),
                 "tasks": {"total": self.computed + self.reused, "computed": self.computed, "reused": self.reused},
                 "throughput": {"trial_steps": self.trial_steps, "trial_steps_computed": self.steps_computed,

@@ -22,7 +22,11 @@ from pathlib import Path
 from typing import Any
 
 SCHEMA = "liemef.studies.campaign/1"
-"""Version tag of ``campaign.json`` and of the manifest lines."""
+"""Version tag of ``campaign.json`` (the campaign an output folder holds; checked on resume)."""
+TASK_SCHEMA = "liemef.studies.campaign.task/1"
+"""Version tag of a line of ``manifest.jsonl`` (one finished task: file, SHA-256, trials, time)."""
+RESULT_SCHEMA = "liemef.studies.campaign.result/1"
+"""Version tag of ``result.json`` (a finished campaign: tasks, throughput, settings)."""
 KEYS = ("name", "experiment", "experiment_file", "quick", "base", "grid", "settings", "seeds", "seed",
         "batch_size", "trials_per_task", "out")
 """The keys of a campaign file, in the order of :class:`Campaign`'s fields."""

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ...reports import io
-from ._spec import SCHEMA, Campaign, CampaignError, Task
+from ._spec import SCHEMA, TASK_SCHEMA, Campaign, CampaignError, Task
 
 CAMPAIGN_FILE = "campaign.json"
 MANIFEST_FILE = "manifest.jsonl"
@@ -67,7 +67,7 @@ class Entry:
 
     def to_dict(self) -> dict:
         """The manifest line's JSON data."""
-        return {"schema": SCHEMA, "task": self.task, "file": self.file, "sha256": self.sha256,
+        return {"schema": TASK_SCHEMA, "task": self.task, "file": self.file, "sha256": self.sha256,
                 "trials": [self.start, self.stop], "samples": self.samples, "seconds": self.seconds,
                 "worker": self.worker, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 

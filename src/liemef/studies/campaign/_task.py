@@ -102,7 +102,7 @@ def config_of(exp, quick: bool, overrides) -> Any:
 
 def run_task(task: TaskInput) -> TaskOutput:
     """Run one task on this process (a Dask worker, or the caller): its trials through the cached compiled
-    batch of its setting (:func:`liemef.studies.experiments._montecarlo.run_trials`)."""
+    batch of its setting (:func:`liemef.studies.experiments.run_trials`)."""
     from ..experiments import run_trials
 
     t0 = time.perf_counter()

@@ -1,0 +1,282 @@
+"""The commands of ``liemef``, as data: each command's help and its arguments and options, declared once.
+
+:mod:`liemef.cli` builds its click commands from :data:`COMMANDS` (one small function turns a :class:`Param` into
+a click argument or option) and only parses, calls the library and prints. The choices and lists here come from
+:mod:`liemef.studies.registry` and :mod:`liemef._names`; like them, this module loads without JAX (and without
+click), so that ``liemef --help`` answers at once.
+
+A parameter's ``type`` is ``None`` (text), ``int``, ``float``, :data:`PATH` (a path), ``("choice", names)``
+or ``("at least", n)`` (an integer >= n).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from .. import _names
+from . import registry
+
+PATH = "path"
+"""The ``type`` of a parameter that is a file or folder."""
+PROGRESS = "--progress/--no-progress"
+"""The progress switch; its value is True only when stderr is a terminal (quiet in logs and pipes)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One argument (``argument=True``) or option of a command: its click declarations (``decls``), its
+    ``type`` (see the module's text) and the rest of its click attributes (``attrs``: help, default, ...)."""
+
+    decls: tuple[str, ...]
+    type: Any = None
+    argument: bool = False
+    attrs: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Command:
+    """A command: its ``help`` and its ``params`` in the order ``--help`` lists them."""
+
+    help: str
+    params: tuple[Param, ...] = ()
+
+
+def option(*decls: str, type: Any = None, **attrs) -> Param:
+    """An option of a command (``attrs`` as click's: help, default, show_default, required, ...)."""
+    return Param(decls, type, False, attrs)
+
+
+def argument(*decls: str, type: Any = None, **attrs) -> Param:
+    """An argument of a command."""
+    return Param(decls, type, True, attrs)
+
+
+def progress(text: str) -> Param:
+    """``--progress/--no-progress``, on by default, shown only when stderr is a terminal."""
+    return option(PROGRESS, default=True, show_default=True, help=text + " Shown only when stderr is a terminal.")
+
+
+def choice(names) -> tuple:
+    """The ``type`` of a parameter that takes one of ``names``."""
+    return ("choice", tuple(names))
+
+
+def at_least(n: int) -> tuple:
+    """The ``type`` of an integer parameter >= ``n``."""
+    return ("at least", n)
+
+
+EXPERIMENTS = tuple(sorted(registry.names("experiment")))
+COMPARISONS = registry.names("comparison")
+SYSTEMS = tuple(sorted(registry.SYSTEMS))
+
+FORCE = option("--force", is_flag=True, help="Replace --out even if it holds files of another command.")
+SETTINGS = option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+                  help="Override any config field (repeatable), e.g. --set dt=0.01 --set alpha=0.1.")
+OUT = option("--out", required=True, type=PATH, help="Output folder (created if missing).")
+CONNECTION = option("--connection", type=choice(_names.CONNECTIONS), default="zero", show_default=True)
+ORDER = option("--order", type=choice(_names.ORDERS), default="second", show_default=True)
+ALPHA = option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
+SUBSTEPS = option("--substeps", default="auto", show_default=True,
+                  help="Integrator steps per sample interval: auto (by stiffness) or a number.")
+SYSTEM_FILE = option("--system-file", type=PATH, help="A Python file that defines `system`.")
+
+
+def system(text: str) -> Param:
+    """``--system NAME``, a ready system, with the help ``text``."""
+    return option("--system", "system_name", type=choice(SYSTEMS), help=text)
+
+
+CLI = Command("""Second-order-optimal minimum-energy filtering on matrix Lie groups.
+
+    Exit status: 0 ok, 1 a failed run (or no usable trial, or a full disk), 2 bad input, 130 interrupted.""")
+
+REPRODUCE = Command(
+    "Run a paper EXPERIMENT and write metrics.json, arrays.npz, its figures and error tables to --out, then print "
+    "the error table; with --runs N (or the experiment's default) also a Monte Carlo of N seeded trials "
+    "(montecarlo.md/.csv/.json/.npz).\n\n`reproduce all --out DIR` runs every experiment at a reduced size (--quick, "
+    "the default) or at the papers' size (--full), one folder each, and writes DIR/index.md. `reproduce --list` "
+    "lists the experiments with their papers, figures and tables.\n\n\b\nExperiments:\n"
+    + "\n".join(f"  {s.name:<14} {s.paper}" for s in registry.STUDIES["experiment"].values()), (
+        argument("experiment", required=False, type=choice([*EXPERIMENTS, "all"]), metavar="EXPERIMENT|all"),
+        option("--list", "list_", is_flag=True, help="List the experiments (paper, figures, tables) and exit."),
+        option("--out", type=PATH, help="Output folder (created if missing)."),
+        option("--quick/--full", default=None, help="The experiment's reduced laptop size, or the paper's (default: "
+               "--full for one experiment, --quick for all)."),
+        option("--runs", type=at_least(0), help="Monte Carlo trials (default: the experiment's; 0: the seeded run "
+               "only)."),
+        option("--seed", type=int, help="Random seed (default: the experiment's, 0)."),
+        option("--duration", type=float, help="Final time T in seconds (default: the paper's)."),
+        option("--connection", type=choice(_names.CONNECTIONS), help="Cartan-Schouten connection (default: zero)."),
+        option("--order", type=choice(_names.ORDERS), help="second: the paper filter; first: the left-invariant "
+               "EKF."),
+        SETTINGS, FORCE, progress("Monte Carlo progress on stderr.")))
+
+MONTECARLO = Command(
+    """Run N seeded trials of EXPERIMENT, batched with vmap, and print the statistics: per trial the mean, std
+    and rms over time of each error component, then across trials their mean, spread and percentiles. Exit
+    status 1 when no trial is usable (every one diverged): then --out holds failure.json alone.""", (
+        argument("experiment", type=choice(EXPERIMENTS), metavar="EXPERIMENT"),
+        option("--runs", type=at_least(1), default=100, show_default=True, help="Number of trials."),
+        option("--seed", type=int, default=0, show_default=True,
+               help="Trial i uses jax.random.split(jax.random.key(seed), runs)[i]."),
+        option("--batch-size", type=at_least(1), default=registry.DEFAULT_BATCH_SIZE, show_default=True,
+               help="Trials per compiled vmap batch (the results do not depend on it)."),
+        option("--out", type=PATH, help="Write montecarlo.npz/.json/.md/.csv to this folder (created if missing)."),
+        option("--duration", type=float,
+               help=f"Final time T in seconds (default: the paper's); {registry.DURATION_RULE}."),
+        option("--quick", is_flag=True, help="Start from the experiment's reduced config."),
+        SETTINGS, FORCE, progress("Trials done, elapsed time and ETA on stderr.")))
+
+RUN = Command(
+    """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
+    innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
+    only failure.json, says where, when and why, and exits with status 1.""", (
+        system("A ready system the log was recorded with (or --system-file)."),
+        option("--system-file", type=PATH, help="A Python file that defines `system` (your own liemef system) and "
+               "optionally K0, x0, initial_guess(y0)."),
+        option("--log", "log_path", required=True, type=PATH,
+               help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
+                    "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag with "
+                    "--topics."),
+        option("--topics", type=PATH, help="With a ROS 1 .bag or a ROS 2 bag folder as --log: the JSON/TOML "
+               "mapping from topics to the system's columns (liemef.reports.rosbag)."),
+        option("--tum/--no-tum", default=False, help="Also write the estimates as a TUM trajectory, estimates.tum."),
+        OUT,
+        option("--x0", help="Initial estimate in coordinates, comma separated (default: the system file's x0, "
+               "else read off the first present measurements)."),
+        option("--k0", type=float, help="Initial gain K(0) = k0 * I (default: the system file's K0, else 1)."),
+        option("--k0-diag", help="Initial gain K(0) = diag(...), comma separated (overrides --k0)."),
+        CONNECTION, ORDER, ALPHA,
+        option("--interpolation", type=choice(_names.INTERPOLATIONS), default="hold", show_default=True,
+               help="Inputs and dense measurements held over each interval, or linear between samples."),
+        option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
+               help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
+               "at their own time (the hybrid filter: recommended for sample sensors)."),
+        SUBSTEPS,
+        option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
+               "measurements not held (default: 10 x the median interval)."),
+        option("--chunk", type=at_least(16), default=65536, show_default=True,
+               help="Samples per compiled chunk (progress is shown between chunks)."),
+        option("--params", "params_file", type=PATH,
+               help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu."),
+        FORCE, progress("Progress on stderr (on a terminal).")))
+
+EXPORT_C = Command(
+    """Write the filter of a ready system (--system) or of your own (--system-file) as standalone C99: NAME.h
+    and NAME.c in --out, with NAME_init, NAME_step (one sample interval, exactly as the filter's step), NAME_run
+    and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
+    of the source (export again for new ones). The two files are written in place, each whole or not at all
+    (the folder may be your project's). See docs/export-c.md.""", (
+        system("A ready system (or --system-file)."), SYSTEM_FILE,
+        option("--out", required=True, type=PATH, help="Folder for NAME.h and NAME.c (created if missing)."),
+        option("--name", help="The C prefix of every exported name, a C identifier (default: the system's name with "
+                              "- replaced by _)."),
+        CONNECTION, ORDER,
+        option("--integrator", type=choice(_names.EXPORT_INTEGRATORS), default="rkmk4", show_default=True),
+        ALPHA, SUBSTEPS,
+        option("--max-substeps", type=at_least(1), default=256, show_default=True,
+               help="The most steps 'auto' takes in one interval."),
+        option("--backend", type=choice(_names.C_BACKENDS), default="auto", show_default=True,
+               help="scalar: straight-line code (fast, its size grows as n^3); array: loops over arrays (compact); "
+                    "auto: scalar up to n = 12.")))
+
+SCHEMA_COMMAND = Command(
+    """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
+    sensors' noise levels, and the CSV header that `liemef run` expects.""", (
+        argument("system_name", required=False, type=choice(SYSTEMS), metavar="SYSTEM"), SYSTEM_FILE))
+
+DATASET = Command(
+    """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
+    `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
+    magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
+    localization). PATH may also be the id of a recording present in the real-data folder (`broad 16`,
+    `wifibot 4`; found by reading the files).""", (
+        argument("kind", type=choice(registry.DATASETS)), argument("path", type=PATH),
+        option("--out", required=True, type=PATH,
+               help="The log to write (.csv, or .npz), in the columns of the matching ready system."),
+        option("--truth", type=PATH, help="Also write the ground truth here (CSV)."),
+        option("--seconds", type=float, help="Only the first SECONDS of the recording."),
+        option("--gps-std", type=float, default=0.1, show_default=True,
+               help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0)."),
+        option("--norms", is_flag=True, help="broad: also the raw norms, a log for the system attitude-imu.")))
+
+TUNE = Command(
+    """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
+    search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
+    set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`).""", (
+        argument("data", type=choice(registry.TUNE_DATA)),
+        option("--out", required=True, type=PATH,
+               help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md."),
+        option("--objective", type=choice(registry.TUNE_OBJECTIVES), default="truth", show_default=True,
+               help="; ".join(f"{k}: {v}" for k, v in registry.TUNE_OBJECTIVES.items()) + "."),
+        option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present)."),
+        option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's)."),
+        option("--seconds", type=float, default=90.0, show_default=True,
+               help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`."),
+        option("--maxfev", type=at_least(1), default=40, show_default=True,
+               help="Evaluations of the shared search (each runs every trial)."),
+        option("--fold-maxfev", type=at_least(1), default=12, show_default=True,
+               help="Evaluations of each leave-one-out fold's refinement."),
+        option("--system", "system_name", type=choice(registry.TUNE_SYSTEMS), default="attitude-imu",
+               show_default=True, help="The model: " + " or ".join(f"{k} ({v})" for k, v in
+                                                                   registry.TUNE_SYSTEMS.items()) + "."),
+        option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
+               help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
+                    "ending at t_k), as compare broad's mef-imu-d."),
+        option("--realdata", type=PATH, help="The real-data folder (default: found)."),
+        FORCE, progress("A progress bar on stderr.")))
+
+COMPARE = Command(
+    "Compare the minimum-energy filter with the filters people use on STUDY, on the same trials.\n\n"
+    "\b\nFilters (--filters; each study's default set is in its tables):\n"
+    + "\n".join(f"  {name:<11} {description}" for name, description in registry.FILTERS.items()) + "\n\n"
+    + "\n\n".join(f"{s.name}: {s.help}" for s in registry.STUDIES["comparison"].values())
+    + "\n\nTrials where a filter fails are counted and named, and left out of the statistics. Exit status 1 when "
+    "no trial of any filter is usable.", (
+        argument("study", type=choice(COMPARISONS)), OUT,
+        option("--runs", type=at_least(1), help="Trials (the same for every filter; default: the study's)."),
+        option("--seed", type=at_least(0), default=0, show_default=True,
+               help="First seed: trial i uses split(key(seed), runs)[i] (localization with --set rng=numpy: "
+                    "ukfm's stream seeded seed + i, as inertial-navigation; wifibot: the GPS noise of seed + i)."),
+        option("--filters", metavar="A,B,...", help="Filters to compare (default: all of the study's)."),
+        option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+               help="Any other setting of the study (repeatable). " + " ".join(
+                   f"{s.name}: {', '.join(s.settings)}." for s in registry.STUDIES["comparison"].values())),
+        FORCE, progress("One line per filter.")))
+
+CAMPAIGN = Command(
+    """Monte Carlo campaigns over a grid of settings on Dask: resumable, fault-tolerant.
+
+    A campaign file (TOML or YAML) names an experiment (or an experiment file), a grid of config values, the
+    seeds per setting and an output folder; see `liemef campaign run --help` and docs/campaigns.md.""")
+
+CAMPAIGN_FILE = argument("file", type=PATH, metavar="FILE")
+CAMPAIGN_OUT = option("--out", type=PATH, help="Output folder (default: the file's `out`).")
+
+CAMPAIGN_RUN = Command(
+    """Run the campaign FILE, or resume it: tasks already in its output folder are not computed again.
+
+    Each setting's trials run as tasks of whole compiled vmap batches on Dask; each result is written to the
+    output folder as it arrives (tasks/, manifest.jsonl with a SHA-256 per task). When all are finished:
+    settings/*/montecarlo.{npz,json,md,csv}, summary.md, summary.csv and result.json. Trial i of a setting
+    uses the key of `liemef montecarlo` trial i, so the statistics are the same. Exit status: 0 when complete,
+    1 on an error (the failed task is named; finished tasks are kept), 130 when interrupted (Ctrl-C or
+    SIGTERM): run the same command again to resume.""", (
+        CAMPAIGN_FILE, CAMPAIGN_OUT,
+        option("--scheduler", metavar="tcp://HOST:PORT",
+               help="Use this running Dask scheduler and its workers (default: a local cluster)."),
+        option("--workers", type=at_least(1), default=2, show_default=True,
+               help="Worker processes of the local cluster (one thread each)."),
+        progress("Tasks done, trial-steps/s and time left on stderr.")))
+
+CAMPAIGN_STATUS = Command(
+    """How far the campaign FILE has come: finished tasks per setting (verified against their checksums),
+    and whether its results are complete. Runs nothing.""", (CAMPAIGN_FILE, CAMPAIGN_OUT))
+
+COMMANDS: dict[str, Command] = {
+    "liemef": CLI, "reproduce": REPRODUCE, "montecarlo": MONTECARLO, "run": RUN, "export-c": EXPORT_C,
+    "schema": SCHEMA_COMMAND, "dataset": DATASET, "tune": TUNE, "compare": COMPARE, "campaign": CAMPAIGN,
+    "campaign run": CAMPAIGN_RUN, "campaign status": CAMPAIGN_STATUS}
+"""Every command of ``liemef`` by its name (a subcommand as ``"campaign run"``)."""
