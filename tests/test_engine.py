@@ -281,8 +281,9 @@ def _two_weight_sets(flt):
 
 @pytest.mark.parametrize("keep_every", [1, 4])
 def test_scan_by_c_under_jit_and_vmap(keep_every):
-    """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states, logs and weights (the Monte Carlo
-    engine's form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included."""
+    """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states and logs (the Monte Carlo engine's
+    form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included; over the
+    weights: ``test_scan_by_c_vmaps_over_weights``."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
     logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
     ts = jnp.asarray(logs[0][1])
@@ -298,7 +299,18 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
         c, x = batch("c", n_valid), batch("xla", n_valid)
         assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
         assert_trees_close(c, x)
-    # weights as traced data: vmap over two filters' parameters through the same kernel
+
+
+def test_scan_by_c_vmaps_over_weights():
+    """Weights as traced data (the Monte Carlo engine's form over filters): ``jit(vmap(...))`` over two filters'
+    parameters through the same kernel equals the XLA scan's vmap. Apart from
+    ``test_scan_by_c_under_jit_and_vmap``, whose ``keep_every`` it does not depend on: one run, not one per
+    parameter."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
+    logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
+    ts = jnp.asarray(logs[0][1])
+    states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[lg[0] for lg in logs])
+    us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
     both, static = _two_weight_sets(flt)
 
     def run_with(params, engine):
