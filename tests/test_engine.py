@@ -123,11 +123,13 @@ def test_step_equals_xla_and_chains():
                  flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="c"))
 
 
-@pytest.mark.parametrize("system", ["tse2", "attitude-bias", "attitude"])
+@pytest.mark.parametrize("system", ["tse2", pytest.param("attitude-bias", marks=pytest.mark.slow), "attitude"])
 def test_run_batch_equals_single_runs(system):
     """Nine trials (two SIMD groups and a remainder) with their own logs and initial states, one of which fails,
     on two threads: each equals its own run, and the XLA engine's vmap. The attitude's solve with its inertia
-    as data is an LU block, which has no lane form: its batch runs one trial at a time, saying why."""
+    as data is an LU block, which has no lane form: its batch runs one trial at a time, saying why. TSE(2) holds
+    the lane form in ``make test``; the attitude with a gyro bias, a second lane form and the heaviest variant
+    (about 30 s, mostly compiling), runs in ``make test-slow``."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS[system].make())
     logs = [_log(flt, n=50, seed=10 + b) for b in range(9)]
     logs[5][3][30] = 1e200  # trial 5 fails at interval 30, in the middle of the second lane group
@@ -344,8 +346,9 @@ def _two_weight_sets(flt):
 
 @pytest.mark.parametrize("keep_every", [1, 4])
 def test_scan_by_c_under_jit_and_vmap(keep_every):
-    """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states, logs and weights (the Monte Carlo
-    engine's form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included."""
+    """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states and logs (the Monte Carlo engine's
+    form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included; over the
+    weights: ``test_scan_by_c_vmaps_over_weights``."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
     logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
     ts = jnp.asarray(logs[0][1])
@@ -361,7 +364,18 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
         c, x = batch("c", n_valid), batch("xla", n_valid)
         assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
         assert_trees_close(c, x)
-    # weights as traced data: vmap over two filters' parameters through the same kernel
+
+
+def test_scan_by_c_vmaps_over_weights():
+    """Weights as traced data (the Monte Carlo engine's form over filters): ``jit(vmap(...))`` over two filters'
+    parameters through the same kernel equals the XLA scan's vmap. Apart from
+    ``test_scan_by_c_under_jit_and_vmap``, whose ``keep_every`` it does not depend on: one run, not one per
+    parameter."""
+    flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
+    logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
+    ts = jnp.asarray(logs[0][1])
+    states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[lg[0] for lg in logs])
+    us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
     both, static = _two_weight_sets(flt)
 
     def run_with(params, engine):
