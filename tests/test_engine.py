@@ -171,8 +171,7 @@ def test_lane_groups_compute_each_trials_bits():
         lanes = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1)
         single = kern.batch(kern.theta(flt), x, ts, us, ys, 0.2, 1, threads=1, lanes=False)
     assert kern.lanes() is not None, kern.lanes_error
-    for a, b in zip(lanes, single, strict=True):
-        assert a.tobytes() == b.tobytes()
+    _assert_same_bits(lanes, single)
     assert (lanes[2] == 0).all()
 
 
@@ -197,16 +196,26 @@ def _inverse_system():
     return SensorSystem(Rn[2], _drift, sensors, Noise.density([0.1, 0.2]), inputs=("a",))
 
 
+def _inverse_filter_and_log(n=30, trials=8):
+    """The filter of :func:`_inverse_system`, and a log of ``trials`` trials of ``n`` samples with their own
+    inputs and no measurement yet (each test places its samples)."""
+    ts = 0.01 * np.arange(n)
+    us = np.stack([0.1 * np.sin(ts + b)[:, None] for b in range(trials)])
+    return liemef.MinimumEnergyFilter(_inverse_system()), ts, us, np.full((trials, n, 2), np.nan)
+
+
+def _assert_same_bits(lanes, single):
+    """The batch's outputs (lane groups) equal the one-trial-at-a-time kernel's, bit for bit."""
+    for a, b in zip(lanes, single, strict=True):
+        assert a.tobytes() == b.tobytes()
+
+
 def test_lanes_that_take_different_arms_of_a_cond_keep_their_bits():
     """An interval without a sample in force takes the prediction alone (a ``cond``), so trials of one lane group
     with their samples at different times take different arms in one step: each lane gets the one-at-a-time
     kernel's bits. The output 1/x is infinite at the start x = 0: the trials whose first interval has that
     sample fail there as non-finite, and the infinities of the arm they take reach none of the others."""
-    flt = liemef.MinimumEnergyFilter(_inverse_system())
-    n = 30
-    ts = 0.01 * np.arange(n)
-    us = np.stack([0.1 * np.sin(ts + b)[:, None] for b in range(8)])
-    ys = np.full((8, n, 2), np.nan)
+    flt, ts, us, ys = _inverse_filter_and_log()
     for b in range(8):
         ys[b, 1 + b % 3::3, 0] = 0.05 * b  # positions at times that differ within each group of four
         ys[b, 5::7, 1] = 2.0
@@ -215,8 +224,7 @@ def test_lanes_that_take_different_arms_of_a_cond_keep_their_bits():
     lanes, single, kern = _batch_both_ways(flt, [[0.0, 0.5]] * 8, ts, us, ys)
     assert kern.lanes() is not None, kern.lanes_error
     assert "any_act" in _kernel._translate_lanes(kern.traced)  # the cond is in lane form, not one trial at a time
-    for a, b in zip(lanes, single, strict=True):
-        assert a.tobytes() == b.tobytes()
+    _assert_same_bits(lanes, single)
     assert [int(c) for c in lanes[2]] == [0, CAUSES.index("non-finite")] * 4
 
 
@@ -224,18 +232,13 @@ def test_lanes_that_agree_on_a_cond_keep_their_bits():
     """Trials on one sample grid take the same arm of each ``cond`` in every step (the batch kernel then runs
     that arm alone): each lane gets the one-at-a-time kernel's bits, from starts on and off x = 0, where the
     output 1/x is infinite but has no sample until the estimate has left it."""
-    flt = liemef.MinimumEnergyFilter(_inverse_system())
-    n = 30
-    ts = 0.01 * np.arange(n)
-    us = np.stack([0.1 * np.sin(ts + b)[:, None] for b in range(8)])
-    ys = np.full((8, n, 2), np.nan)
+    flt, ts, us, ys = _inverse_filter_and_log()
     for b in range(8):
         ys[b, 2::4, 0] = 0.05 * b
         ys[b, 9::10, 1] = 2.0
     lanes, single, kern = _batch_both_ways(flt, [[0.0, 0.5], [0.3, -0.2]] * 4, ts, us, ys)
     assert kern.lanes() is not None, kern.lanes_error
-    for a, b in zip(lanes, single, strict=True):
-        assert a.tobytes() == b.tobytes()
+    _assert_same_bits(lanes, single)
     assert (lanes[2] == 0).all()
 
 
