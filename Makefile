@@ -25,9 +25,11 @@ demo: $(STAMP)
 JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(CURDIR)/.cache/liemef
 
 # Where `make test`'s time goes (cold caches): compiling, not computing. Besides the filters' own programs, each
-# eager jnp operation on a new shape is a small XLA compile of its own, about 80 ms of CPU each (the first
-# `liemef run` of tests/test_cli_run.py spends ~40 % of its time in ~190 of them, from the studies' eager
-# vmap/jacfwd); collecting the tests compiles 75 more in each xdist worker. Measured and left out, because they
+# eager jnp operation on a new shape is a small XLA compile of its own, about 40 ms of CPU each on an AMD Zen 4:
+# test_cli, test_montecarlo and test_campaign (run alone) make 559 XLA compiles, at least 318 of them such
+# single operations (metrics/_stats.py, the key indexing of studies/experiments/_montecarlo.py, the groups);
+# collecting the tests compiles about 75 more in each xdist worker (~2.6 s of CPU). `liemef run`'s report
+# arrays are jitted (1eb9b01). Measured and left out, because they
 # change the numbers or save nothing cold: --xla_backend_optimization_level=0 and
 # --xla_cpu_use_fusion_emitters=false (28 % less CPU on an XLA filter run, but other bits),
 # --xla_llvm_disable_expensive_passes (no gain), jax_persistent_cache_min_compile_time_secs=0 (the two workers
