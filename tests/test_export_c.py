@@ -416,6 +416,22 @@ def test_exported_c_builds_warning_free_with_gcc_and_clang(build, tmp_path):
             assert obj.stat().st_size > 0
 
 
+def test_a_system_without_inputs_exports_warning_free_and_steps_as_jax(tmp_path):
+    # Its u_last has no entries, so the scalar core wrote none and -Wextra's unused-parameter stopped the build
+    # (the SL(3) example of docs/adding-a-group.md has no inputs either).
+    from liemef.groups import SO3
+    from liemef.systems import System
+
+    system = System(group_type=SO3, dynamics_fn=lambda g, u, t: jnp.zeros(3),
+                    output_fn=lambda g, t: g.as_matrix().T @ jnp.array([0.0, 0.0, 1.0]),
+                    B=0.1 * np.eye(3), D=0.1 * np.eye(3), Q=np.eye(3), R=np.eye(3))
+    assert system.input_dim == 0
+    flt = liemef.MinimumEnergyFilter(system)
+    exported = codegen.export_c(flt, tmp_path, "no_inputs")
+    cf = codegen.CFilter(exported, library=codegen.build_shared(exported, flags=FLAGS))
+    check_against_jax(flt, cf, seed=11)
+
+
 @pytest.mark.slow
 def test_inertial_navigation_with_biases_exports_as_scalar_code_warning_free(tmp_path, monkeypatch):
     # n = 15 (SE_2(3) x R^6): backend="auto" must take the scalar translator (the array loops ran 43x slower than

@@ -1303,7 +1303,9 @@ def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: 
 
     sig_in = [f"const {typ(v.aval.dtype, n)} *restrict {n}" for v, n in zip(jaxpr.invars, arg_names, strict=True)]
     sig_out = [f"{typ(v.aval.dtype, n)} *restrict {n}" for v, n in zip(jaxpr.outvars, out_names, strict=True)]
-    used = "".join(f"    (void){n};\n" for n in arg_names)
+    # An empty output (u_last of a system without inputs) is written by nothing: (void) it too, for -Wextra.
+    empty_outs = [n for v, n in zip(jaxpr.outvars, out_names, strict=True) if v.aval.size == 0]
+    used = "".join(f"    (void){n};\n" for n in [*arg_names, *empty_outs])
     text = f"static void {name}({', '.join(sig_in + sig_out)})\n{{\n{used}{body}}}\n"
     return text, tr
 
