@@ -170,6 +170,29 @@ def test_user_system_runs_on_c_and_equals_xla(name):
     _assert_close(c, x, f"{name} c vs xla")
 
 
+@pytest.mark.slow  # 40 s on a busy 2-core machine: the XLA run's compilation and the kernel's build
+def test_a_matrix_group_from_its_basis_runs_on_c_and_equals_xla():
+    # MatrixGroup.exp is a Pade expm with a loop of squarings (and log a while loop): the C engine translates
+    # both, so a group made from a basis needs no closed form to run in C (docs/adding-a-group.md).
+    from liemef.groups import SO3, MatrixGroup
+    from liemef.systems import System
+
+    G = MatrixGroup.from_basis("SO3FromBasis", np.asarray(SO3.hat(jnp.eye(3))))
+    system = System(group_type=G, dynamics_fn=lambda g, u, t: u,
+                    output_fn=lambda g, t: g.as_matrix().T @ jnp.array([0.0, 0.0, 1.0]),
+                    B=0.1 * np.eye(3), D=0.1 * np.eye(3), Q=np.eye(3), R=np.eye(3), n_inputs=3)
+    flt = liemef.MinimumEnergyFilter(system)
+    g0, ts, us, ys = _log(system)
+    state = flt.init(g0, np.eye(flt.n))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        warnings.simplefilter("error", EngineWarning)
+        c = flt.run(state, ts, us, ys, engine="c")
+        x = flt.run(state, ts, us, ys, engine="xla")
+    assert int(x.final.status.code) == 0
+    _assert_close(c, x, "SO(3) from its basis, c vs xla")
+
+
 # --- a system the translator cannot read ------------------------------------------------------------------
 def svd_output(g, t):
     s = jnp.linalg.svd(jnp.diag(g.x), compute_uv=False)  # unsupported: named in the warning

@@ -114,8 +114,9 @@ class MatrixGroup(LieGroup):
       about pi - 1e-7; see :meth:`log`), with derivatives in both autodiff modes.
     * $\mathrm{ad}$ comes from the structure constants of the basis, $\mathrm{Ad}_g$ from $g E_k g^{-1}$.
 
-    The closed-form groups (:class:`SO3`, :class:`SE3`, :class:`SE23`) are faster and are the ones the C engine
-    compiles; a :class:`MatrixGroup` with their basis agrees with them to round-off (``tests/test_groups.py``).
+    The closed-form groups (:class:`SO3`, :class:`SE3`, :class:`SE23`) are faster, to run and to build for the C
+    engine (which translates a :class:`MatrixGroup` too: ``tests/test_user_systems_c.py``); a :class:`MatrixGroup`
+    with their basis agrees with them to round-off (``tests/test_groups.py``).
     """
 
     matrix_flat: jnp.ndarray
