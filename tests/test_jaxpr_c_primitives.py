@@ -44,6 +44,13 @@ def _spd(x, n=3):
     return A @ A.T + n * jnp.eye(n)
 
 
+def _turned(x):
+    """A 2 x 2 matrix R(2 x0) diag(2 + x1^2, 2 + x2^2): never singular, and its LU swaps the rows where the
+    rotation's sine outweighs its cosine (half of the random inputs)."""
+    c, s = jnp.cos(2.0 * x[0]), jnp.sin(2.0 * x[0])
+    return jnp.array([[c, -s], [s, c]]) * jnp.stack([2.0 + x[1] ** 2, 2.0 + x[2] ** 2])
+
+
 def _scan_body(c, a):
     return c * jnp.cos(a) + jnp.sin(c), c * a
 
@@ -114,6 +121,8 @@ CASES = {
     "cho_solve": (lambda x: jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(_spd(x, 2)), x[:2]), 4,
                   {"cholesky", "triangular_solve"}),
     "solve": (lambda x: jnp.linalg.solve(_spd(x) + jnp.diag(x[:3]), x[3:6]), 9, {"lu", "triangular_solve"}),
+    "lu_solve": (lambda x: jax.scipy.linalg.lu_solve(jax.scipy.linalg.lu_factor(_turned(x)), x[3:5]), 5,
+                 {"lu", "lu_pivots_to_permutation", "triangular_solve"}),
     "inv": (lambda x: jnp.linalg.inv(jnp.reshape(x, (2, 2)) + 3.0 * jnp.eye(2)).ravel(), 4,
             {"lu", "triangular_solve"}),
     "eigvalsh": (lambda x: jnp.linalg.eigvalsh(_spd(x, 2)), 4, {"eigh"}),

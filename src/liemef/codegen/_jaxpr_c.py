@@ -167,7 +167,8 @@ _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduc
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
           "checkpoint", "remat", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
-_LINALG = {"dot_general", "lu", "triangular_solve", "eigh", "custom_linear_solve", "select_n", "clamp",
+_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "eigh", "custom_linear_solve",
+           "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort", "cholesky"}
 _CUMULATIVE = {"cumsum", "cumprod", "cummax", "cummin"}
 
@@ -665,6 +666,8 @@ class Translator:
             return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
         if name == "eigh":
             return self.eigh(ins[0], params, avals)
+        if name == "lu_pivots_to_permutation":
+            return [self.pivots_to_permutation(ins[0], int(params["permutation_size"]), *avals[0])]
         if name == "integer_pow":
             return [self.integer_pow(ins[0], params["y"], *avals[0])]
         if name == "convert_element_type":
@@ -1046,6 +1049,26 @@ class Translator:
         self.emit("    }")
         self.emit("}")
         return [lu, piv, perm]
+
+    def pivots_to_permutation(self, piv: Val, m: int, shape, dtype) -> Val:
+        """The permutation of LU's row swaps (``pivots[..., i]``: the row swapped with row i at step i) over
+        ``m`` rows, as ``lax.linalg.lu_pivots_to_permutation`` (``jax.scipy.linalg.lu_solve`` applies it).
+        A pivot out of [0, m) (never from an LU) is clamped, so that no write leaves the array."""
+        k = piv.shape[-1]
+        batch = piv.size // max(k, 1)
+        out = self.declare(shape, dtype)
+        b, i, j, t = self.fresh("i"), self.fresh("i"), self.fresh("j"), self.fresh("t")
+        P = lambda r: f"{out.name}[{b} * {m} + {r}]"  # noqa: E731
+        self.emit(f"for (int {b} = 0; {b} < {batch}; {b}++) {{")
+        self.emit(f"    for (int {i} = 0; {i} < {m}; {i}++) {P(i)} = {i};")
+        self.emit(f"    for (int {i} = 0; {i} < {k}; {i}++) {{")
+        self.emit(f"        int32_t {j} = (int32_t){self.elem(piv, f'{b} * {k} + {i}')};")
+        self.emit(f"        if ({j} < 0) {j} = 0;")
+        self.emit(f"        if ({j} > {m - 1}) {j} = {m - 1};")
+        self.emit(f"        {{ const int32_t {t} = {P(i)}; {P(i)} = {P(j)}; {P(j)} = {t}; }}")
+        self.emit("    }")
+        self.emit("}")
+        return out
 
     def eigh(self, a: Val, params, avals) -> list[Val]:
         """The symmetric eigendecomposition (``v``, ``w``: eigenvectors as columns, eigenvalues ascending) of

@@ -394,7 +394,7 @@ class ScalarTranslator:
             return [self.cholesky(ins[0], odt[0])]
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
-        if name in ("lu", "triangular_solve", "eigh"):
+        if name in ("lu", "lu_pivots_to_permutation", "triangular_solve", "eigh"):
             return self.block(eqn, ins, idt)
         if name == "integer_pow":
             return [self.map1(lambda x: self.node("ipow", (x,), odt[0], params["y"]), ins[0], oshape[0])]
