@@ -72,18 +72,29 @@ def eqn_frames(eqn) -> list[tuple[str, int, str]]:
     return [(f.file_name, int(f.line_num), f.function_name) for f in tb.frames]
 
 
+def _inside(path: str, dirs) -> bool:
+    try:
+        real = str(Path(path).resolve())
+    except (OSError, ValueError):
+        return False
+    return any(real == d or real.startswith(d + "/") for d in dirs)
+
+
+def _library(path: str) -> bool:
+    """Whether ``path`` is JAX's, NumPy's, an installed package's or the interpreter's own code."""
+    return _inside(path, _JAX_DIRS) or "site-packages" in path or path.startswith("<frozen")
+
+
+def is_users(path: str) -> bool:
+    """Whether the file ``path`` is the user's own code: outside liemef, JAX, NumPy and installed packages."""
+    return not _library(path) and not _inside(path, (_LIEMEF_DIR,))
+
+
 def user_frame(frames) -> str:
     """``file:line (function)`` of the innermost frame outside liemef, JAX and NumPy (the user's own code);
     else the innermost liemef frame; else ""."""
-    def inside(path, dirs):
-        try:
-            real = str(Path(path).resolve())
-        except (OSError, ValueError):
-            return False
-        return any(real == d or real.startswith(d + "/") for d in dirs)
-    outside = [f for f in frames if not inside(f[0], _JAX_DIRS) and "site-packages" not in f[0]
-               and not f[0].startswith("<frozen")]
-    user = [f for f in outside if not inside(f[0], (_LIEMEF_DIR,))]
+    outside = [f for f in frames if not _library(f[0])]
+    user = [f for f in outside if is_users(f[0])]
     pick = (user or outside or [None])[0]
     return "" if pick is None else f"{pick[0]}:{pick[1]} ({pick[2]})"
 
