@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import ctypes
 import re
-import shutil
 import subprocess
 
 import jax
@@ -21,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from compilers import COMPILERS, compiler_or_skip, warning_free_flags
 from liemef import codegen
 from liemef.codegen._jaxpr_c import Translator, helpers_used, jaxpr_to_c
 from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
@@ -237,17 +237,15 @@ def test_nan_and_ties_follow_xla(kernels):
         np.testing.assert_array_equal(_call(lib, name, np.asarray(x), sizes[name]), want, err_msg=name)
 
 
-@pytest.mark.parametrize("cc", ["gcc", "clang"])
+@pytest.mark.parametrize("cc", COMPILERS)
 def test_the_source_builds_warning_free(kernels, cc, tmp_path):
     """The source of every case compiles with GCC and Clang with the export's flags (-std=c99 -Wall -Wextra
     -Werror -pedantic) and no warning: GCC at -O1 (where its data-flow warnings run), Clang's front end (where
     all of its warnings are)."""
-    if shutil.which(cc) is None:
-        pytest.skip(f"{cc} not on the PATH")
+    compiler_or_skip(cc)
     _, source, _, _ = kernels
-    flags = [f for f in codegen.CFLAGS if not f.startswith("-O")]
-    flags += ["-O1", "-c", "-o", str(tmp_path / "k.o")] if cc == "gcc" else ["-fsyntax-only"]
-    proc = subprocess.run([cc, *flags, str(source)], capture_output=True, text=True)
+    proc = subprocess.run([cc, *warning_free_flags(cc, tmp_path / "k.o"), str(source)], capture_output=True,
+                          text=True)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr[:4000]
 
 
