@@ -110,6 +110,8 @@ CASES = {
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],
         jnp.where(x[0] > x[1], x[2] ** 2, jnp.sin(x[0]))]), 3,
         {"pow", "atan2", "rem", "max", "min", "clamp", "select_n"}),
+    "reduce_precision_own": (lambda x: jax.lax.reduce_precision(jnp.sin(x), exponent_bits=11, mantissa_bits=52)
+                             * x[0], 2, {"reduce_precision"}),
     "fori_loop": (lambda x: jax.lax.fori_loop(0, 4, lambda i, c: jnp.sin(c) * x[1] + i * c, x[0]) * jnp.ones(1),
                   2, {"scan"}),
     "scan": (lambda x: jax.lax.scan(_scan_body, x[0], x[1:])[1], 4, {"scan"}),
@@ -250,6 +252,19 @@ def test_the_source_builds_warning_free(kernels, cc, tmp_path):
     proc = subprocess.run([cc, *warning_free_flags(cc, tmp_path / "k.o"), str(source)], capture_output=True,
                           text=True)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr[:4000]
+
+
+@pytest.mark.parametrize(("exponent", "mantissa"), [(8, 7), (8, 23), (11, 23)])
+def test_reduce_precision_below_float64_is_refused_not_ignored(exponent, mantissa):
+    """At its own precision ``reduce_precision`` changes nothing (the case ``reduce_precision_own``); to a
+    narrower format (bfloat16, float32) it rounds, which the translators have no C for: they raise, naming it
+    (the engine then runs XLA), instead of passing the value through unrounded."""
+    closed = jax.make_jaxpr(lambda x: jax.lax.reduce_precision(x * 1.2345678, exponent_bits=exponent,
+                                                               mantissa_bits=mantissa))(jnp.zeros(3))
+    for translate in (scalar_jaxpr_to_c, jaxpr_to_c):
+        with pytest.raises(codegen.UnsupportedPrimitive, match=f"reduce_precision to {exponent} exponent and "
+                                                               f"{mantissa} mantissa bits of a float64"):
+            translate("f", closed, ["x"], ["o"])
 
 
 def test_array_backend_takes_at_run_time_as_xla(tmp_path):

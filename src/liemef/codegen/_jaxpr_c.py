@@ -221,6 +221,16 @@ def helpers_used(*texts: str) -> str:
                      if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", fn).group(1) + r"\(", body))
 
 
+def own_precision(params: dict, dtype) -> None:
+    """``reduce_precision`` has C only at its operand's own precision (or wider), where it changes nothing: JAX's
+    checkpointing inserts it so. A narrower one (bfloat16 or float32 rounding of a float64) raises."""
+    fi = np.finfo(dtype)
+    e, m = int(params["exponent_bits"]), int(params["mantissa_bits"])
+    if e < fi.nexp or m < fi.nmant:
+        raise UnsupportedPrimitive(f"reduce_precision to {e} exponent and {m} mantissa bits of a {np.dtype(dtype)} "
+                                   f"(only at its own {fi.nexp} and {fi.nmant}, where it changes nothing)")
+
+
 def _subjaxpr(params: dict, *keys):
     for k in keys:
         if k in params:
@@ -659,6 +669,8 @@ class Translator:
             return self.cond(params, ins)
         if name == "scan":
             return self.scan(params, ins)
+        if name == "reduce_precision":
+            own_precision(params, ins[0].dtype)
         if all(v.const is not None for v in ins):
             return self.fold(eqn, ins)
         if name == "gather" and ins[1].const is None:

@@ -62,6 +62,7 @@ from ._jaxpr_c import (
     eqn_frames,
     inlined,
     literal,
+    own_precision,
     take_layout,
 )
 
@@ -355,6 +356,8 @@ class ScalarTranslator:
             return self.cond(params, ins)
         if name == "scan":
             return self.scan(params, ins)
+        if name == "reduce_precision":
+            own_precision(params, idt[0])
         if all(self._known(x) for x in ins):
             xs = [self._values(x, d) for x, d in zip(ins, idt, strict=True)]
             outs = _np_eval(name, params, xs, odt)
