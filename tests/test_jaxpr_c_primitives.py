@@ -110,6 +110,8 @@ CASES = {
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],
         jnp.where(x[0] > x[1], x[2] ** 2, jnp.sin(x[0]))]), 3,
         {"pow", "atan2", "rem", "max", "min", "clamp", "select_n"}),
+    "optimization_barrier": (lambda x: jnp.stack(jax.lax.optimization_barrier((x[0] * x[1], jnp.sin(x[1])))), 2,
+                             {"optimization_barrier"}),
     "reduce_precision_own": (lambda x: jax.lax.reduce_precision(jnp.sin(x), exponent_bits=11, mantissa_bits=52)
                              * x[0], 2, {"reduce_precision"}),
     "fori_loop": (lambda x: jax.lax.fori_loop(0, 4, lambda i, c: jnp.sin(c) * x[1] + i * c, x[0]) * jnp.ones(1),

@@ -356,6 +356,8 @@ class ScalarTranslator:
             return self.cond(params, ins)
         if name == "scan":
             return self.scan(params, ins)
+        if name == "optimization_barrier":
+            return list(ins)
         if name == "reduce_precision":
             own_precision(params, idt[0])
         if all(self._known(x) for x in ins):
