@@ -110,6 +110,7 @@ CASES = {
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],
         jnp.where(x[0] > x[1], x[2] ** 2, jnp.sin(x[0]))]), 3,
         {"pow", "atan2", "rem", "max", "min", "clamp", "select_n"}),
+    "checkpoint": (lambda x: jax.checkpoint(lambda v: jnp.sin(v) * jnp.exp(v[0]))(x), 2, {"remat2"}),
     "optimization_barrier": (lambda x: jnp.stack(jax.lax.optimization_barrier((x[0] * x[1], jnp.sin(x[1])))), 2,
                              {"optimization_barrier"}),
     "reduce_precision_own": (lambda x: jax.lax.reduce_precision(jnp.sin(x), exponent_bits=11, mantissa_bits=52)

@@ -176,7 +176,7 @@ _STRUCTURAL = {"broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpo
 _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduce_prod": "prod",
            "reduce_and": "and", "reduce_or": "or", "argmax": "argmax", "argmin": "argmin"}
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
-          "checkpoint", "remat", "custom_lin"}
+          "checkpoint", "remat", "remat2", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
 _LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "eigh", "custom_linear_solve",
            "select_n", "clamp",
