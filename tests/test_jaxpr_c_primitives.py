@@ -270,6 +270,20 @@ def test_reduce_precision_below_float64_is_refused_not_ignored(exponent, mantiss
             translate("f", closed, ["x"], ["o"])
 
 
+def test_a_choice_by_values_is_not_taken_for_data_movement():
+    """``select_and_gather_add`` (a max-pool's derivative: in each window, the tangent where the operand is
+    largest) picks by the operand's values. Run on element ids as data movement, it picked by the ids, the last
+    of each window: [20, 30, 40] here, where XLA gives [10, 30, 30]. It has no C, so the translators raise."""
+    X = jnp.array([3.0, 1.0, 2.0, 0.5])
+    pool = lambda v: jax.lax.reduce_window(v, -jnp.inf, jax.lax.max, (2,), (1,), "VALID")  # noqa: E731
+    closed = jax.make_jaxpr(lambda t: jax.jvp(pool, (X,), (t,))[1])(jnp.zeros(4))
+    assert "select_and_gather_add" in {e.primitive.name for e in closed.jaxpr.eqns}
+    assert "select_and_gather_add" not in codegen.PRIMITIVES
+    for translate in (scalar_jaxpr_to_c, jaxpr_to_c):
+        with pytest.raises(codegen.UnsupportedPrimitive, match="select_and_gather_add"):
+            translate("f", closed, ["x"], ["o"])
+
+
 def test_array_backend_takes_at_run_time_as_xla(tmp_path):
     """The array translator (``export_c(backend="array")``) has run-time gathers along one axis only; there too
     an index out of range gives the fill value (NaN) of ``jnp.take``'s mode, as XLA, not a clamped element."""

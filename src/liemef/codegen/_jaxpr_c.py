@@ -172,7 +172,7 @@ _BOOL_BINARY = {"and": "({a}) && ({b})", "or": "({a}) || ({b})", "xor": "({a}) !
 
 _STRUCTURAL = {"broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpose", "slice", "pad", "concatenate",
                "rev", "stack", "unstack", "split", "gather", "scatter", "scatter-add", "scatter_add",
-               "dynamic_slice", "dynamic_update_slice", "select_and_gather_add"}
+               "dynamic_slice", "dynamic_update_slice"}
 _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduce_prod": "prod",
            "reduce_and": "and", "reduce_or": "or", "argmax": "argmax", "argmin": "argmin"}
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
