@@ -44,6 +44,12 @@ def _spd(x, n=3):
     return A @ A.T + n * jnp.eye(n)
 
 
+def _ints(x):
+    """Two int32 numerators and denominators from the inputs (truncated: at random inputs some denominators are
+    0, where C's division is undefined and XLA's gives -1, and the remainder the numerator)."""
+    return x[:2].astype(jnp.int32), x[2:4].astype(jnp.int32)
+
+
 def _turned(x):
     """A 2 x 2 matrix R(2 x0) diag(2 + x1^2, 2 + x2^2): never singular, and its LU swaps the rows where the
     rotation's sine outweighs its cosine (half of the random inputs)."""
@@ -105,6 +111,8 @@ CASES = {
         {"sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh", "atanh", "exp",
          "exp2", "log", "log1p", "expm1", "sqrt", "rsqrt", "cbrt", "abs", "floor", "ceil", "square", "erf", "erfc",
          "sign", "logistic", "integer_pow"}),
+    "int_div_rem": (lambda x: jnp.concatenate([jax.lax.div(*_ints(x)), jax.lax.rem(*_ints(x))]) * x[0], 4,
+                    {"div", "rem"}),
     "binary": (lambda x: jnp.stack([
         jnp.power(1.0 + x[0] ** 2, x[1]), jnp.arctan2(x[0], x[1]), jnp.fmod(x[0], 0.7 + x[1] ** 2),
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],
@@ -243,6 +251,17 @@ def test_nan_and_ties_follow_xla(kernels):
         f, _, _ = CASES[name.rsplit("_", 1)[0]]
         want = np.asarray(jax.jit(f)(jnp.asarray(x)), np.float64).ravel()
         np.testing.assert_array_equal(_call(lib, name, np.asarray(x), sizes[name]), want, err_msg=name)
+
+
+def test_integer_division_follows_xla_where_c_has_no_result(kernels):
+    """x / 0, x % 0 and INT32_MIN / -1 are undefined in C (the x86 division traps: the process died of SIGFPE);
+    the translation gives XLA's -1, x, INT32_MIN and 0 there."""
+    lib, _, sizes, _ = kernels
+    f = CASES["int_div_rem"][0]
+    for x in ([-2.0**31, 7.0, -1.0, 0.0], [5.0, -7.0, 0.0, 2.0], [-9.0, 2.0**31 - 1, 4.0, -1.0]):
+        want = np.asarray(jax.jit(f)(jnp.asarray(x)), np.float64)
+        np.testing.assert_array_equal(_call(lib, "int_div_rem_value", np.asarray(x), sizes["int_div_rem_value"]),
+                                      want, err_msg=str(x))
 
 
 @pytest.mark.parametrize("cc", COMPILERS)

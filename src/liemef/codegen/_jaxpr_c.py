@@ -167,6 +167,19 @@ _FLOAT_BINARY = {"max": "lm_max({a}, {b})", "min": "lm_min({a}, {b})", "pow": "p
 _INT_BINARY = {"max": "(({a}) > ({b}) ? ({a}) : ({b}))", "min": "(({a}) < ({b}) ? ({a}) : ({b}))",
                "rem": "({a}) % ({b})", "and": "({a}) & ({b})", "or": "({a}) | ({b})", "xor": "({a}) ^ ({b})",
                "shift_left": "({a}) << ({b})"}
+def int_division(op: str, a: str, b: str, dtype) -> str:
+    """C for an integer ``div`` or ``rem`` of the expressions ``a``, ``b`` with XLA's results where C has
+    none: x / 0 = -1 (all bits set), x % 0 = x, and for signed MIN / -1 = MIN (wrapped), MIN % -1 = 0. (A
+    plain C ``/`` is undefined there: the x86 division traps, SIGFPE, and the process dies.)"""
+    dt = np.dtype(dtype)
+    T = ctype(dt)
+    if op == "div":
+        minus = f"({b}) == -1 ? ({T})((u{T})0 - (u{T})({a})) : " if dt.kind == "i" else ""
+        return f"(({b}) == 0 ? ({T})-1 : {minus}({a}) / ({b}))"
+    minus = f"({b}) == -1 ? ({T})0 : " if dt.kind == "i" else ""
+    return f"(({b}) == 0 ? ({a}) : {minus}({a}) % ({b}))"
+
+
 _BOOL_BINARY = {"and": "({a}) && ({b})", "or": "({a}) || ({b})", "xor": "({a}) != ({b})",
                 "max": "({a}) || ({b})", "min": "({a}) && ({b})"}
 
@@ -789,6 +802,8 @@ class Translator:
             fmt = table[name]
 
             def expr(es):
+                if kind in "iu" and name in ("div", "rem"):
+                    return int_division(name, es[0], es[1], ins[0].dtype)
                 return fmt.format(a=es[0], b=es[1] if len(es) > 1 else "")
         ins = [self.broadcast(v, shape) for v in ins]
         out = self.declare(shape, dtype)

@@ -61,6 +61,7 @@ from ._jaxpr_c import (
     element_ids,
     eqn_frames,
     inlined,
+    int_division,
     literal,
     own_precision,
     take_layout,
@@ -301,6 +302,8 @@ class ScalarTranslator:
             table, off = self.value[i]
             return f"{table}[{e[0]} + {off}]"
         kind = self.dtype[a[0]].kind
+        if kind in "iu" and op in ("div", "rem"):
+            return int_division(op, e[0], e[1], self.dtype[a[0]])
         table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                  "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
         if op not in table:
