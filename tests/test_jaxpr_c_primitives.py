@@ -113,6 +113,11 @@ CASES = {
          "sign", "logistic", "integer_pow"}),
     "int_div_rem": (lambda x: jnp.concatenate([jax.lax.div(*_ints(x)), jax.lax.rem(*_ints(x))]) * x[0], 4,
                     {"div", "rem"}),
+    # XLA's conversion saturates and takes NaN to 0 (C's cast is undefined there): 1e10 x and 1e19 x are mostly
+    # out of range, log(x) is NaN for half of the inputs
+    "float_to_int": (lambda x: jnp.concatenate([(1e10 * x[:2]).astype(jnp.int32), (1e3 * x[:2]).astype(jnp.uint8),
+                                                jnp.log(x[2:3]).astype(jnp.int32), (1e19 * x[3:4]).astype(jnp.int64)])
+                     * x[3], 4, {"convert_element_type"}),
     "binary": (lambda x: jnp.stack([
         jnp.power(1.0 + x[0] ** 2, x[1]), jnp.arctan2(x[0], x[1]), jnp.fmod(x[0], 0.7 + x[1] ** 2),
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],

@@ -180,6 +180,28 @@ def int_division(op: str, a: str, b: str, dtype) -> str:
     return f"(({b}) == 0 ? ({a}) : {minus}({a}) % ({b}))"
 
 
+def float_to_int(a: str, dtype) -> str:
+    """C for the float expression ``a`` converted to the integer ``dtype`` as XLA converts: truncated, NaN to 0,
+    saturated at the type's limits (C's cast is undefined there: x86 gives INT_MIN for NaN and for 1e10)."""
+    dt = np.dtype(dtype)
+    T, info = ctype(dt), np.iinfo(dt)
+    name = T[:-2].upper()
+    low = f"({T})0" if info.min == 0 else f"{name}_MIN"
+    return (f"(({a}) != ({a}) ? ({T})0 : ({a}) >= {float(info.max)!r} ? {name}_MAX : "
+            f"({a}) <= {float(info.min)!r} ? {low} : ({T})({a}))")
+
+
+def saturated(x: np.ndarray, dtype) -> np.ndarray:
+    """NumPy's float array ``x`` converted to the integer ``dtype`` as :func:`float_to_int` (and XLA) does."""
+    info = np.iinfo(dtype)
+    with np.errstate(all="ignore"):
+        y = np.trunc(np.where(np.isnan(x), 0.0, x))
+        out = np.where(y >= float(info.max), info.max, np.where(y <= float(info.min), info.min, 0)).astype(dtype)
+        inside = (y < float(info.max)) & (y > float(info.min))
+        out[inside] = y[inside].astype(dtype)
+    return out
+
+
 _BOOL_BINARY = {"and": "({a}) && ({b})", "or": "({a}) || ({b})", "xor": "({a}) != ({b})",
                 "max": "({a}) || ({b})", "min": "({a}) && ({b})"}
 
@@ -838,6 +860,8 @@ class Translator:
         out = self.declare(shape, dtype)
         if dtype == np.bool_:
             self.loop(out.size, lambda i: f"{out.name}[{i}] = ({self.elem(x, i)}) != 0;")
+        elif x.dtype.kind == "f" and np.dtype(dtype).kind in "iu":
+            self.loop(out.size, lambda i: f"{out.name}[{i}] = {float_to_int(self.elem(x, i), dtype)};")
         else:
             self.loop(out.size, lambda i: f"{out.name}[{i}] = ({ctype(dtype)})({self.elem(x, i)});")
         return out

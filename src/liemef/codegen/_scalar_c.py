@@ -60,10 +60,12 @@ from ._jaxpr_c import (
     ctype,
     element_ids,
     eqn_frames,
+    float_to_int,
     inlined,
     int_division,
     literal,
     own_precision,
+    saturated,
     take_layout,
 )
 
@@ -194,7 +196,7 @@ class ScalarTranslator:
             if op == "sel":
                 return xs[1] if bool(xs[0]) else xs[2]
             if op == "convert":
-                return xs[0].astype(dt)
+                return saturated(xs[0], dt) if dt.kind in "iu" and xs[0].dtype.kind == "f" else xs[0].astype(dt)
             if op == "ipow":
                 return xs[0] ** param if param >= 0 else 1.0 / xs[0] ** (-param)
             out = _np_eval(op, {}, xs, [dt])
@@ -291,6 +293,8 @@ class ScalarTranslator:
         if op == "sel":
             return f"({e[0]}) ? ({e[1]}) : ({e[2]})"
         if op == "convert":
+            if dt.kind in "iu" and self.dtype[a[0]].kind == "f":
+                return float_to_int(e[0], dt)
             return f"({e[0]}) != 0" if dt == np.bool_ else f"({ctype(dt)})({e[0]})"
         if op == "ipow":
             p = self.value[i]
@@ -1073,6 +1077,8 @@ class ScalarTranslator:
                 zero = "0.0" if src.kind == "f" else "0"
                 c = f"({e[0]}) != (({lane_type(src)}){{0}} + {zero})"
                 return c if src.itemsize == 8 else f"__builtin_convertvector({c}, lane_i64)"
+            if src.kind == "f" and dt.kind in "iu":
+                return None  # saturated, NaN to 0, as XLA: a loop over lanes
             x = f"-({e[0]})" if src == np.bool_ else e[0]
             return f"__builtin_convertvector({x}, {lane_type(dt)})"
         if op in ("stop_gradient", "copy", "copy_p", "reduce_precision", "optimization_barrier", "real"):
