@@ -118,6 +118,9 @@ CASES = {
     "float_to_int": (lambda x: jnp.concatenate([(1e10 * x[:2]).astype(jnp.int32), (1e3 * x[:2]).astype(jnp.uint8),
                                                 jnp.log(x[2:3]).astype(jnp.int32), (1e19 * x[3:4]).astype(jnp.int64)])
                      * x[3], 4, {"convert_element_type"}),
+    # shifts by 0, 12, 24, 36 of -2 .. 3: by 32 or more XLA gives 0 (C: undefined, x86 shifts by b mod 32)
+    "shift_left": (lambda x: jax.lax.shift_left(3 - _index(x[0], 6), 12 * _index(x[1], 4)) * x[0], 2,
+                   {"shift_left"}),
     "binary": (lambda x: jnp.stack([
         jnp.power(1.0 + x[0] ** 2, x[1]), jnp.arctan2(x[0], x[1]), jnp.fmod(x[0], 0.7 + x[1] ** 2),
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],

@@ -180,6 +180,16 @@ def int_division(op: str, a: str, b: str, dtype) -> str:
     return f"(({b}) == 0 ? ({a}) : {minus}({a}) % ({b}))"
 
 
+def shift_left(a: str, b: str, dtype) -> str:
+    """C for ``a << b`` on the integer ``dtype`` with XLA's result where C has none: 0 for a shift outside
+    [0, bits) (C leaves it undefined, and x86 shifts by b mod 32), and the bits of a negative ``a`` shifted as
+    they are (through the unsigned type)."""
+    dt = np.dtype(dtype)
+    T = ctype(dt)
+    U = f"u{T}" if dt.kind == "i" else T
+    return f"(({b}) < 0 || ({b}) >= {8 * dt.itemsize} ? ({T})0 : ({T})(({U})({a}) << ({b})))"
+
+
 def float_to_int(a: str, dtype) -> str:
     """C for the float expression ``a`` converted to the integer ``dtype`` as XLA converts: truncated, NaN to 0,
     saturated at the type's limits (C's cast is undefined there: x86 gives INT_MIN for NaN and for 1e10)."""
@@ -826,6 +836,8 @@ class Translator:
             def expr(es):
                 if kind in "iu" and name in ("div", "rem"):
                     return int_division(name, es[0], es[1], ins[0].dtype)
+                if kind in "iu" and name == "shift_left":
+                    return shift_left(es[0], es[1], ins[0].dtype)
                 return fmt.format(a=es[0], b=es[1] if len(es) > 1 else "")
         ins = [self.broadcast(v, shape) for v in ins]
         out = self.declare(shape, dtype)

@@ -66,6 +66,7 @@ from ._jaxpr_c import (
     literal,
     own_precision,
     saturated,
+    shift_left,
     take_layout,
 )
 
@@ -308,6 +309,8 @@ class ScalarTranslator:
         kind = self.dtype[a[0]].kind
         if kind in "iu" and op in ("div", "rem"):
             return int_division(op, e[0], e[1], self.dtype[a[0]])
+        if kind in "iu" and op == "shift_left":
+            return shift_left(e[0], e[1], self.dtype[a[0]])
         table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                  "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
         if op not in table:
