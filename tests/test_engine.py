@@ -9,6 +9,7 @@ pattern builds one more. Unknown engines, a missing compiler and a kernel that c
 
 from __future__ import annotations
 
+import subprocess
 import warnings
 
 import equinox as eqx
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 
 import liemef
+from compilers import COMPILERS, compiler_or_skip, warning_free_flags
 from liemef import codegen
 from liemef.codegen import _kernel
 from liemef.engines import EngineWarning, LogGapWarning
@@ -625,6 +627,20 @@ def test_quick_and_optimized_builds_agree_bit_for_bit(system):
         _kernel._PENDING.add(quick)
         _kernel._after_fork()
         assert quick.wait().optimized and quick.path == kern.path
+
+
+@pytest.mark.parametrize("cc", COMPILERS)
+def test_the_kernel_source_builds_warning_free(cc, tmp_path):
+    """The engine's C (TSE(2)'s kernel, built without warnings flags) is ISO C99 that GCC and Clang build with
+    the export's -Wall -Wextra -Werror -pedantic too: it carries only the helper functions it calls (an unused
+    static function is a warning in Clang)."""
+    compiler_or_skip(cc)
+    source = tmp_path / "kernel.c"
+    source.write_text(_kernel._translate(_kernel.kernel_for(liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make()))
+                                         .traced))
+    proc = subprocess.run([cc, *warning_free_flags(cc, tmp_path / "kernel.o"), str(source)], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr[:4000]
 
 
 def test_bad_samples_are_named_alike_by_both_engines():

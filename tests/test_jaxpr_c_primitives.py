@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import ctypes
 import re
-import shutil
 import subprocess
 
 import jax
@@ -21,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from compilers import COMPILERS, compiler_or_skip, warning_free_flags
 from liemef import codegen
 from liemef.codegen._jaxpr_c import Translator, helpers_used, jaxpr_to_c
 from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
@@ -42,6 +42,19 @@ def _index(x, k):
 def _spd(x, n=3):
     A = jnp.reshape(x[:n * n], (n, n))
     return A @ A.T + n * jnp.eye(n)
+
+
+def _ints(x):
+    """Two int32 numerators and denominators from the inputs (truncated: at random inputs some denominators are
+    0, where C's division is undefined and XLA's gives -1, and the remainder the numerator)."""
+    return x[:2].astype(jnp.int32), x[2:4].astype(jnp.int32)
+
+
+def _turned(x):
+    """A 2 x 2 matrix R(2 x0) diag(2 + x1^2, 2 + x2^2): never singular, and its LU swaps the rows where the
+    rotation's sine outweighs its cosine (half of the random inputs)."""
+    c, s = jnp.cos(2.0 * x[0]), jnp.sin(2.0 * x[0])
+    return jnp.array([[c, -s], [s, c]]) * jnp.stack([2.0 + x[1] ** 2, 2.0 + x[2] ** 2])
 
 
 def _scan_body(c, a):
@@ -98,11 +111,26 @@ CASES = {
         {"sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh", "asinh", "acosh", "atanh", "exp",
          "exp2", "log", "log1p", "expm1", "sqrt", "rsqrt", "cbrt", "abs", "floor", "ceil", "square", "erf", "erfc",
          "sign", "logistic", "integer_pow"}),
+    "int_div_rem": (lambda x: jnp.concatenate([jax.lax.div(*_ints(x)), jax.lax.rem(*_ints(x))]) * x[0], 4,
+                    {"div", "rem"}),
+    # XLA's conversion saturates and takes NaN to 0 (C's cast is undefined there): 1e10 x and 1e19 x are mostly
+    # out of range, log(x) is NaN for half of the inputs
+    "float_to_int": (lambda x: jnp.concatenate([(1e10 * x[:2]).astype(jnp.int32), (1e3 * x[:2]).astype(jnp.uint8),
+                                                jnp.log(x[2:3]).astype(jnp.int32), (1e19 * x[3:4]).astype(jnp.int64)])
+                     * x[3], 4, {"convert_element_type"}),
+    # shifts by 0, 12, 24, 36 of -2 .. 3: by 32 or more XLA gives 0 (C: undefined, x86 shifts by b mod 32)
+    "shift_left": (lambda x: jax.lax.shift_left(3 - _index(x[0], 6), 12 * _index(x[1], 4)) * x[0], 2,
+                   {"shift_left"}),
     "binary": (lambda x: jnp.stack([
         jnp.power(1.0 + x[0] ** 2, x[1]), jnp.arctan2(x[0], x[1]), jnp.fmod(x[0], 0.7 + x[1] ** 2),
         jnp.maximum(x[0], x[1]) * x[2], jnp.minimum(x[1], x[2]) ** 2, jax.lax.clamp(-0.5, x[0], 0.8) * x[1],
         jnp.where(x[0] > x[1], x[2] ** 2, jnp.sin(x[0]))]), 3,
         {"pow", "atan2", "rem", "max", "min", "clamp", "select_n"}),
+    "checkpoint": (lambda x: jax.checkpoint(lambda v: jnp.sin(v) * jnp.exp(v[0]))(x), 2, {"remat2"}),
+    "optimization_barrier": (lambda x: jnp.stack(jax.lax.optimization_barrier((x[0] * x[1], jnp.sin(x[1])))), 2,
+                             {"optimization_barrier"}),
+    "reduce_precision_own": (lambda x: jax.lax.reduce_precision(jnp.sin(x), exponent_bits=11, mantissa_bits=52)
+                             * x[0], 2, {"reduce_precision"}),
     "fori_loop": (lambda x: jax.lax.fori_loop(0, 4, lambda i, c: jnp.sin(c) * x[1] + i * c, x[0]) * jnp.ones(1),
                   2, {"scan"}),
     "scan": (lambda x: jax.lax.scan(_scan_body, x[0], x[1:])[1], 4, {"scan"}),
@@ -114,9 +142,14 @@ CASES = {
     "cho_solve": (lambda x: jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(_spd(x, 2)), x[:2]), 4,
                   {"cholesky", "triangular_solve"}),
     "solve": (lambda x: jnp.linalg.solve(_spd(x) + jnp.diag(x[:3]), x[3:6]), 9, {"lu", "triangular_solve"}),
+    "lu_solve": (lambda x: jax.scipy.linalg.lu_solve(jax.scipy.linalg.lu_factor(_turned(x)), x[3:5]), 5,
+                 {"lu", "lu_pivots_to_permutation", "triangular_solve"}),
     "inv": (lambda x: jnp.linalg.inv(jnp.reshape(x, (2, 2)) + 3.0 * jnp.eye(2)).ravel(), 4,
             {"lu", "triangular_solve"}),
     "eigvalsh": (lambda x: jnp.linalg.eigvalsh(_spd(x, 2)), 4, {"eigh"}),
+    "eigvalsh_3x3": (lambda x: jnp.linalg.eigvalsh(_spd(x, 3)), 9, {"eigh"}),
+    # an eigenvector's sign is free (LAPACK's and the Jacobi sweeps' differ): its projector v v^T is not
+    "eigh_vectors": (lambda x: jnp.outer(*[jnp.linalg.eigh(_spd(x, 2))[1][:, 1]] * 2).ravel(), 4, {"eigh"}),
     "expm": (lambda x: jax.scipy.linalg.expm(0.5 * jnp.reshape(x, (2, 2))).ravel(), 4, {"scan"}),
 }
 FORMS = ("value", "jacfwd", "hessian")
@@ -228,18 +261,54 @@ def test_nan_and_ties_follow_xla(kernels):
         np.testing.assert_array_equal(_call(lib, name, np.asarray(x), sizes[name]), want, err_msg=name)
 
 
-@pytest.mark.parametrize("cc", ["gcc", "clang"])
+def test_integer_division_follows_xla_where_c_has_no_result(kernels):
+    """x / 0, x % 0 and INT32_MIN / -1 are undefined in C (the x86 division traps: the process died of SIGFPE);
+    the translation gives XLA's -1, x, INT32_MIN and 0 there."""
+    lib, _, sizes, _ = kernels
+    f = CASES["int_div_rem"][0]
+    for x in ([-2.0**31, 7.0, -1.0, 0.0], [5.0, -7.0, 0.0, 2.0], [-9.0, 2.0**31 - 1, 4.0, -1.0]):
+        want = np.asarray(jax.jit(f)(jnp.asarray(x)), np.float64)
+        np.testing.assert_array_equal(_call(lib, "int_div_rem_value", np.asarray(x), sizes["int_div_rem_value"]),
+                                      want, err_msg=str(x))
+
+
+@pytest.mark.parametrize("cc", COMPILERS)
 def test_the_source_builds_warning_free(kernels, cc, tmp_path):
     """The source of every case compiles with GCC and Clang with the export's flags (-std=c99 -Wall -Wextra
     -Werror -pedantic) and no warning: GCC at -O1 (where its data-flow warnings run), Clang's front end (where
     all of its warnings are)."""
-    if shutil.which(cc) is None:
-        pytest.skip(f"{cc} not on the PATH")
+    compiler_or_skip(cc)
     _, source, _, _ = kernels
-    flags = [f for f in codegen.CFLAGS if not f.startswith("-O")]
-    flags += ["-O1", "-c", "-o", str(tmp_path / "k.o")] if cc == "gcc" else ["-fsyntax-only"]
-    proc = subprocess.run([cc, *flags, str(source)], capture_output=True, text=True)
+    proc = subprocess.run([cc, *warning_free_flags(cc, tmp_path / "k.o"), str(source)], capture_output=True,
+                          text=True)
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr[:4000]
+
+
+@pytest.mark.parametrize(("exponent", "mantissa"), [(8, 7), (8, 23), (11, 23)])
+def test_reduce_precision_below_float64_is_refused_not_ignored(exponent, mantissa):
+    """At its own precision ``reduce_precision`` changes nothing (the case ``reduce_precision_own``); to a
+    narrower format (bfloat16, float32) it rounds, which the translators have no C for: they raise, naming it
+    (the engine then runs XLA), instead of passing the value through unrounded."""
+    closed = jax.make_jaxpr(lambda x: jax.lax.reduce_precision(x * 1.2345678, exponent_bits=exponent,
+                                                               mantissa_bits=mantissa))(jnp.zeros(3))
+    for translate in (scalar_jaxpr_to_c, jaxpr_to_c):
+        with pytest.raises(codegen.UnsupportedPrimitive, match=f"reduce_precision to {exponent} exponent and "
+                                                               f"{mantissa} mantissa bits of a float64"):
+            translate("f", closed, ["x"], ["o"])
+
+
+def test_a_choice_by_values_is_not_taken_for_data_movement():
+    """``select_and_gather_add`` (a max-pool's derivative: in each window, the tangent where the operand is
+    largest) picks by the operand's values. Run on element ids as data movement, it picked by the ids, the last
+    of each window: [20, 30, 40] here, where XLA gives [10, 30, 30]. It has no C, so the translators raise."""
+    X = jnp.array([3.0, 1.0, 2.0, 0.5])
+    pool = lambda v: jax.lax.reduce_window(v, -jnp.inf, jax.lax.max, (2,), (1,), "VALID")  # noqa: E731
+    closed = jax.make_jaxpr(lambda t: jax.jvp(pool, (X,), (t,))[1])(jnp.zeros(4))
+    assert "select_and_gather_add" in {e.primitive.name for e in closed.jaxpr.eqns}
+    assert "select_and_gather_add" not in codegen.PRIMITIVES
+    for translate in (scalar_jaxpr_to_c, jaxpr_to_c):
+        with pytest.raises(codegen.UnsupportedPrimitive, match="select_and_gather_add"):
+            translate("f", closed, ["x"], ["o"])
 
 
 def test_array_backend_takes_at_run_time_as_xla(tmp_path):

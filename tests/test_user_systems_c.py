@@ -216,6 +216,27 @@ def test_an_unsupported_primitive_is_named_with_the_users_file_and_line():
         flt.run(flt.init(g0, np.eye(2)), ts, us, ys, engine="c")
 
 
+@pytest.mark.parametrize("call", ["run", "step", "online"])
+def test_the_fallback_warning_points_at_the_users_call(call):
+    """Python prints a warning under the file and line it is attributed to: the user's own ``run``, ``step`` or
+    ``online`` call (each reaches the engine's choice by another path), not a line inside liemef."""
+    system = _cart(cart_interp, svd_output)
+    flt = liemef.MinimumEnergyFilter(system)
+    g0, ts, us, ys = _log(system, n=5)
+    state = flt.init(g0, np.eye(2))
+    calls = {"run": lambda: flt.run(state, ts, us, ys),  # the user's call
+             "step": lambda: flt.step(state, ts[0], us[0], ys[0], 0.02),  # the user's call
+             "online": lambda: flt.online(state)}  # the user's call
+    line = next(i + 1 for i, ln in enumerate(Path(__file__).read_text().splitlines())
+                if f'"{call}": lambda: flt.' in ln)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LogGapWarning)
+        with pytest.warns(EngineWarning) as record:
+            calls[call]()
+    assert (Path(record[0].filename).name, record[0].lineno) == (Path(__file__).name, line), \
+        f"{record[0].filename}:{record[0].lineno}"
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["interp_over_t", "sort"])
 def test_user_system_batch_in_simd_equals_single_runs(name):

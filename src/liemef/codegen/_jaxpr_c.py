@@ -72,18 +72,29 @@ def eqn_frames(eqn) -> list[tuple[str, int, str]]:
     return [(f.file_name, int(f.line_num), f.function_name) for f in tb.frames]
 
 
+def _inside(path: str, dirs) -> bool:
+    try:
+        real = str(Path(path).resolve())
+    except (OSError, ValueError):
+        return False
+    return any(real == d or real.startswith(d + "/") for d in dirs)
+
+
+def _library(path: str) -> bool:
+    """Whether ``path`` is JAX's, NumPy's, an installed package's or the interpreter's own code."""
+    return _inside(path, _JAX_DIRS) or "site-packages" in path or path.startswith("<frozen")
+
+
+def is_users(path: str) -> bool:
+    """Whether the file ``path`` is the user's own code: outside liemef, JAX, NumPy and installed packages."""
+    return not _library(path) and not _inside(path, (_LIEMEF_DIR,))
+
+
 def user_frame(frames) -> str:
     """``file:line (function)`` of the innermost frame outside liemef, JAX and NumPy (the user's own code);
     else the innermost liemef frame; else ""."""
-    def inside(path, dirs):
-        try:
-            real = str(Path(path).resolve())
-        except (OSError, ValueError):
-            return False
-        return any(real == d or real.startswith(d + "/") for d in dirs)
-    outside = [f for f in frames if not inside(f[0], _JAX_DIRS) and "site-packages" not in f[0]
-               and not f[0].startswith("<frozen")]
-    user = [f for f in outside if not inside(f[0], (_LIEMEF_DIR,))]
+    outside = [f for f in frames if not _library(f[0])]
+    user = [f for f in outside if is_users(f[0])]
     pick = (user or outside or [None])[0]
     return "" if pick is None else f"{pick[0]}:{pick[1]} ({pick[2]})"
 
@@ -156,18 +167,64 @@ _FLOAT_BINARY = {"max": "lm_max({a}, {b})", "min": "lm_min({a}, {b})", "pow": "p
 _INT_BINARY = {"max": "(({a}) > ({b}) ? ({a}) : ({b}))", "min": "(({a}) < ({b}) ? ({a}) : ({b}))",
                "rem": "({a}) % ({b})", "and": "({a}) & ({b})", "or": "({a}) | ({b})", "xor": "({a}) ^ ({b})",
                "shift_left": "({a}) << ({b})"}
+def int_division(op: str, a: str, b: str, dtype) -> str:
+    """C for an integer ``div`` or ``rem`` of the expressions ``a``, ``b`` with XLA's results where C has
+    none: x / 0 = -1 (all bits set), x % 0 = x, and for signed MIN / -1 = MIN (wrapped), MIN % -1 = 0. (A
+    plain C ``/`` is undefined there: the x86 division traps, SIGFPE, and the process dies.)"""
+    dt = np.dtype(dtype)
+    T = ctype(dt)
+    if op == "div":
+        minus = f"({b}) == -1 ? ({T})((u{T})0 - (u{T})({a})) : " if dt.kind == "i" else ""
+        return f"(({b}) == 0 ? ({T})-1 : {minus}({a}) / ({b}))"
+    minus = f"({b}) == -1 ? ({T})0 : " if dt.kind == "i" else ""
+    return f"(({b}) == 0 ? ({a}) : {minus}({a}) % ({b}))"
+
+
+def shift_left(a: str, b: str, dtype) -> str:
+    """C for ``a << b`` on the integer ``dtype`` with XLA's result where C has none: 0 for a shift outside
+    [0, bits) (C leaves it undefined, and x86 shifts by b mod 32), and the bits of a negative ``a`` shifted as
+    they are (through the unsigned type)."""
+    dt = np.dtype(dtype)
+    T = ctype(dt)
+    U = f"u{T}" if dt.kind == "i" else T
+    return f"(({b}) < 0 || ({b}) >= {8 * dt.itemsize} ? ({T})0 : ({T})(({U})({a}) << ({b})))"
+
+
+def float_to_int(a: str, dtype) -> str:
+    """C for the float expression ``a`` converted to the integer ``dtype`` as XLA converts: truncated, NaN to 0,
+    saturated at the type's limits (C's cast is undefined there: x86 gives INT_MIN for NaN and for 1e10)."""
+    dt = np.dtype(dtype)
+    T, info = ctype(dt), np.iinfo(dt)
+    name = T[:-2].upper()
+    low = f"({T})0" if info.min == 0 else f"{name}_MIN"
+    return (f"(({a}) != ({a}) ? ({T})0 : ({a}) >= {float(info.max)!r} ? {name}_MAX : "
+            f"({a}) <= {float(info.min)!r} ? {low} : ({T})({a}))")
+
+
+def saturated(x: np.ndarray, dtype) -> np.ndarray:
+    """NumPy's float array ``x`` converted to the integer ``dtype`` as :func:`float_to_int` (and XLA) does."""
+    info = np.iinfo(dtype)
+    with np.errstate(all="ignore"):
+        y = np.trunc(np.where(np.isnan(x), 0.0, x))
+        out = np.where(y >= float(info.max), info.max, np.where(y <= float(info.min), info.min, 0)).astype(dtype)
+        inside = (y < float(info.max)) & (y > float(info.min))
+        out[inside] = y[inside].astype(dtype)
+    return out
+
+
 _BOOL_BINARY = {"and": "({a}) && ({b})", "or": "({a}) || ({b})", "xor": "({a}) != ({b})",
                 "max": "({a}) || ({b})", "min": "({a}) && ({b})"}
 
 _STRUCTURAL = {"broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpose", "slice", "pad", "concatenate",
                "rev", "stack", "unstack", "split", "gather", "scatter", "scatter-add", "scatter_add",
-               "dynamic_slice", "dynamic_update_slice", "select_and_gather_add"}
+               "dynamic_slice", "dynamic_update_slice"}
 _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduce_prod": "prod",
            "reduce_and": "and", "reduce_or": "or", "argmax": "argmax", "argmin": "argmin"}
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
-          "checkpoint", "remat", "custom_lin"}
+          "checkpoint", "remat", "remat2", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
-_LINALG = {"dot_general", "lu", "triangular_solve", "eigh", "custom_linear_solve", "select_n", "clamp",
+_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "eigh", "custom_linear_solve",
+           "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort", "cholesky"}
 _CUMULATIVE = {"cumsum", "cumprod", "cummax", "cummin"}
 
@@ -207,6 +264,16 @@ def helpers_used(*texts: str) -> str:
     functions = re.split(r"\n(?=static inline)", HELPERS.strip())
     return "\n".join(fn for fn in functions
                      if re.search(r"\b" + re.search(r"\b(lm_\w+)\(", fn).group(1) + r"\(", body))
+
+
+def own_precision(params: dict, dtype) -> None:
+    """``reduce_precision`` has C only at its operand's own precision (or wider), where it changes nothing: JAX's
+    checkpointing inserts it so. A narrower one (bfloat16 or float32 rounding of a float64) raises."""
+    fi = np.finfo(dtype)
+    e, m = int(params["exponent_bits"]), int(params["mantissa_bits"])
+    if e < fi.nexp or m < fi.nmant:
+        raise UnsupportedPrimitive(f"reduce_precision to {e} exponent and {m} mantissa bits of a {np.dtype(dtype)} "
+                                   f"(only at its own {fi.nexp} and {fi.nmant}, where it changes nothing)")
 
 
 def _subjaxpr(params: dict, *keys):
@@ -647,6 +714,10 @@ class Translator:
             return self.cond(params, ins)
         if name == "scan":
             return self.scan(params, ins)
+        if name == "optimization_barrier":
+            return list(ins)
+        if name == "reduce_precision":
+            own_precision(params, ins[0].dtype)
         if all(v.const is not None for v in ins):
             return self.fold(eqn, ins)
         if name == "gather" and ins[1].const is None:
@@ -665,6 +736,8 @@ class Translator:
             return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
         if name == "eigh":
             return self.eigh(ins[0], params, avals)
+        if name == "lu_pivots_to_permutation":
+            return [self.pivots_to_permutation(ins[0], int(params["permutation_size"]), *avals[0])]
         if name == "integer_pow":
             return [self.integer_pow(ins[0], params["y"], *avals[0])]
         if name == "convert_element_type":
@@ -761,6 +834,10 @@ class Translator:
             fmt = table[name]
 
             def expr(es):
+                if kind in "iu" and name in ("div", "rem"):
+                    return int_division(name, es[0], es[1], ins[0].dtype)
+                if kind in "iu" and name == "shift_left":
+                    return shift_left(es[0], es[1], ins[0].dtype)
                 return fmt.format(a=es[0], b=es[1] if len(es) > 1 else "")
         ins = [self.broadcast(v, shape) for v in ins]
         out = self.declare(shape, dtype)
@@ -795,6 +872,8 @@ class Translator:
         out = self.declare(shape, dtype)
         if dtype == np.bool_:
             self.loop(out.size, lambda i: f"{out.name}[{i}] = ({self.elem(x, i)}) != 0;")
+        elif x.dtype.kind == "f" and np.dtype(dtype).kind in "iu":
+            self.loop(out.size, lambda i: f"{out.name}[{i}] = {float_to_int(self.elem(x, i), dtype)};")
         else:
             self.loop(out.size, lambda i: f"{out.name}[{i}] = ({ctype(dtype)})({self.elem(x, i)});")
         return out
@@ -1046,6 +1125,26 @@ class Translator:
         self.emit("    }")
         self.emit("}")
         return [lu, piv, perm]
+
+    def pivots_to_permutation(self, piv: Val, m: int, shape, dtype) -> Val:
+        """The permutation of LU's row swaps (``pivots[..., i]``: the row swapped with row i at step i) over
+        ``m`` rows, as ``lax.linalg.lu_pivots_to_permutation`` (``jax.scipy.linalg.lu_solve`` applies it).
+        A pivot out of [0, m) (never from an LU) is clamped, so that no write leaves the array."""
+        k = piv.shape[-1]
+        batch = piv.size // max(k, 1)
+        out = self.declare(shape, dtype)
+        b, i, j, t = self.fresh("i"), self.fresh("i"), self.fresh("j"), self.fresh("t")
+        P = lambda r: f"{out.name}[{b} * {m} + {r}]"  # noqa: E731
+        self.emit(f"for (int {b} = 0; {b} < {batch}; {b}++) {{")
+        self.emit(f"    for (int {i} = 0; {i} < {m}; {i}++) {P(i)} = {i};")
+        self.emit(f"    for (int {i} = 0; {i} < {k}; {i}++) {{")
+        self.emit(f"        int32_t {j} = (int32_t){self.elem(piv, f'{b} * {k} + {i}')};")
+        self.emit(f"        if ({j} < 0) {j} = 0;")
+        self.emit(f"        if ({j} > {m - 1}) {j} = {m - 1};")
+        self.emit(f"        {{ const int32_t {t} = {P(i)}; {P(i)} = {P(j)}; {P(j)} = {t}; }}")
+        self.emit("    }")
+        self.emit("}")
+        return out
 
     def eigh(self, a: Val, params, avals) -> list[Val]:
         """The symmetric eigendecomposition (``v``, ``w``: eigenvectors as columns, eigenvalues ascending) of

@@ -57,7 +57,7 @@ from . import _cache, _fast
 from ._cache import Library, cache_dir
 from ._export import _dce, compiler, run_compiler
 from ._fast import FALLBACK
-from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype
+from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype, helpers_used
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
 
 NATIVE = ("-march=native", "-mno-fma", "-mno-avx512f") \
@@ -242,7 +242,7 @@ def _translate(tr: _Traced) -> str:
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
-{HELPERS}
+{helpers_used(core)}
 {chr(10).join(sc.table_lines)}
 {core}
 #define S {S}

@@ -60,8 +60,13 @@ from ._jaxpr_c import (
     ctype,
     element_ids,
     eqn_frames,
+    float_to_int,
     inlined,
+    int_division,
     literal,
+    own_precision,
+    saturated,
+    shift_left,
     take_layout,
 )
 
@@ -192,7 +197,7 @@ class ScalarTranslator:
             if op == "sel":
                 return xs[1] if bool(xs[0]) else xs[2]
             if op == "convert":
-                return xs[0].astype(dt)
+                return saturated(xs[0], dt) if dt.kind in "iu" and xs[0].dtype.kind == "f" else xs[0].astype(dt)
             if op == "ipow":
                 return xs[0] ** param if param >= 0 else 1.0 / xs[0] ** (-param)
             out = _np_eval(op, {}, xs, [dt])
@@ -289,6 +294,8 @@ class ScalarTranslator:
         if op == "sel":
             return f"({e[0]}) ? ({e[1]}) : ({e[2]})"
         if op == "convert":
+            if dt.kind in "iu" and self.dtype[a[0]].kind == "f":
+                return float_to_int(e[0], dt)
             return f"({e[0]}) != 0" if dt == np.bool_ else f"({ctype(dt)})({e[0]})"
         if op == "ipow":
             p = self.value[i]
@@ -300,6 +307,10 @@ class ScalarTranslator:
             table, off = self.value[i]
             return f"{table}[{e[0]} + {off}]"
         kind = self.dtype[a[0]].kind
+        if kind in "iu" and op in ("div", "rem"):
+            return int_division(op, e[0], e[1], self.dtype[a[0]])
+        if kind in "iu" and op == "shift_left":
+            return shift_left(e[0], e[1], self.dtype[a[0]])
         table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
                  "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
         if op not in table:
@@ -355,6 +366,10 @@ class ScalarTranslator:
             return self.cond(params, ins)
         if name == "scan":
             return self.scan(params, ins)
+        if name == "optimization_barrier":
+            return list(ins)
+        if name == "reduce_precision":
+            own_precision(params, idt[0])
         if all(self._known(x) for x in ins):
             xs = [self._values(x, d) for x, d in zip(ins, idt, strict=True)]
             outs = _np_eval(name, params, xs, odt)
@@ -394,7 +409,7 @@ class ScalarTranslator:
             return [self.cholesky(ins[0], odt[0])]
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
-        if name in ("lu", "triangular_solve", "eigh"):
+        if name in ("lu", "lu_pivots_to_permutation", "triangular_solve", "eigh"):
             return self.block(eqn, ins, idt)
         if name == "integer_pow":
             return [self.map1(lambda x: self.node("ipow", (x,), odt[0], params["y"]), ins[0], oshape[0])]
@@ -1065,6 +1080,8 @@ class ScalarTranslator:
                 zero = "0.0" if src.kind == "f" else "0"
                 c = f"({e[0]}) != (({lane_type(src)}){{0}} + {zero})"
                 return c if src.itemsize == 8 else f"__builtin_convertvector({c}, lane_i64)"
+            if src.kind == "f" and dt.kind in "iu":
+                return None  # saturated, NaN to 0, as XLA: a loop over lanes
             x = f"-({e[0]})" if src == np.bool_ else e[0]
             return f"__builtin_convertvector({x}, {lane_type(dt)})"
         if op in ("stop_gradient", "copy", "copy_p", "reduce_precision", "optimization_barrier", "real"):

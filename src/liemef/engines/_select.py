@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 import warnings
 
 import jax
@@ -12,6 +13,7 @@ from .. import _side
 from ..codegen import _kernel as kmod
 from ..codegen._cache import EngineWarning
 from ..codegen._export import compiler
+from ..codegen._jaxpr_c import is_users
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
@@ -98,7 +100,7 @@ def _entry(flt, engine: str | None, check=None, args=()) -> tuple:
             raise
         warnings.warn(f"the C engine is not available for {type(flt).__name__} ({type(err).__name__}: "
                       f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
-                      stacklevel=4)
+                      stacklevel=_users_level())
         kern, error = None, err
     if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(flt)):
         return (kern, None, None, None, None)  # a traced filter (scan under a transformation): parameters as data
@@ -109,6 +111,15 @@ def _entry(flt, engine: str | None, check=None, args=()) -> tuple:
         entry = (kern, theta, theta.ctypes.data, None, LAZY)
     _side.put(flt, "kernel", entry)
     return entry
+
+
+def _users_level() -> int:
+    """``warnings.warn``'s stacklevel, for its caller, of the innermost frame in the user's code (the user's
+    ``run``, ``step``, ``online`` or ``scan`` call: each reaches the warning by another path); 1 if none."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and not is_users(frame.f_code.co_filename):
+        frame, level = frame.f_back, level + 1
+    return level if frame is not None else 1
 
 
 def theta(flt):
