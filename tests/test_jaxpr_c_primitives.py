@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import re
 import subprocess
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -223,7 +224,7 @@ def test_primitive_in_c_equals_xla(request, case, form):
     lib, _, sizes, _ = request.getfixturevalue("slow_kernels" if (case, form) in SLOW else "kernels")
     f, n, _ = CASES[case]
     fn = jax.jit(_form(f, form))
-    rng = np.random.default_rng(abs(hash(case)) % 2**32)
+    rng = np.random.default_rng(zlib.crc32(case.encode()))  # the same inputs in every process (hash() is salted)
     for _ in range(5):
         x = rng.normal(size=n) * 1.5
         want = np.asarray(fn(jnp.asarray(x)), np.float64).ravel()
