@@ -27,7 +27,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .. import _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
-from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status
+from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status, positive_definite
 
 
 class FilterState(eqx.Module):
@@ -86,21 +86,6 @@ def nan_after_failure(codes, states, *, first_given: bool):
 
 TRACES: collections.Counter = collections.Counter()
 """How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
-
-
-def positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
-    """Whether the symmetric ``S`` has a Cholesky factor, by an unrolled factorization: on the CPU a LAPACK call
-    costs more than the whole filter step for these small matrices."""
-    n = S.shape[0]
-    L = [[None] * n for _ in range(n)]
-    ok = jnp.asarray(True)
-    for j in range(n):
-        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.asarray(0.0))
-        ok = ok & (d > 0)
-        L[j][j] = jnp.sqrt(jnp.where(d > 0, d, 1.0))
-        for i in range(j + 1, n):
-            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.asarray(0.0))) / L[j][j]
-    return ok
 
 
 def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
