@@ -31,8 +31,10 @@ from ._consistency import chi2_bounds
 
 WINDOW_SECONDS, WINDOW_MIN, WINDOW_MAX = 5.0, 20, 500
 """The default window of a sensor: its present samples within 5 s, at least 20 and at most 500."""
-SUSTAIN_WINDOWS = 2.0
-"""The default sustain time of a sensor: this many of its windows' spans."""
+SUSTAIN_WINDOWS = 1.5
+"""The default sustain time of a sensor: this many of its windows' spans. One gross outlier keeps the windows that
+hold it out of band for one span, a burst of them for the burst's length more: with 1.5, a burst shorter than half a
+window is not enough, a fault that lasts is (for as long as half a window past its first window out)."""
 STATUSES = ("consistent", "inconsistent", "not applicable")
 
 
@@ -209,7 +211,7 @@ class InnovationReport:
             start, end, side = s.longest
             said.append(f"{s.name}: mean NIS of {s.window} samples {'above' if side == 'high' else 'below'} its "
                         f"{100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}] from t = {start:.6g} s to "
-                        f"{end:.6g} s (first out at t = {s.first_out:.6g} s; mean NIS {s.mean_nis:.3g} for "
+                        f"{end:.6g} s (first out at t = {s.first_out:.6g} s; the run's mean NIS {s.mean_nis:.3g} for "
                         f"{s.dof} dof): K {'understates' if side == 'high' else 'overstates'} the errors")
         return "Innovation monitor: INCONSISTENT: " + "; ".join(said)
 
@@ -263,7 +265,7 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     Per sensor, the mean NIS over a sliding window of its last ``window`` present samples (default: the samples
     within 5 s, at least 20 and at most 500) is compared with its two-sided ``prob`` band
     $(\chi^2_{dN}((1-p)/2), \chi^2_{dN}((1+p)/2))/N$ (:func:`chi2_bounds`, $d$ the sensor's degrees of
-    freedom). A run of windows out of band on one side that lasts at least ``sustain`` seconds (default: two
+    freedom). A run of windows out of band on one side that lasts at least ``sustain`` seconds (default: 1.5
     windows' spans, per sensor) makes the status "inconsistent"; otherwise "consistent". "not applicable" where
     K is not a covariance (:func:`gain_is_covariance`) or no sensor has a full window. States that are NaN
     after a failure are skipped (the run's status speaks for them). Works on a run of either engine, with
@@ -276,7 +278,8 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
         raise ValueError(f"prob: expected a probability in (0, 1), got {prob!r}")
     if sustain is not None and (isinstance(sustain, bool) or not isinstance(sustain, int | float | np.number)
                                 or not (math.isfinite(sustain) and sustain >= 0)):
-        raise ValueError(f"sustain: expected a finite time >= 0 in seconds (or None: two windows), got {sustain!r}")
+        raise ValueError(f"sustain: expected a finite time >= 0 in seconds (or None: 1.5 windows' spans), "
+                         f"got {sustain!r}")
     for name, v in (("flt", flt), ("traj", traj)):
         if not all(hasattr(v, a) for a in (("system",) if name == "flt" else ("ts", "g_hat", "K"))):
             raise ValueError(f"{name}: expected a liemef {'filter' if name == 'flt' else 'Trajectory'}, got "
