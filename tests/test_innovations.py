@@ -106,7 +106,7 @@ def test_consistent_runs_are_consistent():
     assert out / windows <= 0.005
 
 
-@pytest.mark.slow  # 200 runs: about 20 s
+@pytest.mark.slow  # 200 runs: about 10 s on 2 busy cores
 def test_false_alarm_rates_are_the_documented_ones():
     """The rates of docs/innovations.md, 200 runs (seeds 100-299): measured 0 of 200 runs and 453 of 600400 windows
     (7.5e-4; the band's own rate is 1e-3), the longest excursion 0.8 s against a sustain time of 7.5 s."""

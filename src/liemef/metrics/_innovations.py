@@ -125,7 +125,21 @@ def innovation_nis(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike
     idx = idx[use]
     g = jax.tree_util.tree_map(lambda a: np.asarray(a)[use], traj.g_hat)
     dts = ts[idx + 1] - ts[idx]
-    q, rank = (np.asarray(a) for a in _nis_all(flt, g, K[use], ts[idx], dts, ys[idx]))
+    # padded to a power of two (at least 64) with copies of the first sample, missing: one compilation serves
+    # every log of a length bucket
+    M = idx.size
+    pad = max(64, 1 << max(0, (M - 1).bit_length())) - M
+
+    def padded(a, fill=None):
+        a = np.asarray(a)
+        extra = np.repeat(a[:1], pad, axis=0) if fill is None else np.full((pad,) + a.shape[1:], fill)
+        return np.concatenate([a, extra]) if M else np.zeros((0,) + a.shape[1:])
+
+    if M == 0:
+        return np.full((ts.size, len(flt.blocks)), np.nan), tuple(b.dim for b in flt.blocks)
+    q, rank = _nis_all(flt, jax.tree_util.tree_map(padded, g), padded(K[use]), padded(ts[idx]), padded(dts),
+                       padded(ys[idx], np.nan))
+    q, rank = np.asarray(q)[:M], np.asarray(rank)[:M]
     nis = np.full((ts.size, len(flt.blocks)), np.nan)
     nis[idx] = q
     seen = np.isfinite(q)
