@@ -100,6 +100,18 @@ def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
     return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
 
 
+def sample_covariance(Wy, dt, present, block) -> Float[Array, "k k"]:
+    """The covariance of one sample of the sensor ``block``: the inverse of its information over the interval
+    ``dt`` it is used in, ``Wy[sl, sl] * dt`` with ``Wy`` the information in force
+    (:func:`~liemef.filters._riccati.information_in_force`, where a sample sensor's information is already
+    divided by ``dt``), so ``inv(Wy_block * dt)`` for a density sensor and ``inv(Wy_block)`` per sample.
+    The identity where the block is not ``present``. The one definition of the gates' and the innovation
+    monitor's (:func:`liemef.metrics.innovation_monitor`) sample covariance. Traceable."""
+    sl = slice(block.start, block.stop)
+    info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(block.dim))
+    return jnp.linalg.inv(info)
+
+
 class _hot_path:
     """A method read off a filter as a plain ``functools.partial``: equinox builds a bound-method Module at each
     read of an ordinary method (tens of microseconds), too slow for :meth:`AbstractFilter.step` in a robot's
@@ -230,9 +242,7 @@ class AbstractFilter(eqx.Module):
             rej, cons = rejected[i], consecutive[i]
             if b.gate_threshold is not None or b.robust is not None:
                 present = jnp.all(mask[sl])
-                # the sample's covariance: its information over the interval, times the interval
-                info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(b.dim))
-                S = HKH[sl, sl] + jnp.linalg.inv(info)
+                S = HKH[sl, sl] + sample_covariance(Wy, dt, present, b)
                 d2 = nu[sl] @ jnp.linalg.solve(S, nu[sl])
                 d2 = jnp.where(jnp.isfinite(d2), d2, jnp.inf)
                 if b.gate_threshold is not None:
