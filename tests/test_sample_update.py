@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from liemef.filters import safe_curvature, sample_update
+from liemef.filters import sample_update
 from liemef.groups import R1, R3, SE2, SE23, SO2, SO3, TSO3
 from tolerances import ROUNDOFF
 
@@ -243,24 +243,3 @@ def test_error_of_one_step_is_second_order_in_the_innovation():
         np.testing.assert_allclose(err / ds**2, coefficient, rtol=0.05)
     for d in (0.5, 1.0):
         assert abs(solve(d) - exact(d)) < ROUNDOFF
-
-
-def test_safe_curvature_keeps_observed_directions_and_a_semidefinite_information():
-    """G observes the first two of three directions; C couples the first with the third (unobserved) and is
-    strongly negative on the second: the safe curvature has nothing on the third direction, G + C_safe is
-    positive semidefinite, and where G is nonsingular and G + C is definite the exact C comes back bit for bit."""
-    G = np.diag([4.0, 1.0, 0.0])
-    C = np.array([[0.5, 0.0, 0.7], [0.0, -3.0, 0.0], [0.7, 0.0, 0.2]])
-    C_safe, modified = safe_curvature(jnp.asarray(G), jnp.asarray(C))
-    C_safe = np.asarray(C_safe)
-    assert bool(modified)
-    np.testing.assert_allclose(C_safe[2], 0.0, atol=ROUNDOFF)
-    np.testing.assert_allclose(C_safe[:, 2], 0.0, atol=ROUNDOFF)
-    np.testing.assert_allclose(C_safe[0, 0], 0.5, atol=ROUNDOFF)       # the observed curvature, kept
-    np.testing.assert_allclose(C_safe[1, 1], -1.0, atol=ROUNDOFF)      # clipped: the information there is 0
-    assert np.linalg.eigvalsh(G + C_safe).min() > -ROUNDOFF
-    G2 = np.array([[3.0, 0.4, 0.1], [0.4, 2.0, 0.3], [0.1, 0.3, 1.5]])
-    C2 = np.array([[-0.5, 0.2, 0.0], [0.2, 0.3, -0.1], [0.0, -0.1, -0.4]])
-    out, modified = safe_curvature(jnp.asarray(G2), jnp.asarray(C2))
-    assert not bool(modified)
-    assert np.array_equal(np.asarray(out), C2)

@@ -36,8 +36,8 @@ OBSERVED_TOL = 1e-10
 """A direction is observed where the Gauss-Newton information exceeds ``OBSERVED_TOL`` times its largest
 eigenvalue."""
 UNCHANGED_TOL = 1e-12
-"""The exact curvature is kept (its bits) where the safe one differs from it by at most ``UNCHANGED_TOL`` times
-the information's scale."""
+"""The exact curvature is kept (its bits) where it acts off the observed directions by at most ``UNCHANGED_TOL``
+times the information's scale and no relative eigenvalue is below -1 by more than ``UNCHANGED_TOL``."""
 
 
 def safe_curvature(G: Float[Array, "n n"], C: Float[Array, "n n"]) -> tuple[Float[Array, "n n"], Bool[Array, ""]]:
@@ -55,6 +55,10 @@ def safe_curvature(G: Float[Array, "n n"], C: Float[Array, "n n"]) -> tuple[Floa
     mu, U = jnp.linalg.eigh(mm(Vw.T, mm(Cs, Vw)))
     B = mm(V * root[None, :], U)                    # V S^{1/2} U
     C_safe = mm(B * jnp.maximum(mu, -1.0)[None, :], B.T)
+    # the rule changes C only where C acts off G's range or a relative eigenvalue is below -1: decided on those
+    # two facts, not on C_safe - C, whose round-off grows with G's condition number
+    P = mm(V * observed[None, :], V.T)
+    leak = jnp.max(jnp.abs(Cs - mm(P, mm(Cs, P))))
     big = jnp.maximum(scale, jnp.max(jnp.abs(Cs)))
-    modified = jnp.max(jnp.abs(C_safe - Cs)) > UNCHANGED_TOL * big
+    modified = (leak > UNCHANGED_TOL * big) | jnp.any(mu < -1.0 - UNCHANGED_TOL)
     return jnp.where(modified, C_safe + (C - Cs), C), modified
