@@ -6,11 +6,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tolerances import ROUNDOFF
 
 from liemef import MinimumEnergyFilter
 from liemef.filters import Weights, information_in_force, safe_curvature, terms
 from liemef.studies.experiments import tse2
+from tolerances import ROUNDOFF
 
 jax.config.update("jax_enable_x64", True)
 
