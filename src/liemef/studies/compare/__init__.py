@@ -77,7 +77,7 @@ STUDIES = {name: Study(registry.get("comparison", name).title, *_PARTS[name]) fo
 describes them)."""
 
 def failures(result: dict) -> tuple[list[str], int, int]:
-    """What failed in a comparison's ``result``: one line per filter (and system, recording, trial or angle)
+    """What failed in a comparison's ``result``: one line per filter (and system, case, recording, trial or angle)
     that failed somewhere, the number of (filter, trial) pairs that failed and the number run."""
     lines, failed, total = [], 0, 0
     for sname, sysr in result.get("systems", {}).items():
@@ -86,6 +86,14 @@ def failures(result: dict) -> tuple[list[str], int, int]:
             failed, total = failed + n, total + sum(r["trials"] for r in e["angles"])
             if n:
                 lines.append(f"{sname}: {name} failed in {n} trials (counted as not converged)")
+    for cname, case in result.get("cases", {}).items():
+        for name, e in case["filters"].items():
+            failed, total = failed + e["failed"], total + e["runs"]
+            if e["failed"]:
+                first = e["failures"][0]
+                lines.append(f"{cname}: {name} failed in {e['failed']} of {e['runs']} trials (first: trial "
+                             f"{first['trial']}, {first['cause']} at t = {first['time']:.3f} s); left out of the "
+                             "statistics")
     for rid, rec in result.get("recordings", {}).items():
         for name, e in rec["filters"].items():
             failed, total = failed + e["failed"], total + e["runs"]
