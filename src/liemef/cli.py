@@ -11,7 +11,8 @@ the comparisons of :mod:`liemef.studies.compare` and :func:`liemef.studies.campa
 Output folders are complete or absent (:mod:`liemef.reports.outputs`): written beside ``--out`` and renamed into
 place with a ``manifest.json``; a folder holding another command's files is refused unless ``--force``.
 Exit status: 0 ok, 1 a failed run (or a Monte Carlo or comparison with no usable trial, or a full disk),
-2 bad input, 130 interrupted (Ctrl-C or SIGTERM).
+2 bad input, 3 a run of ``liemef run`` whose innovations are inconsistent with its K (outputs written whole),
+130 interrupted (Ctrl-C or SIGTERM).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from . import __version__
 from .reports import outputs
 from .studies import commands, registry
 
-EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 1, 2, 130
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INCONSISTENT, EXIT_INTERRUPTED = 1, 2, 3, 130
 
 
 class _Commands(click.Group):
@@ -156,15 +157,18 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 @_command(cli, "run")
 def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_diag, connection, order, alpha,
-            interpolation, updates, substeps, gap, chunk, params_file, force, progress):
+            interpolation, updates, substeps, gap, chunk, params_file, monitor, force, progress):
     from .studies import logs
 
-    _echo(logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, topics=topics,
-                             params=params_file, x0=_floats(x0, "'--x0'"),
-                             K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
-                             force=force, connection=connection, order=order, alpha=alpha,
-                             interpolation=interpolation, updates=updates, substeps=_substeps(substeps), gap=gap,
-                             chunk=chunk, progress=progress))
+    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, topics=topics,
+                               params=params_file, x0=_floats(x0, "'--x0'"),
+                               K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
+                               force=force, connection=connection, order=order, alpha=alpha,
+                               interpolation=interpolation, updates=updates, substeps=_substeps(substeps), gap=gap,
+                               chunk=chunk, progress=progress, monitor=monitor)
+    _echo(saved)
+    if saved.run.inconsistent:  # the outputs are written: an exit status of its own, for scripts
+        click.get_current_context().exit(EXIT_INCONSISTENT)
 
 
 @_command(cli, "export-c")

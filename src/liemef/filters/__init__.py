@@ -1,17 +1,20 @@
 """The filters: the mathematics of one sample interval, with no engine and no I/O.
 
 :class:`MinimumEnergyFilter` (Theorem 4.1 of Saccon et al. 2016) is built from the left-trivialized derivatives
-(:func:`left_jacobian`, :func:`left_hessian`), the Riccati terms (:func:`terms`, :func:`riccati_rhs`) and a
+(:func:`left_jacobian`, :func:`left_hessian`), the Riccati terms (:func:`terms`, :func:`riccati_rhs`), the
+sample update at a sample's own time (:func:`sample_update`, with :func:`safe_curvature`) and a
 Lie-group integrator (:mod:`liemef.integrators`); the baselines (:mod:`liemef.filters.baselines`) share its
 :class:`AbstractFilter` interface, state and :class:`Status`. What runs them is :mod:`liemef.engines`.
 """
 
 from ._base import TRACES, AbstractFilter, FilterState, Trajectory, sensor_layout
+from ._curvature import safe_curvature
 from ._derivatives import left_hessian, left_jacobian
 from ._mef import INTERPOLATIONS, ORDERS, UPDATES, MinimumEnergyFilter
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import CAUSES, Status
+from ._update import UpdateInfo, sample_update
 
 __all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "UPDATES", "TRACES",
            "Status", "CAUSES", "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms",
-           "riccati_rhs", "left_jacobian", "left_hessian"]
+           "riccati_rhs", "left_jacobian", "left_hessian", "safe_curvature", "sample_update", "UpdateInfo"]

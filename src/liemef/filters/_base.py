@@ -27,7 +27,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from .. import _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
-from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status
+from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status, positive_definite
 
 
 class FilterState(eqx.Module):
@@ -88,21 +88,6 @@ TRACES: collections.Counter = collections.Counter()
 """How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
 
 
-def positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
-    """Whether the symmetric ``S`` has a Cholesky factor, by an unrolled factorization: on the CPU a LAPACK call
-    costs more than the whole filter step for these small matrices."""
-    n = S.shape[0]
-    L = [[None] * n for _ in range(n)]
-    ok = jnp.asarray(True)
-    for j in range(n):
-        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.asarray(0.0))
-        ok = ok & (d > 0)
-        L[j][j] = jnp.sqrt(jnp.where(d > 0, d, 1.0))
-        for i in range(j + 1, n):
-            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.asarray(0.0))) / L[j][j]
-    return ok
-
-
 def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
     """The sensor layout a filter needs: the system's blocks, per output component whether it has sample
     meaning, and whether the information matrix ``Wy`` is diagonal (a missing component is then dropped by
@@ -113,6 +98,18 @@ def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
         sample[b.start:b.stop] = [b.sample] * b.dim
     Wy = np.asarray(Wy)
     return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
+
+
+def sample_covariance(Wy, dt, present, block) -> Float[Array, "k k"]:
+    """The covariance of one sample of the sensor ``block``: the inverse of its information over the interval
+    ``dt`` it is used in, ``Wy[sl, sl] * dt`` with ``Wy`` the information in force
+    (:func:`~liemef.filters._riccati.information_in_force`, where a sample sensor's information is already
+    divided by ``dt``), so ``inv(Wy_block * dt)`` for a density sensor and ``inv(Wy_block)`` per sample.
+    The identity where the block is not ``present``. The one definition of the gates' and the innovation
+    monitor's (:func:`liemef.metrics.innovation_monitor`) sample covariance. Traceable."""
+    sl = slice(block.start, block.stop)
+    info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(block.dim))
+    return jnp.linalg.inv(info)
 
 
 class _hot_path:
@@ -245,9 +242,7 @@ class AbstractFilter(eqx.Module):
             rej, cons = rejected[i], consecutive[i]
             if b.gate_threshold is not None or b.robust is not None:
                 present = jnp.all(mask[sl])
-                # the sample's covariance: its information over the interval, times the interval
-                info = jnp.where(present, Wy[sl, sl] * dt, jnp.eye(b.dim))
-                S = HKH[sl, sl] + jnp.linalg.inv(info)
+                S = HKH[sl, sl] + sample_covariance(Wy, dt, present, b)
                 d2 = nu[sl] @ jnp.linalg.solve(S, nu[sl])
                 d2 = jnp.where(jnp.isfinite(d2), d2, jnp.inf)
                 if b.gate_threshold is not None:

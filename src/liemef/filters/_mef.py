@@ -65,9 +65,17 @@ class MinimumEnergyFilter(AbstractFilter):
             On a linear system this is the discrete Kalman filter exactly; on fast rotation it removes the lag
             of the held sample. Recommended for a user system with sample sensors. Density sensors are
             continuous in either mode.
-        iterations: the number of Newton steps (``order="second"``, the output's second-order term kept) or
-            Gauss-Newton steps (``order="first"``: one step is the invariant EKF's update) of a discrete update
-            (default 1; K+ comes from the Hessian at the last iterate, docs/theorem.md).
+        iterations: the most iterations of a discrete update: Newton's (``order="second"``) or Gauss-Newton's
+            (``order="first"``), each with a line search on the sample's true cost, so that an update never
+            raises it (:mod:`liemef.filters` docs, docs/theorem.md "Samples at their own time"). Default: 10 for
+            the second order (iterated to ``tol``), 1 for the first (one Gauss-Newton step: the invariant
+            EKF's update where the step is accepted whole).
+        tol: the Newton decrement, relative to 1 + the sample's cost, below which a discrete update stops.
+        curvature: the output's second-order term, in E (continuous) and in the discrete update's Hessian.
+            ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter). ``"safe"``: kept only along the
+            directions the outputs observe and where it leaves the information positive semidefinite
+            (:func:`liemef.filters.safe_curvature`; identical to ``"exact"``, bit for bit, wherever that holds
+            already). Ignored by the first order.
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -92,13 +100,16 @@ class MinimumEnergyFilter(AbstractFilter):
     constant_E: str = eqx.field(static=True)
     updates: str = eqx.field(static=True, default="hold")
     iterations: int = eqx.field(static=True, default=1)
+    curvature: str = eqx.field(static=True, default="exact")
+    tol: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(1e-14))
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
                  order: Literal["second", "first"] = "second", integrator: str | AbstractIntegrator = "rkmk4",
                  alpha: float = 0.0, *, interpolation: Literal["hold", "linear"] = "hold",
                  substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
                  constant_E: Literal["weighted", "unit"] = "weighted",
-                 updates: Literal["hold", "discrete"] = "hold", iterations: int = 1):
+                 updates: Literal["hold", "discrete"] = "hold", iterations: int | None = None,
+                 tol: float = 1e-14, curvature: Literal["exact", "safe"] = "exact"):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
@@ -109,9 +120,13 @@ class MinimumEnergyFilter(AbstractFilter):
                              f"got {substeps!r}")
         _validate.integer("max_substeps", max_substeps, 1)
         _validate.choice("updates", updates, set(UPDATES))
+        if iterations is None:
+            iterations = 10 if order == "second" else 1
         if not (isinstance(iterations, int) and not isinstance(iterations, bool) and iterations >= 1):
             raise ValueError(f"iterations: expected an integer >= 1 (Newton or Gauss-Newton steps), got {iterations!r}")
-        self.updates, self.iterations = updates, iterations
+        _validate.choice("curvature", curvature, {"exact", "safe"})
+        self.updates, self.iterations, self.curvature = updates, iterations, curvature
+        self.tol = jnp.asarray(_validate.nonnegative("tol", tol))
         self.system = system
         self.connection = make_connection(connection, system.group)
         self.order = order
@@ -127,13 +142,15 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def __repr__(self) -> str:
         updates = f", updates={self.updates!r}" if self.updates != "hold" else ""
+        updates += f", curvature={self.curvature!r}" if self.curvature != "exact" else ""
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
                 f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)}{updates}"
                 + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))
 
     # --- the mathematics ----------------------------------------------------------------------------------
     def _terms(self, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
-        tm = terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs)
+        tm = terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs,
+                   self.curvature == "safe")
         if self.constant_E == "weighted":
             return tm
         unit = tm.Dh.T @ (weights.Wy - jnp.eye(weights.Wy.shape[0])) @ tm.Dh  # E's constant part as Dh^T Dh
@@ -199,8 +216,9 @@ class MinimumEnergyFilter(AbstractFilter):
             rejected, consecutive = st.rejected, st.consecutive
         if discrete:
             def update(gK):
-                g2, K2 = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), *gK, y0, W_sample,
-                                       iterations=self.iterations, newton=self.order == "second")
+                g2, K2, _ = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), *gK, y0, W_sample,
+                                          iterations=self.iterations, newton=self.order == "second",
+                                          safe=self.curvature == "safe", tol=self.tol)
                 return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
 
             # only an interval that starts with a sample is updated: the update of zero information is the

@@ -10,18 +10,21 @@ $$\hat g^{-1}\dot{\hat g} = \lambda + K r, \qquad
 \dot K = -\alpha K + A K + K A^\top - K E K + B R^{-1} B^\top - W K - K W^\top.$$
 
 The first-order variant drops the Hessian term of E and sets W = 0 (the continuous-time left-invariant EKF).
+With ``curvature="safe"`` the Hessian term of E is replaced by :func:`~._curvature.safe_curvature`'s (kept on
+the directions the outputs observe, and E positive semidefinite); ``Terms.modified`` says where it acted.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from .._linalg import mm, mv
 from ..connections import Connection
 from ..groups import LieGroup
 from ..systems import AbstractSystem
+from ._curvature import safe_curvature
 from ._derivatives import left_hessian, left_jacobian
 
 
@@ -41,6 +44,8 @@ class Terms(eqx.Module):
     """Weighted innovation $D^{-\\top} Q D^{-1} (y - h(\\hat g))$."""
     Dh: Float[Array, "p n"]
     Dlam: Float[Array, "n n"]
+    modified: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))
+    """Whether the safe curvature changed E's Hessian term (``curvature="safe"``; always False otherwise)."""
 
 
 class Weights(eqx.Module):
@@ -81,10 +86,11 @@ def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Flo
 @eqx.filter_jit  # one call per evaluation: traced once per interval structure (not once per RK stage), one
 # function in the exported C (liemef.codegen); XLA inlines it
 def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_order: bool,
-          g: LieGroup, K, u, y, t, outputs: bool = True) -> Terms:
+          g: LieGroup, K, u, y, t, outputs: bool = True, safe: bool = False) -> Terms:
     """r, A, E, W, B R^{-1} B^T of Theorem 4.1 at the estimate ``g`` with gain ``K``. ``outputs=False``
     (static): no output carries weight (the hybrid filter's prediction with sample sensors only), so r, E, W and
-    the innovation are zero and the output's derivatives are not computed."""
+    the innovation are zero and the output's derivatives are not computed. ``safe`` (static): E's Hessian term
+    is the safe curvature (module docstring)."""
     G = type(g)
     if not outputs:
         lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
@@ -98,13 +104,17 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
     lam, Dlam = left_jacobian(lambda gg: system.dynamics(gg, u, t), g)
     A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
     E = mm(Dh.T, mm(weights.Wy, Dh))
+    modified = jnp.asarray(False)
     if second_order:
         # sum_k y_tilde_k Hess h_k = Hess (y_tilde . h) + connection correction linear in r = Dh^T y_tilde
-        E = E - (left_hessian(lambda gg: y_tilde @ system.output_seen_from(y, gg, t), g) + conn.hessian_correction(r))
+        C = -(left_hessian(lambda gg: y_tilde @ system.output_seen_from(y, gg, t), g) + conn.hessian_correction(r))
+        if safe:
+            C, modified = safe_curvature(E, C)
+        E = E + C
         W = conn.omega_matrix(mv(K, r))
     else:
         W = jnp.zeros_like(A)
-    return Terms(r=r, A=A, E=E, W=W, BRB=weights.BRB, lam=lam, y_tilde=y_tilde, Dh=Dh, Dlam=Dlam)
+    return Terms(r=r, A=A, E=E, W=W, BRB=weights.BRB, lam=lam, y_tilde=y_tilde, Dh=Dh, Dlam=Dlam, modified=modified)
 
 
 def riccati_rhs(tm: Terms, K, alpha) -> Float[Array, "n n"]:

@@ -17,7 +17,7 @@ import operator
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 SYMMETRY_TOL = 1e-8
 """Largest relative asymmetry ``max|K - K^T| / max(1, max|K|)`` of a gain that should be symmetric."""
@@ -141,3 +141,18 @@ class Status(eqx.Module):
         why = CAUSES[int(self.code)].message
         return (f"filter failed over the sample interval {k} ({span}): {why}; the last good state is the one at "
                 f"sample {k}")
+
+
+def positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
+    """Whether the symmetric ``S`` has a Cholesky factor, by an unrolled factorization: on the CPU a LAPACK call
+    costs more than the whole filter step for these small matrices."""
+    n = S.shape[0]
+    L = [[None] * n for _ in range(n)]
+    ok = jnp.asarray(True)
+    for j in range(n):
+        d = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.asarray(0.0))
+        ok = ok & (d > 0)
+        L[j][j] = jnp.sqrt(jnp.where(d > 0, d, 1.0))
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.asarray(0.0))) / L[j][j]
+    return ok

@@ -132,7 +132,9 @@ MONTECARLO = Command(
 RUN = Command(
     """Filter a recorded log with a ready system or your own, and write the estimates, K's diagonal and the
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
-    only failure.json, says where, when and why, and exits with status 1.""", (
+    only failure.json, says where, when and why, and exits with status 1. A run whose innovations are
+    inconsistent with K (the innovation monitor, metrics.json's "innovations") writes all its outputs, says which
+    sensor and when, and exits with status 3.""", (
         system("A ready system the log was recorded with (or --system-file)."),
         option("--system-file", type=PATH, help="A Python file that defines `system` (your own liemef system) and "
                "optionally K0, x0, initial_guess(y0)."),
@@ -161,6 +163,9 @@ RUN = Command(
                help="Samples per compiled chunk (progress is shown between chunks)."),
         option("--params", "params_file", type=PATH,
                help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu."),
+        option("--monitor/--no-monitor", default=True, show_default=True,
+               help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
+               "inconsistent)."),
         FORCE, progress("Progress on stderr (on a terminal).")))
 
 EXPORT_C = Command(

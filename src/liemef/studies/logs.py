@@ -9,13 +9,15 @@
 :func:`resolve_system` gives a :class:`LogSystem` (a ready system of :data:`liemef.studies.experiments.SYSTEMS` or
 a user's system file, with its default initial estimate and gain); :func:`filter_log` reads the log, starts the
 minimum-energy filter there, runs it over the log in compiled chunks and returns a :class:`LogRun`: the
-trajectory, the status report, the innovations, ``metrics.json``'s content and the arrays. :meth:`LogRun.save`
+trajectory, the status report, the innovations and their monitor (:func:`liemef.metrics.innovation_monitor`),
+``metrics.json``'s content and the arrays. :meth:`LogRun.save`
 writes ``estimates.csv`` (coordinates and K's diagonal), ``innovations.csv``, ``metrics.json``, ``arrays.npz``
 and ``estimate.png``, or for a failed run ``failure.json`` alone.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import warnings
@@ -414,7 +416,8 @@ def innovation_table(innov, names, units) -> tuple[str, dict]:
 class LogRun:
     """A filtered log: ``trajectory`` (the filter's :class:`~liemef.filters.Trajectory`), ``report`` (the
     status as a dict), ``filter`` (its repr), ``gap`` (the threshold used, s), ``x0`` and ``K0`` (the start), and
-    either ``metrics``/``arrays``/``innovation_text`` (a good run) or ``failure`` (what ``failure.json`` holds)."""
+    either ``metrics``/``arrays``/``innovation_text``/``monitor`` (a good run; ``monitor`` the
+    :class:`~liemef.metrics.InnovationReport` of its innovations) or ``failure`` (what ``failure.json`` holds)."""
 
     source: LogSystem
     log_file: str
@@ -430,6 +433,13 @@ class LogRun:
     metrics: dict = field(default_factory=dict, repr=False)
     arrays: dict = field(default_factory=dict, repr=False)
     innovation_text: str = field(default="", repr=False)
+    monitor: Any = field(default=None, repr=False)
+
+    @property
+    def inconsistent(self) -> bool:
+        """The run did not fail, but its innovations are inconsistent with its K (``liemef run`` exits with
+        status 3)."""
+        return self.monitor is not None and self.monitor.status == "inconsistent"
 
     @property
     def ok(self) -> bool:
@@ -483,19 +493,20 @@ class LogRun:
 def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
                alpha: float = 0.0, interpolation: str = "hold", updates: str = "hold", substeps: int | str = "auto",
                gap: float | None = None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
-               log_file: str | os.PathLike | None = None) -> LogRun:
+               log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
     log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
 
     ``x0``: the initial estimate in coordinates (default: :meth:`LogSystem.initial_guess` of the first present
     measurements); ``K0``: the initial gain, a number (times I), a diagonal or a matrix (default:
     :meth:`LogSystem.default_K0`); ``gap``: an interval longer than this is predicted through (default: 10 x the
-    median interval); ``log_file``: the file named in the outputs when ``log`` is already read; the other options
-    are those of :class:`~liemef.filters.MinimumEnergyFilter`. ValueError
+    median interval); ``log_file``: the file named in the outputs when ``log`` is already read; ``monitor``: run
+    the innovation monitor on a good run (:func:`liemef.metrics.innovation_monitor`: ``metrics["innovations"]``,
+    :attr:`LogRun.monitor`); the other options are those of :class:`~liemef.filters.MinimumEnergyFilter`. ValueError
     for bad input, before any compile. A failure inside the filter is no exception: see :attr:`LogRun.ok`.
     """
     from ..filters import MinimumEnergyFilter
-    from ..metrics import angle_mask, continuous_angles, gain_stats, state_labels
+    from ..metrics import angle_mask, continuous_angles, gain_stats, innovation_monitor, state_labels
 
     if isinstance(source, str):
         source = resolve_system(source)
@@ -536,8 +547,12 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
                    "interval": context, "log": log_file, "filter": repr(flt), "command": "run",
                    "liemef_version": __version__}
         return LogRun(**common, failure=failure)
-    return _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
-                     updates, substeps, angle_mask, continuous_angles, gain_stats)
+    run = _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
+                    updates, substeps, angle_mask, continuous_angles, gain_stats)
+    if not monitor:
+        return run
+    report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
+    return dataclasses.replace(run, metrics={**run.metrics, "innovations": report.as_dict()}, monitor=report)
 
 
 def _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
@@ -626,6 +641,8 @@ class SavedRun:
         lines += [(f"WARNING: {w}", True) for w in run.warnings()]
         if not run.ok:
             return lines
+        if run.monitor is not None:
+            lines.append((run.monitor.message(), run.inconsistent))
         return lines + [("Innovation y - h(g_hat) over the present samples:", False), (run.innovation_text, False),
                         (f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
                          f"{run.report['substeps_max']} in one)", False),
@@ -634,7 +651,8 @@ class SavedRun:
 
     @property
     def error(self) -> str | None:
-        """Why the run failed (``liemef run`` exits with status 1), or None."""
+        """Why the run failed (``liemef run`` exits with status 1), or None. An inconsistent run is no error
+        (its outputs are written whole): see :attr:`LogRun.inconsistent`."""
         if self.run.ok:
             return None
         return (f"{self.run.message} (cause: {self.run.report['cause']}). No estimates were written; see "

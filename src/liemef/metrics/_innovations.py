@@ -1,0 +1,314 @@
+r"""The innovation monitor: whether a run's gain K is consistent with its own innovations, without a truth.
+
+Before sample $k$ is used, the filter predicts it: the state at $t_k$ has seen the samples up to $k - 1$ (a sample
+at ``ts[k]`` is used over ``[ts[k], ts[k+1])``), so against $\hat g_k$ and $K_k$ the innovation of each sensor
+
+$$\nu_k = y_k \ominus h(\hat g_k), \qquad S_k = F K_k F^\top + J R_k J^\top, \qquad
+\epsilon_k = \nu_k^\top S_k^{-1} \nu_k$$
+
+is the prior one: $F$ the left-trivialized Jacobian of the output as the filter sees it, $R_k$ the sample's own
+covariance (:func:`liemef.filters._base.sample_covariance`, the gates' own: a density sensor's information over
+the interval, a sample sensor's per sample) and $J = \partial(y \ominus h)/\partial y$ (the identity for
+$y - h$; for a direction on $S^2$ the projection onto the tangent plane, one degree of freedom less). When K
+is the covariance of the left error, $\epsilon_k$ is $\chi^2$ with the sensor's degrees of freedom. The
+monitor slides a window of the last $N$ present samples of each sensor along the run and flags the run where
+the window's mean leaves its ``prob`` band $\chi^2_{dN}((1 \mp p)/2)/N$ for a sustained time. The rules and
+the false-alarm rates measured are in the docs' page on the monitor (docs/innovations.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike
+
+from ._consistency import chi2_bounds
+
+WINDOW_SECONDS, WINDOW_MIN, WINDOW_MAX = 5.0, 20, 500
+"""The default window of a sensor: its present samples within 5 s, at least 20 and at most 500."""
+SUSTAIN_WINDOWS = 1.5
+"""The default sustain time of a sensor: this many of its windows' spans. One gross outlier keeps the windows that
+hold it out of band for one span, a burst of them for the burst's length more: with 1.5, a burst shorter than half a
+window is not enough, a fault that lasts is (for as long as half a window past its first window out)."""
+STATUSES = ("consistent", "inconsistent", "not applicable")
+
+
+def gain_is_covariance(flt) -> bool:
+    """Whether the filter's K is meant as the covariance of its left error, so that innovations can test it:
+    a system whose weights are noise levels in the sensors' units (a :class:`~liemef.systems.SensorSystem`;
+    the papers' systems weigh with $Q = D^\\top D$ and K is then a gain, not a covariance), a filter that keeps a
+    covariance (not the AHRS baselines, ``has_covariance = False``) and the theorem's E (not the printed
+    ``constant_E="unit"``). The one place this is decided."""
+    from ..systems import SensorSystem
+
+    return (isinstance(getattr(flt, "system", None), SensorSystem) and getattr(flt, "has_covariance", True)
+            and getattr(flt, "constant_E", "weighted") == "weighted")
+
+
+# --- the normalized innovations, compiled once per filter structure ----------------------------------------------
+def _nis_one(flt, g, K, t, dt, y):
+    """Per sensor block: the NIS of the sample ``y`` (NaN: a missing component) against the state ``(g, K)``,
+    NaN where the block is not present or the state not finite; and the rank of $J$ (the sample's degrees of
+    freedom)."""
+    from ..filters._base import sample_covariance
+    from ..filters._derivatives import left_jacobian
+    from ..filters._riccati import information_in_force
+
+    system = flt.system
+    mask = jnp.isfinite(y)
+    y0 = jnp.where(mask, y, 0.0)
+    sample = jnp.asarray(flt.sample, dtype=bool)
+    # the information in force and the sample's own noise as the filter's gates read them (filters._base)
+    Wy = flt._adapted(information_in_force(flt.weights.Wy, sample, mask, dt, diagonal=flt.diagonal), y0)
+    h0, F = left_jacobian(lambda gg: system.output_seen_from(y0, gg, t), g)
+    nu = y0 - h0
+    FKF = F @ (0.5 * (K + K.T)) @ F.T
+    if system.manifold_residuals:
+        h = system.output(g, t)
+        J = jax.jacfwd(lambda yy: system.residual(yy, h, t))(y0)
+    nis, rank = [], []
+    for b in flt.blocks:
+        sl = slice(b.start, b.stop)
+        present = jnp.all(mask[sl])
+        R = sample_covariance(Wy, dt, present, b)
+        if system.manifold_residuals:
+            Jb = J[sl, sl]
+            S = FKF[sl, sl] + Jb @ R @ Jb.T
+            s = jnp.linalg.svd(Jb, compute_uv=False)
+            rank.append(jnp.sum(s > 1e-6 * jnp.max(s)))
+            # S is singular where J is (a direction's normal component): its pseudo-inverse on J's range
+            q = nu[sl] @ jnp.linalg.pinv(S, rtol=1e-9, hermitian=True) @ nu[sl]
+        else:
+            rank.append(jnp.asarray(b.dim))
+            q = nu[sl] @ jnp.linalg.solve(FKF[sl, sl] + R, nu[sl])
+        nis.append(jnp.where(present & jnp.isfinite(q), q, jnp.nan))
+    return jnp.stack(nis), jnp.stack(rank)
+
+
+@eqx.filter_jit
+def _nis_all(flt, g, K, ts, dts, ys):
+    return jax.vmap(lambda gg, KK, t, dt, y: _nis_one(flt, gg, KK, t, dt, y))(g, K, ts, dts, ys)
+
+
+def _samples_of(traj, ts, name="traj"):
+    """The indices into ``ts`` of the trajectory's states (every one, or every M-th with ``keep_every``)."""
+    tt = np.asarray(traj.ts, dtype=np.float64)
+    idx = np.searchsorted(ts, tt)
+    if tt.ndim != 1 or idx.max(initial=0) >= ts.size or not np.array_equal(ts[np.minimum(idx, ts.size - 1)], tt):
+        raise ValueError(f"{name}: expected a run over the log ts (its times a subset of ts, as with keep_every), "
+                         f"got {tt.size} times from {tt[:1]} that are not among the log's")
+    return idx
+
+
+def innovation_nis(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike):
+    r"""The normalized innovation squared of every sample of every sensor of a run (module docstring):
+    ``(nis, dof)`` with ``nis`` (N, number of sensors) over the log's samples (NaN where the sensor has no
+    sample, the state is NaN after a failure, the run kept no state there (``keep_every``) or the sample is the
+    log's last, which no interval uses) and ``dof`` the sensors' degrees of freedom. ``flt`` the filter that made
+    ``traj`` from the log ``ts``, ``us``, ``ys`` (checked as :meth:`~liemef.filters.AbstractFilter.run` checks
+    them). NumPy arrays."""
+    from ..filters._base import check_log
+
+    ts, us, ys, _ = check_log(flt, ts, us, ys, (), math.inf)
+    idx = _samples_of(traj, ts)
+    K = np.asarray(traj.K, dtype=np.float64)
+    n = flt.system.group.tangent_dim
+    if K.shape != (idx.size, n, n):
+        raise ValueError(f"traj: expected K of shape ({idx.size}, {n}, {n}) beside its {idx.size} times, got "
+                         f"{K.shape}")
+    use = idx < ts.size - 1  # the last sample is used over no interval
+    idx = idx[use]
+    g = jax.tree_util.tree_map(lambda a: np.asarray(a)[use], traj.g_hat)
+    dts = ts[idx + 1] - ts[idx]
+    # padded to a power of two (at least 64) with copies of the first sample, missing: one compilation serves
+    # every log of a length bucket
+    M = idx.size
+    pad = max(64, 1 << max(0, (M - 1).bit_length())) - M
+
+    def padded(a, fill=None):
+        a = np.asarray(a)
+        extra = np.repeat(a[:1], pad, axis=0) if fill is None else np.full((pad,) + a.shape[1:], fill)
+        return np.concatenate([a, extra]) if M else np.zeros((0,) + a.shape[1:])
+
+    if M == 0:
+        return np.full((ts.size, len(flt.blocks)), np.nan), tuple(b.dim for b in flt.blocks)
+    q, rank = _nis_all(flt, jax.tree_util.tree_map(padded, g), padded(K[use]), padded(ts[idx]), padded(dts),
+                       padded(ys[idx], np.nan))
+    q, rank = np.asarray(q)[:M], np.asarray(rank)[:M]
+    nis = np.full((ts.size, len(flt.blocks)), np.nan)
+    nis[idx] = q
+    seen = np.isfinite(q)
+    dof = tuple(int(rank[seen[:, i], i].max()) if seen[:, i].any() else b.dim for i, b in enumerate(flt.blocks))
+    return nis, dof
+
+
+# --- the verdict -------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SensorVerdict:
+    """One sensor's windows: its ``dof``, ``window`` (samples) spanning ``span`` s, the ``band`` of a window's
+    mean NIS, the present ``samples`` and full ``windows``, the fraction of windows out of band, the time of the
+    first one out (``first_out``), the longest excursion (``longest``: start and end time of a run of windows out
+    of band on one ``side``, "high" or "low") and whether it lasted ``sustain`` s (``sustained``)."""
+
+    name: str
+    dof: int
+    samples: int
+    window: int | None = None
+    span: float | None = None
+    band: tuple[float, float] | None = None
+    windows: int = 0
+    fraction_out: float | None = None
+    first_out: float | None = None
+    longest: tuple[float, float, str] | None = None
+    sustain: float | None = None
+    mean_nis: float | None = None
+
+    @property
+    def sustained(self) -> bool:
+        """Whether the longest excursion lasted at least the sustain time."""
+        return self.longest is not None and self.longest[1] - self.longest[0] >= self.sustain
+
+    def as_dict(self) -> dict:
+        """JSON-ready."""
+        return {"name": self.name, "dof": self.dof, "samples": self.samples, "window": self.window,
+                "window_s": self.span, "band": None if self.band is None else list(self.band),
+                "windows": self.windows, "fraction_out": self.fraction_out, "first_out_t": self.first_out,
+                "mean_nis": self.mean_nis,
+                "longest_excursion": None if self.longest is None else {
+                    "start": self.longest[0], "end": self.longest[1], "side": self.longest[2],
+                    "sustained": self.sustained},
+                "sustain_s": self.sustain, "inconsistent": self.sustained}
+
+
+@dataclass(frozen=True)
+class InnovationReport:
+    """What :func:`innovation_monitor` found: ``status`` (one of :data:`STATUSES`), per sensor a
+    :class:`SensorVerdict`, the rules applied (``window``, ``prob``, ``sustain`` as given, None: the defaults)
+    and, for "not applicable", the ``reason``."""
+
+    status: str
+    sensors: tuple[SensorVerdict, ...] = ()
+    window: int | None = None
+    prob: float = 0.999
+    sustain: float | None = None
+    reason: str = ""
+    nis: np.ndarray | None = field(default=None, repr=False)
+    """(N, sensors): every sample's NIS (NaN where none)."""
+
+    def as_dict(self) -> dict:
+        """JSON-ready: the status, the reason, the rules and each sensor's :meth:`SensorVerdict.as_dict`."""
+        return {"status": self.status, "reason": self.reason or None,
+                "definition": "per sensor, the mean over a sliding window of its last `window` present samples of "
+                              "the normalized innovation squared nu^T S^-1 nu (nu = y (-) h(g_hat) before the "
+                              "sample's update, S = F K F^T + J R J^T); inconsistent where it stays outside its "
+                              "chi-square `prob` band for `sustain_s` seconds",
+                "window": self.window, "prob": self.prob, "sustain": self.sustain,
+                "sensors": [s.as_dict() for s in self.sensors]}
+
+    def message(self) -> str:
+        """One line: the status and, where inconsistent, which sensor, when and on which side."""
+        if self.status == "not applicable":
+            return f"Innovation monitor: not applicable ({self.reason})"
+        judged = [s for s in self.sensors if s.windows]
+        if self.status == "consistent":
+            return ("Innovation monitor: consistent (" + "; ".join(
+                f"{s.name}: {100 * (1 - s.fraction_out):.1f} % of {s.windows} windows of {s.window} samples in "
+                f"the {100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}]" for s in judged) + ")")
+        bad = [s for s in judged if s.sustained]
+        said = []
+        for s in bad:
+            start, end, side = s.longest
+            said.append(f"{s.name}: mean NIS of {s.window} samples {'above' if side == 'high' else 'below'} its "
+                        f"{100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}] from t = {start:.6g} s to "
+                        f"{end:.6g} s (first out at t = {s.first_out:.6g} s; the run's mean NIS {s.mean_nis:.3g} for "
+                        f"{s.dof} dof): K {'understates' if side == 'high' else 'overstates'} the errors")
+        return "Innovation monitor: INCONSISTENT: " + "; ".join(said)
+
+
+def _excursions(out, side, t):
+    """The runs of consecutive True in ``out`` with one ``side`` each: (start, end) indices."""
+    runs, start = [], None
+    for j in range(out.size + 1):
+        here = j < out.size and out[j]
+        if start is not None and (not here or side[j] != side[start]):
+            runs.append((start, j - 1))
+            start = None
+        if here and start is None:
+            start = j
+    return runs
+
+
+def _verdict(name, dof, ts, q, window, prob, sustain) -> SensorVerdict:
+    """One sensor's windows over its present samples ``q`` at times ``ts``."""
+    ok = np.isfinite(q)
+    t, q = ts[ok], q[ok]
+    if t.size < 2:
+        return SensorVerdict(name, dof, int(t.size))
+    rate = (t.size - 1) / (t[-1] - t[0])
+    N = window if window is not None else int(np.clip(round(WINDOW_SECONDS * rate), WINDOW_MIN, WINDOW_MAX))
+    if t.size < N:
+        return SensorVerdict(name, dof, int(t.size), window=N)
+    span = N / rate
+    hold = SUSTAIN_WINDOWS * span if sustain is None else sustain
+    lo, hi = chi2_bounds(dof, N, prob)
+    c = np.concatenate([[0.0], np.cumsum(q)])
+    mean = (c[N:] - c[:-N]) / N
+    tw = t[N - 1:]  # a window's time: its last sample's
+    out = (mean < lo) | (mean > hi)
+    side = np.where(mean > hi, 1, -1)
+    first = float(tw[np.argmax(out)]) if out.any() else None
+    longest = None
+    for a, b in _excursions(out, side, tw):
+        if longest is None or tw[b] - tw[a] > longest[1] - longest[0]:
+            longest = (float(tw[a]), float(tw[b]), "high" if side[a] > 0 else "low")
+    return SensorVerdict(name, dof, int(t.size), window=N, span=float(span), band=(lo, hi), windows=int(mean.size),
+                         fraction_out=float(out.mean()), first_out=first, longest=longest, sustain=float(hold),
+                         mean_nis=float(q.mean()))
+
+
+def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *, window: int | None = None,
+                       prob: float = 0.999, sustain: float | None = None) -> InnovationReport:
+    r"""Whether the run ``traj`` of the filter ``flt`` over the log ``ts``, ``us``, ``ys`` is consistent with its
+    own innovations (module docstring), without a truth.
+
+    Per sensor, the mean NIS over a sliding window of its last ``window`` present samples (default: the samples
+    within 5 s, at least 20 and at most 500) is compared with its two-sided ``prob`` band
+    $(\chi^2_{dN}((1-p)/2), \chi^2_{dN}((1+p)/2))/N$ (:func:`chi2_bounds`, $d$ the sensor's degrees of
+    freedom). A run of windows out of band on one side that lasts at least ``sustain`` seconds (default: 1.5
+    windows' spans, per sensor) makes the status "inconsistent"; otherwise "consistent". "not applicable" where
+    K is not a covariance (:func:`gain_is_covariance`) or no sensor has a full window. States that are NaN
+    after a failure are skipped (the run's status speaks for them). Works on a run of either engine, with
+    ``keep_every`` (only the samples with a state kept are judged), for every filter of the library.
+    ValueError naming the argument for bad input."""
+    if window is not None and not (isinstance(window, int | np.integer) and not isinstance(window, bool)
+                                   and window >= 1):
+        raise ValueError(f"window: expected a number of samples >= 1 (or None: the default rule), got {window!r}")
+    if isinstance(prob, bool) or not (isinstance(prob, int | float | np.floating) and 0.0 < prob < 1.0):
+        raise ValueError(f"prob: expected a probability in (0, 1), got {prob!r}")
+    if sustain is not None and (isinstance(sustain, bool) or not isinstance(sustain, int | float | np.number)
+                                or not (math.isfinite(sustain) and sustain >= 0)):
+        raise ValueError(f"sustain: expected a finite time >= 0 in seconds (or None: 1.5 windows' spans), "
+                         f"got {sustain!r}")
+    for name, v in (("flt", flt), ("traj", traj)):
+        if not all(hasattr(v, a) for a in (("system",) if name == "flt" else ("ts", "g_hat", "K"))):
+            raise ValueError(f"{name}: expected a liemef {'filter' if name == 'flt' else 'Trajectory'}, got "
+                             f"{type(v).__name__}")
+    rules = {"window": None if window is None else int(window), "prob": float(prob),
+             "sustain": None if sustain is None else float(sustain)}
+    if not gain_is_covariance(flt):
+        return InnovationReport("not applicable", reason="K is not a covariance: the system's weights are not noise "
+                                "levels in the sensors' units, or the filter keeps no covariance", **rules)
+    nis, dof = innovation_nis(flt, traj, ts, us, ys)
+    t = np.asarray(ts, dtype=np.float64)
+    sensors = tuple(_verdict(b.name, d, t, nis[:, i], rules["window"], rules["prob"], rules["sustain"])
+                    for i, (b, d) in enumerate(zip(flt.blocks, dof, strict=True)))
+    if not any(s.windows for s in sensors):
+        return InnovationReport("not applicable", sensors, reason="no sensor has a full window of samples "
+                                f"({', '.join(f'{s.name} {s.samples}' for s in sensors)} present)", nis=nis, **rules)
+    status = "inconsistent" if any(s.sustained for s in sensors) else "consistent"
+    return InnovationReport(status, sensors, nis=nis, **rules)
