@@ -183,9 +183,9 @@ for _name, _title, _settings, _help in (
      "the second-order safety suite: a quadrotor on SE_2(3) with a range sensor or an altimeter and a magnetometer, "
      "inertial navigation with barometer + magnetometer or GNSS, SE(2) with bearings, ranges or a near range + "
      "bearing, attitude + gyro bias from a small or a 90-179 deg initial error, and the papers' TSE(2), TSO(3) and "
-     "Chaplygin sleigh; per system and filter (mef-hold, mef-discrete, mef-first, iekf, ukf-m) the status and "
-     "failures, the attitude and position rms and the NEES with its chi-square band; writes metrics.json, "
-     "second_order.md and second_order.csv."),
+     "Chaplygin sleigh; per system and filter (mef-hold, mef-discrete, their curvature='safe' variants, mef-first, "
+     "iekf, ukf-m) the status and failures, the attitude and position rms, the NEES with its chi-square band and "
+     "the innovation monitor's verdicts; writes metrics.json, second_order.md and second_order.csv."),
     ("wifibot", "UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
      ("recordings", "gps_rate", "gps_std", "realdata"),
      "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "

@@ -24,7 +24,8 @@ for the initial estimate (a draw of N(g0, K0), unless the system fixes it), the 
 and filter: the attitude (deg) and position (m) rms over the second half of each trial, their mean over the trials
 that ran through; the NEES (left error, K its covariance) averaged over that window and those trials, with its
 degrees of freedom and the 95 % chi-square band of an average over the trials; the trials that failed (status not
-ok) with the first cause and time. Failed trials are left out of the errors and the NEES.
+ok) with the first cause and time; and what the innovation monitor says of each trial, without the truth. Failed
+trials are left out of the errors and the NEES.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -43,7 +45,7 @@ import numpy as np
 from ...filters import CAUSES, MinimumEnergyFilter
 from ...filters.baselines import ExtendedKalmanFilter, ukf_m
 from ...groups import R3, SE2, SE23, SO3, TSO3
-from ...metrics import chi2_bounds, left_error, nees
+from ...metrics import chi2_bounds, innovation_monitor, left_error, nees
 from ...reports import io
 from ...simulation import simulate
 from ...systems import Noise, Sensor, SensorSystem, attitude_gyro_bias, inertial_navigation
@@ -51,26 +53,36 @@ from ...systems import attitude_bias as ab
 from ._common import check_counts, fmt, nees_flag, parse_names
 
 SCHEMA = "liemef.compare.second-order/1"
-MONITOR_PENDING = "pending"
-"""The innovation monitor's column until :func:`liemef.metrics.innovation_monitor` exists: no status yet."""
+MONITOR_STATUSES = ("inconsistent", "consistent", "not applicable")
+"""The innovation monitor's statuses (:func:`liemef.metrics.innovation_monitor`), in the order the table counts
+them."""
 
 # --- the filters ----------------------------------------------------------------------------------------------
-SECOND_ORDER = ("mef-hold", "mef-discrete")
-"""The second-order rows; the first-order row takes the updates of the better of them (:func:`better_updates`)."""
+SECOND_ORDER = {"mef-hold": "hold", "mef-discrete": "discrete", "mef-hold-safe": "hold",
+                "mef-discrete-safe": "discrete"}
+"""The second-order rows and their updates; the first-order row takes the updates of the best of them
+(:func:`better_updates`)."""
 
 FILTERS: dict[str, tuple[str, Callable]] = {
     "mef-hold": ("second order, each sample held over the interval after it (updates='hold', the constructor's "
                  "default)", lambda system, case, updates: MinimumEnergyFilter(system, updates="hold")),
-    "mef-discrete": ("second order, each sample at its own time by one Newton step (updates='discrete')",
+    "mef-discrete": ("second order, each sample at its own time (updates='discrete': Newton iterations with a line "
+                     "search on the sample's cost, the defaults)",
                      lambda system, case, updates: MinimumEnergyFilter(system, updates="discrete")),
-    "mef-first": ("first order (order='first'), with the updates of the better second-order row",
+    "mef-hold-safe": ("second order, held samples, the output's curvature kept only where it is safe "
+                      "(curvature='safe')",
+                      lambda system, case, updates: MinimumEnergyFilter(system, curvature="safe")),
+    "mef-discrete-safe": ("second order, samples at their own time, curvature='safe'",
+                          lambda system, case, updates: MinimumEnergyFilter(system, updates="discrete",
+                                                                            curvature="safe")),
+    "mef-first": ("first order (order='first'), with the updates of the best second-order row",
                   lambda system, case, updates: MinimumEnergyFilter(system, order="first", updates=updates)),
     "iekf": ("invariant EKF, the error side that fits the system (column 'side')",
              lambda system, case, updates: ExtendedKalmanFilter(system, case.side)),
     "ukf-m": ("UKF-M, the retraction of the same side",
               lambda system, case, updates: ukf_m(system, case.side)),
 }
-"""The study's filters: name -> (description, factory(system, case, updates)); ``updates`` is the better
+"""The study's filters: name -> (description, factory(system, case, updates)); ``updates`` is the best
 second-order row's (:func:`better_updates`)."""
 
 
@@ -469,21 +481,38 @@ def summary(case: Case, per_trial: dict) -> dict:
         row["status"] = f"{row['failed']}/{runs} failed ({f['cause']} at {f['time']:.2f} s)"
     else:
         row["status"] = "ok"
-    row["monitor"] = MONITOR_PENDING
     return row
 
 
 def better_updates(rows: dict) -> str:
-    """The updates of the better second-order row: fewer failures, then a NEES closer to its dof (by ratio);
-    ``"discrete"`` without either row, or on a tie."""
+    """The updates of the best second-order row present (:data:`SECOND_ORDER`): fewer failures, then a NEES
+    closer to its dof (by ratio); ``"discrete"`` without any, or on a tie."""
     def badness(name):
         r = rows[name]
         q = r["nees"]
-        return (r["failed"], abs(math.log(q / r["dof"])) if q and q > 0 else math.inf)
-    present = [n for n in ("mef-discrete", "mef-hold") if n in rows]
+        return (r["failed"], abs(math.log(q / r["dof"])) if q and q > 0 else math.inf,
+                SECOND_ORDER[name] != "discrete")
+    present = [n for n in SECOND_ORDER if n in rows]
     if not present:
         return "discrete"
-    return min(present, key=badness).removeprefix("mef-")
+    return SECOND_ORDER[min(present, key=badness)]
+
+
+def monitor(flt, traj, ts, us, ys) -> list[str]:
+    """The innovation monitor's status (:func:`liemef.metrics.innovation_monitor`) of each trial of a batched
+    run."""
+    statuses = []
+    for i in range(ys.shape[0]):
+        one = SimpleNamespace(ts=traj.ts if np.ndim(traj.ts) == 1 else traj.ts[i], K=traj.K[i],
+                              g_hat=jax.tree_util.tree_map(lambda a, i=i: a[i], traj.g_hat))
+        statuses.append(innovation_monitor(flt, one, ts, us[i], ys[i]).status)
+    return statuses
+
+
+def monitor_cell(statuses: Sequence[str]) -> str:
+    """``"consistent 3, inconsistent 2"``: how many trials the monitor gave each status."""
+    counts = {s: statuses.count(s) for s in MONITOR_STATUSES if s in statuses}
+    return ", ".join(f"{s} {n}" for s, n in counts.items()) or "-"
 
 
 def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress: bool = False) -> dict:
@@ -499,7 +528,10 @@ def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress:
         flt = FILTERS[name][1](case.system, case, updates)
         states = _stack([flt.init(jax.tree_util.tree_map(lambda a, i=i: a[i], g0s), case.K0) for i in range(runs)])
         traj = flt.run_batch(states, case.ts, us, ys)
-        rows[name] = {**summary(case, evaluate(case, truth, traj)), "elapsed_s": time.perf_counter() - t0}
+        rows[name] = summary(case, evaluate(case, truth, traj))
+        rows[name]["monitor_trials"] = monitor(flt, traj, case.ts, us, ys)
+        rows[name]["monitor"] = monitor_cell(rows[name]["monitor_trials"])
+        rows[name]["elapsed_s"] = time.perf_counter() - t0
         if progress:
             r = rows[name]
             print(f"{case.name:>15} {name:>13}: {r['status']}, attitude {fmt(r['attitude_deg'], 3)} deg, position "
@@ -563,8 +595,9 @@ def markdown(result: dict) -> str:
               "step's average over those trials (a mean over time as well is tighter, so 'above' and 'below' are "
               "the conservative reading); 'far above' is beyond 10 times the band's top: K does not describe the "
               "error whatever the status says. mef-first ran with the updates shown, those of the better "
-              "second-order row; iekf and ukf-m with the error side shown. monitor: the innovation monitor's "
-              f"status, `{MONITOR_PENDING}` until it exists.", ""]
+              "second-order row; iekf and ukf-m with the error side shown. monitor: how many trials the innovation "
+              "monitor (liemef.metrics.innovation_monitor, from the innovations alone, no truth) called "
+              "inconsistent, consistent or not applicable, failed trials included.", ""]
     return "\n".join(lines)
 
 
