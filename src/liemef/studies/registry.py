@@ -177,6 +177,15 @@ for _name, _title, _settings, _help in (
      "with stated prior weights; attitude, velocity and position rms against the optical truth, NEES, APE and RPE "
      "by evo, and the attitude beside compare broad's mef-vel and vqf-broad on the same samples; writes "
      "broad_ins.md, broad_ins.csv, broad_ins.json and arrays.npz."),
+    ("second-order", "the second-order safety suite: the minimum-energy filter's orders and updates beside the "
+     "first-order filter, the invariant EKF and the UKF-M on 12 systems",
+     ("duration", "systems"),
+     "the second-order safety suite: a quadrotor on SE_2(3) with a range sensor or an altimeter and a magnetometer, "
+     "inertial navigation with barometer + magnetometer or GNSS, SE(2) with bearings, ranges or a near range + "
+     "bearing, attitude + gyro bias from a small or a 90-179 deg initial error, and the papers' TSE(2), TSO(3) and "
+     "Chaplygin sleigh; per system and filter (mef-hold, mef-discrete, their curvature='safe' variants, mef-first, "
+     "iekf, ukf-m) the status and failures, the attitude and position rms, the NEES with its chi-square band and "
+     "the innovation monitor's verdicts; writes metrics.json, second_order.md and second_order.csv."),
     ("wifibot", "UKF-M's Wifibot runs: real wheel odometry, optical truth, synthetic GPS over seeds",
      ("recordings", "gps_rate", "gps_std", "realdata"),
      "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "

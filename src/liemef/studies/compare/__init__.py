@@ -16,6 +16,8 @@ Studies (:data:`STUDIES`):
 * ``broad``: the attitude filters on the BROAD recordings (:class:`BroadComparison`);
 * ``broad-ins``: inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes
   (:class:`BroadInsComparison`);
+* ``second-order``: the second-order safety suite, every filter on the same trials of 12 systems
+  (:class:`SecondOrderSuite`);
 * ``wifibot``: the planar filters on UKF-M's Wifibot runs with synthetic GPS (:class:`WifibotComparison`).
 """
 
@@ -24,7 +26,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from .. import registry
-from . import _attitude_basin, _basins, _broad, _broad_ins, _inertial, _inertial_basin, _localization, _wifibot
+from . import (
+    _attitude_basin,
+    _basins,
+    _broad,
+    _broad_ins,
+    _inertial,
+    _inertial_basin,
+    _localization,
+    _second_order,
+    _wifibot,
+)
 from ._attitude_basin import AttitudeBasin, compare_attitude_basin
 from ._basins import HeadingBasin, compare_heading_basin
 from ._broad import BroadComparison, compare_broad
@@ -34,6 +46,7 @@ from ._inertial import InertialComparison, compare_inertial
 from ._inertial_basin import InertialBasin, compare_inertial_basin
 from ._localization import DEFAULT_FILTERS as LOCALIZATION_FILTERS
 from ._localization import LocalizationComparison, compare_localization
+from ._second_order import SecondOrderSuite, compare_second_order
 from ._wifibot import WifibotComparison, compare_wifibot
 
 
@@ -56,6 +69,7 @@ _PARTS = {
     "inertial-basin": (InertialBasin, compare_inertial_basin, _inertial_basin.markdown, _inertial_basin.save),
     "broad": (BroadComparison, compare_broad, _broad.markdown, _broad.save),
     "broad-ins": (BroadInsComparison, compare_broad_ins, _broad_ins.markdown, _broad_ins.save),
+    "second-order": (SecondOrderSuite, compare_second_order, _second_order.markdown, _second_order.save),
     "wifibot": (WifibotComparison, compare_wifibot, _wifibot.markdown, _wifibot.save),
 }
 STUDIES = {name: Study(registry.get("comparison", name).title, *_PARTS[name]) for name in registry.names("comparison")}
@@ -63,7 +77,7 @@ STUDIES = {name: Study(registry.get("comparison", name).title, *_PARTS[name]) fo
 describes them)."""
 
 def failures(result: dict) -> tuple[list[str], int, int]:
-    """What failed in a comparison's ``result``: one line per filter (and system, recording, trial or angle)
+    """What failed in a comparison's ``result``: one line per filter (and system, case, recording, trial or angle)
     that failed somewhere, the number of (filter, trial) pairs that failed and the number run."""
     lines, failed, total = [], 0, 0
     for sname, sysr in result.get("systems", {}).items():
@@ -72,6 +86,14 @@ def failures(result: dict) -> tuple[list[str], int, int]:
             failed, total = failed + n, total + sum(r["trials"] for r in e["angles"])
             if n:
                 lines.append(f"{sname}: {name} failed in {n} trials (counted as not converged)")
+    for cname, case in result.get("cases", {}).items():
+        for name, e in case["filters"].items():
+            failed, total = failed + e["failed"], total + e["runs"]
+            if e["failed"]:
+                first = e["failures"][0]
+                lines.append(f"{cname}: {name} failed in {e['failed']} of {e['runs']} trials (first: trial "
+                             f"{first['trial']}, {first['cause']} at t = {first['time']:.3f} s); left out of the "
+                             "statistics")
     for rid, rec in result.get("recordings", {}).items():
         for name, e in rec["filters"].items():
             failed, total = failed + e["failed"], total + e["runs"]
@@ -110,5 +132,6 @@ __all__ = ["STUDIES", "Study", "failures", "FILTERS", "make_filter", "parse_filt
            "LocalizationComparison", "compare_localization", "LOCALIZATION_FILTERS", "HeadingBasin",
            "compare_heading_basin", "AttitudeBasin", "compare_attitude_basin", "BroadComparison", "compare_broad",
            "BroadInsComparison", "compare_broad_ins",
+           "SecondOrderSuite", "compare_second_order",
            "WifibotComparison", "compare_wifibot", "InertialComparison", "compare_inertial", "InertialBasin",
            "compare_inertial_basin"]
