@@ -10,8 +10,8 @@ $$\hat g^{-1}\dot{\hat g} = \lambda + K r, \qquad
 \dot K = -\alpha K + A K + K A^\top - K E K + B R^{-1} B^\top - W K - K W^\top.$$
 
 The first-order variant drops the Hessian term of E and sets W = 0 (the continuous-time left-invariant EKF).
-With ``curvature="safe"`` the Hessian term of E is replaced by :func:`~._curvature.safe_curvature`'s (kept on
-the directions the outputs observe, and E positive semidefinite); ``Terms.modified`` says where it acted.
+With ``curvature="safe"`` the Hessian term of E is :func:`~._curvature.safe_curvature`'s: kept where it lies
+between minus the Gauss-Newton part and zero, dropped elsewhere; ``Terms.modified`` says where it was dropped.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ class Terms(eqx.Module):
     Dh: Float[Array, "p n"]
     Dlam: Float[Array, "n n"]
     modified: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(False))
-    """Whether the safe curvature changed E's Hessian term (``curvature="safe"``; always False otherwise)."""
+    """Whether the safe curvature dropped E's Hessian term (``curvature="safe"``; always False otherwise)."""
 
 
 class Weights(eqx.Module):

@@ -28,8 +28,7 @@ Hessian of the sample's term is
   theorem's Hessian term of E). The direction uses H wherever $K^{-1} + H$ is positive definite (so that the
   iterations converge quadratically near the minimizer), and elsewhere a modified Hessian (Newton with Hessian
   modification, Nocedal & Wright ch. 3.4): the Gauss-Newton $G$, or with ``safe=True`` $G + C_{\text{safe}}$
-  (:func:`~._curvature.safe_curvature`: C kept on the directions the sample observes, and $G +
-  C_{\text{safe}} \succeq 0$).
+  (:func:`~._curvature.safe_curvature`: C where $-G \preceq C \preceq 0$, else 0).
 
 **K+** is the inverse of a positive definite Hessian at the final iterate, moved by J: $(K^{-1} +
 H_+)^{-1}$ with $H_+ = G + C_{\text{safe}}$ (``safe=True``: always the safe curvature, which equals C where C is
