@@ -52,8 +52,8 @@ def _rel_dev(got, want):
 @pytest.mark.parametrize("integrator", ["rkmk4", "lie-euler"])
 def test_c_reference_reproduces_the_filter_run(scenario, integrator):
     system, lib, ts, us, ys = scenario
-    flt = liemef.MinimumEnergyFilter(system, connection="zero", order="second", integrator=integrator, alpha=0.0,
-                                     substeps=1)
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero", order="second",
+                                     integrator=integrator, alpha=0.0, substeps=1)
     g0 = tse2_state(np.pi / 8, 1.1, 2.1, 0.1, -0.1, -0.1)
     traj = flt.run(flt.init(g0, np.eye(6)), ts, us, ys)
     assert bool(traj.ok)

@@ -75,7 +75,7 @@ def _rigo(system, q, y, K, u, correct_misprint):
 def test_tse2_terms_match_rigo2022_with_corrected_E(weights):
     """r (22), A (25), E (26, with a21 = a12, a31 = a13), W and B R^-1 B' (27) agree entry by entry."""
     system = _planar(weights)
-    flt = liemef.MinimumEnergyFilter(system, connection="zero")
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero")
     for k, (q, y, K, u) in enumerate(_planar_cases(system, seed=1)):
         got = _engine(flt, tse2_state(*q), K, u, y)
         want = _rigo(system, q, y, K, u, correct_misprint=True)
@@ -90,7 +90,7 @@ def test_tse2_printed_E_misprint_is_exactly_a21_a31(weights):
     """Pin of the misprint (DESIGN.md section 3): the printed E of eq. (26) differs from the theorem's only at
     (1, 0) and (2, 0), by 2 a21 and 2 a31 (printed values), i.e. the printed a21 = -a12 and a31 = -a13."""
     system = _planar(weights)
-    flt = liemef.MinimumEnergyFilter(system, connection="zero")
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero")
     mask = np.zeros((6, 6), bool)
     mask[1, 0] = mask[2, 0] = True
     smallest = np.inf
@@ -150,7 +150,7 @@ def _tso3(Rot, Omega):
 def test_tso3_terms_match_saccon2016(connection, weights):
     """r (68), A (70/75), E (71/76), B R^-1 B' (72/77), W (73/78) agree entry by entry, both connections."""
     system = _attitude(weights)
-    flt = liemef.MinimumEnergyFilter(system, connection=connection)
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection=connection)
     max_asym = 0.0
     for k, (Rot, Omega, y, K, tau) in enumerate(_attitude_cases(system, seed=3)):
         got = _engine(flt, _tso3(Rot, Omega), K, tau, y)
@@ -186,7 +186,8 @@ def test_first_order_is_the_ekf(connection):
     filters = {}
     for system, g, y, K, u, zero_innov in cases:
         if id(system) not in filters:
-            filters[id(system)] = tuple(liemef.MinimumEnergyFilter(system, connection=connection, order=o)
+            filters[id(system)] = tuple(liemef.MinimumEnergyFilter(system, curvature="exact",
+                                                                   connection=connection, order=o)
                                         for o in ("first", "second"))
         first_flt, second_flt = filters[id(system)]
         first, second = _engine(first_flt, g, K, u, y), _engine(second_flt, g, K, u, y)
@@ -231,7 +232,7 @@ def test_vector_field_matches_printed_filter(connection):
     K: with the (-)-connection K is not symmetric along a run (E of eq. 76 is not), so A K + K A' must not be
     computed as A K + (A K)'."""
     att = _attitude("weighted")  # the paper weights are a special case
-    field = jax.jit(liemef.MinimumEnergyFilter(att, connection=connection, alpha=ALPHA).vector_field)
+    field = jax.jit(liemef.MinimumEnergyFilter(att, curvature="exact", connection=connection, alpha=ALPHA).vector_field)
     for Rot, Omega, y, K, tau in _attitude_cases(att, seed=6):
         xi, K_dot = field(_tso3(Rot, Omega), jnp.asarray(K), jnp.asarray(tau), jnp.asarray(y), 0.0)
         want = _printed_vector_field(_saccon(att, Rot, Omega, y, K, tau, connection),
@@ -240,7 +241,8 @@ def test_vector_field_matches_printed_filter(connection):
         _assert_close(np.asarray(K_dot), want[1], f"TSO(3) {connection}: K_dot")
     if connection == "zero":  # Rigo et al. 2022 print the (0)-connection filter only
         planar = _planar("weighted")
-        field = jax.jit(liemef.MinimumEnergyFilter(planar, connection="zero", alpha=ALPHA).vector_field)
+        field = jax.jit(liemef.MinimumEnergyFilter(planar, curvature="exact", connection="zero",
+                                                   alpha=ALPHA).vector_field)
         for q, y, K, u in _planar_cases(planar, seed=7):
             xi, K_dot = field(tse2_state(*q), jnp.asarray(K), jnp.asarray(u), jnp.asarray(y), 0.0)
             want = _printed_vector_field(_rigo(planar, q, y, K, u, correct_misprint=True),
@@ -281,7 +283,7 @@ def test_tso3_run_matches_printed_filter(connection):
     sub = 5
     fine = np.linspace(0.0, ts[-1], sub * (ts.size - 1) + 1)
     hold = np.minimum(np.arange(fine.size) // sub, ts.size - 1)
-    flt = liemef.MinimumEnergyFilter(system, connection=connection, alpha=0.01)
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection=connection, alpha=0.01)
     traj = flt.run(flt.init(_tso3(R0, Omega0), K0), fine, taus[hold], ys[hold])
     R_run = np.asarray(traj.g_hat.factors[0].as_matrix())[::sub]
     Omega_run, K_run = np.asarray(traj.g_hat.factors[1].x)[::sub], np.asarray(traj.K)[::sub]

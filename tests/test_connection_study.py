@@ -68,7 +68,7 @@ def localization_filters():
 
 
 def _filters(system):
-    return {name: MinimumEnergyFilter(system, connection=name) for name, _ in CONNECTIONS} | {
+    return {name: MinimumEnergyFilter(system, curvature="exact", connection=name) for name, _ in CONNECTIONS} | {
         "first": MinimumEnergyFilter(system, order="first")}
 
 

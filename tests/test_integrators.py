@@ -112,7 +112,7 @@ def _slope(dts, errs):
 @pytest.fixture(scope="module", params=[pytest.param("TSO3", marks=pytest.mark.slow), "TSE2"])
 def problem(request):
     system, g0, K0, u, y = _problem(request.param)
-    flt = liemef.MinimumEnergyFilter(system, connection="zero")
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero")
     tm = flt.terms(g0, K0, u, y, 0.0)
     assert np.abs(np.asarray(tm.W)).max() > 0.1 and np.abs(np.asarray(tm.r)).max() > 0.1  # E, W really act
     return request.param, system, g0, K0, u, y, _reference(flt, g0, K0, u, y)
@@ -123,7 +123,7 @@ def test_convergence_slope(problem, method):
     """Global error at T = 1 s on the group and in K over 4 step sizes: log-log slope = declared order.
     The steps are the public driver's ``flt.step`` (time passed to the integrator, u and y held)."""
     name, system, g0, K0, u, y, (g_ref, K_ref) = problem
-    flt = liemef.MinimumEnergyFilter(system, connection="zero", integrator=method())
+    flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero", integrator=method())
     dts, err_g, err_K = [], [], []
     for N in STEPS[method]:
         dt = T_END / N

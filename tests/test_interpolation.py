@@ -39,8 +39,9 @@ def attitude_errors():
     ys = np.asarray(jax.vmap(s.system.output)(truth.g, jnp.asarray(ts)))
     out = {}
     for integrator, interpolation in (("rkmk4", "hold"), ("rkmk4", "linear"), ("lie-euler", "hold")):
-        flt = liemef.MinimumEnergyFilter(s.system, connection=cfg.connection, integrator=integrator, alpha=cfg.alpha,
-                                         interpolation=interpolation, substeps=1)
+        flt = liemef.MinimumEnergyFilter(s.system, curvature="exact", connection=cfg.connection,
+                                         integrator=integrator, alpha=cfg.alpha, interpolation=interpolation,
+                                         substeps=1)
         traj = flt.run(s.state0, ts, us, ys)
         assert traj.status.ok
         e_R = np.asarray(attitude.attitude_errors(truth.g, traj.g_hat))[:, 0]
@@ -97,7 +98,7 @@ def so3_filter():
     the samples, the same arithmetic as ``interpolation="hold"``."""
     sys_ = System(group_type=SO3, dynamics_fn=_angular_velocity, output_fn=_direction, B=0.3 * np.eye(3), D=np.eye(3),
                   Q=np.eye(3), R=np.eye(3), n_inputs=3)
-    return liemef.MinimumEnergyFilter(sys_, interpolation="linear", substeps=1)
+    return liemef.MinimumEnergyFilter(sys_, curvature="exact", interpolation="linear", substeps=1)
 
 
 def _final(flt, dt, signal, linear):

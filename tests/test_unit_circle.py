@@ -47,8 +47,9 @@ def test_ready_model_is_the_zamani_system_for_both_measurements():
     engines = {}
     for theta, b, P, u, y, D, _qw, _qb in _cases(seed=31):
         if (key := D.tobytes()) not in engines:
-            ready = _engine_rhs(liemef.MinimumEnergyFilter(UnitCircleBias(D=D)))
-            generic = _engine_rhs(liemef.MinimumEnergyFilter(circle_system(D, B_OMEGA**2, B_BIAS**2)))
+            ready = _engine_rhs(liemef.MinimumEnergyFilter(UnitCircleBias(D=D), curvature="exact"))
+            generic = _engine_rhs(liemef.MinimumEnergyFilter(circle_system(D, B_OMEGA**2, B_BIAS**2),
+                                                             curvature="exact"))
             engines[key] = ready, generic
         ready, generic = engines[key]
         got, want = ready(theta, b, P, u, y), generic(theta, b, P, u, y)
@@ -58,7 +59,7 @@ def test_ready_model_is_the_zamani_system_for_both_measurements():
                                          correct_misprint=True)
         for g, w in zip(got, eq39, strict=True):
             assert _close(g, w), (g, w)
-    angle = _engine_rhs(liemef.MinimumEnergyFilter(UnitCircleBias(measurement="angle")))
+    angle = _engine_rhs(liemef.MinimumEnergyFilter(UnitCircleBias(measurement="angle"), curvature="exact"))
     rng = np.random.default_rng(32)
     for theta, b, P, u, _y, _D, _qw, _qb in _cases(seed=33):
         ypp = theta + rng.uniform(-3.0, 3.0)
@@ -115,7 +116,7 @@ def test_angle_experiment_is_lemma2_and_the_vector_filter_with_D_identity():
     assert np.abs(dev).max() <= ODE_REFERENCE * (1 + np.abs(ref).max()), np.abs(dev).max(axis=0)
     # the angle noise is in the angle: (cos y'', -sin y'') is a unit vector
     np.testing.assert_allclose(np.linalg.norm(np.asarray(log.ys), axis=1), 1.0, atol=ROUNDOFF)
-    vec = liemef.MinimumEnergyFilter(UnitCircleBias(measurement="vector", D=np.eye(2)))
+    vec = liemef.MinimumEnergyFilter(UnitCircleBias(measurement="vector", D=np.eye(2)), curvature="exact")
     other = vec.run(s.state0, log.ts, log.us, log.ys)
     np.testing.assert_allclose(np.asarray(other.coords()), np.asarray(traj.coords()), rtol=0, atol=ROUNDOFF)
     np.testing.assert_allclose(np.asarray(other.K), np.asarray(traj.K), rtol=0, atol=ROUNDOFF)

@@ -86,7 +86,7 @@ def test_engine_reproduces_corrected_eq39_and_not_the_printed_P12():
     min_misprint, engines = np.inf, {}
     for theta, b, P, u, y, D, Q_w, Q_b in _cases(seed=21):
         if (key := (D.tobytes(), Q_w, Q_b)) not in engines:
-            engines[key] = _engine_rhs(liemef.MinimumEnergyFilter(circle_system(D, Q_w, Q_b)))
+            engines[key] = _engine_rhs(liemef.MinimumEnergyFilter(circle_system(D, Q_w, Q_b), curvature="exact"))
         got = engines[key](theta, b, P, u, y)
         want = _paper(theta, b, P, u, y, D, Q_w, Q_b, correct_misprint=True)
         for name, g, w in zip(("theta_dot", "b_dot", "P_dot"), got, want, strict=True):
@@ -104,7 +104,7 @@ def test_engine_reproduces_corrected_eq39_and_not_the_printed_P12():
 @pytest.fixture(scope="module")
 def unit_filter():
     """Engine filter with D = I (Lemma 2's setting), paper noise levels."""
-    return _engine_rhs(liemef.MinimumEnergyFilter(circle_system(np.eye(2), B_OMEGA**2, B_B**2)))
+    return _engine_rhs(liemef.MinimumEnergyFilter(circle_system(np.eye(2), B_OMEGA**2, B_B**2), curvature="exact"))
 
 
 def test_lemma2_angle_filter_equals_vector_filter_with_corrected_sign(unit_filter):
@@ -179,7 +179,7 @@ def test_run_matches_printed_filter_trajectory():
     """flt.run (RKMK4, 2 ms) reproduces the corrected eq. (39) integrated by scipy over 2 s of held samples,
     and the printed (misprinted) P12 equation gives a visibly different trajectory."""
     ts, us, ys = _samples(np.random.default_rng(26))
-    flt = liemef.MinimumEnergyFilter(circle_system(0.4 * np.eye(2), B_OMEGA**2, B_B**2))
+    flt = liemef.MinimumEnergyFilter(circle_system(0.4 * np.eye(2), B_OMEGA**2, B_B**2), curvature="exact")
     fine = np.linspace(0.0, ts[-1], SUBSTEPS * (ts.size - 1) + 1)
     hold = np.minimum(np.arange(fine.size) // SUBSTEPS, ts.size - 1)
     traj = flt.run(flt.init(state(0.0, 0.0), np.diag([K1, K2])), fine, us[hold, None], ys[hold])

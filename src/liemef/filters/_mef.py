@@ -72,10 +72,11 @@ class MinimumEnergyFilter(AbstractFilter):
             EKF's update where the step is accepted whole).
         tol: the Newton decrement, relative to 1 + the sample's cost, below which a discrete update stops.
         curvature: the output's second-order term, in E (continuous) and in the discrete update's Hessian.
-            ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter). ``"safe"``: kept only along the
-            directions the outputs observe and where it leaves the information positive semidefinite
-            (:func:`liemef.filters.safe_curvature`; identical to ``"exact"``, bit for bit, wherever that holds
-            already). Ignored by the first order.
+            ``"safe"`` (the default, chosen on ``liemef compare second-order``, docs/second-order.md): kept where
+            it lies between minus the Gauss-Newton information and zero, so that it only lowers that information
+            and never below zero, and dropped elsewhere (:func:`liemef.filters.safe_curvature`; the exact term,
+            bit for bit, inside that band). ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their
+            reproductions use). Ignored by the first order.
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -100,7 +101,7 @@ class MinimumEnergyFilter(AbstractFilter):
     constant_E: str = eqx.field(static=True)
     updates: str = eqx.field(static=True, default="hold")
     iterations: int = eqx.field(static=True, default=1)
-    curvature: str = eqx.field(static=True, default="exact")
+    curvature: str = eqx.field(static=True, default="safe")
     tol: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(1e-14))
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
@@ -109,7 +110,7 @@ class MinimumEnergyFilter(AbstractFilter):
                  substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
                  constant_E: Literal["weighted", "unit"] = "weighted",
                  updates: Literal["hold", "discrete"] = "hold", iterations: int | None = None,
-                 tol: float = 1e-14, curvature: Literal["exact", "safe"] = "exact"):
+                 tol: float = 1e-14, curvature: Literal["exact", "safe"] = "safe"):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
@@ -142,7 +143,7 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def __repr__(self) -> str:
         updates = f", updates={self.updates!r}" if self.updates != "hold" else ""
-        updates += f", curvature={self.curvature!r}" if self.curvature != "exact" else ""
+        updates += f", curvature={self.curvature!r}" if self.curvature != "safe" else ""
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
                 f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)}{updates}"
                 + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))

@@ -259,7 +259,7 @@ def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: s
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     system = system_from(params, rec.constants, rec.system)
-    flt = MinimumEnergyFilter(system, order=order, updates=updates)
+    flt = MinimumEnergyFilter(system, order=order, updates=updates, curvature="exact")  # compare broad's mef-vel
     traj = flt.run(flt.init(rec.g0, rec.K0), rec.ts, rec.us, rec.ys, engine=engine)
     if int(traj.status.code) != 0:
         return float("inf")

@@ -105,7 +105,7 @@ RPE_DELTA = 10
 
 INS_FILTERS = {
     "mef": ("minimum-energy filter, second order, (0)-connection, samples at their own time",
-            lambda s: MinimumEnergyFilter(s, updates="discrete")),
+            lambda s: MinimumEnergyFilter(s, updates="discrete", curvature="exact")),
     "mef-first": ("first-order minimum-energy filter, samples at their own time",
                   lambda s: MinimumEnergyFilter(s, order="first", updates="discrete")),
     **{n: FILTERS[n] for n in ("iekf-right", "iekf", "ekf", "ukf-left", "ukf-right", "ukf-local")},

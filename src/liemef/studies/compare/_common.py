@@ -16,9 +16,10 @@ from ...metrics._stats import json_number
 from .. import registry
 
 _FACTORIES = {
-    "mef": lambda s: MinimumEnergyFilter(s),
-    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus"),
-    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus"),
+    "mef": lambda s: MinimumEnergyFilter(s, curvature="exact"),
+    "mef-safe": lambda s: MinimumEnergyFilter(s, curvature="safe"),
+    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus", curvature="exact"),
+    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus", curvature="exact"),
     "mef-first": lambda s: MinimumEnergyFilter(s, order="first"),
     "iekf": invariant_ekf,
     "iekf-right": lambda s: ExtendedKalmanFilter(s, "right"),
