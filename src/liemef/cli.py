@@ -157,14 +157,15 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 @_command(cli, "run")
 def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_diag, connection, order, alpha,
-            interpolation, updates, substeps, gap, chunk, params_file, monitor, force, progress):
+            interpolation, updates, curvature, substeps, gap, chunk, params_file, monitor, force, progress):
     from .studies import logs
 
     saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, topics=topics,
                                params=params_file, x0=_floats(x0, "'--x0'"),
                                K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
                                force=force, connection=connection, order=order, alpha=alpha,
-                               interpolation=interpolation, updates=updates, substeps=_substeps(substeps), gap=gap,
+                               interpolation=interpolation, updates=updates, curvature=curvature,
+                               substeps=_substeps(substeps), gap=gap,
                                chunk=chunk, progress=progress, monitor=monitor)
     _echo(saved)
     if saved.run.inconsistent:  # the outputs are written: an exit status of its own, for scripts

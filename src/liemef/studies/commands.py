@@ -156,6 +156,9 @@ RUN = Command(
         option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
                help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
                "at their own time (the hybrid filter: recommended for sample sensors)."),
+        option("--curvature", type=choice(("safe", "exact")), default="safe", show_default=True,
+               help="The outputs' second-order term: safe (kept where it lowers the Gauss-Newton information, never "
+               "below zero; dropped elsewhere) or exact (Theorem 4.1's, the papers' filter)."),
         SUBSTEPS,
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),

@@ -492,7 +492,7 @@ class LogRun:
 
 def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
                alpha: float = 0.0, interpolation: str = "hold", updates: str = "hold", substeps: int | str = "auto",
-               gap: float | None = None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
+               curvature: str = "safe", gap: float | None = None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
                log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
     log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
@@ -525,7 +525,7 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     if K0.shape != (n, n):
         raise ValueError(f"K0: expected a number, {n} diagonal entries or an {n} x {n} matrix, got shape {K0.shape}")
     flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, interpolation=interpolation,
-                              substeps=substeps, updates=updates)
+                              substeps=substeps, updates=updates, curvature=curvature)
     state = flt.init(system.group.from_coords(q0), K0)
     if gap is None:
         gap = 10.0 * float(np.median(np.diff(log.ts)))
@@ -580,7 +580,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
                 "t1": float(log.ts[-1])},
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
-                   "updates": updates, "substeps": substeps, "gap": common["gap"]},
+                   "updates": updates, "substeps": substeps, "curvature": flt.curvature,
+                   "iterations": flt.iterations, "gap": common["gap"]},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
