@@ -23,8 +23,9 @@ estimate's error, read as information. This is Newton's method with Hessian modi
 & Wright, Numerical Optimization, ch. 3.4), the modified Hessian being the Gauss-Newton one.
 
 Both conditions are Cholesky tests (:func:`~._status.positive_definite`, an unrolled factorization: the same
-arithmetic on both engines, no eigendecomposition) of $-C$ and $G + C$, each shifted by ``BAND_TOL`` times the
-scale of G and C so that semidefinite matrices (a sensor that observes some directions only) pass.
+arithmetic on both engines, no eigendecomposition) of $-C$ and $G + C$, Jacobi-scaled and shifted by
+``BAND_TOL`` so that semidefinite matrices (a sensor that observes some directions only) pass, while a cross term
+into a direction that G does not observe does not.
 """
 
 from __future__ import annotations
@@ -34,9 +35,10 @@ from jaxtyping import Array, Bool, Float
 
 from ._status import positive_definite
 
-BAND_TOL = 1e-12
-"""The Cholesky tests of $-C \\succeq 0$ and $G + C \\succeq 0$ accept an eigenvalue down to ``-BAND_TOL`` times
-the largest entry of G and C."""
+BAND_TOL = 1e-10
+"""The Cholesky tests of $-C \\succeq 0$ and $G + C \\succeq 0$, on the matrices scaled by
+$d_i = \\sqrt{|G_{ii}| + |C_{ii}|}$ (Jacobi scaling; 1 where both are 0), accept an eigenvalue down to
+``-BAND_TOL``."""
 
 
 def safe_curvature(G: Float[Array, "n n"], C: Float[Array, "n n"]) -> tuple[Float[Array, "n n"], Bool[Array, ""]]:
@@ -46,6 +48,11 @@ def safe_curvature(G: Float[Array, "n n"], C: Float[Array, "n n"]) -> tuple[Floa
     Traceable."""
     n = G.shape[0]
     Gs, Cs = 0.5 * (G + G.T), 0.5 * (C + C.T)
-    shift = BAND_TOL * jnp.maximum(jnp.maximum(jnp.max(jnp.abs(Gs)), jnp.max(jnp.abs(Cs))), 1e-300) * jnp.eye(n)
-    inside = positive_definite(shift - Cs) & positive_definite(Gs + Cs + shift)
+    # Jacobi scaling, so that the tolerance is relative per direction: a direction G does not observe has
+    # (nearly) zero scale, and a cross term into it is then large, not lost below the observed ones' rounding
+    d = jnp.sqrt(jnp.abs(jnp.diag(Gs)) + jnp.abs(jnp.diag(Cs)))
+    d = jnp.where(d > 0, d, 1.0)
+    scale = d[:, None] * d[None, :]
+    shift = BAND_TOL * jnp.eye(n)
+    inside = positive_definite(shift - Cs / scale) & positive_definite((Gs + Cs) / scale + shift)
     return jnp.where(inside, C, jnp.zeros_like(C)), ~inside

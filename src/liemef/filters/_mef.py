@@ -74,9 +74,10 @@ class MinimumEnergyFilter(AbstractFilter):
         curvature: the output's second-order term, in E (continuous) and in the discrete update's Hessian.
             ``"safe"`` (the default, chosen on ``liemef compare second-order``, docs/second-order.md): kept where
             it lies between minus the Gauss-Newton information and zero, so that it only lowers that information
-            and never below zero, and dropped elsewhere (:func:`liemef.filters.safe_curvature`; the exact term,
-            bit for bit, inside that band). ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their
-            reproductions use). Ignored by the first order.
+            and never below zero, and dropped elsewhere together with the connection term W, which grows with the
+            same residual (:func:`liemef.filters.safe_curvature`; the exact terms, bit for bit, inside that band).
+            ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their reproductions use).
+            Ignored by the first order.
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once

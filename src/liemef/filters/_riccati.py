@@ -11,7 +11,7 @@ $$\hat g^{-1}\dot{\hat g} = \lambda + K r, \qquad
 
 The first-order variant drops the Hessian term of E and sets W = 0 (the continuous-time left-invariant EKF).
 With ``curvature="safe"`` the Hessian term of E is :func:`~._curvature.safe_curvature`'s: kept where it lies
-between minus the Gauss-Newton part and zero, dropped elsewhere; ``Terms.modified`` says where it was dropped.
+between minus the Gauss-Newton part and zero and dropped elsewhere (``Terms.modified`` says where), and W = 0.
 """
 
 from __future__ import annotations
@@ -109,9 +109,13 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
         # sum_k y_tilde_k Hess h_k = Hess (y_tilde . h) + connection correction linear in r = Dh^T y_tilde
         C = -(left_hessian(lambda gg: y_tilde @ system.output_seen_from(y, gg, t), g) + conn.hessian_correction(r))
         if safe:
+            # the curvature only inside its band, and no connection term W = omega(K r), which grows with the
+            # same residual (docs/theorem.md)
             C, modified = safe_curvature(E, C)
+            W = jnp.zeros_like(A)
+        else:
+            W = conn.omega_matrix(mv(K, r))
         E = E + C
-        W = conn.omega_matrix(mv(K, r))
     else:
         W = jnp.zeros_like(A)
     return Terms(r=r, A=A, E=E, W=W, BRB=weights.BRB, lam=lam, y_tilde=y_tilde, Dh=Dh, Dlam=Dlam, modified=modified)
