@@ -160,7 +160,8 @@ def test_run_with_a_ready_system_repeats_its_experiments_filter(system, experime
     alpha = res.metrics["config"].get("alpha", 0.0)
     out = invoke("run", "--system", system, "--log", tmp_path / "exp" / "arrays.npz", "--out", tmp_path / "run",
                  "--x0", x0, "--k0-diag", k0, "--alpha", alpha, "--connection", res.metrics["config"]["connection"],
-                 "--substeps", PAPER_SUBSTEPS)  # the experiments integrate as the papers do
+                 "--substeps", PAPER_SUBSTEPS,  # the experiments integrate as the papers do
+                 "--curvature", "exact")  # and run the theorem's filter
     assert out.exit_code == 0, out.output
     est = np.loadtxt(tmp_path / "run" / "estimates.csv", delimiter=",", skiprows=1)
     c = a["filtered"].shape[1]

@@ -21,7 +21,10 @@ SEEDS = range(8)
 @pytest.fixture(scope="module")
 def runs():
     sys_ = planar_localization()
-    one, auto = liemef.MinimumEnergyFilter(sys_, substeps=1), liemef.MinimumEnergyFilter(sys_)
+    # the theorem's curvature: its stiffness is what the adaptive sub-steps are for (the safe curvature fails on
+    # fewer seeds with one step per interval)
+    one = liemef.MinimumEnergyFilter(sys_, substeps=1, curvature="exact")
+    auto = liemef.MinimumEnergyFilter(sys_, curvature="exact")
     out = {}
     for seed in SEEDS:
         ts, truth, us, ys, th0 = localization_log(seed)

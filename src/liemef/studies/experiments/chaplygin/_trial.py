@@ -84,8 +84,9 @@ def setup(config: ChaplyginConfig) -> Setup:
 def _setup(config: ChaplyginConfig) -> Setup:
     system = make_system(config)
     cls = PrintedWeightsFilter if config.weights == "printed" else MinimumEnergyFilter
+    options = {} if cls is PrintedWeightsFilter else {"curvature": "exact"}  # the wrapper sets its own
     flt = cls(system, connection=config.connection, order=config.order, integrator=config.integrator,
-              alpha=config.alpha, substeps=PAPER_SUBSTEPS)
+              alpha=config.alpha, substeps=PAPER_SUBSTEPS, **options)
     state0 = flt.init(se2r2_state(*config.filter0), config.K0_matrix)
     return Setup(config=config, system=system, filter=flt, g0=se2r2_state(*config.truth0), state0=state0,
                  ts=config.ts)
