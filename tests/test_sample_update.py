@@ -3,9 +3,9 @@
 The update minimizes the sample's cost $c(\\xi) = \\tfrac12\\xi^\\top K^{-1}\\xi + \\tfrac12|y \\ominus h(\\hat g
 \\exp\\xi)|^2_W$ on the group (docs/theorem.md, "Samples at their own time"). Here scipy's least squares (Levenberg-
 Marquardt on the stacked residual, the prior written with K^{-1}), polished by MINPACK's root finder on the
-cost's autodiff gradient, finds the minimizer independently; K+ is checked against the inverse of the Hessian of the new value
-function in the coordinates at the new estimate, $\\zeta \\mapsto c(\\log(\\hat g^{-1}\\hat g^+\\exp\\zeta))$, which
-involves no J of the update.
+cost's autodiff gradient, finds the minimizer independently; K+ is checked against the inverse of the
+Hessian of the new value function in the coordinates at the new estimate,
+$\\zeta \\mapsto c(\\log(\\hat g^{-1}\\hat g^+\\exp\\zeta))$, which involves no J of the update.
 """
 
 from __future__ import annotations
