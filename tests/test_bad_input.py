@@ -158,3 +158,23 @@ def test_terms_rejects(flt, state):
 def test_filter_is_immutable(flt):
     with pytest.raises(AttributeError, match="frozen|immutable|cannot"):
         flt.alpha = 1.0
+
+
+@pytest.mark.parametrize("scale", [1.008, 2.0, 0.0])
+@pytest.mark.parametrize("make", ["pose3d", "inertial_navigation"])
+def test_init_refuses_a_3d_state_off_the_group(make, scale):
+    """SE(3) and SE_2(3) states whose quaternion is not a unit one (|q| = 1.008, 2 or 0, the last of which once
+    ran "ok" with NaN coordinates for a whole log) are refused at init, naming g0 and the distance."""
+    import jax.numpy as jnp
+
+    from liemef import systems
+
+    system = getattr(systems, make)()
+    G = system.group
+    good = G.identity()
+    bad = G(jnp.concatenate([scale * good.wxyz_p[:4], good.wxyz_p[4:] + 0.5]))
+    flt = liemef.MinimumEnergyFilter(system)
+    flt.init(good, np.eye(flt.n))  # a unit quaternion passes
+    with pytest.raises(ValueError, match=rf"g0: expected an element of {G.__name__} within .* got one "
+                                          rf"{abs(scale - 1.0):.6g} off the group"):
+        flt.init(bad, np.eye(flt.n))

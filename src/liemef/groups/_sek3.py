@@ -6,7 +6,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, unit_distance
 from ._so3 import SO3, _skew
 
 # Below this squared angle the SO(3) Jacobian coefficients use Taylor series (functions of theta^2 only): values
@@ -96,6 +96,11 @@ class SEK3(LieGroup):
         if isinstance(K, bool) or not isinstance(K, numbers.Integral) or K < 1:
             raise ValueError(f"SEK3[K]: expected a positive integer number of vectors K, got {K!r}")
         return _sek3_type(int(K))
+
+    def off_group(self) -> float:
+        """|q| - 1 of the rotation's quaternion, in absolute value (the largest over the batch): the vectors are
+        unconstrained."""
+        return unit_distance(self.wxyz_p[..., :4])
 
     # --- parts ------------------------------------------------------------------------------------------------
     @classmethod
