@@ -26,7 +26,7 @@ from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
 from ._update import sample_update
 
-# Sub-step budget per unit of stiffness (DESIGN.md §6): ||K E|| h, ||A|| h and the group step ||xi|| h.
+# Sub-step budget per unit of stiffness (docs/weights.md): ||K E|| h, ||A|| h and the group step ||xi|| h.
 _KE_BUDGET, _A_BUDGET, _XI_BUDGET = 0.5, 0.5, 0.5
 
 
@@ -55,11 +55,11 @@ class MinimumEnergyFilter(AbstractFilter):
         max_substeps: the most steps ``"auto"`` takes in one interval (the last one finishes it).
         constant_E: ``"weighted"`` (the theorem: E's constant part is $Dh^\top D^{-\top} Q D^{-1} Dh$) or
             ``"unit"`` ($Dh^\top Dh$, as Rigo et al. 2022/2023 print it, right only for $Q = D^\top D$: the
-            reproduction of a misprint, DESIGN.md §3).
+            reproduction of a misprint, docs/errata.md).
         updates: how the samples of sample-meaning sensors (``Noise.sample``) enter. ``"hold"`` (the default,
             the papers' scheme, which the reproductions use): a sample's information is spread over the interval
             that follows its time stamp, against an estimate that moves on meanwhile. ``"discrete"``: the hybrid
-            minimum-energy filter (DESIGN.md §7): at its time stamp the sample updates the estimate by the
+            minimum-energy filter (docs/theorem.md): at its time stamp the sample updates the estimate by the
             minimizer of the second-order expansion of the cost (prior plus the sample's residual) on the group,
             then the interval is predicted with the continuous terms of Theorem 4.1 (inputs, density sensors).
             On a linear system this is the discrete Kalman filter exactly; on fast rotation it removes the lag
@@ -74,8 +74,8 @@ class MinimumEnergyFilter(AbstractFilter):
         curvature: the output's second-order term, in E (continuous) and in the discrete update's Hessian.
             ``"safe"`` (the default, chosen on ``liemef compare second-order``, docs/second-order.md): kept where
             it lies between minus the Gauss-Newton information and zero, so that it only lowers that information
-            and never below zero, and dropped elsewhere together with the connection term W, which grows with the
-            same residual (:func:`liemef.filters.safe_curvature`; the exact terms, bit for bit, inside that band).
+            and never below zero, and dropped elsewhere (:func:`liemef.filters.safe_curvature`; the exact term,
+            bit for bit, inside that band); the connection term W, which grows with the same residual, is 0.
             ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their reproductions use).
             Ignored by the first order.
 
@@ -138,7 +138,7 @@ class MinimumEnergyFilter(AbstractFilter):
         self.interpolation, self.substeps, self.max_substeps = interpolation, substeps, max_substeps
         self.constant_E = constant_E
         self.blocks, self.sample, self.diagonal = sensor_layout(system, self.weights.Wy)
-        # K stays symmetric when E is (first order, or a torsion-free connection) (DESIGN.md §1).
+        # K stays symmetric when E is (first order, or a torsion-free connection) (docs/theorem.md).
         torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
         self.symmetric = order == "first" or bool(np.allclose(torsion, 0.0, atol=1e-12))
 
@@ -160,7 +160,7 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def _riccati(self, tm: Terms, K):
         """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
-        the other triangle is not computed where the compiler can see it (exported C) (DESIGN.md §1)."""
+        the other triangle is not computed where the compiler can see it (exported C) (docs/theorem.md)."""
         Kd = riccati_rhs(tm, K, self.alpha)
         return jnp.triu(Kd) + jnp.triu(Kd, 1).T if self.symmetric else Kd
 
@@ -246,7 +246,7 @@ class MinimumEnergyFilter(AbstractFilter):
         def field_and_rate_of(outputs):
             def field_and_rate(gg, KK, tau):
                 # the vector field at a point, and its stiffness rate: the step h is budgeted so that
-                # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (DESIGN.md §6)
+                # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (docs/weights.md)
                 u, y = data(tau)
                 tm = self._terms(weights, gg, KK, u, y, tau, outputs=outputs)
                 xi = tm.lam + mv(KK, tm.r)
