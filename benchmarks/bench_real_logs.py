@@ -160,7 +160,7 @@ def compile_counts(repeats):
         tse2_state0, tlog, 20)
     progress("compile: TSE(2) J sweep")
     # three inertias J on the structure and log just compiled: a physical parameter, so it should be a leaf too
-    # (STYLE.md 16) and compile nothing
+    # (parameters are array leaves) and compile nothing
     out["tse2_inertia_J_sweep"] = weight_sweep(
         lambda i: liemef.MinimumEnergyFilter(PlanarRigidBody(J=(6.125, 7.0, 8.0)[i], D=np.diag([0.5] * 4 + [0.1] * 3),
                                                              Q=np.eye(7))),

@@ -3,9 +3,9 @@
 This module is the independent reference the generic (autodiff) engine is tested against. It imports only
 NumPy and the standard library (no JAX, no ``liemef``), and every formula is the one printed in the paper,
 cited by equation number. Printed misprints are reproduced unless a keyword says otherwise; each one is named
-where it is implemented. See ``../shared/DESIGN.md`` section 3 for the list of known misprints.
+where it is implemented. See ``docs/errata.md`` for the list of known misprints.
 
-Conventions (DESIGN.md sections 1 and 3):
+Conventions (docs/theorem.md and docs/errata.md):
 
 - Lie algebra coordinates are in the papers' basis order: se(2) = (omega, v_x, v_y), so(3) = (w_x, w_y, w_z),
   product groups concatenate their factors.
@@ -175,7 +175,7 @@ def rigo2022_tse2_terms(state, y, K, u, *, J, m, l, D, Q, B, R, correct_misprint
     correct_misprint : bool
         False (default): E uses a_{2,1} and a_{3,1} as printed in eq. (26), i.e. with the opposite sign of
         a_{1,2}, a_{1,3} (E is then not symmetric). True: a_{2,1} = a_{1,2} and a_{3,1} = a_{1,3}, which is
-        what Theorem 4.1 gives (DESIGN.md section 3).
+        what Theorem 4.1 gives (docs/errata.md).
 
     Returns
     -------
@@ -249,7 +249,7 @@ def rigo2022_tse2_terms(state, y, K, u, *, J, m, l, D, Q, B, R, correct_misprint
     a12 = -0.5 * (yt2 + yt4) * c + 0.5 * (yt1 + yt3) * s  # (26) a_{1,2}
     a13 = +0.5 * (yt2 + yt4) * s + 0.5 * (yt1 + yt3) * c  # (26) a_{1,3}
     if correct_misprint:
-        a21, a31 = a12, a13  # Theorem 4.1: E symmetric (DESIGN.md section 3)
+        a21, a31 = a12, a13  # Theorem 4.1: E symmetric (docs/errata.md)
     else:
         a21 = +0.5 * (yt2 + yt4) * c - 0.5 * (yt1 + yt3) * s  # (26) a_{2,1}, as printed
         a31 = -0.5 * (yt2 + yt4) * s - 0.5 * (yt1 + yt3) * c  # (26) a_{3,1}, as printed
@@ -333,7 +333,7 @@ def saccon2016_tso3_terms(Rot, Omega, y, K, tau, *, inertia, a1, a2, D, Q, B, R,
 
     Notes
     -----
-    DESIGN.md section 3: Saccon's Sec. V-B eq. (84) prints ``a1 = d2 = sigma_eps``; it reads d1 = d2. That is
+    docs/errata.md: Saccon's Sec. V-B eq. (84) prints ``a1 = d2 = sigma_eps``; it reads d1 = d2. That is
     an experiment parameter and does not enter here (d1 and d2 are read from D).
     """
     Rot = np.asarray(Rot, dtype=float)
@@ -448,7 +448,7 @@ def zamani_circle_bias_rhs(
         ``measurement="angle"``, whose cost (13) has no D.
     correct_misprint : bool
         True (default): ``P12_dot = -Q_w P12 P1 - Q_b P12 P2 + P1`` (the (1,2) entry of ``-P BRB P``;
-        DESIGN.md section 3). False: as printed in eqs. (37), (39), (40), ``-Q_w P12 P1 - Q_b P2 P1 + P1``.
+        docs/errata.md). False: as printed in eqs. (37), (39), (40), ``-Q_w P12 P1 - Q_b P2 P1 + P1``.
     measurement : {"vector", "angle"}
         "vector": eq. (39). "angle": Lemma 2, eq. (40).
     correct_lemma2_sign : bool
@@ -477,7 +477,7 @@ def zamani_circle_bias_rhs(
     to (40)'s ``cos(y'' - theta)`` for D = I, as the paper states. Both ``y_hat`` in l are the estimated
     output X_hat^T (1, 0)^T (the paper redefines y_hat in eq. (34)).
 
-    Mapping to the generic theorem (DESIGN.md section 1), for tests that build the generic system:
+    Mapping to the generic theorem (docs/theorem.md), for tests that build the generic system:
 
     - group ``G = SO(2) x R``, algebra coordinates ``(theta; b)``, ``hat(theta) = theta S``; state
       ``g = (X(theta), b)``; abelian, so ad = 0, W = 0 and every connection gives the same filter;
@@ -539,7 +539,7 @@ def zamani_circle_bias_rhs(
     P1_dot = -Q_w * P1**2 - Q_b * P12**2 + meas_term  # eqs. (37)/(39)/(40)
     P2_dot = -Q_b * P2**2 - Q_w * P12**2 + 2.0 * P12  # eqs. (37)/(39)/(40)
     if correct_misprint:
-        P12_dot = -Q_w * P12 * P1 - Q_b * P12 * P2 + P1  # DESIGN.md section 3
+        P12_dot = -Q_w * P12 * P1 - Q_b * P12 * P2 + P1  # docs/errata.md
     else:
         P12_dot = -Q_w * P12 * P1 - Q_b * P2 * P1 + P1  # eqs. (37)/(39)/(40), as printed
     P_dot = np.array([[P1_dot, P12_dot], [P12_dot, P2_dot]])
@@ -631,7 +631,7 @@ def rigo2023_chaplygin_terms(state, y, K, u, *, J, m, a, l, D, Q, B, R, sensor="
     sensor : {"gps_ins", "gps"}
     connection : {"zero", "minus"}
     correct_misprint : bool
-        False (default): E as printed. True: the theorem's E (DESIGN.md section 3):
+        False (default): E as printed. True: the theorem's E (docs/errata.md):
         for ``"zero"``, eq. (33)/(58)'s a_{2,1}, a_{3,1} are printed with the opposite sign of a_{1,2},
         a_{1,3}; corrected, a_{2,1} = a_{1,2} and a_{3,1} = a_{1,3} (E symmetric). For ``"minus"``, eq. (62)
         prints zeros at (x, theta) and (y, theta); corrected, they are 2 a_{1,2} and 2 a_{1,3} (the a_{i,j} of
@@ -703,14 +703,14 @@ def rigo2023_chaplygin_terms(state, y, K, u, *, J, m, a, l, D, Q, B, R, sensor="
     E[0, 0] += a11
     if conn == "zero":
         if correct_misprint:
-            a21, a31 = a12, a13  # Theorem 4.1: E symmetric (DESIGN.md section 3)
+            a21, a31 = a12, a13  # Theorem 4.1: E symmetric (docs/errata.md)
         else:
             a21 = +0.5 * (yt2 + yt4) * c - 0.5 * (yt1 + yt3) * s  # eq. (33) a_{2,1}, as printed
             a31 = -0.5 * (yt2 + yt4) * s - 0.5 * (yt1 + yt3) * c  # eq. (33) a_{3,1}, as printed
         E[0, 1], E[0, 2] = a12, a13  # eq. (33), first row
         E[1, 0], E[2, 0] = a21, a31  # eq. (33), first column
     elif correct_misprint:
-        E[1, 0], E[2, 0] = 2.0 * a12, 2.0 * a13  # Theorem 4.1; eq. (62) prints 0 (DESIGN.md section 3)
+        E[1, 0], E[2, 0] = 2.0 * a12, 2.0 * a13  # Theorem 4.1; eq. (62) prints 0 (docs/errata.md)
     # else: eq. (62) as printed, first row and column zero apart from a_{1,1}
 
     # Sec. 5: B R^-1 B^T = blockdiag(0, B2 R^-1 B2^T), B = [0; B2] (eq. (19))

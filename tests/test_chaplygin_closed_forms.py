@@ -5,7 +5,7 @@ Reference: ``paper_forms.rigo2023_chaplygin_terms``, a plain-NumPy transcription
 term r, A, E, W, B R^-1 B^T is compared entry by entry at random states, measurements, inputs and gains
 (fixed seeds), for both sensor sets and both connections, with the paper's weights and with other ones.
 
-The printed E differs from the theorem's in three ways (DESIGN.md section 3, ``docs/errata.md``); each is
+The printed E differs from the theorem's in three ways (``docs/errata.md``); each is
 pinned exactly by its own test:
 
 * eq. (33)/(58), (0)-connection: a21, a31 have the opposite sign of a12, a13 (the theorem's E is symmetric);

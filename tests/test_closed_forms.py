@@ -87,7 +87,7 @@ def test_tse2_terms_match_rigo2022_with_corrected_E(weights):
 
 @pytest.mark.parametrize("weights", ["paper", "weighted"])
 def test_tse2_printed_E_misprint_is_exactly_a21_a31(weights):
-    """Pin of the misprint (DESIGN.md section 3): the printed E of eq. (26) differs from the theorem's only at
+    """Pin of the misprint (docs/errata.md): the printed E of eq. (26) differs from the theorem's only at
     (1, 0) and (2, 0), by 2 a21 and 2 a31 (printed values), i.e. the printed a21 = -a12 and a31 = -a13."""
     system = _planar(weights)
     flt = liemef.MinimumEnergyFilter(system, curvature="exact", connection="zero")

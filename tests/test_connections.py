@@ -1,5 +1,5 @@
 """Property tests of the connections: the Cartan-Schouten family, user connection functions, and the
-connection Hessian formula of DESIGN.md sec. 1 against finite differences on the group (which pins the matrix
+connection Hessian formula of docs/theorem.md against finite differences on the group (which pins the matrix
 convention)."""
 
 from __future__ import annotations
@@ -175,7 +175,7 @@ def test_hessian_correction(G, name, c, rng):
         assert_close(M, np.zeros((n, n)), 0.0)
 
 
-# --- the connection Hessian of DESIGN.md sec. 1 against finite differences on the group ---------------------
+# --- the connection Hessian of docs/theorem.md against finite differences on the group ----------------------
 
 FD_STEP_2 = 1e-4
 # Compiled once and run once: skip XLA's expensive optimisations (as in test_groups.py; no fast-math).
@@ -197,7 +197,7 @@ def _nonlinear_output(G, rng):
 
 @pytest.mark.parametrize("G", [TSO3, TSE2, SE2R2], ids=lambda G: G.__name__)
 def test_connection_hessian_formula_matches_finite_differences(G, rng):
-    # DESIGN.md sec. 1: H[i, j] = Hess_c h(e_j, e_i)
+    # docs/theorem.md: H[i, j] = Hess_c h(e_j, e_i)
     #                            = d2/(ds dt) h(g exp(s e_j) exp(t e_i)) - c Dh . ad_{e_j} e_i,
     # computed by the engine as hessian(F)(0)[i, j] + hessian_correction(Dh), F(xi) = h(g exp(xi)).
     n = G.tangent_dim
@@ -226,7 +226,7 @@ def test_connection_hessian_formula_matches_finite_differences(G, rng):
         H = hess + np.asarray(connection(name, G).hessian_correction(Dh))
         H_fd = (mixed - c * ad_term).T  # rows are the second argument: H[i, j] = Hess_c h(e_j, e_i)
         assert_close(H, H_fd, SECOND_FINITE_DIFF, err_msg=name)
-        # DESIGN.md's closed form of the same matrix.
+        # docs/theorem.md's closed form of the same matrix.
         assert_close(H, hess + (0.5 - c) * ad_term.T, ROUNDOFF, err_msg=name)
         if c != 0.5:  # non-symmetric: a transposed convention would fail above
             assert np.abs(H - H.T).max() > 1e-2

@@ -1,4 +1,4 @@
-"""Reduction test: sparse samples on a linear system are the discrete Kalman filter (DESIGN.md §6).
+"""Reduction test: sparse samples on a linear system are the discrete Kalman filter (docs/weights.md).
 
 System on R^2 (a damped oscillator driven by an input): ``x_dot = A x + G u + w``, w white of density
 ``diag(q^2)`` (``Noise.density(q)``), and a position sensor ``y_k = x_1(t_k) + v_k``, ``v_k ~ N(0, sigma^2)``,

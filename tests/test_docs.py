@@ -165,7 +165,7 @@ def _exempt(module: str) -> bool:
 
 def test_every_public_function_and_method_has_a_docstring():
     offenders = [f"{mod}: {name}" for mod, names in undocumented().items() if not _exempt(mod) for name in names]
-    assert not offenders, ("public functions/methods without a docstring (STYLE.md: one line is enough for an "
+    assert not offenders, ("public functions/methods without a docstring (one line is enough for an "
                            "override):\n  " + "\n  ".join(offenders))
 
 
@@ -173,3 +173,24 @@ def test_exempt_modules_still_need_their_exemption():
     missing = undocumented()
     stale = sorted(m for m in EXEMPT_UNTIL_REVIEWED if not any(_exempt(mod) and mod.startswith(m) for mod in missing))
     assert not stale, f"documented now: remove {stale} from EXEMPT_UNTIL_REVIEWED in tests/test_docs.py"
+
+
+OUTSIDE_NOTES = ("DESIGN", "STYLE")
+"""The stems of the guidance notes kept outside the repository (../shared), which the code must not cite."""
+
+
+def test_code_cites_only_files_in_the_repository():
+    """The code's reasons live in the project's own pages: no source, test or benchmark file cites the design
+    or style notes kept outside the repository, and every ``docs/<page>.md`` a file cites exists."""
+    root = ROOT
+    outside, missing = [], []
+    for folder in ("src", "tests", "benchmarks", "tools", "examples"):
+        for path in sorted((root / folder).rglob("*")):
+            if path.suffix not in {".py", ".c", ".h", ".toml"} or not path.is_file():
+                continue
+            text = path.read_text(encoding="utf-8", errors="replace")
+            rel = path.relative_to(root)
+            outside += [f"{rel}: {m}" for m in re.findall(rf"\b(?:{'|'.join(OUTSIDE_NOTES)})\.md\b", text)]
+            missing += [f"{rel}: {m}" for m in re.findall(r"\bdocs/[\w/.-]+?\.md\b", text) if not (root / m).is_file()]
+    assert not outside, f"citations of design notes that are not in the repository: {outside}"
+    assert not missing, f"citations of pages that do not exist: {missing}"

@@ -614,7 +614,7 @@ def test_batch_shape(G, shape):
     assert got == want
 
 
-# --- conventions (one convention, written once: DESIGN.md sec. 1) -------------------------------------------
+# --- conventions (one convention, written once: docs/concepts.md) -----------------------------------------
 
 
 def _rot2(w):

@@ -1,4 +1,4 @@
-"""The hybrid minimum-energy filter (``updates="discrete"``, DESIGN.md §7): samples used at their own time.
+"""The hybrid minimum-energy filter (``updates="discrete"``, docs/theorem.md): samples used at their own time.
 
 * On a linear system it is the discrete Kalman filter exactly: to round-off where the prediction is exact
   (constant rates: RK4 integrates them exactly), and up to the prediction's own RK4 error (4th order in the

@@ -1,4 +1,4 @@
-"""Missing samples are a mask, not a branch (DESIGN.md §6), and the mask is exact.
+"""Missing samples are a mask, not a branch (docs/weights.md), and the mask is exact.
 
 A NaN in ``y`` removes that component's information over the interval that follows it: the filter equals, over
 that interval, the filter of the system built without the component (for correlated components: the system of

@@ -1,4 +1,4 @@
-"""Parameters are leaves, structure is static (STYLE.md 16): new weights or noise levels reuse the compiled run and
+"""Parameters are leaves, structure is static: new weights or noise levels reuse the compiled run and
 step, and logs of different lengths compile once per length bucket (``liemef.filters.TRACES`` counts traces);
 padding a log to its bucket and keeping every M-th state change nothing. These are the XLA engine's
 (``engine="xla"``); the C engine's kernel reuse is tests/test_engine.py's."""

@@ -1,4 +1,4 @@
-"""Residuals on manifolds (DESIGN.md §8): a sensor declares angles or its own residual ``y (-) h``, and the
+"""Residuals on manifolds (docs/weights.md): a sensor declares angles or its own residual ``y (-) h``, and the
 filters (hold and discrete updates, the Kalman baselines), gates, robust losses and innovations use it.
 
 The bearing case: a planar robot with odometry ranges and bearings to three landmarks, each bearing written the

@@ -1,6 +1,6 @@
 """Sensors -> Theorem 4.1: the weights a SensorSystem derives from noise levels, and what the engine does with them.
 
-DESIGN.md §6 and the docstring of ``liemef.systems._sensors``:
+docs/weights.md and the docstring of ``liemef.systems._sensors``:
 
 * ``Noise.density(s)``: a measurement weighs ``1/s^2`` per unit time; a process noise adds ``s^2`` per unit time;
 * ``Noise.sample(sigma, rate=f)`` held as an input: density ``s^2 = sigma^2 / f``;

@@ -1,4 +1,4 @@
-"""Failures are values (DESIGN.md §6, STYLE.md 15): a run returns the first bad interval, its cause and the last
+"""Failures are values (docs/weights.md): a run returns the first bad interval, its cause and the last
 good state, and a failed state stays as it is. (Padding and keep_every: tests/test_recompilation.py.)"""
 
 import equinox as eqx

@@ -1,4 +1,4 @@
-"""Sub-steps (DESIGN.md §6): one explicit step of size Delta with a sample's weight 1/(sigma^2 Delta) is unstable
+"""Sub-steps (docs/weights.md): one explicit step of size Delta with a sample's weight 1/(sigma^2 Delta) is unstable
 once |K E| Delta exceeds about 2; substeps="auto" splits such intervals.
 
 The ukfm localization scenario (GPS at 1 Hz, odometry at 100 Hz, 45 deg initial heading std): a GPS fix carries

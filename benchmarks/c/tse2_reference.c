@@ -11,7 +11,7 @@
  * then R3.x); K[36], the 6 x 6 gain, row-major, algebra order (omega, vx, vy; omega, vx, vy). K must be
  * symmetric: it stays so under the (0)-connection, and the code computes one triangle and mirrors it.
  *
- * Equations (Saccon et al. 2016, Theorem 4.1; ../shared/DESIGN.md section 1), with c = 1/2:
+ * Equations (Saccon et al. 2016, Theorem 4.1; docs/theorem.md), with c = 1/2:
  *   g^-1 g_dot = lambda + K r
  *   K_dot      = M K + K M' - K E K + B R^-1 B',   M = A - W   (alpha = 0; K symmetric, so K M' = (M K)')
  * Closed forms (Rigo et al. 2022, Prop. 1; tests/paper_forms.py: rigo2022_tse2_terms):
@@ -27,7 +27,7 @@
  *             a11 = l c (yt1 - yt3) + l s (yt2 - yt4) + 2 l^2 w_a,
  *             a12 = (s (yt1 + yt3) - c (yt2 + yt4)) / 2,  a13 = (c (yt1 + yt3) + s (yt2 + yt4)) / 2
  *             eq. (26) with the weights of eq. (35), and with a21 = a12, a31 = a13: Theorem 4.1's E is
- *             symmetric; the printed a21, a31 have the wrong sign (DESIGN.md section 3, errata)
+ *             symmetric; the printed a21, a31 have the wrong sign (docs/errata.md)
  *   W       = blockdiag(ad_{(K r)_{1:3}} / 2, 0)                                           eq. (27)
  *   B R^-1 B' = blockdiag(0, B2 (B2' B2)^-1 B2') = blockdiag(0, I3)                        Sec. IV, eq. (27)
  * With Q = D'D the weights are w_a = w_3 = w_4 = 1 (D^-T Q D^-1 = I).

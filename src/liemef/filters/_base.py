@@ -91,7 +91,7 @@ TRACES: collections.Counter = collections.Counter()
 def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
     """The sensor layout a filter needs: the system's blocks, per output component whether it has sample
     meaning, and whether the information matrix ``Wy`` is diagonal (a missing component is then dropped by
-    zeroing its row and column; otherwise the filter forms the marginal information, DESIGN.md §6)."""
+    zeroing its row and column; otherwise the filter forms the marginal information, docs/weights.md)."""
     blocks = system.blocks()
     sample = [False] * system.output_dim
     for b in blocks:

@@ -1,7 +1,7 @@
 r"""Residual and perturbed Riccati right-hand side of Theorem 4.1 (Saccon et al. 2016), in coordinates.
 
-With $\tilde y = D^{-\top} Q D^{-1} (y - h(\hat g))$ (DESIGN.md §1; $y \ominus h$ where a sensor declares its
-residual, through :meth:`~liemef.systems.AbstractSystem.output_seen_from`, DESIGN.md §8):
+With $\tilde y = D^{-\top} Q D^{-1} (y - h(\hat g))$ (docs/theorem.md; $y \ominus h$ where a sensor declares its
+residual, through :meth:`~liemef.systems.AbstractSystem.output_seen_from`, docs/weights.md "Inputs, gaps and outliers"):
 
 $$r = Dh^\top \tilde y,\quad A = D\lambda - \mathrm{ad}_\lambda - T_\lambda,\quad
 E = Dh^\top D^{-\top} Q D^{-1} Dh - \sum_k \tilde y_k \mathrm{Hess}\, h_k,\quad W = \omega_{K r},$$
@@ -64,7 +64,7 @@ class Weights(eqx.Module):
 
 def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Float[Array, "p p"]:
     r"""The measurement information over an interval of length ``dt`` in which the components ``mask`` have a
-    sample (DESIGN.md §6).
+    sample (docs/weights.md, "One sample carries its information once").
 
     A missing component carries no information: the information of the present ones is that of their marginal,
     $(\Sigma_{SS})^{-1}$ with $\Sigma = W_y^{-1}$, padded with zeros (for a block-diagonal $W_y$ this is

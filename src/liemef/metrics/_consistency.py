@@ -1,7 +1,7 @@
 r"""Consistency of a filter's gain: the left-invariant error, its NEES under K, and chi-square bounds.
 
 The filter's K approximates the covariance of the left-invariant (body-frame) error
-$\xi = \log(\hat g^{-1} g)$, so that $g = \hat g \exp\xi$ (DESIGN.md §6, with weights set from the noise
+$\xi = \log(\hat g^{-1} g)$, so that $g = \hat g \exp\xi$ (docs/weights.md, with weights set from the noise
 levels). The normalized estimation error squared $\epsilon = \xi^\top K^{-1}\xi$ of a consistent filter is
 $\chi^2$ with $n$ degrees of freedom; averaged over $N$ independent runs, $N\bar\epsilon \sim \chi^2_{nN}$,
 which gives :func:`chi2_bounds` (Bar-Shalom, Li, Kirubarajan 2001, Sec. 5.4.2).

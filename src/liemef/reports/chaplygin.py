@@ -115,7 +115,7 @@ def tables_markdown(es: list[Entry], runs: dict, heading: str = "") -> str:
 
 
 def velocity_markdown(es: list[Entry]) -> str:
-    """The velocity rows (the sharpest check, DESIGN.md §3): rms of delta omega and delta v, Monte Carlo against
+    """The velocity rows (the sharpest check, docs/chaplygin.md): rms of delta omega and delta v, Monte Carlo against
     the paper."""
     lines = ["| Ts | sensor | connection | δω rms MC [mrad/s] | δω rms paper (pct) | δv rms MC [mm/s] | "
              "δv rms paper (pct) |", "|---|---|---|---:|---:|---:|---:|"]

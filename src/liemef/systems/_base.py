@@ -114,7 +114,7 @@ class AbstractSystem(eqx.Module):
         return False
 
     def residual(self, y: Float[Array, "... p"], h: Float[Array, "... p"], t=None) -> Float[Array, "... p"]:
-        r"""The residual $y \ominus h$ of a sample against an output (DESIGN.md §8): ``y - h`` unless a sensor
+        r"""The residual $y \ominus h$ of a sample against an output (docs/weights.md): ``y - h`` unless a sensor
         declares its own (angles, directions, rotations: :mod:`liemef.systems._residuals`)."""
         return y - h
 

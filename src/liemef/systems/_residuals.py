@@ -1,4 +1,4 @@
-r"""Residuals on manifolds: $y \ominus h$ for outputs that do not live in a vector space (DESIGN.md §8).
+r"""Residuals on manifolds: $y \ominus h$ for outputs that do not live in a vector space (docs/weights.md).
 
 A filter compares a sample y with the predicted output h. For a vector output the residual is $y - h$; for an
 angle it is the wrapped difference; for a direction on $S^2$ it lies in the tangent plane at h; for a rotation

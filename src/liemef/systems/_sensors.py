@@ -1,6 +1,6 @@
 r"""Sensors as named blocks with noise levels in their own units, and the theorem's weights derived from them.
 
-A noise level is a standard deviation in the sensor's units together with its meaning (DESIGN.md §6):
+A noise level is a standard deviation in the sensor's units together with its meaning (docs/weights.md):
 
 * ``Noise.density(s)``: a continuous white noise of density ``s`` (units·sqrt(s), e.g. rad/s/sqrt(Hz) for a
   gyro). A measurement of density ``s`` weighs ``1/s^2`` per unit time while it is present (held between
@@ -116,7 +116,7 @@ class Sensor(eqx.Module):
             (:func:`~liemef.systems.direction_residual` for unit directions,
             :func:`~liemef.systems.rotation_residual` for rotation vectors); default ``y - h``.
 
-    Gates, robust losses, the filters' updates and the innovations all use the residual (DESIGN.md §8).
+    Gates, robust losses, the filters' updates and the innovations all use the residual (docs/weights.md).
     """
 
     name: str = eqx.field(static=True)

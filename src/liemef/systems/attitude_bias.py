@@ -5,7 +5,7 @@ State $g = (R, b)$: $R$ the rotation body -> world (ENU: x east, y north, z up),
 body frame); algebra order $(\eta_R; \eta_b)$. Input $u$ = the gyro reading (rad/s, body frame), modelled as
 $u = \omega + b + n_g$. Kinematics $g^{-1}\dot g = \lambda(g, u) = (u - b,\ 0)$: $R^\top\dot R = [u - b]_\times$,
 $\dot b = 0$. Model error $B\delta$: the gyro noise on the rotation block, the bias random walk on the bias block,
-$B = \mathrm{diag}(s_g I_3, s_b I_3)$ as densities (:class:`~liemef.systems.Noise`, DESIGN.md §6).
+$B = \mathrm{diag}(s_g I_3, s_b I_3)$ as densities (:class:`~liemef.systems.Noise`, docs/weights.md).
 
 Sensors (unitless directions in the body frame, each a 3-vector of norm 1):
 

@@ -1,7 +1,7 @@
 r"""Monte Carlo over seeds: N trials of an experiment, batched with ``jax.vmap``, reduced to statistics.
 
 The papers report single noisy runs; a reproduction reports the distribution over seeds and where each
-published number falls in it (DESIGN.md §3). :func:`montecarlo` runs ``runs`` trials of an experiment's
+published number falls in it (docs/errata.md). :func:`montecarlo` runs ``runs`` trials of an experiment's
 :class:`~liemef.studies.experiments.TrialSpec`:
 
 * trial ``i`` uses the key ``jax.random.split(jax.random.key(seed), runs)[i]``, whatever the batch size

@@ -86,7 +86,7 @@ WEIGHTS = {
 
 @dataclass(frozen=True)
 class AttitudeConfig(RunConfig):
-    r"""The attitude experiment (Saccon et al. 2016, Sec. V-B; DESIGN.md §2).
+    r"""The attitude experiment (Saccon et al. 2016, Sec. V-B).
 
     Fields:
         seed: the run's key is ``jax.random.key(seed)``.

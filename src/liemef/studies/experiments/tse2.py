@@ -52,7 +52,7 @@ WEIGHTS = {
 
 @dataclass(frozen=True)
 class TSE2Config(RunConfig):
-    r"""The planar rigid body experiment (Rigo et al. 2022, Sec. VI; DESIGN.md §2).
+    r"""The planar rigid body experiment (Rigo et al. 2022, Sec. VI).
 
     Printed in the paper: J = 6.125, m = 125, l = 0.2, T = 50 s, RK4 with h = 1 ms, truth from
     ``truth0`` = (pi/6, 1, 2, 0, 0, 0), filter from ``filter0`` = (pi/8, 1.1, 2.1, 0.1, -0.1, -0.1),
@@ -61,7 +61,7 @@ class TSE2Config(RunConfig):
 
     ``weights="consistent"`` replaces the printed Q = D'D, R = B'B by Q = I, R = I: with the printed choice
     D^-T Q D^-1 = I and B R^-1 B' is the identity on the velocity block, so the filter is not weighted by the
-    noise levels (DESIGN.md §2); with Q = I, R = I it weighs the residual by D^-T D^-1 and the model error by
+    noise levels (docs/errata.md); with Q = I, R = I it weighs the residual by D^-T D^-1 and the model error by
     B B', which is what a user would tune. The simulated noise is the same for both.
 
     **Not printed in the paper** (our choice, also recorded in ``metrics.json``): the forgetting factor

@@ -51,7 +51,7 @@ def angular_velocity(t):
 
 @dataclass(frozen=True)
 class UnitCircleConfig(RunConfig):
-    r"""The unit circle experiment (Zamani et al., Sec. IV; DESIGN.md §2). Angles and rates in degrees here.
+    r"""The unit circle experiment (Zamani et al., Sec. IV). Angles and rates in degrees here.
 
     Fields:
         seed: the run's key is ``jax.random.key(seed)``.

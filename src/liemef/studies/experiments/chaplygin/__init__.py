@@ -1,13 +1,13 @@
 r"""The Chaplygin sleigh on SE(2) x R^2: Rigo, Sansonetto, Muradore 2023, Sec. 6, Tables 1-2, Figs. 3-6.
 
-Printed in the paper (Sec. 6; DESIGN.md §2): J = 6.125, m = 125, a = 0.3, l = 0.2; inputs
+Printed in the paper (Sec. 6): J = 6.125, m = 125, a = 0.3, l = 0.2; inputs
 $u_\omega = 10\sin(t/2)$, $u_v = \tfrac12\sin(t/5)$; T = 20 s; truth from $(\pi/6, 1, 2, 0, 0)$; the filter starts
 at the true state; D = diag(0.4 x4, 0.2, 0.2) (GPS only: 0.4 I4), B2 = diag(10, 10), R = I, Q = I, alpha = 0;
 K(0) = I5 for the (0)-connection and the constraint-preserving K(0) of eq. (63) for the (-)-connection; RK4 with
 step Ts and a measurement every Ts, Ts = 10 ms (Table 1, Figs. 3-4) and 1 ms (Table 2, Figs. 5-6); GPS + INS and
 GPS only. Errors $\delta\theta = \theta - \hat\theta$, ... (truth minus estimate).
 
-Simulation choices the paper leaves open, and what reproduces its tables (DESIGN.md §3, ``docs/chaplygin.md``):
+Simulation choices the paper leaves open, and what reproduces its tables (``docs/chaplygin.md``, ``docs/errata.md``):
 
 * ``weights``: ``"consistent"`` (default) is Theorem 4.1 with the stated Q = I, so that
   $D^{-\top} Q D^{-1}$ = diag(6.25 x4, 25, 25) weighs the residual (eq. (27)) *and* E. ``"printed"`` is the mix

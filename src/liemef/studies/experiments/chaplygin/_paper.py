@@ -87,7 +87,7 @@ def paper_value(dt: float, sensor: str, connection: str, component: str, stat: s
 
 @dataclass(frozen=True)
 class ChaplyginConfig(RunConfig):
-    r"""The Chaplygin sleigh experiment (Rigo et al. 2023, Sec. 6; DESIGN.md §2-§3).
+    r"""The Chaplygin sleigh experiment (Rigo et al. 2023, Sec. 6; docs/chaplygin.md).
 
     Fields:
         seed: the run's key is ``jax.random.key(seed)``; in :func:`reproduce` the Monte Carlo seed.

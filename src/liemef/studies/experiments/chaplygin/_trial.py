@@ -132,7 +132,7 @@ def measured_state(sensor: str, ys: np.ndarray) -> np.ndarray:
 def _assumptions(c: ChaplyginConfig) -> dict:
     weights = {
         "consistent": "Theorem 4.1 with the stated Q = I: D^-T Q D^-1 = diag(q/d^2) weighs the residual (eq. 27) "
-                      "and E (DESIGN.md §3)",
+                      "and E (docs/errata.md)",
         "printed": "as printed: residual and Hessian part of E with q/d^2 (eq. 27), constant part of E as printed "
                    "(2 l^2, 2, 2, 1, 1; valid only for Q = D'D)",
         "unweighted": "Q = D'D throughout (D^-T Q D^-1 = I), what eqs. (33), (38), (48) presuppose",
