@@ -4,6 +4,7 @@ reported appear."""
 
 import math
 
+import jax
 import numpy as np
 import pytest
 
@@ -17,6 +18,7 @@ from liemef.studies.compare._second_order import (
     compare_second_order,
     markdown,
     table_rows,
+    trials,
 )
 
 FAST_SYSTEMS = ("quad-range", "se2-bearing")
@@ -43,6 +45,21 @@ def test_the_suite_is_registered_with_twelve_systems_and_checks_its_settings():
         SecondOrderSuite(filters="mef-hold,mef-hold")
     with pytest.raises(ValueError, match="duration"):
         SecondOrderSuite(duration=0.5)
+    for bad in (-0.5, float("nan"), True, "1"):
+        with pytest.raises(ValueError, match="initial_scale"):
+            SecondOrderSuite(initial_scale=bad)
+
+
+@pytest.mark.parametrize("scale", [0.0, 0.5])
+def test_the_initial_scale_scales_the_drawn_initial_error(scale):
+    """``initial_scale`` multiplies each trial's drawn error log(g0^-1 g_hat0); 0 starts every filter at the truth."""
+    case = CASES["se2-range"][1](1.0)
+    truth, _, _, drawn = trials(case, 2, 0)
+    _, _, _, scaled = trials(case, 2, 0, initial_scale=scale)
+    g0 = jax.tree_util.tree_map(lambda a: a[:, 0], truth)
+    e_drawn, e_scaled = np.asarray(drawn.rminus(g0)), np.asarray(scaled.rminus(g0))
+    assert np.abs(e_drawn).min() > 1e-4
+    np.testing.assert_allclose(e_scaled, scale * e_drawn, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

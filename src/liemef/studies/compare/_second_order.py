@@ -412,18 +412,25 @@ CASES: dict[str, tuple[str, Callable[[float], Case]]] = {
 @dataclass(frozen=True)
 class SecondOrderSuite:
     """The study's settings (module docstring): ``runs`` trials per system from ``seed``, ``duration`` s each,
-    the ``systems`` and ``filters`` (comma-separated names; default all)."""
+    the ``systems`` and ``filters`` (comma-separated names; default all); ``initial_scale`` scales every
+    trial's drawn initial error (0: every filter starts at the truth, with the same K0), to tell what the initial
+    error does from what the model does."""
 
     runs: int = 5
     seed: int = 0
     duration: float = 20.0
     systems: tuple[str, ...] | str | None = None
     filters: tuple[str, ...] | str | None = None
+    initial_scale: float = 1.0
 
     def __post_init__(self):
         check_counts(self, "runs")
         if not (isinstance(self.duration, int | float) and math.isfinite(self.duration) and self.duration >= 1.0):
             raise ValueError(f"duration: expected a duration >= 1 s, got {self.duration!r}")
+        scale = self.initial_scale
+        if isinstance(scale, bool) or not (isinstance(scale, int | float) and math.isfinite(scale) and scale >= 0):
+            raise ValueError(f"initial_scale: expected a finite number >= 0, got {scale!r}")
+        object.__setattr__(self, "initial_scale", float(scale))
         object.__setattr__(self, "systems", parse_names("systems", self.systems, CASES, tuple(CASES)))
         object.__setattr__(self, "filters", parse_names("filters", self.filters, FILTERS, tuple(FILTERS)))
 
@@ -432,9 +439,11 @@ def _stack(items):
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
 
 
-def trials(case: Case, runs: int, seed: int):
+def trials(case: Case, runs: int, seed: int, initial_scale: float = 1.0):
     """The truth (batched (runs, N)), the inputs (runs, N, m), the measurements with NaN between each sensor's
-    samples (runs, N, p) and the initial estimates (batched (runs,)) of ``case``."""
+    samples (runs, N, p) and the initial estimates (batched (runs,)) of ``case``: each drawn estimate's error
+    ``xi = log(g0^-1 g_hat0)`` scaled by ``initial_scale`` (1: as drawn; 0: the estimate starts at the truth, with
+    the same K0)."""
     keys = jax.random.split(jax.random.key(seed), runs)
     k = np.arange(case.ts.size)
     truths, us, ys, g0s = [], [], [], []
@@ -448,7 +457,10 @@ def trials(case: Case, runs: int, seed: int):
         truths.append(truth.g)
         us.append(np.asarray(log.us))
         ys.append(y)
-        g0s.append(case.initial_estimate(i, np.random.default_rng([seed, i])))
+        g_hat0 = case.initial_estimate(i, np.random.default_rng([seed, i]))
+        if initial_scale != 1.0:
+            g_hat0 = case.g0.rplus(initial_scale * g_hat0.rminus(case.g0))
+        g0s.append(g_hat0)
     return _stack(truths), np.stack(us), np.stack(ys), _stack(g0s)
 
 
@@ -527,10 +539,11 @@ def monitor_cell(statuses: Sequence[str]) -> str:
     return ", ".join(f"{s} {n}" for s, n in counts.items()) or "-"
 
 
-def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress: bool = False) -> dict:
+def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress: bool = False,
+             initial_scale: float = 1.0) -> dict:
     """Every filter of ``filters`` on the trials of ``case``: the rows by filter, and the updates the
     first-order row used."""
-    truth, us, ys, g0s = trials(case, runs, seed)
+    truth, us, ys, g0s = trials(case, runs, seed, initial_scale)
     order = [n for n in filters if n in SECOND_ORDER] + [n for n in filters if n not in SECOND_ORDER]
     rows, updates = {}, "discrete"
     for name in order:
@@ -559,7 +572,7 @@ def compare_second_order(study: SecondOrderSuite | None = None, *, progress: boo
     systems = {}
     for name in st.systems:
         case = CASES[name][1](st.duration)
-        res = run_case(case, st.filters, st.runs, st.seed, progress)
+        res = run_case(case, st.filters, st.runs, st.seed, progress, st.initial_scale)
         systems[name] = {"description": case.description, "dof": case.dof, "side": case.side,
                          "samples": int(case.ts.size), "note": case.note, **res}
     return {"study": {**dataclasses.asdict(st), "filters_described": {n: FILTERS[n][0] for n in st.filters},
