@@ -16,7 +16,7 @@ from liemef.studies.compare import (
     parse_filters,
 )
 from liemef.studies.compare._basins import convergence
-from liemef.studies.compare._common import nees_cell, nees_flag
+from liemef.studies.compare._common import nees_cell, nees_flag, unranked_filters, winners_markdown
 
 
 def test_the_paired_comparison_names_a_winner_only_when_its_lead_is_outside_the_spread():
@@ -307,3 +307,59 @@ def test_a_nees_far_outside_its_bounds_is_flagged():
     assert [nees_flag(v, bounds) for v in (1.0, 1.8, 17.1, 0.4, 0.04, None, float("nan"))] == [
         "within", "above", "far above", "below", "far below", None, None]
     assert nees_cell(1e6, bounds) == "1e+06 (far above!)" and nees_cell(1.8, bounds) == "1.8"
+
+
+def test_a_filter_that_failed_or_whose_k_is_far_off_is_not_ranked():
+    entries = {"good": {"status_ok": 6, "runs": 6, "nees": {"mean": 1.1, "flag": "within"}},
+               "failed": {"status_ok": 5, "runs": 6, "nees": {"mean": 1.0, "flag": "within"}},
+               "overconfident": {"status_ok": 6, "runs": 6, "nees": {"mean": 812.0, "flag": "far above"}},
+               "timid": {"status_ok": 6, "runs": 6, "nees": {"mean": 0.001, "flag": "far below"}},
+               "above": {"status_ok": 6, "runs": 6, "nees": {"mean": 2.5, "flag": "above"}}}
+    unranked = unranked_filters(entries, ["nees"])
+    assert unranked == {"failed": "failed on 1 of 6 trials", "overconfident": "nees 812 far above its band",
+                        "timid": "nees 0.001 far below its band"}
+    rng = np.random.default_rng(1)
+    base = rng.normal(1.0, 0.1, 6)
+    values = {"good": base + 0.5, "failed": base - 0.5, "overconfident": base - 0.4, "timid": base - 0.3,
+              "above": base + 0.2}
+    r = paired_comparison(values, unranked=unranked)
+    assert r["winner"] == "above" and r["unranked"] == unranked
+    assert r["versus"]["overconfident"]["diff"] == pytest.approx(-0.6)  # still compared, just not ranked
+    assert "overconfident" not in r["level"] and "timid" not in r["level"]
+    assert paired_comparison(values)["winner"] == "failed"
+    none = paired_comparison({"a": base}, unranked={"a": "failed on 6 of 6 trials"})
+    assert none["winner"] is None and none["unranked"] == {"a": "failed on 6 of 6 trials"}
+    lines = winners_markdown({"heading rms": r}, {"heading rms": "deg"})
+    assert "| heading rms | above |" in lines[2]
+    assert lines[-1].startswith("Not ranked") and "overconfident: nees 812 far above its band" in lines[-1]
+
+
+def _ignores_the_gps(system):
+    """A filter built to ignore the GPS while trusting its odometry 100 times more than it should (10 times
+    smaller stds): its K claims a precision its error does not have."""
+    import equinox as eqx
+
+    from liemef.filters.baselines import invariant_ekf
+    from liemef.systems import Noise
+
+    noise = system.process_noise
+    overconfident = eqx.tree_at(lambda n: n.std, noise, noise.std * 0.1)
+    return invariant_ekf(system.with_noise(gps=Noise.sample(1e6), process_noise=overconfident))
+
+
+def test_a_filter_built_to_ignore_a_sensor_cannot_win_the_localization_comparison(tmp_path, monkeypatch):
+    from liemef.studies.compare import _common
+
+    monkeypatch.setitem(_common.FILTERS, "ignores-gps", ("ignores the GPS, trusts its odometry", _ignores_the_gps))
+    out = tmp_path / "cmp"
+    res = CliRunner().invoke(cli.cli, ["compare", "localization", "--runs", "3", "--set", "duration=4", "--set",
+                                       "steady=2", "--filters", "iekf,ignores-gps", "--set", "batch_size=3",
+                                       "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((out / "comparison.json").read_text())
+    assert meta["filters"]["ignores-gps"]["nees_position"]["flag"] == "far above"
+    for metric, w in meta["winners"].items():
+        assert w["winner"] == "iekf", metric
+        assert "far above its band" in w["unranked"]["ignores-gps"]
+    md = (out / "comparison.md").read_text()
+    assert "Not ranked" in md and "ignores-gps: " in md

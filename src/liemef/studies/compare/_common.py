@@ -81,28 +81,36 @@ def realdata_present(realdata: str | None, find: Callable[[Path], Mapping[str, P
     return folder, dict(find(folder / sub))
 
 
-def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> dict:
+def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95,
+                      unranked: Mapping[str, str] | None = None) -> dict:
     """Which filter has the lowest mean of a per-trial metric, and whether its lead is outside the Monte Carlo
     spread. A failed trial is NaN.
 
-    The winner is chosen among the filters healthy on the most trials (a filter that failed where another did
-    not cannot win), by the lowest mean over its healthy trials. The filters ran on the same trials, so each
+    A filter named in ``unranked`` (name -> why, from :func:`unranked_filters`: it failed on a trial, or its K
+    does not describe its error) cannot win; it is still compared with the winner. The winner is chosen among
+    the other filters healthy on the most trials (a filter that failed where another did not cannot win), by
+    the lowest mean over its healthy trials. The filters ran on the same trials, so each
     other filter is compared with it by the paired differences d_i = x_i - x_winner,i over the trials where
     both are finite, with the interval mean(d) +- t sd(d)/sqrt(n) (Student's t quantile of ``prob``, n - 1
     degrees of freedom: honest for the few trials of a distance-to-optimum study).
 
     Returns ``winner``, ``means`` and ``healthy`` (per filter), ``versus`` (per other filter: mean difference,
-    its interval, n and ``significant``: the interval excludes 0) and ``level`` (the filters whose interval
-    includes 0, and the winner); a filter with fewer than 2 trials in common with the winner is not compared."""
+    its interval, n and ``significant``: the interval excludes 0), ``level`` (the filters whose interval
+    includes 0, and the winner; never an unranked one) and ``unranked`` (the filters that could not win, and
+    why); a filter with fewer
+    than 2 trials in common with the winner is not compared. ``winner`` is None when no filter may win."""
     from scipy.stats import t as student_t
 
     arrays = {k: np.asarray(v, float) for k, v in values.items()}
+    unranked = {k: str(why) for k, why in (unranked or {}).items() if k in arrays}
     healthy = {k: int(np.isfinite(v).sum()) for k, v in arrays.items()}
     means = {k: float(np.nanmean(v)) if healthy[k] else math.nan for k, v in arrays.items()}
-    most = max(healthy.values(), default=0)
+    eligible = [k for k in arrays if k not in unranked]
+    most = max((healthy[k] for k in eligible), default=0)
     if most == 0:
-        return {"winner": None, "means": {k: None for k in means}, "healthy": healthy, "versus": {}, "level": []}
-    winner = min((k for k in arrays if healthy[k] == most), key=lambda k: means[k])
+        return {"winner": None, "means": {k: json_number(m) for k, m in means.items()}, "healthy": healthy,
+                "versus": {}, "level": [], "unranked": unranked}
+    winner = min((k for k in eligible if healthy[k] == most), key=lambda k: means[k])
     versus, level = {}, [winner]
     w = arrays[winner]
     for k, v in arrays.items():
@@ -118,10 +126,29 @@ def paired_comparison(values: Mapping[str, np.ndarray], prob: float = 0.95) -> d
         half = float(student_t.ppf(0.5 + prob / 2, n - 1) * d.std(ddof=1) / math.sqrt(n))
         sig = bool(mean - half > 0)
         versus[k] = {"diff": mean, "ci": [mean - half, mean + half], "n": int(n), "significant": sig}
-        if not sig:
+        if not sig and k not in unranked:
             level.append(k)
     return {"winner": winner, "means": {k: json_number(m) for k, m in means.items()}, "healthy": healthy,
-            "versus": versus, "level": level}
+            "versus": versus, "level": level, "unranked": unranked}
+
+
+def unranked_filters(entries: Mapping[str, dict], nees_keys: Sequence[str]) -> dict[str, str]:
+    """The filters of a study that may not win a comparison, and why: those that failed on any trial
+    (``status_ok < runs``) and those with a NEES of ``nees_keys`` flagged "far above" or "far below" its band
+    (:func:`nees_flag`: their K does not describe their error, so their error is not what they claim). ``entries``:
+    per filter, a study's summary with ``status_ok``, ``runs`` and per NEES key ``{"mean", "flag"}``."""
+    out = {}
+    for name, e in entries.items():
+        why = []
+        if e["status_ok"] < e["runs"]:
+            why.append(f"failed on {e['runs'] - e['status_ok']} of {e['runs']} trials")
+        for key in nees_keys:
+            flag = e[key].get("flag")
+            if flag in ("far above", "far below"):
+                why.append(f"{key.replace('_', ' ')} {fmt(e[key]['mean'], 3)} {flag} its band")
+        if why:
+            out[name] = "; ".join(why)
+    return out
 
 
 def versus_published(ours: float | None, interval, n: int, published: float, published_runs: int,
@@ -211,12 +238,14 @@ def winners_markdown(rows: Mapping[str, dict], units: Mapping[str, str]) -> list
     interval) and the filters level with it."""
     lines = ["| metric | winner | mean | runner-up | lead (95 % interval) | outside the spread? | "
              "level with the winner |", "|---|---|---:|---|---:|---|---|"]
+    unranked = {}
     for metric, cmp in rows.items():
+        unranked.update(cmp.get("unranked", {}))
         w = cmp["winner"]
         if w is None:
             lines.append(f"| {metric} | - | - | - | - | - | - |")
             continue
-        others = {k: v for k, v in cmp["versus"].items() if v["diff"] is not None}
+        others = {k: v for k, v in cmp["versus"].items() if v["diff"] is not None and k not in cmp.get("unranked", {})}
         if others:
             r = min(others, key=lambda k: others[k]["diff"])
             v = others[r]
@@ -225,8 +254,12 @@ def winners_markdown(rows: Mapping[str, dict], units: Mapping[str, str]) -> list
         else:
             r, lead, sig = "-", "-", "-"
         level = ", ".join(k for k in cmp["level"] if k != w) or "none"
-        apart = [f"{k} (n = {v['n']})" for k, v in cmp["versus"].items() if v["diff"] is None]
+        apart = [f"{k} (n = {v['n']})" for k, v in cmp["versus"].items()
+                 if v["diff"] is None and k not in cmp.get("unranked", {})]
         if apart:
             level += "; not comparable: " + ", ".join(apart)
         lines.append(f"| {metric} | {w} | {fmt(cmp['means'][w])} | {r} | {lead} | {sig} | {level} |")
+    if unranked:
+        lines += ["", "Not ranked (a filter that failed on a trial, or whose K does not describe its error, cannot "
+                  "win): " + "; ".join(f"{k}: {why}" for k, why in unranked.items()) + "."]
     return lines

@@ -48,6 +48,7 @@ from ._common import (
     paired_comparison,
     parse_filters,
     pooled_rms,
+    unranked_filters,
     versus_published,
     winners_markdown,
 )
@@ -272,7 +273,9 @@ def compare_inertial(study: InertialComparison | None = None, *, progress: bool 
                   f"{fmt(e['position_rms']['pooled'])} m (pooled, all n, {e['status_ok']} trials with status ok); NEES "
                   f"{fmt(e['nees_attitude']['mean'], 3)} / {fmt(e['nees_position']['mean'], 3)}; "
                   f"{e['diverged']['count']} diverged; {elapsed:.1f} s", flush=True)
-    winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}) for key, label, _ in METRICS}
+    unranked = unranked_filters(per_filter, [key for key, _ in NEES])
+    winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}, unranked=unranked)
+               for key, label, _ in METRICS}
     arrays = {"ts": config.ts, "filters": np.array(st.filters),
               "bands": np.stack([bands[n] for n in st.filters]),  # (filters, 3, N, 2): p5/p50/p95 |att|, |pos|
               **{key: np.stack([trials[n][key] for n in st.filters]) for key in trials[st.filters[0]]}}

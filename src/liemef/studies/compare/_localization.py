@@ -42,6 +42,7 @@ from ._common import (
     paired_comparison,
     parse_filters,
     pooled_rms,
+    unranked_filters,
     versus_published,
     winners_markdown,
 )
@@ -210,13 +211,15 @@ def compare_localization(study: LocalizationComparison | None = None, *, progres
                   f"{fmt(e['position_rms']['mean'])} m (t >= {st.steady:g} s, mean over {e['status_ok']} trials "
                   "with status ok); "
                   f"{e['diverged']['count']} diverged; {timing[name]:.1f} s", flush=True)
-    winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}) for key, label, _ in METRICS}
+    unranked = unranked_filters(per_filter, ("nees_heading", "nees_position"))
+    winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}, unranked=unranked)
+               for key, label, _ in METRICS}
     optimum = None
     if st.optimum_runs:
         from ._optimum import localization_distances
 
         first = jax.tree_util.tree_map(lambda a: a[:st.optimum_runs], draws)
-        optimum = localization_distances(config, first, coords, progress=progress)
+        optimum = localization_distances(config, first, coords, progress=progress, unranked=unranked)
     arrays = {"ts": config.ts, "filters": np.array(st.filters),
               "bands": np.stack([bands[n] for n in st.filters]),  # (filters, 3, N, 2): p5/p50/p95 |heading|, pos
               **{f"{key}": np.stack([trials[n][key] for n in st.filters]) for key in trials[st.filters[0]]}}

@@ -16,10 +16,11 @@ from ._common import paired_comparison
 
 
 def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords: dict[str, np.ndarray], *,
-                           progress: bool = True) -> dict:
+                           progress: bool = True, unranked: dict[str, str] | None = None) -> dict:
     """For each trial of ``draws`` (the first trials of the comparison, stacked) the per-step MAP by iSAM2, and for each
     filter the heading (deg) and position (m) distance of its estimates ``coords[name][i]`` (N, 3) from it:
-    per trial the mean over the run and over t >= steady; across trials their means and the paired winner;
+    per trial the mean over the run and over t >= steady; across trials their means and the paired winner (never
+    one of ``unranked``, the comparison's filters that may not win, :func:`~._common.unranked_filters`);
     the mean curves over time for the figure (``arrays``)."""
     s = L.setup(config)
     K0 = np.diag([config.theta0_std**2, 0.0, 0.0])
@@ -49,7 +50,8 @@ def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords:
     filters = {n: {k: json_number(float(np.mean(v))) for k, v in per[n].items()} for n in names}
     labels = {"heading_mean": "heading distance, whole run", "heading_steady": "heading distance t >= steady",
               "position_mean": "position distance, whole run", "position_steady": "position distance t >= steady"}
-    winners = {label: paired_comparison({n: np.array(per[n][key]) for n in names}) for key, label in labels.items()}
+    winners = {label: paired_comparison({n: np.array(per[n][key]) for n in names}, unranked=unranked)
+               for key, label in labels.items()}
     return {"definition": f"the exact minimum-energy estimate: the MAP of the current pose given every sample "
                           f"before it, on the same discretized cost, by {solver} "
                           f"(liemef.studies.optimum.map_estimates); "

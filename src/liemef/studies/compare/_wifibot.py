@@ -39,6 +39,7 @@ from ._common import (
     paired_comparison,
     parse_filters,
     realdata_present,
+    unranked_filters,
     winners_markdown,
 )
 
@@ -136,9 +137,17 @@ def compare_wifibot(study: WifibotComparison | None = None, *, progress: bool = 
                       f"{fmt(summary[name]['position_rms']['mean'])} m; {summary[name]['elapsed_s']:.1f} s",
                       flush=True)
         arrays[f"{rid}/ts"] = ts
-        winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}) for key, label, _ in METRICS}
         out[rid] = {"file": run.name, "rows": int(ts.shape[0]), "seconds": float(ts[-1] - ts[0]),
-                    "filters": summary, "winners": winners}
+                    "filters": summary, "trials": trials}
+    # A filter that failed on a seed of any recording, or whose K is far off on one, wins on none.
+    unranked = {}
+    for rec in out.values():
+        for name, why in unranked_filters(rec["filters"], ("nees_heading", "nees_position")).items():
+            unranked[name] = "; ".join(filter(None, (unranked.get(name), f"{rec['file']}: {why}")))
+    for rec in out.values():
+        trials = rec.pop("trials")
+        rec["winners"] = {label: paired_comparison({n: trials[n][key] for n in st.filters}, unranked=unranked)
+                          for key, label, _ in METRICS}
     return {"study": {**dataclasses.asdict(st), "odometry_std": ODOMETRY_STD,
                       "gps": f"optical position + N(0, {st.gps_std:g}^2 I) at {st.gps_rate:g} Hz, numpy "
                              f"default_rng(seed + i) for run i"},
