@@ -187,3 +187,14 @@ def test_compare_broad_ins_on_a_short_slice(tmp_path):
     assert meta["attitude_only"]["16"]["vqf-broad"]["ok"]
     md = (out / "broad_ins.md").read_text()
     assert "## Attitude against the attitude-only filters" in md and "NaN" not in md
+
+
+def test_the_report_names_the_translation_trials_that_were_run():
+    """The attitude section says which of the trials run are translation trials, from their files, not a fixed
+    list."""
+    files = {"07": "07_undisturbed_fast_rotation_B", "10": "10_undisturbed_slow_translation_A",
+             "16": "16_undisturbed_fast_translation_B"}
+    result = {"per_trial": {t: {"file": f} for t, f in files.items()}}
+    assert B._translation_sentence(result, ["07", "10", "16"]) == " Trials 10 and 16 are translation trials."
+    assert B._translation_sentence(result, ["07", "16"]) == " Trial 16 is a translation trial."
+    assert B._translation_sentence(result, ["07"]) == ""

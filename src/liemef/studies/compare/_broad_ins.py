@@ -518,6 +518,16 @@ def _means(st: BroadInsComparison, per_trial: dict) -> dict:
 
 
 # --- tables and files -------------------------------------------------------------------------------------------
+def _translation_sentence(result: dict, trials) -> str:
+    """" Trials 10 and 16 are translation trials." for the trials run whose file names a translation, else ""."""
+    moving = [t for t in trials if "translation" in str(result["per_trial"][t].get("file", ""))]
+    if not moving:
+        return ""
+    names = moving[0] if len(moving) == 1 else ", ".join(moving[:-1]) + " and " + moving[-1]
+    return f" Trial{'s' if len(moving) > 1 else ''} {names} {'are' if len(moving) > 1 else 'is a'} translation " \
+           f"trial{'s' if len(moving) > 1 else ''}."
+
+
 def markdown(result: dict) -> str:
     """Per variant: the means over the trials, the figures per trial, and the attitude against the attitude-only
     filters."""
@@ -565,7 +575,7 @@ def markdown(result: dict) -> str:
                   "Total / inclination rms [deg] over the same samples, BROAD's definition. The attitude-only filters "
                   "(`compare broad`) use the magnetometer and no position; the inertial filters the positions and "
                   "no magnetometer, so their heading is observable only through horizontal acceleration: the "
-                  "inclination is the like-for-like figure. Trials 10 and 16 are the translation trials.", "",
+                  "inclination is the like-for-like figure." + _translation_sentence(result, trials), "",
                   "| trial | " + " | ".join(f"{n} ({v})" for v in st["variants"] for n in st["filters"])
                   + " | " + " | ".join(names) + " |",
                   "|---|" + "---:|" * (len(st["variants"]) * len(st["filters"]) + len(names))]
