@@ -30,11 +30,18 @@ PI = math.pi
 
 
 @pytest.mark.parametrize(("a", "wrapped"), [
-    (0.5, 0.5), (-0.5, -0.5), (PI, PI), (-PI, PI), (3 * PI, PI), (2 * PI, 0.0), (-3.5, -3.5 + 2 * PI),
+    (0.5, 0.5), (-0.5, -0.5), (PI, -PI), (-PI, -PI), (3 * PI, -PI), (2 * PI, 0.0), (-3.5, -3.5 + 2 * PI),
     (3.5, 3.5 - 2 * PI), (7.0, 7.0 - 2 * PI), (-7.0, -7.0 + 2 * PI),
 ])
-def test_wrap_angle_maps_to_minus_pi_exclusive_pi_inclusive(a, wrapped):
+def test_wrap_angle_maps_to_minus_pi_inclusive_pi_exclusive(a, wrapped):
     assert abs(float(wrap_angle(a)) - wrapped) < ROUNDOFF * 10
+
+
+def test_there_is_one_angle_wrap():
+    """metrics' wrap_angle is the residuals' (one convention, one place)."""
+    from liemef.systems._residuals import wrap_angle as residual_wrap
+
+    assert wrap_angle is residual_wrap
 
 
 def test_angle_masks_follow_the_coordinates():

@@ -5,12 +5,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..groups import SE2, SO2, SO3, LieGroup, Product
-
-
-def wrap_angle(a: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
-    r"""Angles wrapped to $(-\pi, \pi]$ (so $\pi \mapsto \pi$ and $-\pi \mapsto \pi$)."""
-    a = jnp.asarray(a, dtype=jnp.float64)
-    return jnp.pi - jnp.mod(jnp.pi - a, 2.0 * jnp.pi)
+from ..systems._residuals import wrap_angle
 
 
 def angle_mask(G: type[LieGroup]) -> tuple[bool, ...]:

@@ -18,14 +18,17 @@ import math
 from dataclasses import dataclass
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ..groups import SO3
 
 
-def wrap_angle(a: Float[Array, "..."]) -> Float[Array, "..."]:
+def wrap_angle(a: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
     r"""``a`` wrapped into $[-\pi, \pi)$: $a - 2\pi\lfloor (a + \pi) / 2\pi\rfloor$ (exactly ``a`` there, derivative
-    1 everywhere but at the cut)."""
+    1 everywhere but at the cut; so $\pi \mapsto -\pi$). liemef's one angle wrap: residuals of angle outputs,
+    the errors of :mod:`liemef.metrics` and the studies all use it."""
+    a = jnp.asarray(a)
+    a = a if jnp.issubdtype(a.dtype, jnp.floating) else a.astype(jnp.float64)
     return a - 2.0 * math.pi * jnp.floor((a + math.pi) / (2.0 * math.pi))
 
 
