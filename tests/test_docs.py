@@ -194,3 +194,35 @@ def test_code_cites_only_files_in_the_repository():
             missing += [f"{rel}: {m}" for m in re.findall(r"\bdocs/[\w/.-]+?\.md\b", text) if not (root / m).is_file()]
     assert not outside, f"citations of design notes that are not in the repository: {outside}"
     assert not missing, f"citations of pages that do not exist: {missing}"
+
+
+def test_the_group_lists_name_every_group():
+    """README.md's layout and docs/design.md's layer table name every group liemef exports (R1-R3 are Rn's)."""
+    import liemef.groups as groups
+
+    names = [n for n in groups.__all__ if n not in ("LieGroup", "R1", "R2", "R3")]
+    readme = (ROOT / "README.md").read_text()
+    layout = next(line for line in readme.splitlines() if line.lstrip().startswith("groups/"))
+    assert [n for n in names if not re.search(rf"\b{n}\b", layout)] == []
+    design = (ROOT / "docs" / "design.md").read_text()
+    row = next(line for line in design.splitlines() if line.startswith("| `liemef.groups` |"))
+    shown = {"SO2": "SO(2)", "SO3": "SO(3)", "SE2": "SE(2)", "SE3": "SE(3)", "SE23": "SE_2(3)", "SEK3": "SE_K(3)",
+             "SL3": "SL(3)", "Sim3": "Sim(3)", "Rn": "R^n", "MatrixGroup": "MatrixGroup", "Product": "products",
+             "TSE2": "TSE(2)", "TSO3": "TSO(3)", "SE2R2": "SE(2) x R^2", "SO2R1": "SO(2) x R"}
+    assert set(shown) == set(names)
+    assert [n for n, s in shown.items() if s not in row] == []
+
+
+def test_the_layers_are_described_once_and_in_the_contracts_order():
+    """docs/design.md's layer table lists the import-linter contract's layers, top to bottom; the README, the
+    package docstring and pyproject.toml point to it instead of repeating it."""
+    import tomllib
+
+    contract = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"][0]
+    layers = [layer.split(" | ")[0] for layer in contract["layers"] if layer != "liemef.__main__"]
+    design = (ROOT / "docs" / "design.md").read_text()
+    rows = [re.match(r"\| `([\w.]+)`", line).group(1) for line in design.splitlines()
+            if re.match(r"\| `liemef[\w.]*`", line)]
+    assert rows == layers
+    assert "docs/design.md" in contract["name"] and "docs/design.md" in liemef.__doc__
+    assert "docs/design.md" in (ROOT / "README.md").read_text()

@@ -1,19 +1,7 @@
 """liemef: second-order-optimal minimum-energy filtering on matrix Lie groups.
 
-The package is layered, and each layer imports only the ones below it (``tests/test_layers.py`` checks it):
-
-* :mod:`liemef.groups`, :mod:`liemef.connections` and :mod:`liemef.integrators`: the Lie groups, the
-  Cartan-Schouten connections and the Lie-group integrators;
-* :mod:`liemef.systems` (models and their sensors) and :mod:`liemef.simulation` (truth and noisy samples);
-* :mod:`liemef.filters`: the mathematics of one sample interval, the minimum-energy filter
-  (:class:`MinimumEnergyFilter`) and the baselines (:mod:`liemef.filters.baselines`), with no engine and no I/O;
-* :mod:`liemef.codegen` and :mod:`liemef.engines`: what runs a filter's interval over a log, a batch of trials
-  or one online step, by XLA or by a compiled C kernel;
-* :mod:`liemef.metrics`: errors on the group, statistics and NEES;
-* :mod:`liemef.studies`: the papers' experiments, Monte Carlo, the comparisons, campaigns, the exact
-  minimum-energy estimate and the real data sets;
-* :mod:`liemef.reports`: files and figures;
-* :mod:`liemef.cli`: the command line.
+The package is layered, and each layer imports only the ones below it (``tests/test_layers.py`` checks it);
+the layers, the conventions and the reasons for each design decision are described once, in ``docs/design.md``.
 
 Importing the package is cheap: JAX and the submodules load on first use (``liemef.MinimumEnergyFilter``,
 ``from liemef import simulate``, ``import liemef.groups``, ...), so ``liemef --help`` answers without JAX.
