@@ -1,4 +1,5 @@
-"""Every numerical tolerance of the test suite, in one place, each with the reason for its size."""
+"""The suite's shared numerical tolerances, each with the reason for its size. A tolerance used by one test
+only, for a reason that test states, stays beside it; one that several tests rely on belongs here."""
 
 ROUNDOFF = 1e-12
 """Exact identities evaluated in float64 (group axioms, round trips, block structure)."""
