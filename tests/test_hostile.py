@@ -612,3 +612,21 @@ def test_a_matrix_group_rule_is_used_and_checked():
     _raises(lambda: liemef.MinimumEnergyFilter(_any_system(G)).init(flat, np.eye(3)), "g0:",
             "got one 0.1 off the group by its orthogonality")
     _raises(lambda: groups.MatrixGroup.from_basis("Bad", np.asarray(SO3.hat(jnp.eye(3))), rule=3), "rule:", "int")
+
+
+def _nan_after(t0):
+    return lambda t: jnp.where(t > t0, jnp.nan, 1.0) * jnp.ones(2)
+
+
+@pytest.mark.parametrize(("fn", "substeps", "first"), [
+    (_nan_after(0.25), 1, "t = 0.30000000000000004"),  # the sample times only
+    (_nan_after(0.25), 4, "t = 0.275"),  # a truth step's start between samples
+    (lambda t: jnp.array([1.0, jnp.log(t - 0.35)]), 1, "t = 0.0"),
+    (lambda t: jnp.array([1.0 / (t - 0.5), 0.0]), 1, "t = 0.5"),  # inf, not NaN
+], ids=["nan-after-0.25", "nan-after-0.25-substeps", "log-of-negative", "inf-at-0.5"])
+def test_simulate_refuses_an_input_function_that_returns_non_finite_values(fn, substeps, first):
+    """Issue 32: simulate returned a NaN log for such a function. It names input_fn and the first time it
+    returned non-finite values, with those values."""
+    _raises(lambda: simulate(PlanarRigidBody(), TSE2.identity(), fn, np.arange(0.0, 1.0, 0.1), _key(),
+                             substeps=substeps), "input_fn: expected finite inputs u(t)", first,
+            "the first time it returned non-finite values")
