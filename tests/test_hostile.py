@@ -630,3 +630,33 @@ def test_simulate_refuses_an_input_function_that_returns_non_finite_values(fn, s
     _raises(lambda: simulate(PlanarRigidBody(), TSE2.identity(), fn, np.arange(0.0, 1.0, 0.1), _key(),
                              substeps=substeps), "input_fn: expected finite inputs u(t)", first,
             "the first time it returned non-finite values")
+
+
+def _pose3d_log(path):
+    header = "t,omega_x,omega_y,omega_z,v_x,v_y,v_z,position_x,position_y,position_z"
+    rows = [f"{0.1 * k:.1f},0,0,0.1,1,0,0,{0.1 * k:.1f},0,0" for k in range(20)]
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("x0", [[np.nan, 0, 0, 0, 0, 0], [1e300, 0, 0, 0, 0, 0]], ids=["nan", "overflow"])
+def test_filter_log_refuses_an_x0_that_gives_no_element(tmp_path, x0):
+    """Coordinates whose exp is not finite (NaN, a rotation vector of 1e300 rad) are refused by name, not
+    handed to init as a NaN g0."""
+    from liemef.studies import logs
+
+    _raises(lambda: logs.filter_log("pose3d", _pose3d_log(tmp_path / "log.csv"), x0=x0),
+            "x0: expected the coordinates of an element of SE3", "from_coords(x0): expected finite values")
+
+
+def test_cli_run_refuses_an_x0_off_the_group(tmp_path):
+    """`liemef run --x0` with coordinates of no element: exit 2 naming --x0 and the group, nothing written."""
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    res = CliRunner().invoke(cli, ["run", "--system", "pose3d", "--log", str(_pose3d_log(tmp_path / "log.csv")),
+                                   "--out", str(tmp_path / "o"), "--x0", "1e300,0,0,0,0,0", "--no-progress"])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    assert "Invalid value for '--x0': expected the coordinates of an element of SE3, got [1e+300" in res.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
