@@ -400,3 +400,263 @@ def test_a_huge_k0_fails_as_a_value_that_says_why(tmp_path):
     assert failure["interval"]["K_condition"] > 1e12 and failure["interval"]["gap"] is False
     assert failure["interval"]["samples"]["gps"]["components"] == ["gps_x", "gps_y"]
     assert all(np.isfinite(list(failure["last_good_state"]["coords"].values())))
+
+
+# --- issue 32: groups ---
+groups = liemef.groups
+SO3_BASIS = groups.MatrixGroup.from_basis("SO3Basis", np.asarray(SO3.hat(jnp.eye(3))))
+"""A user's MatrixGroup without a rule: membership is the exp/log round trip."""
+EVERY_GROUP = [groups.SO2, SO3, SE2, groups.SE3, groups.SE23, groups.SEK3[3], groups.R3, groups.SL3, groups.Sim3, TSE2,
+               groups.TSO3, groups.SE2R2, groups.SO2R1, SO3_BASIS]
+_ids = [G.__name__ for G in EVERY_GROUP]
+ORTHOGONALITY = "orthogonality max|R^T R - I|"
+DETERMINANT = "determinant |det R - 1|"
+
+
+def _defect(G, case):
+    """The (defect, size) that ``G.from_matrix`` names for the matrix of ``case`` (:func:`_bent`); None when
+    that matrix is an element of G."""
+    if issubclass(G, groups.Product):  # the first factor's block holds the change
+        inner = _defect(G.factor_types[0], case)
+        f = G.factor_types[0]
+        return (f"factor 0 ({f.__name__}) block M[0:{f.matrix_dim}, 0:{f.matrix_dim}]: {inner[0]}", inner[1])
+    if G is SO3_BASIS:
+        return ("round trip |exp(log M) - M|_1 / (1 + |M|_1)", None)
+    if G is groups.SL3:
+        return {"shear": None, "2I": ("determinant |det M - 1|", 7.0), "flip": ("determinant |det M - 1|", 2.0)}[case]
+    if issubclass(G, Rn):
+        return ("identity block max|M[:3, :3] - I|", {"shear": 0.1, "2I": 1.0, "flip": 2.0}[case])
+    if G is groups.Sim3:
+        of = " of R = A / |det A|^(1/3)"
+        return {"shear": (ORTHOGONALITY + of, 0.1), "2I": ("bottom row max|M[3] - [0, 1]|", 1.0),
+                "flip": (DETERMINANT + of, 2.0)}[case]
+    return {"shear": (ORTHOGONALITY, 0.1), "2I": (ORTHOGONALITY, 3.0), "flip": (DETERMINANT, 2.0)}[case]
+
+
+def _bent(G, case):
+    """The identity matrix of G sheared (M[0, 1] = 0.1), doubled, or with M[1, 1] = -1 (a reflection)."""
+    M = np.eye(G.matrix_dim)
+    if case == "shear":
+        M[0, 1] = 0.1
+    elif case == "2I":
+        M = 2.0 * M
+    else:
+        M[1, 1] = -1.0
+    return M
+
+
+@pytest.mark.parametrize("case", ["shear", "2I", "flip"])
+@pytest.mark.parametrize("G", EVERY_GROUP, ids=_ids)
+def test_from_matrix_refuses_a_matrix_off_the_group_naming_the_defect(G, case):
+    """A shear, 2 I and a reflection: refused by every group's from_matrix, naming M, the defect and its size
+    (a shear is an element of SL(3), and is taken)."""
+    M, want = _bent(G, case), _defect(G, case)
+    if want is None:
+        np.testing.assert_array_equal(G.from_matrix(M).as_matrix(), M)
+        return
+    defect, size = want
+    words = ["M: expected a matrix of", G.__name__, str(_validate.ON_GROUP), f"got {defect} = "]
+    _raises(lambda: G.from_matrix(M), *words, *([] if size is None else [f"= {size:.6g}"]))
+
+
+@pytest.mark.parametrize("G", EVERY_GROUP, ids=_ids)
+def test_from_matrix_refuses_nan(G):
+    M = np.eye(G.matrix_dim)
+    M[0, 0] = np.nan
+    _raises(lambda: G.from_matrix(M), "M: expected finite values, got nan at index (0, 0)")
+
+
+@pytest.mark.parametrize("G", EVERY_GROUP, ids=_ids)
+def test_from_matrix_takes_a_matrix_within_the_tolerance(G):
+    """An element's matrix bent by 0.4 ON_GROUP is taken: a MatrixGroup stores it as it is, a closed form keeps
+    its parameters (a quaternion, (cos, sin)) within ON_GROUP of it."""
+    rng = np.random.default_rng(3)
+    M = np.array(G.exp(0.3 * rng.standard_normal(G.tangent_dim)).as_matrix())
+    M[0, 1] += 0.4 * _validate.ON_GROUP
+    atol = 0.0 if issubclass(G, groups.MatrixGroup) else _validate.ON_GROUP
+    np.testing.assert_allclose(G.from_matrix(M).as_matrix(), M, rtol=0, atol=atol)
+
+
+@pytest.mark.parametrize("G", [G for G in EVERY_GROUP if issubclass(G, (SE2, groups.SEK3, Rn, groups.Product))
+                               or G is groups.Sim3], ids=lambda G: G.__name__)
+def test_from_matrix_refuses_a_bottom_row_or_a_block_off_the_diagonal(G):
+    """The last row of a homogeneous matrix must be (0, ..., 0, 1); a product's matrix is block diagonal."""
+    M = np.eye(G.matrix_dim)
+    M[-1, 0] = 0.3
+    defect = "off-diagonal blocks max|M|" if issubclass(G, groups.Product) else "bottom row"
+    _raises(lambda: G.from_matrix(M), "M: expected a matrix of", G.__name__, defect, "= 0.3")
+
+
+def test_from_matrix_names_the_batch_index():
+    M = np.stack([np.eye(4), np.diag([1.0, 1.0, 1.0, 2.0])])
+    _raises(lambda: groups.SE3.from_matrix(M), "bottom row max|M[3] - [0, 1]| = 1 at batch index (1,)")
+
+
+def _with_params(g, make):
+    """``g`` with its first parameter array replaced by ``make(array)``."""
+    import jax
+
+    leaves, tree = jax.tree_util.tree_flatten(g)
+    return jax.tree_util.tree_unflatten(tree, [jnp.asarray(make(np.array(leaves[0])))] + leaves[1:])
+
+
+def _unit_size(G):
+    """How many leading parameters of G's (first factor's) first array form its unit vector: (cos, sin) or the
+    quaternion; 0 for a MatrixGroup or R^n."""
+    base = G.factor_types[0] if issubclass(G, groups.Product) else G
+    return 2 if issubclass(base, (groups.SO2, SE2)) else 4 if issubclass(base, (SO3, groups.SEK3)) else 0
+
+
+def _off_group_state(G, case):
+    """``(element, defect, size)``: G's identity with NaN parameters, or with its unit vector scaled to norm 0,
+    1.008 or 2 (a MatrixGroup: its matrix 2 I); size None when the message need not show it."""
+    e = G.identity()
+    if case == "NaN":
+        return _with_params(e, lambda p: np.full_like(p, np.nan)), "expected finite values, got nan", None
+    if issubclass(G, groups.MatrixGroup):
+        return (_with_params(e, lambda p: 2.0 * p), *_defect(G, "2I"))
+    k = _unit_size(G)
+    what = "norm | |(cos, sin)| - 1 |" if k == 2 else "quaternion norm | |q| - 1 |"
+    if issubclass(G, groups.Product):
+        what = f"factor 0 ({G.factor_types[0].__name__}): {what}"
+    scale = {"|v| = 0": 0.0, "|v| = 1.008": 1.008, "|v| = 2": 2.0}[case]
+    return _with_params(e, lambda p: np.concatenate([scale * p[:k], p[k:]])), what, abs(scale - 1.0)
+
+
+STATE_CASES = [(G, "NaN") for G in EVERY_GROUP] + \
+    [(G, "2I") for G in EVERY_GROUP if issubclass(G, groups.MatrixGroup)] + \
+    [(G, c) for G in EVERY_GROUP if _unit_size(G) for c in ("|v| = 0", "|v| = 1.008", "|v| = 2")]
+
+
+def _any_system(G):
+    n = G.tangent_dim
+    return System(group_type=G, dynamics_fn=lambda g, u, t: jnp.zeros(n), output_fn=lambda g, t: g.log()[:1],
+                  B=np.eye(n), D=np.eye(1), Q=np.eye(1), R=np.eye(n))
+
+
+def _filters(system):
+    from liemef.filters import baselines
+
+    return [liemef.MinimumEnergyFilter(system), baselines.invariant_ekf(system), baselines.local_ekf(system),
+            baselines.ukf_m(system)]
+
+
+@pytest.mark.parametrize(("G", "case"), STATE_CASES, ids=[f"{G.__name__}-{c}" for G, c in STATE_CASES])
+def test_every_filter_init_refuses_a_state_off_the_group_naming_the_defect(G, case):
+    """NaN parameters, a zero quaternion (or (cos, sin)), |q| = 1.008 and 2, a MatrixGroup's 2 I: refused by the
+    init of the minimum-energy filter, the EKFs and the UKF-M, naming g0, the defect and its size."""
+    g, defect, size = _off_group_state(G, case)
+    for flt in _filters(_any_system(G)):
+        words = ["g0:", defect] + ([] if size is None else [f"got one {size:.6g} off the group by its"])
+        _raises(lambda flt=flt: flt.init(g, np.eye(G.tangent_dim)), *words)
+
+
+@pytest.mark.parametrize("G", EVERY_GROUP, ids=_ids)
+def test_every_filter_init_takes_a_state_within_the_tolerance(G):
+    """Its unit vector scaled by 1 + ON_GROUP / 2, or a MatrixGroup's matrix bent by 0.4 ON_GROUP: taken as it is."""
+    k = _unit_size(G)
+    bend = (lambda p: np.concatenate([(1.0 + 0.5 * _validate.ON_GROUP) * p[:k], p[k:]])) if k else \
+        (lambda p: p + 0.4 * _validate.ON_GROUP * (np.arange(p.size) == 1))
+    g = _with_params(G.exp(0.2 * np.ones(G.tangent_dim)), bend)
+    for flt in _filters(_any_system(G)):
+        assert flt.init(g, np.eye(G.tangent_dim)).g_hat is g
+
+
+def test_madgwick_init_refuses_a_quaternion_off_unit():
+    from liemef.filters.baselines import Madgwick
+    from liemef.systems import attitude_imu
+
+    flt = Madgwick(attitude_imu())
+    g, defect, size = _off_group_state(flt.system.group, "|v| = 1.008")
+    _raises(lambda: flt.init(g), "g0:", defect, "got one 0.008 off the group")
+
+
+@pytest.mark.parametrize("scale", [1.008, 2.0, 0.0])
+def test_pose3d_init_refuses_a_quaternion_off_unit(scale):
+    """Issue 32: MinimumEnergyFilter(pose3d()).init took |q| = 1.008, 2 and 0 (the last ran 'ok' with NaN
+    coordinates for a whole log)."""
+    from liemef.systems import pose3d
+
+    flt = liemef.MinimumEnergyFilter(pose3d())
+    g = groups.SE3(jnp.array([scale, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0]))
+    _raises(lambda: flt.init(g, np.eye(6)), "g0:", "quaternion norm", f"got one {abs(scale - 1.0):.6g} off")
+
+
+def test_inertial_navigation_refuses_a_sheared_extended_pose():
+    """Issue 32: a sheared SE_2(3) matrix is refused by SE23.from_matrix, and the quaternion Shepperd's method
+    makes of it (|q| = 1.008) by inertial navigation's init."""
+    from liemef.groups._so3 import quaternion_of_matrix
+    from liemef.systems import inertial_navigation
+
+    M = np.eye(5)
+    M[:3, :3] = R = [[1.0, 0.3, 0.3], [0.0, 1.0, 0.3], [0.0, 0.0, 1.0]]
+    _raises(lambda: groups.SE23.from_matrix(M), "M: expected a matrix of SE23",
+            f"orthogonality max|R^T R - I| = {np.abs(np.transpose(R) @ R - np.eye(3)).max():.6g}")
+    q = np.asarray(quaternion_of_matrix(jnp.asarray(R)))
+    assert round(float(np.linalg.norm(q)), 3) == 1.008
+    g = groups.SE23(jnp.concatenate([q, jnp.zeros(6)]))
+    flt = liemef.MinimumEnergyFilter(inertial_navigation())
+    _raises(lambda: flt.init(g, np.eye(9)), "g0: expected an element of SE23", "quaternion norm",
+            f"got one {abs(np.linalg.norm(q) - 1.0):.6g} off the group")
+
+
+def test_a_matrix_group_rule_is_used_and_checked():
+    """A user's rule (from_basis(rule=...)) decides membership for from_matrix and init; a rule that is not a
+    function is refused by name."""
+    def rule(M):
+        return {"orthogonality": float(np.abs(M.T @ M - np.eye(3)).max()), "det": abs(np.linalg.det(M) - 1.0)}
+
+    G = groups.MatrixGroup.from_basis("SO3Ruled", np.asarray(SO3.hat(jnp.eye(3))), rule=rule)
+    _raises(lambda: G.from_matrix(np.diag([1.0, 1.0, -1.0])), "M: expected a matrix of SO3Ruled", "got det = 2")
+    flat = G(jnp.asarray(_bent(G, "shear").ravel()))
+    _raises(lambda: liemef.MinimumEnergyFilter(_any_system(G)).init(flat, np.eye(3)), "g0:",
+            "got one 0.1 off the group by its orthogonality")
+    _raises(lambda: groups.MatrixGroup.from_basis("Bad", np.asarray(SO3.hat(jnp.eye(3))), rule=3), "rule:", "int")
+
+
+def _nan_after(t0):
+    return lambda t: jnp.where(t > t0, jnp.nan, 1.0) * jnp.ones(2)
+
+
+@pytest.mark.parametrize(("fn", "substeps", "first"), [
+    (_nan_after(0.25), 1, "t = 0.30000000000000004"),  # the sample times only
+    (_nan_after(0.25), 4, "t = 0.275"),  # a truth step's start between samples
+    (lambda t: jnp.array([1.0, jnp.log(t - 0.35)]), 1, "t = 0.0"),
+    (lambda t: jnp.array([1.0 / (t - 0.5), 0.0]), 1, "t = 0.5"),  # inf, not NaN
+], ids=["nan-after-0.25", "nan-after-0.25-substeps", "log-of-negative", "inf-at-0.5"])
+def test_simulate_refuses_an_input_function_that_returns_non_finite_values(fn, substeps, first):
+    """Issue 32: simulate returned a NaN log for such a function. It names input_fn and the first time it
+    returned non-finite values, with those values."""
+    _raises(lambda: simulate(PlanarRigidBody(), TSE2.identity(), fn, np.arange(0.0, 1.0, 0.1), _key(),
+                             substeps=substeps), "input_fn: expected finite inputs u(t)", first,
+            "the first time it returned non-finite values")
+
+
+def _pose3d_log(path):
+    header = "t,omega_x,omega_y,omega_z,v_x,v_y,v_z,position_x,position_y,position_z"
+    rows = [f"{0.1 * k:.1f},0,0,0.1,1,0,0,{0.1 * k:.1f},0,0" for k in range(20)]
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("x0", [[np.nan, 0, 0, 0, 0, 0], [1e300, 0, 0, 0, 0, 0]], ids=["nan", "overflow"])
+def test_filter_log_refuses_an_x0_that_gives_no_element(tmp_path, x0):
+    """Coordinates whose exp is not finite (NaN, a rotation vector of 1e300 rad) are refused by name, not
+    handed to init as a NaN g0."""
+    from liemef.studies import logs
+
+    _raises(lambda: logs.filter_log("pose3d", _pose3d_log(tmp_path / "log.csv"), x0=x0),
+            "x0: expected the coordinates of an element of SE3", "from_coords(x0): expected finite values")
+
+
+def test_cli_run_refuses_an_x0_off_the_group(tmp_path):
+    """`liemef run --x0` with coordinates of no element: exit 2 naming --x0 and the group, nothing written."""
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    res = CliRunner().invoke(cli, ["run", "--system", "pose3d", "--log", str(_pose3d_log(tmp_path / "log.csv")),
+                                   "--out", str(tmp_path / "o"), "--x0", "1e300,0,0,0,0,0", "--no-progress"])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    assert "Invalid value for '--x0': expected the coordinates of an element of SE3, got [1e+300" in res.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -6,9 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 ON_GROUP = 1e-6
-"""How far a group element's stored parameters may be from the group (the unit circle of SO(2)'s and SE(2)'s
-(cos, sin), the unit sphere of SO(3)'s quaternion), in the parameters' own units: |norm - 1| <= 1e-6. Elements
-made by liemef's constructors are within 1e-15; one typed with six digits is within 1e-6."""
+"""How far a group element may be from the group, by each of its defects (``LieGroup.defects`` for a stored
+element, ``LieGroup.matrix_defects`` for a matrix given to ``from_matrix``), in their own units: the norm of a
+stored unit vector (the (cos, sin) of SO(2) and SE(2), the quaternion of SO(3) and SE_K(3)), ``| |v| - 1 |``;
+a matrix's orthogonality ``max |R^T R - I|`` and determinant ``|det R - 1|`` of its rotation block, and its bottom
+rows' largest entry away from ``[0, I]``; a ``MatrixGroup``'s own rule. Elements made by liemef's constructors are
+within 1e-15; a unit vector typed with six decimals is within 1e-6, a rotation matrix typed with seven decimals."""
 
 INT_MAX = 2**31 - 1
 """The largest count (sub-steps, samples kept, trials) a compiled loop takes: a C ``int`` and JAX's int32."""
@@ -100,9 +103,10 @@ def integer(name: str, value, low: int = 0, high: int = INT_MAX) -> int:
 
 
 def element(name: str, g, G) -> None:
-    """``g`` is a single element of the group type ``G`` with finite parameters on the group: its stored
-    parameters within :data:`ON_GROUP` of it (``g.off_group()``: 0 for a vector space). ValueError naming
-    ``name`` otherwise, with the distance."""
+    """``g`` is a single element of the group type ``G`` with finite parameters on the group: each of its
+    ``g.defects()`` (the norm of a stored unit vector, a matrix's orthogonality, determinant or bottom row, a
+    :class:`~liemef.groups.MatrixGroup`'s rule; none for a vector space) within :data:`ON_GROUP`. ValueError
+    naming ``name`` otherwise, with the defect and its size."""
     import jax
 
     if not isinstance(g, G):
@@ -111,11 +115,13 @@ def element(name: str, g, G) -> None:
         raise ValueError(f"{name}: expected a single element (no batch axes), got batch shape {g.batch_shape}")
     for leaf in jax.tree_util.tree_leaves(g):
         array(name, leaf)
+    defects = g.defects()
     off = float(g.off_group())
     if not off <= ON_GROUP:
+        worst = next(what for what, size in defects.items() if not size < off)
         params = np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree_util.tree_leaves(g)])
-        raise ValueError(f"{name}: expected an element of {G.__name__} within {ON_GROUP:g} of the group (|norm - 1| "
-                         f"of its unit parameters), got one {off:.6g} off the group, parameters {params.tolist()}")
+        raise ValueError(f"{name}: expected an element of {G.__name__} within {ON_GROUP:g} of the group, got one "
+                         f"{off:.6g} off the group by its {worst}, parameters {params.tolist()}")
 
 
 def square(name: str, value, n: int) -> np.ndarray:

@@ -16,6 +16,13 @@ Conventions (Saccon et al. 2016 and the papers that follow it; tested in ``tests
 * The dual $\mathfrak g^*$ is $\mathbb R^n$ through the standard pairing.
 * Elements are frozen pytrees with optional leading batch axes: they pass through ``jit``, ``vmap`` and
   ``lax.scan``. Every ``exp`` is smooth at 0 with finite first and second derivatives (Taylor branches).
+* Membership is checked at the boundaries, with one tolerance, ``liemef._validate.ON_GROUP`` = 1e-6, per
+  defect: :meth:`~LieGroup.from_matrix` refuses a non-finite matrix and one whose
+  :meth:`~LieGroup.matrix_defects` exceed it (the orthogonality $\max|R^T R - I|$ and the determinant
+  $|\det R - 1|$ of a rotation block, the bottom rows against $[0, I]$, a product's blocks off the diagonal, a
+  :class:`MatrixGroup`'s rule or exp/log round trip), naming ``M``, the defect and its size; every filter's
+  ``init`` refuses a NaN element and one whose :meth:`~LieGroup.defects` exceed it (the norm of a stored unit
+  vector: (cos, sin), the quaternion). Under tracing, ``from_matrix`` converts only.
 """
 
 from ._base import LieGroup

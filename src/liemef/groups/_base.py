@@ -114,12 +114,29 @@ class LieGroup(eqx.Module):
         # Every parameter array of every group has exactly one trailing (event) axis.
         return tuple(jax.tree_util.tree_leaves(self)[0].shape[:-1])
 
+    def defects(self) -> dict[str, float]:
+        """How far the stored parameters are from the group, defect by defect, each the largest over the batch
+        (NumPy, on concrete values): ``{}`` for a group whose parameters are unconstrained (R^n); for one that
+        stores unit vectors (the (cos, sin) of SO(2) and SE(2), the quaternion of SO(3) and SE_K(3)) the norm,
+        ``| |v| - 1 |``; for a :class:`MatrixGroup`, its matrix's (:meth:`matrix_defects`); a product, its
+        factors'. NaN parameters give NaN."""
+        return {}
+
     def off_group(self) -> float:
-        """How far the stored parameters are from the group, as a float (the largest over the batch): 0 for a
-        group whose parameters are unconstrained (R^n); for one that stores unit vectors (the (cos, sin) of
-        SO(2) and SE(2), SO(3)'s quaternion), ``| |v| - 1 |``. The boundary checks refuse an element further
-        than ``liemef._validate.ON_GROUP``."""
-        return 0.0
+        """The largest of :meth:`defects` (0 without any; NaN for NaN parameters). The boundary checks (every
+        filter's ``init``, ``run`` and ``terms``, ``simulate``) refuse an element further than
+        ``liemef._validate.ON_GROUP``, naming the defect."""
+        sizes = list(self.defects().values())
+        return float(np.max(sizes)) if sizes else 0.0
+
+    @classmethod
+    def matrix_defects(cls, M: np.ndarray) -> dict[str, np.ndarray]:
+        r"""How far each finite matrix of ``M`` (NumPy, ``(..., m, m)``) is from the group's matrices, defect by
+        defect, each an array of the batch shape ``M.shape[:-2]``: the orthogonality $|R^T R - I|$ and the
+        determinant $|\det R - 1|$ of a rotation block, the bottom rows of a homogeneous matrix (their largest
+        entry away from ``[0, I]``), a :class:`MatrixGroup`'s own rule. :meth:`from_matrix` refuses a matrix
+        with one beyond ``liemef._validate.ON_GROUP`` (:func:`checked_matrix`). The base class has none."""
+        return {}
 
     @classmethod
     def structure_constants(cls) -> Float[Array, "n n n"]:
@@ -143,6 +160,50 @@ def as_float_array(x: ArrayLike) -> Array:
     if dtype is not None and np.issubdtype(dtype, np.complexfloating):
         raise ValueError(f"group parameters: expected real numbers, got complex values {np.asarray(x)!r}")
     return jnp.asarray(x, dtype=jnp.float64)
+
+
+def checked_matrix(cls: type[LieGroup], M: ArrayLike, name: str = "M") -> Array:
+    """``M`` as a float64 JAX array of shape ``(..., m, m)``, for ``cls.from_matrix``: when its values are
+    concrete, finite and within ``liemef._validate.ON_GROUP`` of the group by every one of
+    ``cls.matrix_defects`` (a ValueError naming ``name``, the defect, its size and the batch index otherwise).
+    Under tracing (``jit``, ``vmap``, ``grad``) it is converted only: a traced value cannot be inspected."""
+    from .. import _validate
+
+    if isinstance(M, jax.core.Tracer):
+        return as_float_array(M)
+    M = as_float_array(M)
+    if isinstance(M, jax.core.Tracer):  # a list of tracers
+        return M
+    m = cls.matrix_dim
+    if M.shape[-2:] != (m, m):
+        raise ValueError(f"{name}: expected {cls.__name__} matrices of shape (..., {m}, {m}), got shape {M.shape}")
+    a = _validate.array(name, np.asarray(M))
+    for defect, size in cls.matrix_defects(a).items():
+        size = np.broadcast_to(np.asarray(size, dtype=np.float64), a.shape[:-2])
+        bad = ~(size <= _validate.ON_GROUP)
+        if np.any(bad):
+            at = tuple(int(i) for i in np.argwhere(bad)[0])
+            where = f" at batch index {at}" if at else ""
+            raise ValueError(f"{name}: expected a matrix of {cls.__name__} within {_validate.ON_GROUP:g} of the "
+                             f"group, got {defect} = {float(size[at]):.6g}{where}")
+    return M
+
+
+def rotation_defects(R: np.ndarray) -> dict[str, np.ndarray]:
+    """The defects of rotation blocks ``R`` (..., k, k) (NumPy): orthogonality ``max |R^T R - I|`` and
+    determinant ``|det R - 1|`` (a reflection is orthogonal with determinant -1)."""
+    eye = np.eye(R.shape[-1])
+    return {"orthogonality max|R^T R - I|": np.abs(np.swapaxes(R, -1, -2) @ R - eye).max(axis=(-2, -1)),
+            "determinant |det R - 1|": np.abs(np.linalg.det(R) - 1.0)}
+
+
+def bottom_rows_defect(M: np.ndarray, k: int) -> dict[str, np.ndarray]:
+    """The defect of homogeneous matrices ``M`` (..., m, m) whose last ``k`` rows must be ``[0, I_k]``: their
+    largest entry away from it."""
+    m = M.shape[-1]
+    want = np.concatenate([np.zeros((k, m - k)), np.eye(k)], axis=-1)
+    what = f"bottom row max|M[{m - 1}] - [0, 1]|" if k == 1 else f"bottom rows max|M[{m - k}:] - [0, I]|"
+    return {what: np.abs(M[..., m - k :, :] - want).max(axis=(-2, -1))}
 
 
 def unit_distance(v) -> float:

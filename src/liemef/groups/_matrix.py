@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import ClassVar
 
 import jax
@@ -8,7 +9,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, checked_matrix
 
 # Inverse scaling and squaring (Higham, Functions of Matrices, 2008, Sec. 11.5): square roots until
 # |A - I|_1 <= _ISS_RADIUS, then the [8/8] Pade approximant of log(I + X) as 8-node Gauss-Legendre quadrature of
@@ -113,6 +114,11 @@ class MatrixGroup(LieGroup):
       :meth:`vee`, polished by Newton's method on :meth:`exp` (accurate to round-off up to a rotation angle of
       about pi - 1e-7; see :meth:`log`), with derivatives in both autodiff modes.
     * $\mathrm{ad}$ comes from the structure constants of the basis, $\mathrm{Ad}_g$ from $g E_k g^{-1}$.
+    * Membership (:meth:`matrix_defects`, checked by :meth:`from_matrix` and by every filter's ``init``): the
+      group's own rule when :meth:`from_basis` was given one (:data:`SL3`: the determinant; :data:`Sim3`: the
+      bottom row, then the orthogonality and the determinant of the 3 x 3 block divided by its scale), else the
+      round trip $|\exp(\log M) - M|_1 / (1 + |M|_1)$, which also refuses an element that is not the
+      exponential of its principal logarithm (a rotation by exactly pi; give such a group a rule).
 
     The closed-form groups (:class:`SO3`, :class:`SE3`, :class:`SE23`) are faster, to run and to build for the C
     engine (which translates a :class:`MatrixGroup` too: ``tests/test_user_systems_c.py``); a :class:`MatrixGroup`
@@ -127,6 +133,8 @@ class MatrixGroup(LieGroup):
     """The dual basis ``(n, m * m)``: ``vee(X) = dual @ X.ravel()``."""
     constants: ClassVar[np.ndarray]
     """The structure constants ``C[m, j, i] = vee([E_j, E_i])[m]``."""
+    rule: ClassVar[Callable[[np.ndarray], dict[str, float]] | None]
+    """The membership rule given to :meth:`from_basis` (None: the exp/log round trip; see :meth:`matrix_defects`)."""
     tangent_dim: ClassVar[int]
     matrix_dim: ClassVar[int]
     coords_dim: ClassVar[int]
@@ -140,14 +148,21 @@ class MatrixGroup(LieGroup):
         self.matrix_flat = matrix_flat
 
     @staticmethod
-    def from_basis(name: str, basis, doc: str | None = None) -> type[MatrixGroup]:
+    def from_basis(name: str, basis, doc: str | None = None,
+                   rule: Callable[[np.ndarray], dict[str, float]] | None = None) -> type[MatrixGroup]:
         """A new group class named ``name`` from a basis ``(n, m, m)`` of its Lie algebra.
 
         The basis must be linearly independent and closed under the commutator (a Lie algebra): a
-        ``ValueError`` says which check failed.
+        ``ValueError`` says which check failed. ``rule`` says how far one finite ``m x m`` NumPy matrix is from the
+        group, as ``{defect: size}`` (e.g. ``{"determinant |det M - 1|": abs(det(M) - 1)}`` for SL(3)); a matrix
+        with a size above ``liemef._validate.ON_GROUP`` is refused by :meth:`from_matrix` and by every filter's
+        ``init``. Without one, membership is the exp/log round trip (:meth:`matrix_defects`).
         """
         if not isinstance(name, str) or not name.isidentifier():
             raise ValueError(f"name: expected a class name (letters, digits, _), got {name!r}")
+        if rule is not None and not callable(rule):
+            raise ValueError(f"rule: expected a function of one matrix returning {{defect: size}}, or None, got "
+                             f"{type(rule).__name__}")
         E = np.asarray(basis, dtype=np.float64)
         if E.ndim != 3 or E.shape[1] != E.shape[2] or E.shape[0] < 1 or not np.all(np.isfinite(E)):
             raise ValueError(f"basis: expected finite matrices of shape (n, m, m) with n >= 1, got shape "
@@ -166,7 +181,8 @@ class MatrixGroup(LieGroup):
             raise ValueError(f"basis: expected a Lie algebra (commutators of the basis in its span), got a "
                              f"commutator {np.abs(residual).max():.3g} away from the span")
         return type(MatrixGroup)(name, (MatrixGroup,), {
-            "basis": E, "dual": dual, "constants": C, "tangent_dim": n, "matrix_dim": m, "coords_dim": n,
+            "basis": E, "dual": dual, "constants": C, "rule": staticmethod(rule) if rule is not None else None,
+            "tangent_dim": n, "matrix_dim": m, "coords_dim": n,
             "__module__": MatrixGroup.__module__, "__qualname__": name,
             "__doc__": doc or f"The matrix Lie group {name} from a basis of {n} {m} x {m} matrices.",
         })
@@ -181,13 +197,41 @@ class MatrixGroup(LieGroup):
     def exp(cls, xi):
         r""":func:`expm` of $\hat\xi$."""
         M = jnp.vectorize(expm, signature="(m,m)->(m,m)")(cls.hat(xi))
-        return cls.from_matrix(M)
+        return cls._of_matrix(M)
+
+    @classmethod
+    def _of_matrix(cls, M):
+        """From the ``m x m`` matrix, unchecked (the group's own operations)."""
+        return cls(M.reshape(*M.shape[:-2], cls.matrix_dim**2))
 
     @classmethod
     def from_matrix(cls, M):
-        """From the ``m x m`` matrix (not checked to lie in the group)."""
-        M = as_float_array(M)
-        return cls(M.reshape(*M.shape[:-2], cls.matrix_dim**2))
+        """From the ``m x m`` matrix, checked (:func:`~liemef.groups._base.checked_matrix`): within
+        ``liemef._validate.ON_GROUP`` of the group by :meth:`matrix_defects`."""
+        return cls._of_matrix(checked_matrix(cls, M))
+
+    @classmethod
+    def matrix_defects(cls, M):
+        r"""The group's rule (:meth:`from_basis`), matrix by matrix; without one, the round trip
+        $|\exp(\log M) - M|_1 / (1 + |M|_1)$ with :meth:`log` before its NaN check, infinite where the principal
+        logarithm does not exist or Newton's method does not converge (an element that is not the exponential of
+        its principal logarithm, such as a rotation by exactly pi, is refused: give such a group a rule)."""
+        M = np.asarray(M, dtype=np.float64)
+        batch = M.shape[:-2]
+        if cls.rule is None:
+            miss = np.asarray(jnp.vectorize(functools.partial(_log_miss, cls), signature="(m,m)->()")(M))
+            finite = np.all(np.isfinite(M), axis=(-2, -1))
+            return {"round trip |exp(log M) - M|_1 / (1 + |M|_1)": np.where(finite & np.isnan(miss), np.inf, miss)}
+        out: dict[str, np.ndarray] = {}
+        for index in np.ndindex(*batch):
+            for what, size in cls.rule(M[index]).items():
+                out.setdefault(what, np.full(batch, np.nan))[index] = float(size)
+        return out
+
+    def defects(self) -> dict[str, float]:
+        """The largest over the batch of each of :meth:`matrix_defects` of the matrix."""
+        return {what: float(np.max(size, initial=0.0))
+                for what, size in type(self).matrix_defects(np.asarray(self.as_matrix())).items()}
 
     @classmethod
     def from_coords(cls, q):
@@ -196,11 +240,11 @@ class MatrixGroup(LieGroup):
 
     def compose(self, other):
         """Matrix product."""
-        return type(self).from_matrix(self.as_matrix() @ other.as_matrix())
+        return type(self)._of_matrix(self.as_matrix() @ other.as_matrix())
 
     def inverse(self):
         """Matrix inverse."""
-        return type(self).from_matrix(jnp.linalg.inv(self.as_matrix()))
+        return type(self)._of_matrix(jnp.linalg.inv(self.as_matrix()))
 
     def log(self):
         r"""The principal logarithm: :meth:`vee` of :func:`logm`, polished by Newton's method on :meth:`exp`.
@@ -254,6 +298,19 @@ class MatrixGroup(LieGroup):
 @functools.partial(jax.jit, static_argnums=0)  # jitted: eager calls compile the loops once per shape
 def _log(cls: type[MatrixGroup], M):
     """:meth:`MatrixGroup.log` of one matrix ``M`` (m, m)."""
+    xi, miss = _newton_log(cls, M)
+    return jnp.where(miss <= _LOG_CHECK, xi, jnp.nan)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _log_miss(cls: type[MatrixGroup], M):
+    """The relative 1-norm miss ``|exp(log M) - M|_1 / (1 + |M|_1)`` of :meth:`MatrixGroup.log` of one matrix
+    ``M`` (m, m), before its NaN check: how far ``M`` is from the group (NaN without a principal logarithm)."""
+    return _newton_log(cls, M)[1]
+
+
+def _newton_log(cls: type[MatrixGroup], M):
+    """``(xi, miss)``: the Newton-polished logarithm of one matrix ``M`` and ``|exp(xi) - M|_1 / (1 + |M|_1)``."""
     n, m = cls.tangent_dim, cls.matrix_dim
     eye = jnp.eye(m)
 
@@ -271,7 +328,7 @@ def _log(cls: type[MatrixGroup], M):
     xi = jax.lax.fori_loop(0, _NEWTON_STEPS, newton, xi)
     # A start outside Newton's basin (at the cut locus) may end anywhere: a value that is not a logarithm is NaN.
     miss = _norm1(jax.lax.stop_gradient(expm(cls.hat(xi)) - M)) / (1.0 + _norm1(jax.lax.stop_gradient(M)))
-    return jnp.where(miss <= _LOG_CHECK, xi, jnp.nan)
+    return xi, miss
 
 
 def _unit(m, i, j):
@@ -300,11 +357,30 @@ def _sim3_basis():
     return np.stack(rot + trans + scale)
 
 
-SL3 = MatrixGroup.from_basis("SL3", _sl3_basis(), doc=r"""SL(3), the homographies (3 x 3 matrices of determinant 1),
-as a :class:`MatrixGroup`. sl(3) coordinates: the rotation generators $(w_x, w_y, w_z)$ as in so(3), then the
-symmetric traceless generators $E_{01} + E_{10}$, $E_{02} + E_{20}$, $E_{12} + E_{21}$, $E_{00} - E_{11}$,
-$E_{00} + E_{11} - 2 E_{22}$.""")
+def _sl3_rule(M):
+    """SL(3): the determinant."""
+    return {"determinant |det M - 1|": abs(np.linalg.det(M) - 1.0)}
 
-Sim3 = MatrixGroup.from_basis("Sim3", _sim3_basis(), doc=r"""Sim(3), similarities ``[[s R, p], [0, 1]]``, as a
-:class:`MatrixGroup`. sim(3) coordinates $(\omega; v; \sigma)$: the rotation first as in se(3), the translation
-rate, then the log-scale rate ($\hat\xi = [[[\omega]_\times + \sigma I, v], [0, 0]]$).""")
+
+def _sim3_rule(M):
+    """Sim(3) = ``[[s R, p], [0, 1]]`` with s > 0: the bottom row, and the 3 x 3 block A divided by its scale
+    s = |det A|^(1/3) as a rotation (orthogonality and determinant; infinitely far when A is singular)."""
+    A = M[:3, :3]
+    s = abs(np.linalg.det(A)) ** (1.0 / 3.0)
+    R = A / s if s > 0 else None
+    return {"bottom row max|M[3] - [0, 1]|": float(np.abs(M[3] - [0.0, 0.0, 0.0, 1.0]).max()),
+            "orthogonality max|R^T R - I| of R = A / |det A|^(1/3)":
+                np.inf if R is None else float(np.abs(R.T @ R - np.eye(3)).max()),
+            "determinant |det R - 1| of R = A / |det A|^(1/3)": np.inf if R is None else abs(np.linalg.det(R) - 1.0)}
+
+
+SL3 = MatrixGroup.from_basis("SL3", _sl3_basis(), rule=_sl3_rule, doc=r"""SL(3), the homographies (3 x 3 matrices of
+determinant 1), as a :class:`MatrixGroup`. sl(3) coordinates: the rotation generators $(w_x, w_y, w_z)$ as in
+so(3), then the symmetric traceless generators $E_{01} + E_{10}$, $E_{02} + E_{20}$, $E_{12} + E_{21}$,
+$E_{00} - E_{11}$, $E_{00} + E_{11} - 2 E_{22}$. Membership: $|\det M - 1|$.""")
+
+Sim3 = MatrixGroup.from_basis("Sim3", _sim3_basis(), rule=_sim3_rule, doc=r"""Sim(3), similarities
+``[[s R, p], [0, 1]]`` with s > 0, as a :class:`MatrixGroup`. sim(3) coordinates $(\omega; v; \sigma)$: the
+rotation first as in se(3), the translation rate, then the log-scale rate
+($\hat\xi = [[[\omega]_\times + \sigma I, v], [0, 0]]$). Membership: the bottom row, then the 3 x 3 block divided
+by its scale $|\det|^{1/3}$ as a rotation (orthogonality, determinant).""")

@@ -4,8 +4,9 @@ import functools
 from typing import ClassVar
 
 import jax.numpy as jnp
+import numpy as np
 
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, checked_matrix
 
 
 def _split(v, sizes):
@@ -68,9 +69,31 @@ class Product(LieGroup):
     def _tangent_sizes(cls):
         return [t.tangent_dim for t in cls.factor_types]
 
-    def off_group(self) -> float:
-        """The largest of the factors'."""
-        return max(f.off_group() for f in self.factors)
+    def defects(self) -> dict[str, float]:
+        """The factors' defects, each named after its factor: ``"factor 0 (SO3): quaternion norm ..."``."""
+        return {f"factor {k} ({type(f).__name__}): {what}": size
+                for k, f in enumerate(self.factors) for what, size in f.defects().items()}
+
+    @classmethod
+    def _blocks(cls):
+        """``(k, factor type, slice of its diagonal block)`` for each factor."""
+        start = 0
+        for k, t in enumerate(cls.factor_types):
+            yield k, t, slice(start, start + t.matrix_dim)
+            start += t.matrix_dim
+
+    @classmethod
+    def matrix_defects(cls, M):
+        """The entries off the diagonal blocks (their largest), then each block's defects, named after its
+        factor."""
+        outside = np.ones(M.shape[-2:], dtype=bool)
+        for _, _, b in cls._blocks():
+            outside[b, b] = False
+        out = {"off-diagonal blocks max|M|": np.abs(np.where(outside, M, 0.0)).max(axis=(-2, -1))}
+        for k, t, b in cls._blocks():
+            out.update({f"factor {k} ({t.__name__}) block M[{b.start}:{b.stop}, {b.start}:{b.stop}]: {what}": size
+                        for what, size in t.matrix_defects(M[..., b, b]).items()})
+        return out
 
     @classmethod
     def identity(cls, batch_shape=()):
@@ -85,13 +108,11 @@ class Product(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
-        """From the diagonal blocks of a block-diagonal matrix, factor by factor."""
-        M = as_float_array(M)
-        out, k = [], 0
-        for t in cls.factor_types:
-            out.append(t.from_matrix(M[..., k : k + t.matrix_dim, k : k + t.matrix_dim]))
-            k += t.matrix_dim
-        return cls(tuple(out))
+        """From the diagonal blocks of a block-diagonal matrix, factor by factor, checked
+        (:func:`~liemef.groups._base.checked_matrix`): the entries off the blocks zero and each block its
+        factor's matrix, within ``liemef._validate.ON_GROUP``."""
+        M = checked_matrix(cls, M)
+        return cls(tuple(t.from_matrix(M[..., b, b]) for _, t, b in cls._blocks()))
 
     @classmethod
     def from_coords(cls, q):

@@ -5,8 +5,9 @@ import numbers
 from typing import ClassVar
 
 import jax.numpy as jnp
+import numpy as np
 
-from ._base import LieGroup, as_float_array
+from ._base import LieGroup, as_float_array, bottom_rows_defect, checked_matrix
 
 
 class Rn(LieGroup):
@@ -47,9 +48,18 @@ class Rn(LieGroup):
         return cls(xi)
 
     @classmethod
+    def matrix_defects(cls, M):
+        """The identity block ``I`` and the bottom row ``(0, 1)`` of ``[[I, x], [0, 1]]``."""
+        n = cls.tangent_dim
+        return {f"identity block max|M[:{n}, :{n}] - I|": np.abs(M[..., :n, :n] - np.eye(n)).max(axis=(-2, -1)),
+                **bottom_rows_defect(M, 1)}
+
+    @classmethod
     def from_matrix(cls, M):
-        """From the translation column of ``[[I, x], [0, 1]]``."""
-        return cls(as_float_array(M)[..., :-1, -1])
+        """From the translation column of ``[[I, x], [0, 1]]``, checked
+        (:func:`~liemef.groups._base.checked_matrix`): the identity block and the bottom row within
+        ``liemef._validate.ON_GROUP``."""
+        return cls(checked_matrix(cls, M)[..., :-1, -1])
 
     @classmethod
     def from_coords(cls, q):

@@ -4,7 +4,7 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from ._base import LieGroup, as_float_array, unit_distance
+from ._base import LieGroup, as_float_array, bottom_rows_defect, checked_matrix, rotation_defects, unit_distance
 from ._so2 import SO2
 
 _TAYLOR = 1e-2  # |omega| below which exp/log use Taylor series (see _so3._TAYLOR_SQ)
@@ -25,9 +25,14 @@ class SE2(LieGroup):
     def __init__(self, cos_sin_xy):
         self.cos_sin_xy = as_float_array(cos_sin_xy)
 
-    def off_group(self) -> float:
-        """|(cos, sin)| - 1, in absolute value (the largest over the batch)."""
-        return unit_distance(self.cos_sin_xy[..., :2])
+    def defects(self) -> dict[str, float]:
+        """The norm of ``(cos, sin)``, ``| |v| - 1 |`` (the largest over the batch)."""
+        return {"norm | |(cos, sin)| - 1 |": unit_distance(self.cos_sin_xy[..., :2])}
+
+    @classmethod
+    def matrix_defects(cls, M):
+        """Orthogonality and determinant of the rotation block, and the bottom row ``(0, 0, 1)``."""
+        return {**rotation_defects(M[..., :2, :2]), **bottom_rows_defect(M, 1)}
 
     @classmethod
     def identity(cls, batch_shape=()):
@@ -65,9 +70,11 @@ class SE2(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
-        """From the homogeneous 3 x 3 matrix ``[[R, p], [0, 1]]``."""
-        M = as_float_array(M)
-        return cls.from_rotation_translation(SO2.from_matrix(M[..., :2, :2]), M[..., :2, 2])
+        """From the homogeneous 3 x 3 matrix ``[[R, p], [0, 1]]``, checked
+        (:func:`~liemef.groups._base.checked_matrix`): R a rotation and the bottom row ``(0, 0, 1)`` within
+        ``liemef._validate.ON_GROUP``."""
+        M = checked_matrix(cls, M)
+        return cls.from_rotation_translation(SO2(M[..., :2, 0]), M[..., :2, 2])
 
     def rotation(self) -> SO2:
         """The rotation part R, an :class:`SO2`."""

@@ -6,8 +6,8 @@ from typing import ClassVar
 
 import jax.numpy as jnp
 
-from ._base import LieGroup, as_float_array, unit_distance
-from ._so3 import SO3, _skew
+from ._base import LieGroup, as_float_array, bottom_rows_defect, checked_matrix, rotation_defects, unit_distance
+from ._so3 import SO3, _skew, quaternion_of_matrix
 
 # Below this squared angle the SO(3) Jacobian coefficients use Taylor series (functions of theta^2 only): values
 # and first and second derivatives stay finite and accurate at 0. Truncation at the threshold: < 1e-22.
@@ -97,10 +97,15 @@ class SEK3(LieGroup):
             raise ValueError(f"SEK3[K]: expected a positive integer number of vectors K, got {K!r}")
         return _sek3_type(int(K))
 
-    def off_group(self) -> float:
-        """|q| - 1 of the rotation's quaternion, in absolute value (the largest over the batch): the vectors are
+    def defects(self) -> dict[str, float]:
+        """The norm of the rotation's quaternion, ``| |q| - 1 |`` (the largest over the batch): the vectors are
         unconstrained."""
-        return unit_distance(self.wxyz_p[..., :4])
+        return {"quaternion norm | |q| - 1 |": unit_distance(self.wxyz_p[..., :4])}
+
+    @classmethod
+    def matrix_defects(cls, M):
+        """Orthogonality and determinant of the rotation block, and the bottom rows ``[0, I_K]``."""
+        return {**rotation_defects(M[..., :3, :3]), **bottom_rows_defect(M, cls.K)}
 
     # --- parts ------------------------------------------------------------------------------------------------
     @classmethod
@@ -137,9 +142,12 @@ class SEK3(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
-        """From the ``(3 + K) x (3 + K)`` matrix ``[[R, p_1 .. p_K], [0, I]]``."""
-        M = as_float_array(M)
-        return cls.from_rotation_vectors(SO3.from_matrix(M[..., :3, :3]), jnp.swapaxes(M[..., :3, 3:], -1, -2))
+        """From the ``(3 + K) x (3 + K)`` matrix ``[[R, p_1 .. p_K], [0, I]]``, checked
+        (:func:`~liemef.groups._base.checked_matrix`): R a rotation and the bottom rows ``[0, I]`` within
+        ``liemef._validate.ON_GROUP``."""
+        M = checked_matrix(cls, M)
+        return cls.from_rotation_vectors(SO3(quaternion_of_matrix(M[..., :3, :3])),
+                                         jnp.swapaxes(M[..., :3, 3:], -1, -2))
 
     @classmethod
     def from_coords(cls, q):

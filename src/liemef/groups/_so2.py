@@ -5,7 +5,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from .._linalg import mv
-from ._base import LieGroup, as_float_array, unit_distance
+from ._base import LieGroup, as_float_array, checked_matrix, rotation_defects, unit_distance
 
 
 class SO2(LieGroup):
@@ -20,9 +20,14 @@ class SO2(LieGroup):
     def __init__(self, cos_sin):
         self.cos_sin = as_float_array(cos_sin)
 
-    def off_group(self) -> float:
-        """|(cos, sin)| - 1, in absolute value (the largest over the batch)."""
-        return unit_distance(self.cos_sin)
+    def defects(self) -> dict[str, float]:
+        """The norm of ``(cos, sin)``, ``| |v| - 1 |`` (the largest over the batch)."""
+        return {"norm | |(cos, sin)| - 1 |": unit_distance(self.cos_sin)}
+
+    @classmethod
+    def matrix_defects(cls, M):
+        """Orthogonality and determinant of the 2 x 2 matrix."""
+        return rotation_defects(M)
 
     @classmethod
     def identity(cls, batch_shape=()):
@@ -42,8 +47,9 @@ class SO2(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
-        """From a 2 x 2 rotation matrix (its first column)."""
-        M = as_float_array(M)
+        """From a 2 x 2 rotation matrix (its first column), checked (:func:`~liemef.groups._base.checked_matrix`):
+        orthogonal and of determinant 1 within ``liemef._validate.ON_GROUP``."""
+        M = checked_matrix(cls, M)
         return cls(M[..., :, 0])
 
     @classmethod

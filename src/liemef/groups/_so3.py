@@ -5,7 +5,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 
 from .._linalg import mv
-from ._base import LieGroup, as_float_array, unit_distance
+from ._base import LieGroup, as_float_array, checked_matrix, rotation_defects, unit_distance
 
 # Below this squared angle, exp/log use Taylor series: the values and their first and second derivatives stay
 # finite and accurate at exactly 0 (the engine differentiates exp twice at 0).
@@ -16,6 +16,26 @@ def _skew(w):
     x, y, z = w[..., 0], w[..., 1], w[..., 2]
     o = jnp.zeros_like(x)
     return jnp.stack([jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2)
+
+
+def quaternion_of_matrix(M):
+    """The quaternion of rotation matrices ``M`` (..., 3, 3) (Shepperd's method), unchecked."""
+    # Shepperd's method: pick the numerically largest of the four candidate quaternion components.
+    m00, m01, m02 = M[..., 0, 0], M[..., 0, 1], M[..., 0, 2]
+    m10, m11, m12 = M[..., 1, 0], M[..., 1, 1], M[..., 1, 2]
+    m20, m21, m22 = M[..., 2, 0], M[..., 2, 1], M[..., 2, 2]
+    t = jnp.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
+                  -1)
+    cands = jnp.stack([
+        jnp.stack([t[..., 0], m21 - m12, m02 - m20, m10 - m01], -1),
+        jnp.stack([m21 - m12, t[..., 1], m10 + m01, m02 + m20], -1),
+        jnp.stack([m02 - m20, m10 + m01, t[..., 2], m21 + m12], -1),
+        jnp.stack([m10 - m01, m02 + m20, m21 + m12, t[..., 3]], -1),
+    ], -2)
+    k = jnp.argmax(t, axis=-1)
+    q = jnp.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+    tk = jnp.take_along_axis(t, k[..., None], axis=-1)
+    return q * 0.5 / jnp.sqrt(tk)
 
 
 class SO3(LieGroup):
@@ -34,9 +54,14 @@ class SO3(LieGroup):
     def __init__(self, wxyz):
         self.wxyz = as_float_array(wxyz)
 
-    def off_group(self) -> float:
-        """|q| - 1 of the quaternion, in absolute value (the largest over the batch)."""
-        return unit_distance(self.wxyz)
+    def defects(self) -> dict[str, float]:
+        """The quaternion's norm, ``| |q| - 1 |`` (the largest over the batch)."""
+        return {"quaternion norm | |q| - 1 |": unit_distance(self.wxyz)}
+
+    @classmethod
+    def matrix_defects(cls, M):
+        """Orthogonality and determinant of the 3 x 3 matrix."""
+        return rotation_defects(M)
 
     @classmethod
     def identity(cls, batch_shape=()):
@@ -58,24 +83,11 @@ class SO3(LieGroup):
 
     @classmethod
     def from_matrix(cls, M):
-        """From a 3 x 3 rotation matrix (Shepperd's method)."""
-        # Shepperd's method: pick the numerically largest of the four candidate quaternion components.
-        M = as_float_array(M)
-        m00, m01, m02 = M[..., 0, 0], M[..., 0, 1], M[..., 0, 2]
-        m10, m11, m12 = M[..., 1, 0], M[..., 1, 1], M[..., 1, 2]
-        m20, m21, m22 = M[..., 2, 0], M[..., 2, 1], M[..., 2, 2]
-        t = jnp.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
-                      -1)
-        cands = jnp.stack([
-            jnp.stack([t[..., 0], m21 - m12, m02 - m20, m10 - m01], -1),
-            jnp.stack([m21 - m12, t[..., 1], m10 + m01, m02 + m20], -1),
-            jnp.stack([m02 - m20, m10 + m01, t[..., 2], m21 + m12], -1),
-            jnp.stack([m10 - m01, m02 + m20, m21 + m12, t[..., 3]], -1),
-        ], -2)
-        k = jnp.argmax(t, axis=-1)
-        q = jnp.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
-        tk = jnp.take_along_axis(t, k[..., None], axis=-1)
-        return cls(q * 0.5 / jnp.sqrt(tk))
+        """From a 3 x 3 rotation matrix (Shepperd's method), checked
+        (:func:`~liemef.groups._base.checked_matrix`): orthogonal and of determinant 1 within
+        ``liemef._validate.ON_GROUP`` (a shear, 2 I or a reflection is refused, not turned into a quaternion
+        that is not a unit one)."""
+        return cls(quaternion_of_matrix(checked_matrix(cls, M)))
 
     @classmethod
     def from_coords(cls, q):

@@ -5,6 +5,7 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .. import _validate
@@ -97,6 +98,31 @@ def simulate_core(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None
 _simulate_jit = eqx.filter_jit(simulate_core)
 
 
+def input_times(ts: Float[Array, " N"], substeps: int) -> Float[Array, " M"]:
+    """Every time at which :func:`simulate_core` evaluates the input function, computed as it does: the start
+    of each truth step ``t_k + j dt_k / substeps`` (j < substeps) and each sample time (the nominal input)."""
+    h = jnp.diff(ts) / substeps
+    steps = ts[:-1, None] + h[:, None] * jnp.arange(substeps)
+    return jnp.concatenate([steps.reshape(-1), ts])
+
+
+@eqx.filter_jit
+def _inputs_at(input_fn: InputFn, ts: Float[Array, " N"], substeps: int):
+    times = input_times(ts, substeps)
+    return times, jax.vmap(input_fn)(times)
+
+
+def check_inputs(input_fn: InputFn, ts: Float[Array, " N"], substeps: int) -> None:
+    """``input_fn`` returns finite values at every time the simulation evaluates it (:func:`input_times`): a
+    ValueError naming it, the first such time and the values otherwise (a NaN input would give a NaN log)."""
+    times, us = (np.asarray(a) for a in _inputs_at(input_fn, jnp.asarray(ts), substeps))
+    bad = ~np.all(np.isfinite(us), axis=-1)
+    if np.any(bad):
+        k = int(np.argmin(np.where(bad, times, np.inf)))
+        raise ValueError(f"input_fn: expected finite inputs u(t), got u(t) = {us[k].tolist()} at t = "
+                         f"{float(times[k])!r}, the first time it returned non-finite values")
+
+
 def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts: ArrayLike,
              key: PRNGKeyArray, *, model_error_std: float = 0.0, input_noise: ArrayLike | None = None,
              substeps: int = 1, integrator: str | AbstractIntegrator = "rkmk4") -> tuple[Truth, SensorLog]:
@@ -117,8 +143,10 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
     Args:
         system: the model, e.g. :class:`liemef.systems.PlanarRigidBody`.
         g0: initial truth, an element of ``system.group`` (no batch axes).
-        input_fn: ``u(t)`` as a JAX function of a scalar time returning shape (m,); None when m = 0.
-            Pass the same function object across calls to reuse the compiled simulation.
+        input_fn: ``u(t)`` as a JAX function of a scalar time returning shape (m,); None when m = 0. It must
+            return finite values at every time the simulation evaluates it (the sample times and the start of
+            every truth step): a ValueError names the first time it does not. Pass the same function object
+            across calls to reuse the compiled simulation.
         ts: sample times (N,), strictly increasing, N >= 2.
         key: a ``jax.random`` key, the only source of randomness (split inside; never global state).
 
@@ -150,6 +178,8 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
         input_noise = _validate.array("input_noise", input_noise, (m, None))
         input_noise = jnp.asarray(input_noise)
     substeps = _validate.integer("substeps", substeps, 1)
+    if input_fn is not None:
+        check_inputs(input_fn, ts, int(substeps))
     integ = make_integrator(integrator)
     return _simulate_jit(system, g0, input_fn, jnp.asarray(ts), key, jnp.asarray(model_error_std),
                          input_noise, int(substeps), integ)

@@ -524,9 +524,14 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     K0 = K0 * np.eye(n) if K0.ndim == 0 else np.diag(K0) if K0.shape == (n,) else K0
     if K0.shape != (n, n):
         raise ValueError(f"K0: expected a number, {n} diagonal entries or an {n} x {n} matrix, got shape {K0.shape}")
+    g0, problem = initial_element(system.group, q0)
+    if problem is not None:
+        what = "x0" if x0 is not None else "x0 (the system's initial guess)"
+        raise ValueError(f"{what}: expected the coordinates of an element of {system.group.__name__}, got "
+                         f"{q0.tolist()}; {problem}")
     flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, interpolation=interpolation,
                               substeps=substeps, updates=updates, curvature=curvature)
-    state = flt.init(system.group.from_coords(q0), K0)
+    state = flt.init(g0, K0)
     if gap is None:
         gap = 10.0 * float(np.median(np.diff(log.ts)))
     traj = run_chunked(flt, state, log, gap, chunk, progress)
@@ -597,6 +602,21 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         arrays["measured"] = continuous_angles(measured(log.ys), angles, reference=filt)
     arrays.update({f"plot_{k}": v for k, v in bands.items()})
     return LogRun(**common, metrics=metrics, arrays=arrays, innovation_text=text)
+
+
+def initial_element(G, q0) -> tuple[Any, str | None]:
+    """``(G.from_coords(q0), problem)``: the element of the coordinates ``q0`` and, when it is not finite and on
+    the group (coordinates too large for ``exp``, NaN), what is wrong with it (else None)."""
+    import jax.numpy as jnp
+
+    from .. import _validate
+
+    g0 = G.from_coords(jnp.asarray(q0, dtype=jnp.float64))
+    try:
+        _validate.element("from_coords(x0)", g0, G)
+    except ValueError as err:
+        return g0, str(err)
+    return g0, None
 
 
 def _bad(option: str, message: str) -> ValueError:
@@ -712,6 +732,11 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     for name, value, size in (("--x0", x0, c), ("--k0-diag", K0, n)):
         if value is not None and np.ndim(value) == 1 and np.shape(value) != (size,):
             raise _bad(name, f"expected {size} finite numbers separated by commas, got {len(value)}")
+    if x0 is not None:
+        _, problem = initial_element(source.system.group, np.asarray(x0, dtype=np.float64))
+        if problem is not None:
+            raise _bad("--x0", f"expected the coordinates of an element of {source.system.group.__name__}, got "
+                               f"{np.asarray(x0, dtype=np.float64).tolist()}; {problem}")
     if tum:
         from ..metrics import pose_parts
 

@@ -232,7 +232,9 @@ def measured_state(ys: np.ndarray) -> np.ndarray:
     r2 /= np.linalg.norm(r2, axis=1, keepdims=True)
     rows = np.stack([np.cross(r2, r3), r2, r3], axis=1)
     out = np.full((ys.shape[0], 6), np.nan)
-    out[:, :3] = np.asarray(SO3.from_matrix(rows).log())
+    ok = np.all(np.isfinite(rows), axis=(1, 2))  # a missing direction: NaN coordinates, not a matrix to check
+    if ok.any():
+        out[ok, :3] = np.asarray(SO3.from_matrix(rows[ok]).log())
     return out
 
 
