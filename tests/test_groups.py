@@ -913,3 +913,31 @@ def test_adding_a_group_page_runs_and_prints_what_it_shows(tmp_path, monkeypatch
 
     ns = check_page(Path(__file__).resolve().parents[1] / "docs" / "adding-a-group.md", tmp_path, monkeypatch)
     assert bool(ns["traj"].ok)
+
+
+def _rot(axis, a):
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def test_roll_pitch_yaw_build_rz_ry_rx_and_come_back():
+    """SO3.from_rpy(roll, pitch, yaw) is Rz(yaw) Ry(pitch) Rx(roll), batched, and as_rpy inverts it away from
+    gimbal lock; a rotation about one axis has that angle alone."""
+    rng = np.random.default_rng(7)
+    rpy = np.column_stack([rng.uniform(-np.pi, np.pi, 50), rng.uniform(-1.5, 1.5, 50), rng.uniform(-np.pi, np.pi, 50)])
+    R = SO3.from_rpy(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+    want = np.stack([_rot(2, y) @ _rot(1, p) @ _rot(0, r) for r, p, y in rpy])
+    np.testing.assert_allclose(np.asarray(R.as_matrix()), want, rtol=0, atol=ROUNDOFF)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(R.wxyz), axis=-1), 1.0, rtol=0, atol=ROUNDOFF)
+    np.testing.assert_allclose(np.asarray(R.as_rpy()), rpy, rtol=0, atol=1e-10)
+    for axis in range(3):
+        angles = [0.0, 0.0, 0.0]
+        angles[axis] = 0.3
+        np.testing.assert_allclose(np.asarray(SO3.from_rpy(*angles).log()), np.eye(3)[axis] * 0.3, atol=ROUNDOFF)
+    # a scalar and a batch broadcast; the derivative is finite at the identity
+    assert SO3.from_rpy(0.1, np.zeros(4), 0.2).wxyz.shape == (4, 4)
+    J = jax.jacfwd(lambda a: SO3.from_rpy(a[0], a[1], a[2]).log())(jnp.zeros(3))
+    np.testing.assert_allclose(np.asarray(J), np.eye(3), atol=ROUNDOFF)

@@ -94,6 +94,26 @@ class SO3(LieGroup):
         """From a rotation vector (axis times angle), the same as :meth:`exp`."""
         return cls.exp(q)
 
+    @classmethod
+    def from_rpy(cls, roll, pitch, yaw):
+        r"""From roll, pitch and yaw (rad): $R = R_z(\mathrm{yaw})\,R_y(\mathrm{pitch})\,R_x(\mathrm{roll})$ (body to
+        world; the aerospace z-y-x convention, jaxlie's ``from_rpy_radians``). The three broadcast to a batch;
+        the quaternion is the product of the three axis quaternions, exact and differentiable everywhere."""
+        r, p, y = (as_float_array(a) / 2.0 for a in (roll, pitch, yaw))
+        r, p, y = jnp.broadcast_arrays(r, p, y)
+        cr, sr, cp, sp, cy, sy = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p), jnp.cos(y), jnp.sin(y)
+        return cls(jnp.stack([cy * cp * cr + sy * sp * sr, cy * cp * sr - sy * sp * cr,
+                              cy * sp * cr + sy * cp * sr, sy * cp * cr - cy * sp * sr], axis=-1))
+
+    def as_rpy(self):
+        r"""Roll, pitch and yaw (rad), stacked on the last axis, of
+        $R = R_z(\mathrm{yaw})\,R_y(\mathrm{pitch})\,R_x(\mathrm{roll})$ (:meth:`from_rpy`): roll and yaw in
+        $[-\pi, \pi]$, pitch in $[-\pi/2, \pi/2]$. At pitch $\pm\pi/2$ (gimbal lock) only
+        roll - yaw (or roll + yaw) is defined; the split returned there is arbitrary."""
+        R = self.as_matrix()
+        return jnp.stack([jnp.arctan2(R[..., 2, 1], R[..., 2, 2]), jnp.arcsin(jnp.clip(-R[..., 2, 0], -1.0, 1.0)),
+                          jnp.arctan2(R[..., 1, 0], R[..., 0, 0])], axis=-1)
+
     def compose(self, other):
         """Quaternion product (rotation matrices multiply)."""
         w1, v1 = self.wxyz[..., :1], self.wxyz[..., 1:]

@@ -266,14 +266,6 @@ def _rotation_blocks(G, offset: int = 0) -> list[tuple[int, tuple[int, ...]]]:
     return []
 
 
-def _rpy(R):
-    """Roll, pitch and yaw (rad) of rotation matrices R = Rz(yaw) Ry(pitch) Rx(roll) (body to world)."""
-    import jax.numpy as jnp
-
-    return jnp.stack([jnp.arctan2(R[..., 2, 1], R[..., 2, 2]), jnp.arcsin(jnp.clip(-R[..., 2, 0], -1.0, 1.0)),
-                      jnp.arctan2(R[..., 1, 0], R[..., 0, 0])], axis=-1)
-
-
 def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     """The state components that ``liemef run``'s figure plots, with their standard deviations from K.
 
@@ -304,7 +296,7 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     def plotted(g):
         c = g.coords()
         for off, path in blocks:
-            c = c.at[off:off + 3].set(_rpy(rotation(g, path).as_matrix()))
+            c = c.at[off:off + 3].set(rotation(g, path).as_rpy())
         return c
 
     for j, (off, _) in enumerate(blocks):
@@ -325,7 +317,7 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
         for off, _ in blocks:
             rows = np.isfinite(m[:, off:off + 3]).all(axis=1)
             rv = np.where(rows[:, None], m[:, off:off + 3], 0.0)
-            m[:, off:off + 3] = np.where(rows[:, None], np.asarray(_rpy(SO3.exp(jnp.asarray(rv)).as_matrix())),
+            m[:, off:off + 3] = np.where(rows[:, None], np.asarray(SO3.exp(jnp.asarray(rv)).as_rpy()),
                                          np.nan)
         out["measured"] = continuous_angles(m, angles, reference=values)
     first = G.factor_types[0] if issubclass(G, Product) else G
