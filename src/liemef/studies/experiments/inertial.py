@@ -18,8 +18,9 @@ $g = (0, 0, -9.82)$ m/s^2, ukfm's value (``gravity``).
   $p^+ = p + v\,dt + a_w dt^2/2$ with $a_w = C a + g$. Hence $C_n = I$, $v_0 = v_1 = 0$ (a one-step launch), then
   |v| = 1.0475 m/s.
 * Noise (:class:`Draws`): standard normals from a ``jax.random`` key (:func:`jax_draws`; Monte Carlo, ``vmap``),
-  or ukfm's legacy NumPy stream for ``rng="numpy"`` (:func:`numpy_draws`): with seed k it gives the data of
-  ukfm's run k bit for bit (the initial errors are the scenario's table, a test checks it).
+  or ukfm's legacy NumPy stream for ``rng="numpy"`` (:func:`numpy_draws`): with seed k it draws ukfm's
+  normals of run k in ukfm's order, so the data are ukfm's run k to round-off, not bit for bit (the operations
+  differ in order; the initial errors are the scenario's table to its printed digits, a test checks it).
 * Filter: :func:`~liemef.systems.inertial_navigation` with the landmarks, ukfm's noise levels and gravity. The IMU
   samples of std 0.01 at 100 Hz are the process-noise density; each observation (std 0.1 m) is one sample. Each
   IMU sample is held over its interval, and an observation at $t_n$ acts over $[t_n, t_{n+1}]$, which ukfm

@@ -12,7 +12,7 @@ initial heading error is $\sim N(0, (45°)^2)$; the initial position is exact.
   4000-vertex polygon $p_n = v_x dt \sum_{m<n} (\cos m\omega dt, \sin m\omega dt)$.
 * Noise (:class:`Draws`): standard normals from a ``jax.random`` key (:func:`jax_draws`; Monte Carlo,
   ``vmap``), or ukfm's legacy NumPy stream for ``rng="numpy"`` (:func:`numpy_draws`). With the same seed, the
-  legacy stream gives ukfm's run bit for bit.
+  legacy stream draws ukfm's normals in ukfm's order, so the data are ukfm's run to round-off.
 * Filter: :func:`~liemef.systems.planar_localization` with the scenario's noise levels. The odometry
   samples of std (0.01 m/s, 0.01 m/s, 1 deg/s) at 100 Hz are the process-noise density; each GPS fix
   (std 1 m) is one sample. The engine is the default one: second order, (0)-connection, RKMK4, sub-steps
