@@ -400,3 +400,166 @@ def test_a_huge_k0_fails_as_a_value_that_says_why(tmp_path):
     assert failure["interval"]["K_condition"] > 1e12 and failure["interval"]["gap"] is False
     assert failure["interval"]["samples"]["gps"]["components"] == ["gps_x", "gps_y"]
     assert all(np.isfinite(list(failure["last_good_state"]["coords"].values())))
+
+
+# --- issue 32: the campaign's cluster and the kernel cache -----------------------------------------------------
+# The local cluster of `liemef campaign run` admits only its owner: TLS with credentials made for the run, every
+# server on 127.0.0.1, no dashboard and HTTP servers that serve nothing; a client without the run's credentials,
+# from this process or another, is refused before it can run code. A tls:// scheduler without credentials is a
+# named error.
+INTRUDER = """
+import os, sys
+from dask.distributed import Client, Security
+how, address = sys.argv[1], sys.argv[2]
+kw = {"security": Security.temporary()} if how == "its own credentials" else {}
+client = Client(address.replace("tls://", "tcp://") if how == "plain tcp" else address, timeout="3s", **kw)
+print("RAN CODE IN", client.run(os.getpid), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def campaign_cluster():
+    """The cluster `liemef campaign run` starts (two workers), its client, the ports this process listened on
+    before it, and the workers' pids."""
+    import os
+
+    import psutil
+
+    from liemef.studies.campaign._run import _client
+
+    before = {c.laddr for c in psutil.Process().net_connections("inet") if c.status == psutil.CONN_LISTEN}
+    client, cluster = _client(None, 2)
+    try:
+        yield client, cluster, before, client.run(os.getpid)
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _tls_handshake(port: int, cert: tuple | None = None) -> str:
+    """A TLS connection to ``port`` that checks nothing and presents ``cert`` (files (cert, key)) or none, then
+    sends 8 bytes: how the server cut it (an SSL or connection error; ``"closed"``), or the first byte it sent."""
+    import socket
+    import ssl
+
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+    if cert is not None:
+        ctx.load_cert_chain(*cert)
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
+        try:
+            with ctx.wrap_socket(raw) as tls:
+                tls.sendall(b"\0" * 8)
+                first = tls.recv(1)
+                return f"sent {first!r}" if first else "closed"
+        except (ssl.SSLError, ConnectionError) as err:
+            return f"{type(err).__name__}: {err}"
+
+
+def _port(address: str) -> int:
+    return int(address.rsplit(":", 1)[1])
+
+
+@pytest.mark.parametrize("how", ["no credentials", "its own credentials", "plain tcp"])
+def test_a_client_without_the_runs_credentials_cannot_run_code_in_the_campaigns_cluster(how, campaign_cluster):
+    """Another process connects to the scheduler as a Dask client and asks every worker to run code: refused."""
+    import subprocess
+    import sys
+
+    _, cluster, _, _ = campaign_cluster
+    res = subprocess.run([sys.executable, "-c", INTRUDER, how, cluster.scheduler_address], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 1 and "RAN CODE IN" not in res.stdout, (res.stdout, res.stderr[-2000:])
+    last = res.stderr.strip().splitlines()[-1]
+    assert {"no credentials": "TypeError: TLS expects a `ssl_context`",
+            "its own credentials": "FatalCommClosedError: TLS certificate does not match",
+            "plain tcp": "Connection reset by peer"}[how] in last, last
+
+
+def test_every_server_of_the_campaigns_cluster_refuses_a_stranger(campaign_cluster, tmp_path):
+    """Each of its servers (scheduler, workers, nannies) listens on 127.0.0.1 and refuses a TLS client without a
+    certificate, or with one the run did not make; its HTTP servers serve nothing, dashboard included."""
+    import urllib.error
+    import urllib.request
+
+    import psutil
+    from dask.distributed import Security
+
+    client, cluster, before, pids = campaign_cluster
+    assert cluster.scheduler_address.startswith("tls://127.0.0.1:")
+    comm = [_port(cluster.scheduler_address), *map(_port, pids), *(_port(n.address) for n in cluster.workers.values())]
+    stranger = Security.temporary()
+    (tmp_path / "c.pem").write_text(stranger.tls_client_cert)
+    (tmp_path / "k.pem").write_text(stranger.tls_client_key)
+    for port in comm:
+        for cert in (None, (str(tmp_path / "c.pem"), str(tmp_path / "k.pem"))):
+            said = _tls_handshake(port, cert)
+            assert said.startswith(("SSL", "Connection", "closed")), (port, cert, said)
+    listening = [c.laddr for c in psutil.Process().net_connections("inet")
+                 if c.status == psutil.CONN_LISTEN and c.laddr not in before]
+    listening += [c.laddr for pid in pids.values() for c in psutil.Process(pid).net_connections("inet")
+                  if c.status == psutil.CONN_LISTEN]
+    assert {a.ip for a in listening} == {"127.0.0.1"} and set(comm) <= {a.port for a in listening}
+    answers = []
+    for addr in listening:
+        for path in ("/status", "/info/main/workers.html", "/json/identity.json", "/metrics", "/health"):
+            try:
+                answers.append(urllib.request.urlopen(f"http://127.0.0.1:{addr.port}{path}", timeout=10).status)
+            except urllib.error.HTTPError as err:
+                answers.append(err.code)
+            except (OSError, ValueError):  # a TLS server: the plain request is cut
+                answers.append(None)
+    assert 200 not in answers and 404 in answers, answers
+
+
+def test_the_runs_credentials_connect(campaign_cluster):
+    import os
+
+    from dask.distributed import Client
+
+    client, cluster, _, pids = campaign_cluster
+    with Client(cluster.scheduler_address, security=cluster.security, timeout="20s") as owner:
+        assert owner.run(os.getpid) == pids
+
+
+def test_a_tls_scheduler_without_credentials_is_named_and_with_them_used(campaign_cluster, tmp_path):
+    """--scheduler tls://...: without credentials a CampaignError says how to give them; with the cluster's
+    credentials in Dask's configuration (distributed.comm.tls.*, as files) the client connects."""
+    import os
+
+    import dask
+
+    from liemef.studies.campaign import CampaignError
+    from liemef.studies.campaign._run import _client
+
+    _, cluster, _, pids = campaign_cluster
+    address = cluster.scheduler_address
+    with pytest.raises(CampaignError) as err:
+        _client(address, 1)
+    for words in (f"scheduler: cannot connect to {address!r}", "TypeError", "distributed.comm.tls"):
+        assert words in str(err.value), str(err.value)
+    files = {}
+    for key, text in (("ca-file", cluster.security.tls_ca_file), ("client.cert", cluster.security.tls_client_cert),
+                      ("client.key", cluster.security.tls_client_key)):
+        files[f"distributed.comm.tls.{key}"] = str(tmp_path / key)
+        (tmp_path / key).write_text(text)
+    with dask.config.set(files):
+        client, none = _client(address, 1)
+    try:
+        assert none is None and client.run(os.getpid) == pids
+    finally:
+        client.close()
+
+
+def test_the_cli_names_a_tls_scheduler_it_cannot_use(campaign_cluster, tmp_path):
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+    from test_campaign import toml_text
+
+    (tmp_path / "c.toml").write_text(toml_text(tmp_path / "out"))
+    address = campaign_cluster[1].scheduler_address
+    res = CliRunner().invoke(cli, ["campaign", "run", str(tmp_path / "c.toml"), "--scheduler", address,
+                                   "--no-progress"])
+    assert res.exit_code == 1 and isinstance(res.exception, SystemExit), res.output
+    assert f"scheduler: cannot connect to {address!r}" in res.output and "Traceback" not in res.output
