@@ -216,6 +216,16 @@ CLOSED_HTTP = {"distributed.scheduler.http.routes": [], "distributed.worker.http
 dashboard, serving task lists, logs and metrics to anyone who connects) serve nothing."""
 
 
+QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
+"""A warning filter (``-W``) for the resource tracker, the process multiprocessing starts beside the client
+to remove the semaphores of the cluster's nannies if the client cannot. A client killed by SIGKILL leaves
+them to it, and it removes them, but would also print ``UserWarning: resource_tracker: There appear to be 12
+leaked semaphore objects to clean up at shutdown`` with a line of its source on the terminal, in the middle
+of the next run: noise about a kill the resumed run already reports (it takes over the killed client's
+lock and says so). multiprocessing gives the tracker the client's ``sys.warnoptions``; this one silences
+that warning there and nothing else."""
+
+
 def _local_cluster(workers: int):
     """A ``LocalCluster`` of ``workers`` single-threaded processes that admits only this run: every server on
     127.0.0.1, speaking TLS with credentials made for the run (``Security.temporary()``: a key and a
@@ -230,6 +240,8 @@ def _local_cluster(workers: int):
     except ImportError as err:  # cryptography: a dependency of liemef's, missing from this environment
         raise CampaignError(f"the local cluster's TLS credentials cannot be made: {err}; install the package "
                             "cryptography (pip install cryptography) into this environment") from None
+    if QUIET_TRACKER not in sys.warnoptions:  # before the cluster's first semaphore starts the tracker
+        sys.warnoptions.append(QUIET_TRACKER)
     with dask.config.set(CLOSED_HTTP):  # read by the scheduler here and by each nanny for its workers
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                             security=security, dashboard_address=None,
