@@ -76,3 +76,33 @@ def test_a_killed_clients_lock_is_taken_over_and_the_run_says_so(tmp_path, capsy
     assert lock.note is None
     lock.release()
     lock.release()  # idempotent
+
+
+CLUSTER = """
+import time
+from liemef.studies.campaign._run import _client
+client, cluster = _client(None, 1)
+print("up", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_killed_clients_cluster_says_nothing_on_the_terminal(tmp_path):
+    """A client killed by SIGKILL with its local cluster up: its processes end, and the resource tracker that
+    removes the semaphores it left prints nothing (it printed a UserWarning with a line of its source, which
+    showed up in the middle of the resumed run)."""
+    import psutil
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([SRC] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+    with open(tmp_path / "stderr.txt", "w") as err:  # the terminal both the client and its tracker write to
+        proc = subprocess.Popen([sys.executable, "-c", CLUSTER], stdout=subprocess.PIPE, stderr=err, text=True,
+                                env=env)
+        assert proc.stdout.readline().strip() == "up"
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert any("resource_tracker" in " ".join(c.cmdline()) for c in children)  # the case this test is about
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        gone, alive = psutil.wait_procs(children, timeout=60)  # the workers exit, then the tracker cleans up
+        assert not alive, alive
+    said = (tmp_path / "stderr.txt").read_text()
+    assert said == "", said

@@ -660,3 +660,320 @@ def test_cli_run_refuses_an_x0_off_the_group(tmp_path):
     assert res.exit_code == 2 and "Traceback" not in res.output, res.output
     assert "Invalid value for '--x0': expected the coordinates of an element of SE3, got [1e+300" in res.output
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+# --- issue 32: the campaign's cluster and the kernel cache -----------------------------------------------------
+# The local cluster of `liemef campaign run` admits only its owner: TLS with credentials made for the run, every
+# server on 127.0.0.1, no dashboard and HTTP servers that serve nothing; a client without the run's credentials,
+# from this process or another, is refused before it can run code. A tls:// scheduler without credentials is a
+# named error. A cached kernel library damaged with its manifest rewritten to match is named in an EngineWarning
+# and rebuilt, never mapped (a library cut short used to kill the process with SIGBUS); a system whose libraries
+# the cache cannot check is refused by name.
+INTRUDER = """
+import os, sys
+from dask.distributed import Client, Security
+how, address = sys.argv[1], sys.argv[2]
+kw = {"security": Security.temporary()} if how == "its own credentials" else {}
+client = Client(address.replace("tls://", "tcp://") if how == "plain tcp" else address, timeout="3s", **kw)
+print("RAN CODE IN", client.run(os.getpid), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def campaign_cluster():
+    """The cluster `liemef campaign run` starts (two workers), its client, the ports this process listened on
+    before it, and the workers' pids."""
+    import os
+
+    import psutil
+
+    from liemef.studies.campaign._run import _client
+
+    before = {c.laddr for c in psutil.Process().net_connections("inet") if c.status == psutil.CONN_LISTEN}
+    client, cluster = _client(None, 2)
+    try:
+        yield client, cluster, before, client.run(os.getpid)
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _tls_handshake(port: int, cert: tuple | None = None) -> str:
+    """A TLS connection to ``port`` that checks nothing and presents ``cert`` (files (cert, key)) or none, then
+    sends 8 bytes: how the server cut it (an SSL or connection error; ``"closed"``), or the first byte it sent."""
+    import socket
+    import ssl
+
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+    if cert is not None:
+        ctx.load_cert_chain(*cert)
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
+        try:
+            with ctx.wrap_socket(raw) as tls:
+                tls.sendall(b"\0" * 8)
+                first = tls.recv(1)
+                return f"sent {first!r}" if first else "closed"
+        except (ssl.SSLError, ConnectionError) as err:
+            return f"{type(err).__name__}: {err}"
+
+
+def _port(address: str) -> int:
+    return int(address.rsplit(":", 1)[1])
+
+
+@pytest.mark.parametrize("how", ["no credentials", "its own credentials", "plain tcp"])
+def test_a_client_without_the_runs_credentials_cannot_run_code_in_the_campaigns_cluster(how, campaign_cluster):
+    """Another process connects to the scheduler as a Dask client and asks every worker to run code: refused."""
+    import subprocess
+    import sys
+
+    _, cluster, _, _ = campaign_cluster
+    res = subprocess.run([sys.executable, "-c", INTRUDER, how, cluster.scheduler_address], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 1 and "RAN CODE IN" not in res.stdout, (res.stdout, res.stderr[-2000:])
+    last = res.stderr.strip().splitlines()[-1]
+    assert {"no credentials": "TypeError: TLS expects a `ssl_context`",
+            "its own credentials": "FatalCommClosedError: TLS certificate does not match",
+            "plain tcp": "Connection reset by peer"}[how] in last, last
+
+
+def test_every_server_of_the_campaigns_cluster_refuses_a_stranger(campaign_cluster, tmp_path):
+    """Each of its servers (scheduler, workers, nannies) listens on 127.0.0.1 and refuses a TLS client without a
+    certificate, or with one the run did not make; its HTTP servers serve nothing, dashboard included."""
+    import urllib.error
+    import urllib.request
+
+    import psutil
+    from dask.distributed import Security
+
+    client, cluster, before, pids = campaign_cluster
+    assert cluster.scheduler_address.startswith("tls://127.0.0.1:")
+    comm = [_port(cluster.scheduler_address), *map(_port, pids), *(_port(n.address) for n in cluster.workers.values())]
+    stranger = Security.temporary()
+    (tmp_path / "c.pem").write_text(stranger.tls_client_cert)
+    (tmp_path / "k.pem").write_text(stranger.tls_client_key)
+    for port in comm:
+        for cert in (None, (str(tmp_path / "c.pem"), str(tmp_path / "k.pem"))):
+            said = _tls_handshake(port, cert)
+            assert said.startswith(("SSL", "Connection", "closed")), (port, cert, said)
+    listening = [c.laddr for c in psutil.Process().net_connections("inet")
+                 if c.status == psutil.CONN_LISTEN and c.laddr not in before]
+    listening += [c.laddr for pid in pids.values() for c in psutil.Process(pid).net_connections("inet")
+                  if c.status == psutil.CONN_LISTEN]
+    assert {a.ip for a in listening} == {"127.0.0.1"} and set(comm) <= {a.port for a in listening}
+    answers = []
+    for addr in listening:
+        for path in ("/status", "/info/main/workers.html", "/json/identity.json", "/metrics", "/health"):
+            try:
+                answers.append(urllib.request.urlopen(f"http://127.0.0.1:{addr.port}{path}", timeout=10).status)
+            except urllib.error.HTTPError as err:
+                answers.append(err.code)
+            except (OSError, ValueError):  # a TLS server: the plain request is cut
+                answers.append(None)
+    assert 200 not in answers and 404 in answers, answers
+
+
+def test_the_runs_credentials_connect(campaign_cluster):
+    import os
+
+    from dask.distributed import Client
+
+    client, cluster, _, pids = campaign_cluster
+    with Client(cluster.scheduler_address, security=cluster.security, timeout="20s") as owner:
+        assert owner.run(os.getpid) == pids
+
+
+def test_a_tls_scheduler_without_credentials_is_named_and_with_them_used(campaign_cluster, tmp_path):
+    """--scheduler tls://...: without credentials a CampaignError says how to give them; with the cluster's
+    credentials in Dask's configuration (distributed.comm.tls.*, as files) the client connects."""
+    import os
+
+    import dask
+
+    from liemef.studies.campaign import CampaignError
+    from liemef.studies.campaign._run import _client
+
+    _, cluster, _, pids = campaign_cluster
+    address = cluster.scheduler_address
+    with pytest.raises(CampaignError) as err:
+        _client(address, 1)
+    for words in (f"scheduler: cannot connect to {address!r}", "TypeError", "distributed.comm.tls"):
+        assert words in str(err.value), str(err.value)
+    files = {}
+    for key, text in (("ca-file", cluster.security.tls_ca_file), ("client.cert", cluster.security.tls_client_cert),
+                      ("client.key", cluster.security.tls_client_key)):
+        files[f"distributed.comm.tls.{key}"] = str(tmp_path / key)
+        (tmp_path / key).write_text(text)
+    with dask.config.set(files):
+        client, none = _client(address, 1)
+    try:
+        assert none is None and client.run(os.getpid) == pids
+    finally:
+        client.close()
+
+
+def test_the_cli_names_a_tls_scheduler_it_cannot_use(campaign_cluster, tmp_path):
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+    from test_campaign import toml_text
+
+    (tmp_path / "c.toml").write_text(toml_text(tmp_path / "out"))
+    address = campaign_cluster[1].scheduler_address
+    res = CliRunner().invoke(cli, ["campaign", "run", str(tmp_path / "c.toml"), "--scheduler", address,
+                                   "--no-progress"])
+    assert res.exit_code == 1 and isinstance(res.exception, SystemExit), res.output
+    assert f"scheduler: cannot connect to {address!r}" in res.output and "Traceback" not in res.output
+
+
+def _small_library(root) -> bytes:
+    """A small genuine shared library (one function), as the C compiler makes it."""
+    import subprocess
+
+    from liemef import codegen
+
+    if codegen.compiler() is None:
+        pytest.skip("no C compiler ($CC, cc, gcc or clang)")
+    (root / "small.c").write_text("int small(int x) { return x + 1; }\n")
+    subprocess.run([codegen.compiler(), "-shared", "-fPIC", "-o", str(root / "small.so"), str(root / "small.c")],
+                   check=True)
+    return (root / "small.so").read_bytes()
+
+
+def _patched(data: bytes, how: str) -> bytes:
+    """``data`` (a genuine 64-bit little-endian ELF library) damaged as ``how`` says."""
+    import struct
+
+    b = bytearray(data)
+    phoff, phnum = struct.unpack_from("<Q", b, 32)[0], struct.unpack_from("<H", b, 56)[0]
+    phdrs = [(phoff + 56 * i, struct.unpack_from("<I", b, phoff + 56 * i)[0]) for i in range(phnum)]
+    if how == "cut to 4 KiB":
+        return bytes(b[:4096])
+    if how == "cut by its last byte":
+        return bytes(b[:-1])
+    if how == "another machine's":
+        struct.pack_into("<H", b, 18, 183 if struct.unpack_from("<H", b, 18)[0] != 183 else 62)
+    elif how == "an executable":
+        struct.pack_into("<H", b, 16, 2)
+    elif how == "32-bit":
+        b[4] = 1
+    elif how == "big-endian":
+        b[5] = 2
+    elif how == "a segment past the end":  # the last PT_LOAD's file and memory sizes made the file's size
+        at = [at for at, kind in phdrs if kind == 1][-1]
+        struct.pack_into("<QQ", b, at + 32, len(b), len(b))
+    elif how == "no dynamic segment":
+        struct.pack_into("<I", b, next(at for at, kind in phdrs if kind == 2), 0)
+    elif how == "a string table outside":
+        at = next(at for at, kind in phdrs if kind == 2)
+        offset, size = struct.unpack_from("<Q", b, at + 8)[0], struct.unpack_from("<Q", b, at + 32)[0]
+        entry = next(e for e in range(offset, offset + size, 16) if struct.unpack_from("<q", b, e)[0] == 5)
+        struct.pack_into("<Q", b, entry + 8, 1 << 40)
+    elif how == "not an ELF file":
+        b[:4] = b"MZ\x90\x00"
+    return bytes(b)
+
+
+DAMAGE = {"cut to 4 KiB": r"segment 1 \(PT_LOAD\) ends at byte \d+, past the end of the file \(4096 bytes\)",
+          "cut by its last byte": r"its section header table \(bytes \d+ to \d+\) ends past the end of the file",
+          "another machine's": r"built for (AArch64 \(e_machine 183\)|x86-64 \(e_machine 62\)), not for this machine",
+          "an executable": r"not a shared library \(e_type 2, expected ET_DYN = 3\)",
+          "32-bit": r"not a 64-bit ELF file \(EI_CLASS 1\)",
+          "big-endian": r"not a little-endian ELF file \(EI_DATA 2\)",
+          "a segment past the end": r"segment \d+ \(PT_LOAD\) ends at byte \d+, past the end of the file",
+          "no dynamic segment": r"0 dynamic segments \(PT_DYNAMIC\), expected 1",
+          "a string table outside": r"its dynamic section's DT_STRTAB \(address 0x10000000000, \d+ bytes\) lies "
+                                    r"outside the file part",
+          "not an ELF file": r"not an ELF file \(it starts with b'MZ\\x90\\x00'"}
+
+
+@pytest.mark.parametrize("how", sorted(DAMAGE))
+def test_a_damaged_library_with_a_matching_manifest_is_named_and_never_loaded(how, tmp_path):
+    """Damaged as the user's own files can be (the manifest rewritten to match): read_verified names the file
+    and the defect in an EngineWarning and gives None (the caller rebuilds); load refuses the bytes before they
+    are written or mapped."""
+    from liemef.codegen import _cache, _elf
+    from liemef.engines import EngineWarning
+
+    data = _small_library(tmp_path)
+    assert _elf.defect(data) is None
+    cache = tmp_path / "cache"
+    cache.mkdir(mode=0o700)
+    lib = _cache.install(cache / "kernel_x.so", _patched(data, how), "k", "kernel", {})
+    with pytest.warns(EngineWarning, match=rf"the cached library {re.escape(str(lib.path))} matches its manifest "
+                                           rf"but cannot be loaded: {DAMAGE[how]}.*It is rebuilt"):
+        assert _cache.read_verified(lib.path, "k", "kernel") is None
+    with pytest.raises(RuntimeError, match=rf"{re.escape(str(lib.path))}: not loaded: {DAMAGE[how]}"):
+        _cache.load(lib)
+    assert sorted(p.name for p in cache.iterdir()) == ["kernel_x.json", "kernel_x.so"]  # no private copy made
+
+
+def test_a_cut_kernel_cache_warns_and_rebuilds_in_liemef_run(tmp_path, monkeypatch):
+    """The issue's case through the CLI: every cached library of `liemef run`'s filter cut to 4 KiB and its
+    manifest rewritten to match. The next `liemef run` (a process of its own: a SIGBUS kills it, not pytest)
+    exits 0 with the same estimate, an EngineWarning naming each library and its defect, and rebuilds them."""
+    import hashlib
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from liemef.codegen import _cache, _kernel
+
+    _small_library(tmp_path)  # skips without a compiler
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("LIEMEF_CACHE_DIR", str(cache))
+    monkeypatch.setenv("LIEMEF_ENGINE", "c")
+    monkeypatch.setattr(_kernel, "_KERNELS", {})
+    _hostile_log(tmp_path / "log.csv", outlier=False)
+    want = _filter(tmp_path / "log.csv")  # the kernels of `liemef run`'s filter, built here
+    for kern in _kernel._KERNELS.values():
+        kern.wait()
+    libs = sorted(cache.glob("*.so"))
+    assert [p.name.split("_")[0] for p in libs] == ["kernel", "quick"]
+    genuine = {p: p.read_bytes() for p in libs}
+    for lib in libs:
+        data = lib.read_bytes()[:4096]
+        lib.write_bytes(data)
+        man = json.loads(_cache.manifest_path(lib).read_text())
+        man.update(size=len(data), sha256=hashlib.sha256(data).hexdigest())
+        _cache.manifest_path(lib).write_text(json.dumps(man))
+    env = dict(os.environ, LIEMEF_CACHE_DIR=str(cache), LIEMEF_ENGINE="c",
+               PYTHONPATH=os.pathsep.join([str(Path(liemef.__file__).resolve().parents[1]),
+                                           *[p for p in [os.environ.get("PYTHONPATH")] if p]]))
+    res = subprocess.run([sys.executable, "-m", "liemef", "run", "--system", "localization", "--log",
+                          str(tmp_path / "log.csv"), "--out", str(tmp_path / "o"), "--x0", "0,0,0", "--updates",
+                          "discrete", "--no-progress"], capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, (res.returncode, res.stderr[-3000:])
+    for lib in libs:
+        assert re.search(rf"EngineWarning: the cached library {re.escape(str(lib))} matches its manifest but cannot "
+                         r"be loaded: segment \d+ \(PT_LOAD\) ends at byte \d+, past the end of the file \(4096 "
+                         r"bytes\)\. It is rebuilt", res.stderr), res.stderr[-3000:]
+        assert lib.read_bytes() == genuine[lib]  # rebuilt, byte for byte
+    got = np.load(tmp_path / "o" / "arrays.npz")["filtered"]  # the estimate, by the rebuilt kernels
+    np.testing.assert_array_equal(got, np.asarray(want.trajectory.coords()))  # C's quick and -O2: bit for bit
+
+
+def test_a_system_whose_libraries_the_cache_cannot_check_is_refused_by_name(monkeypatch):
+    """On a machine the ELF check does not know, the C engine refuses before building anything: "auto" warns
+    and runs XLA, "c" raises, each naming the machine."""
+    import platform
+
+    from liemef.codegen import _elf, _kernel
+    from liemef.engines import EngineWarning
+
+    monkeypatch.setattr(platform, "machine", lambda: "ppc64le")
+    monkeypatch.setattr(_kernel, "_KERNELS", {})
+    with pytest.raises(RuntimeError, match=r"the C engine loads ELF libraries on 64-bit Linux for x86-64 and AArch64 "
+                                           r"only; this is linux on ppc64le"):
+        _elf.host()
+    flt = liemef.MinimumEnergyFilter(_tiny_system())
+    state, ts, us, ys = flt.init(Rn[2](jnp.zeros(2)), np.eye(2)), np.arange(3.0), np.zeros((3, 1)), np.ones((3, 1))
+    with pytest.warns(EngineWarning, match=r"the C engine is not available .*this is linux on ppc64le.*running with "
+                                           r"XLA"):
+        auto = flt.run(state, ts, us, ys, engine="auto")
+    np.testing.assert_array_equal(np.asarray(auto.K), np.asarray(flt.run(state, ts, us, ys, engine="xla").K))
+    with pytest.raises(RuntimeError, match="ppc64le"):
+        liemef.MinimumEnergyFilter(_tiny_system()).run(state, ts, us, ys, engine="c")

@@ -10,6 +10,7 @@ it is read. Without a C compiler, ``engine="auto"`` warns and runs XLA.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -27,7 +28,7 @@ import pytest
 
 import liemef
 from liemef import codegen
-from liemef.codegen import _cache, _kernel
+from liemef.codegen import _cache, _elf, _kernel
 from liemef.engines import EngineWarning
 from liemef.groups import Rn
 from liemef.systems import Noise, Sensor, SensorSystem
@@ -150,6 +151,10 @@ def _plant(case: str, cache: Path, other: Path, constructor: Path) -> list[str]:
             data = libs[kind].read_bytes()
             libs[kind].write_bytes(data[:len(data) // 2])
         return ["kernel", "lanes"]
+    if case == "truncated with a matching manifest":  # cut to 4 KiB, the manifest rewritten to match (SIGBUS before)
+        for lib in libs.values():
+            _cut_and_vouch(lib, 4096)
+        return list(libs)
     if case == "zero bytes":
         for kind in ("kernel", "lanes"):
             libs[kind].write_bytes(b"")
@@ -170,8 +175,17 @@ def _plant(case: str, cache: Path, other: Path, constructor: Path) -> list[str]:
     raise AssertionError(case)
 
 
-CASES = ["constructor", "constructor without manifests", "truncated", "zero bytes", "random bytes",
-         "another filter's kernel"]
+def _cut_and_vouch(lib: Path, size: int) -> None:
+    """Cut the library at ``lib`` to ``size`` bytes and rewrite its manifest to match (the user's own files)."""
+    data = lib.read_bytes()[:size]
+    lib.write_bytes(data)
+    man = json.loads(_cache.manifest_path(lib).read_text())
+    man.update(size=len(data), sha256=hashlib.sha256(data).hexdigest())
+    _cache.manifest_path(lib).write_text(json.dumps(man))
+
+
+CASES = ["constructor", "constructor without manifests", "truncated", "truncated with a matching manifest",
+         "zero bytes", "random bytes", "another filter's kernel"]
 
 
 @pytest.fixture(scope="module")
@@ -215,11 +229,27 @@ def test_a_planted_library_is_never_run_or_used_and_is_rebuilt(case, planted, co
     for key, ref in (("x", x.g_hat.x), ("K", x.K), ("xb", xb.g_hat.x), ("Kb", xb.K)):
         np.testing.assert_allclose(np.array(got[key]), np.asarray(ref), rtol=0, atol=ENGINES)
     assert got["quick_first"] == ("kernel" in kinds)  # a refused -O2 kernel: built again, a quick one serving
+    if case == "truncated with a matching manifest":  # each named, with its defect, and rebuilt
+        for lib in _libraries(cache).values():
+            assert re.search(rf"EngineWarning: the cached library {re.escape(str(lib))} matches its manifest but "
+                             r"cannot be loaded: segment \d+ \(PT_LOAD\) ends at byte \d+, past the end of the "
+                             r"file \(4096 bytes\)\. It is rebuilt", res.stderr), res.stderr[-3000:]
     for kind, lib in _libraries(cache).items():  # each planted file rebuilt: it passes its check again
         assert _cache.read_verified(lib, json.loads(_cache.manifest_path(lib).read_text())["key"], kind) is not None
         assert lib.read_bytes() == want[kind]  # the very bytes of the genuine build (builds are reproducible)
         assert stat.S_IMODE(lib.stat().st_mode) == 0o600
     assert not [p for p in cache.iterdir() if p.name.startswith(".")]  # no build folder or loaded copy left
+
+
+def test_every_cut_of_a_genuine_library_is_refused_before_it_is_mapped(planted):
+    """The ELF check passes the three libraries a build makes and refuses each of them cut at every length
+    (a library cut short would raise SIGBUS once mapped), naming the defect."""
+    want = planted[CASES[0]][2]
+    for kind, data in want.items():
+        assert _elf.defect(data) is None, kind
+        cuts = [_elf.defect(data[:n]) for n in range(len(data))]
+        assert all(cuts), (kind, cuts.index(None))
+        assert any("past the end of the file" in why for why in cuts)
 
 
 def test_a_new_cache_folder_is_private(tmp_path, monkeypatch):
@@ -311,12 +341,22 @@ def test_a_safe_parent_with_the_sticky_bit_is_accepted(tmp_path):
     assert why is None and real == (parent / "kernels").resolve()
 
 
-def test_links_fifos_and_foreign_files_fail_the_check(tmp_path, monkeypatch):
+@pytest.fixture(scope="module")
+def small_library(tmp_path_factory) -> bytes:
+    """The bytes of a small genuine shared library (one function), as the compiler makes it."""
+    root = tmp_path_factory.mktemp("small")
+    (root / "small.c").write_text("int small(int x) { return x + 1; }\n")
+    subprocess.run([codegen.compiler(), "-shared", "-fPIC", "-o", str(root / "small.so"), str(root / "small.c")],
+                   check=True)
+    return (root / "small.so").read_bytes()
+
+
+def test_links_fifos_and_foreign_files_fail_the_check(tmp_path, monkeypatch, small_library):
     """read_verified opens without following a link and without blocking on a FIFO, and takes only the
     user's regular files: each of these makes a library that is rebuilt, never read."""
     cache = tmp_path / "c"
     cache.mkdir(mode=0o700)
-    good = _cache.install(cache / "kernel_x.so", b"\x7fELF genuine bytes", "k", "kernel", {})
+    good = _cache.install(cache / "kernel_x.so", small_library, "k", "kernel", {})
     assert _cache.read_verified(good.path, "k", "kernel") == good
     assert _cache.read_verified(good.path, "other key", "kernel") is None
     assert _cache.read_verified(good.path, "k", "lanes") is None

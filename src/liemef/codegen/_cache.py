@@ -1,5 +1,5 @@
-r"""The C engine's kernel cache on disk: a private folder, every library checked against its manifest before it
-is loaded, and loaded from the very bytes that were checked.
+r"""The C engine's kernel cache on disk: a private folder, every library checked against its manifest and for its
+own structure before it is loaded, and loaded from the very bytes that were checked.
 
 A kernel's file name is a hash of public inputs (the jaxpr, the compiler, its flags), so anyone can predict
 it. What keeps a file planted there from running in the user's process:
@@ -14,14 +14,21 @@ it. What keeps a file planted there from running in the user's process:
   (a regular file of the user's, opened without following links) and its manifest into memory, and returns
   the bytes only if everything matches. A missing, truncated, zero-byte or foreign file, or another filter's
   kernel at the name, does not match: the caller rebuilds it.
-* **What is loaded is what was checked.** :func:`load` writes the checked bytes into a fresh private file
-  (0600, in the private folder) and hands *that* to ``dlopen``, then removes it. Nobody can change the cache's
-  file between the check and the load; nothing that failed its check is ever mapped, so a truncated library
-  cannot raise SIGBUS.
+* **Every library is checked as a library.** A manifest can be rewritten to match a damaged file (it is the
+  user's own file), and a library cut short with a matching manifest would pass: the dynamic loader maps its
+  segments past the end of the file, and the first touch of them kills the process with SIGBUS, without a
+  word. So :func:`read_verified` also checks the bytes' ELF structure (:func:`._elf.defect`: the header, this
+  machine, every segment, table and section inside the file); a library that fails is not loaded but rebuilt,
+  with an :class:`EngineWarning` naming the file and the defect.
+* **What is loaded is what was checked.** :func:`load` checks the bytes' ELF structure once more, writes them
+  into a fresh private file (0600, in the private folder) and hands *that* to ``dlopen``, then removes it.
+  Nobody can change the cache's file between the check and the load, and nothing that fails a check is
+  mapped: a library damaged in any way that leaves its segments short of their bytes is refused, not loaded.
 
 The manifest guards integrity (a partial write, a killed build, a disk error, a misplaced file), not
-authenticity: whoever can write to the user's cache folder as the user can also write a matching manifest.
-The folder check keeps everyone else out; see ``docs/engines.md`` for the threat model.
+authenticity: whoever can write to the user's cache folder as the user can also write a matching manifest,
+and a library that passes every check can still do anything once loaded. The folder check keeps everyone else
+out; see ``docs/engines.md`` for the threat model.
 """
 
 from __future__ import annotations
@@ -39,6 +46,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import _elf
+
 MANIFEST_FORMAT = 1
 """The manifest's format number (a manifest of another format does not match: the library is rebuilt)."""
 
@@ -48,8 +57,9 @@ MAX_LIBRARY_BYTES = 1 << 30
 
 class EngineWarning(UserWarning):
     """The C engine could not serve as asked: ``"auto"`` could not build a kernel (no C compiler, a primitive
-    the translator has no C for) and runs with XLA, or the kernel cache folder was refused and kernels are
-    built, uncached, in a private temporary folder."""
+    the translator has no C for) and runs with XLA, the kernel cache folder was refused and kernels are
+    built, uncached, in a private temporary folder, or a cached library that matches its manifest is not a
+    whole library for this machine and is rebuilt."""
 
 
 @dataclass(frozen=True)
@@ -191,9 +201,11 @@ def _read_private(path: Path, limit: int) -> bytes | None:
 
 
 def read_verified(lib: Path, key: str, kind: str) -> Library | None:
-    """The library at ``lib`` with its bytes, if its manifest vouches for them: the manifest names this file,
-    this filter's ``key`` and this ``kind``, and the bytes have its size and SHA-256. None otherwise (missing,
-    truncated, zero bytes, changed, another filter's, not the user's): never loaded, to be rebuilt."""
+    """The library at ``lib`` with its bytes, if its manifest vouches for them and they are a whole library for
+    this machine: the manifest names this file, this filter's ``key`` and this ``kind``, the bytes have its size
+    and SHA-256, and their ELF structure is sound (:func:`._elf.defect`). None otherwise (missing, truncated,
+    zero bytes, changed, another filter's, not the user's, or a damaged library with a manifest to match, which
+    an :class:`EngineWarning` names with its defect, once per file and content): never loaded, to be rebuilt."""
     raw = _read_private(manifest_path(lib), 1 << 16)
     if raw is None:
         return None
@@ -211,7 +223,19 @@ def read_verified(lib: Path, key: str, kind: str) -> Library | None:
     data = _read_private(lib, size)
     if data is None or len(data) != size or hashlib.sha256(data).hexdigest() != man.get("sha256"):
         return None
+    why = _elf.defect(data)
+    if why is not None:
+        with _LOCK:
+            seen = (str(lib), man.get("sha256")) in _DAMAGED
+            _DAMAGED.add((str(lib), man.get("sha256")))
+        if not seen:
+            warnings.warn(f"the cached library {lib} matches its manifest but cannot be loaded: {why}. It is "
+                          "rebuilt", EngineWarning, stacklevel=2)
+        return None
     return Library(lib, data)
+
+
+_DAMAGED: set[tuple[str, str]] = set()  # (library, SHA-256) already named by read_verified's warning
 
 
 def install(lib: Path, data: bytes, key: str, kind: str, about: dict) -> Library:
@@ -245,15 +269,29 @@ def dlopen(path: str | os.PathLike):
     return ctypes.CDLL(os.fspath(path))
 
 
-def load(lib: Library):
-    """``dlopen`` the checked bytes of ``lib``: a fresh private copy of them (0600, a name used once, in the
-    library's checked folder) is loaded and removed, so that what is mapped is what was checked. (Not a Linux
-    memory file: ``/proc/self/fd/N`` names are reused, and the dynamic loader takes a library whose name it has
-    loaded before for that one.)"""
+def _private_copy(lib: Library) -> str:
+    """A fresh private file (0600, a name used once, in the library's checked folder) holding the checked bytes
+    of ``lib``, after a last check of their ELF structure (RuntimeError naming the file and the defect)."""
+    why = _elf.defect(lib.data)
+    if why is not None:
+        raise RuntimeError(f"{lib.path}: not loaded: {why}")
     fd, tmp = tempfile.mkstemp(dir=lib.path.parent, prefix=f".load.{os.getpid()}.{next(_LOADS)}.", suffix=".so")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(lib.data)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def load(lib: Library):
+    """``dlopen`` the checked bytes of ``lib``: a fresh private copy of them (:func:`_private_copy`, which checks
+    their ELF structure once more) is loaded and removed, so that what is mapped is what was checked. (Not a
+    Linux memory file: ``/proc/self/fd/N`` names are reused, and the dynamic loader takes a library whose name
+    it has loaded before for that one.)"""
+    tmp = _private_copy(lib)
+    try:
         return dlopen(tmp)
     finally:
         Path(tmp).unlink(missing_ok=True)
@@ -265,10 +303,8 @@ def load_module(lib: Library, name: str):
     import importlib.machinery
     import importlib.util
 
-    fd, tmp = tempfile.mkstemp(dir=lib.path.parent, prefix=f".load.{os.getpid()}.{next(_LOADS)}.", suffix=".so")
+    tmp = _private_copy(lib)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(lib.data)
         loader = importlib.machinery.ExtensionFileLoader(name, tmp)
         module = importlib.util.module_from_spec(importlib.util.spec_from_file_location(name, tmp, loader=loader))
         loader.exec_module(module)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _cache
+from . import _cache, _elf
 from ._export import compiler, run_compiler
 
 FALLBACK = -1000
@@ -69,6 +69,7 @@ def _library() -> _cache.Library:
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
+    _elf.host()  # as for the kernels: a system whose libraries the cache cannot check is refused by name
     include = sysconfig.get_paths()["include"]
     if not Path(include, "Python.h").is_file():
         raise RuntimeError(f"no Python.h in {include}")

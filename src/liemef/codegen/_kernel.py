@@ -53,7 +53,7 @@ import numpy as np
 
 from .. import _side, _validate
 from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
-from . import _cache, _fast
+from . import _cache, _elf, _fast
 from ._cache import Library, cache_dir
 from ._export import _dce, compiler, run_compiler
 from ._fast import FALLBACK
@@ -449,6 +449,7 @@ def _library(tr: _Traced, flags, kind: str) -> Path:
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
+    _elf.host()  # a system whose libraries the cache cannot check: refused by name, before anything is built
     parts = [tr.key, cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
         ([_host()] if "-march=native" in flags else [])
     return _cache.folder() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"

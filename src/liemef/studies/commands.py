@@ -274,7 +274,9 @@ CAMPAIGN_RUN = Command(
     SIGTERM): run the same command again to resume.""", (
         CAMPAIGN_FILE, CAMPAIGN_OUT,
         option("--scheduler", metavar="tcp://HOST:PORT",
-               help="Use this running Dask scheduler and its workers (default: a local cluster)."),
+               help="Use this running Dask scheduler and its workers, as given (tls://HOST:PORT: with the "
+                    "credentials of Dask's configuration; docs/campaigns.md). Default: a local cluster that "
+                    "admits only this run (TLS with credentials made for it, on 127.0.0.1, no dashboard)."),
         option("--workers", type=at_least(1), default=2, show_default=True,
                help="Worker processes of the local cluster (one thread each)."),
         progress("Tasks done, trial-steps/s and time left on stderr.")))

@@ -6,6 +6,10 @@ already holds (:class:`~liemef.studies.campaign.Store`), submits the others to a
 arrives, and when every task is finished assembles one :class:`~liemef.studies.experiments.MonteCarloResult` per
 setting and the campaign's table.
 
+Security: the local cluster admits only this run (:func:`_local_cluster`: TLS with credentials made for the
+run, every server on 127.0.0.1, no dashboard); an existing scheduler is used as given, and its owner decides
+who may connect to it (``docs/campaigns.md``).
+
 Faults: a worker that dies takes its running tasks with it; the scheduler runs them again on another worker
 (Dask's ``allowed-failures``, 3 by default, bounds how many worker deaths one task may cause). A task that
 raises is tried once more (``retries=1``), then the campaign stops with a :class:`CampaignError` naming the
@@ -186,19 +190,63 @@ class CampaignResult:
 
 
 def _client(scheduler: str | None, workers: int):
-    """A Dask client: of the scheduler at ``scheduler`` (unchanged), else of a new ``LocalCluster`` of
-    ``workers`` single-threaded processes (its dashboard on a free port). Returns ``(client, cluster or None)``."""
-    from dask.distributed import Client, LocalCluster
+    """A Dask client: of the scheduler at ``scheduler`` (unchanged; with the credentials of Dask's own
+    configuration, ``distributed.comm.tls.*``, for a ``tls://`` address), else of a new :func:`_local_cluster`
+    of ``workers`` processes. Returns ``(client, cluster or None)``."""
+    from dask.distributed import Client
 
     if scheduler is not None:
         try:
             return Client(scheduler, timeout="20s"), None
-        except (OSError, TimeoutError, ValueError) as err:
+        except (OSError, TimeoutError, ValueError, TypeError) as err:  # TypeError: tls:// without credentials
             raise CampaignError(f"scheduler: cannot connect to {scheduler!r} ({type(err).__name__}: {err}); "
-                                "expected the address of a running Dask scheduler, e.g. tcp://HOST:8786") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR)
-    return Client(cluster), cluster
+                                "expected the address of a running Dask scheduler, e.g. tcp://HOST:8786, or "
+                                "tls://HOST:8786 with the cluster's credentials in Dask's configuration "
+                                "(distributed.comm.tls.*)") from None
+    cluster = _local_cluster(workers)
+    try:
+        return Client(cluster, timeout="20s"), cluster
+    except BaseException:
+        cluster.close()
+        raise
+
+
+CLOSED_HTTP = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+"""The Dask configuration a local cluster starts with: its HTTP servers (which Dask starts even without a
+dashboard, serving task lists, logs and metrics to anyone who connects) serve nothing."""
+
+
+QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
+"""A warning filter (``-W``) for the resource tracker, the process multiprocessing starts beside the client
+to remove the semaphores of the cluster's nannies if the client cannot. A client killed by SIGKILL leaves
+them to it, and it removes them, but would also print ``UserWarning: resource_tracker: There appear to be 12
+leaked semaphore objects to clean up at shutdown`` with a line of its source on the terminal, in the middle
+of the next run: noise about a kill the resumed run already reports (it takes over the killed client's
+lock and says so). multiprocessing gives the tracker the client's ``sys.warnoptions``; this one silences
+that warning there and nothing else."""
+
+
+def _local_cluster(workers: int):
+    """A ``LocalCluster`` of ``workers`` single-threaded processes that admits only this run: every server on
+    127.0.0.1, speaking TLS with credentials made for the run (``Security.temporary()``: a key and a
+    certificate, in memory, that each side must present and that the other checks), no dashboard, and HTTP
+    servers that serve nothing (:data:`CLOSED_HTTP`). A client, worker or process without the run's credentials
+    cannot connect, and so cannot run code in the workers (``docs/campaigns.md``, the threat model)."""
+    import dask
+    from dask.distributed import LocalCluster, Security
+
+    try:
+        security = Security.temporary()
+    except ImportError as err:  # cryptography: a dependency of liemef's, missing from this environment
+        raise CampaignError(f"the local cluster's TLS credentials cannot be made: {err}; install the package "
+                            "cryptography (pip install cryptography) into this environment") from None
+    if QUIET_TRACKER not in sys.warnoptions:  # before the cluster's first semaphore starts the tracker
+        sys.warnoptions.append(QUIET_TRACKER)
+    with dask.config.set(CLOSED_HTTP):  # read by the scheduler here and by each nanny for its workers
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            security=security, dashboard_address=None,
+                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},  # its HTTP server: no fixed port
+                            silence_logs=logging.ERROR)
 
 
 def _check(campaign: Campaign) -> tuple[Any, list[Setting], list]:
@@ -229,9 +277,10 @@ def run_campaign(campaign: Campaign, scheduler: str | None = None, workers: int 
     its result, written to its output folder (:meth:`CampaignResult.save`).
 
     Args:
-        scheduler: the address of an existing Dask scheduler (``tcp://HOST:PORT``), used as it is.
+        scheduler: the address of an existing Dask scheduler (``tcp://HOST:PORT``, or ``tls://HOST:PORT`` with
+            the cluster's credentials in Dask's configuration), used as it is.
         workers: without ``scheduler`` or ``client``, the worker processes of the ``LocalCluster`` started
-            for this run (and closed after it).
+            for this run (and closed after it), which admits only this run (TLS with credentials made for it).
         progress: True shows tasks done, trial-steps/s and the time left on ``stream`` (stderr), False
             nothing; a function receives a :class:`Progress` after every task.
         client: an existing ``dask.distributed.Client`` to use (not closed).
