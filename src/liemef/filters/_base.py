@@ -360,12 +360,21 @@ def check_dt(dt) -> float:
     return value
 
 
+def check_t(t) -> float:
+    """A finite time ``t``, as a float (ValueError naming ``t`` otherwise, also for a non-number)."""
+    try:
+        value = float(t)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not math.isfinite(value):
+        raise ValueError(f"t: expected a finite time, got {t}")
+    return value
+
+
 def check_time(t, dt) -> tuple[float, float]:
     """An online step's finite time ``t`` and time step ``dt`` > 0, as floats (ValueError naming either)."""
     dt = check_dt(dt)
-    if not math.isfinite(t):
-        raise ValueError(f"t: expected a finite time, got {t}")
-    return float(t), dt
+    return check_t(t), dt
 
 
 def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.ndarray, ...]:
