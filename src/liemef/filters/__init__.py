@@ -7,7 +7,7 @@ Lie-group integrator (:mod:`liemef.integrators`); the baselines (:mod:`liemef.fi
 :class:`AbstractFilter` interface, state and :class:`Status`. What runs them is :mod:`liemef.engines`.
 """
 
-from ._base import TRACES, AbstractFilter, FilterState, Trajectory, sensor_layout
+from ._base import TRACES, AbstractFilter, FilterState, Trajectory, UpdateResult, sensor_layout
 from ._curvature import safe_curvature
 from ._derivatives import left_hessian, left_jacobian
 from ._mef import INTERPOLATIONS, ORDERS, UPDATES, MinimumEnergyFilter
@@ -17,4 +17,5 @@ from ._update import UpdateInfo, sample_update
 
 __all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "UPDATES", "TRACES",
            "Status", "CAUSES", "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms",
-           "riccati_rhs", "left_jacobian", "left_hessian", "safe_curvature", "sample_update", "UpdateInfo"]
+           "riccati_rhs", "left_jacobian", "left_hessian", "safe_curvature", "sample_update", "UpdateInfo",
+           "UpdateResult"]

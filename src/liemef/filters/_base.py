@@ -6,13 +6,16 @@ A filter is an :class:`AbstractFilter` that says how one sample interval ``[t, t
 (:class:`~liemef.MinimumEnergyFilter`) and the baselines (:mod:`liemef.filters.baselines`) are such filters: they
 share the sample conventions (a sample at ``ts[k]`` is used over ``[ts[k], ts[k+1])``, NaN is missing), the
 status and the outputs. What loops over intervals (a log, a batch, a robot's loop) is an engine's
-(:mod:`liemef.engines`): the methods ``run``, ``run_batch``, ``scan``, ``step`` and ``online`` call it.
+(:mod:`liemef.engines`): the methods ``run``, ``run_batch``, ``scan``, ``step``, ``predict`` and ``online`` call
+it. ``update``, the update at a sample's time with the sample's log-likelihood, is this layer's own (compiled by
+XLA).
 """
 
 from __future__ import annotations
 
 import abc
 import collections
+import dataclasses
 import functools
 import importlib
 import math
@@ -24,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .. import _validate
+from .. import _side, _validate
 from ..groups import LieGroup
 from ._riccati import information_in_force
 from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status, positive_definite
@@ -65,6 +68,29 @@ class Trajectory(eqx.Module):
         return self.g_hat.coords()
 
 
+class UpdateResult(eqx.Module):
+    r"""What :meth:`AbstractFilter.update` made of one sample, filterpy's per-step quantities (NaN marks a missing
+    component, as in the sample):
+
+    - ``log_likelihood``: $\log L = -\tfrac12\bigl(\nu^\top S^{-1}\nu + \log\det(2\pi S)\bigr)$ of the sample
+      under the prior (the state given to ``update``), over its present components; 0 with none present, NaN
+      where S is not positive definite. Summed over a log's samples it is the log-likelihood of the log
+      (the prediction-error decomposition).
+    - ``innovation``: $\nu = y \ominus h(\hat g)$, the output as seen from the sample (angles wrap), on the
+      present components.
+    - ``S``: the innovation covariance $H K H^\top + R$ on the present components (p x p).
+    - ``nis``: $\nu^\top S^{-1}\nu$ (the normalized innovation squared of the present components; 0 with none).
+    - ``sensors_used``: per sensor block, whether the update used its sample (present, not rejected by the
+      sensor's gate and of nonzero weight).
+    """
+
+    log_likelihood: Float[Array, ""]
+    innovation: Float[Array, " p"]
+    S: Float[Array, "p p"]
+    nis: Float[Array, ""]
+    sensors_used: Bool[Array, " b"]
+
+
 def nan_after_failure(codes, states, *, first_given: bool):
     """The rule of a :class:`Trajectory`: ``states`` (a pytree whose leaves have the shape of ``codes`` in front)
     with NaN wherever their status ``codes`` is not ok, except, with ``first_given``, the first state along the
@@ -85,7 +111,8 @@ def nan_after_failure(codes, states, *, first_given: bool):
 
 
 TRACES: collections.Counter = collections.Counter()
-"""How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``."""
+"""How many times each compiled entry point was traced (= compiled): ``TRACES["run"]``, ``TRACES["step"]``,
+``TRACES["update"]``."""
 
 
 def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
@@ -127,13 +154,16 @@ class _hot_path:
 
 class AbstractFilter(eqx.Module):
     """A filter on a liemef system: :meth:`init`, :meth:`step`, :meth:`run` and :meth:`scan` over the
-    sample intervals of a log, with the status of the run (:class:`~liemef.filters.Status`).
+    sample intervals of a log, with the status of the run (:class:`~liemef.filters.Status`), and a step's two
+    halves, :meth:`update` and :meth:`predict`.
 
     A concrete filter holds ``system``, ``weights`` (the system's nominal :class:`~liemef.filters.Weights`),
     ``blocks``, ``sample`` and ``diagonal`` (the sensor layout, see :func:`sensor_layout`) and ``symmetric``
     (whether K must stay symmetric), and implements ``_interval(state, t, dt, u0, u1, y0, y1, gap)``: advance
     over ``[t, t + dt]`` from the samples at its two ends (NaN = missing), with :meth:`_samples` and
-    :meth:`_finish` for the shared conventions.
+    :meth:`_finish` for the shared conventions. For :meth:`update` it implements ``_prior_output`` (the
+    predicted output and its covariance from the state) and ``_correct`` (the state after a sample of given
+    information), which its ``_interval`` uses too.
     """
 
     @abc.abstractmethod
@@ -267,6 +297,56 @@ class AbstractFilter(eqx.Module):
         return (scale, jnp.stack(new_rejected).astype(rejected.dtype),
                 jnp.stack(new_consecutive).astype(consecutive.dtype))
 
+    # --- the update at a sample's time (update) -------------------------------------------------------------
+    def _prior_output(self, state: FilterState, t, y0):
+        """The output predicted from ``state`` at ``t`` as seen from the sample ``y0`` (zeros where missing),
+        its covariance from the state (H K H^T, or the filter's own moments) and what :meth:`_correct` needs
+        besides: ``(h0, HKH, aux)``. A filter with a per-sample update implements it."""
+        raise NotImplementedError(f"update: {type(self).__name__} has no update at a sample's time; use step")
+
+    def _correct(self, state: FilterState, t, y0, mask, W, prior):
+        """``(g_hat, K)`` after the sample ``y0`` (present components ``mask``) of information ``W`` (already
+        screened by the sensors' gates), from ``prior`` = :meth:`_prior_output`'s."""
+        raise NotImplementedError(f"update: {type(self).__name__} has no update at a sample's time; use step")
+
+    def _update_core(self, state: FilterState, t, y) -> tuple[FilterState, UpdateResult]:
+        """Traceable core of :meth:`update` (no checks): the sample's per-sample information, the screening,
+        the filter's correction, the log-likelihood and the status."""
+        st = state.status
+        p = self.system.output_dim
+        sample = jnp.asarray(self.sample, dtype=bool)
+        mask = jnp.isfinite(y) & sample  # a density sensor has no per-sample information (update refuses it)
+        y0 = jnp.where(mask, y, 0.0)
+        W = self._adapted(information_in_force(self.weights.Wy, sample, mask, 1.0, diagonal=self.diagonal), y0)
+        prior = self._prior_output(state, t, y0)
+        h0, HKH = prior[0], prior[1]
+        nu = y0 - h0
+        scale, rejected, consecutive = self._sensor_scale(nu, HKH, t, 1.0, mask, W, st)
+        root = jnp.sqrt(scale)
+        g1, K1 = self._correct(state, t, y0, mask, W * root[:, None] * root[None, :], prior)
+        # the log-likelihood under the prior, over the present components (the others padded with the identity)
+        both = mask[:, None] & mask[None, :]
+        eye = jnp.eye(p)
+        S = jnp.where(both, HKH + jnp.linalg.inv(jnp.where(both, W, eye)), eye)
+        S = 0.5 * (S + S.T)
+        L = jnp.linalg.cholesky(S)  # NaN where S is not positive definite
+        z = jax.scipy.linalg.solve_triangular(L, jnp.where(mask, nu, 0.0), lower=True)
+        nis = z @ z
+        log_likelihood = -0.5 * (nis + 2.0 * jnp.sum(jnp.log(jnp.diag(L))) + jnp.sum(mask) * math.log(2 * math.pi))
+        used = jnp.stack([jnp.any(mask[b.start:b.stop]) & (scale[b.start] > 0) for b in self.blocks])
+        result = UpdateResult(log_likelihood=log_likelihood, innovation=jnp.where(mask, nu, jnp.nan),
+                              S=jnp.where(both, S, jnp.nan), nis=nis, sensors_used=used)
+        # the state: checked as an interval's (_finish), but no interval is counted
+        code = self._health(g1, K1, consecutive)
+        new_fail = code != CAUSES.OK.code
+        g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
+        status = dataclasses.replace(st, code=code, index=jnp.where(new_fail, st.steps, st.index),
+                                     time=jnp.where(new_fail, t, st.time), rejected=rejected,
+                                     consecutive=consecutive)
+        out = FilterState(g_hat=g_out, K=jnp.where(new_fail, state.K, K1), u_last=state.u_last, status=status)
+        out = jax.tree_util.tree_map(lambda a, b: jnp.where(st.code != CAUSES.OK.code, a, b), state, out)
+        return out, result
+
     def _health(self, g, K, consecutive, asymmetric=None):
         """The cause code of a state just computed (:data:`~liemef.filters.CAUSES`)."""
         finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves((g, K))]))
@@ -315,6 +395,58 @@ class AbstractFilter(eqx.Module):
         """Advance one sample interval ``[t, t + dt]`` (online use): :func:`liemef.engines.step`."""
         return _engines().step(self, state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap, engine=engine)
 
+    @_hot_path
+    def predict(self, state: FilterState, t: float, u: ArrayLike, dt: float, *, u_next: ArrayLike | None = None,
+                gap: float = math.inf, engine: str | None = None) -> FilterState:
+        """The propagation over ``[t, t + dt]`` with no measurement: exactly :meth:`step` with every output
+        component missing (``y`` all NaN), by the same engine (``engine`` as in ``step``), checks included.
+
+        With :meth:`update` it splits a step in filterpy's two calls: ``flt.predict(flt.update(state, t, y)[0],
+        t, u, dt)`` is ``flt.step(state, t, u, y, dt)`` to round-off where every present sensor is a sample
+        sensor, for the Kalman baselines and for the minimum-energy filter with ``updates="discrete"``
+        (docs/concepts.md, "Predict and update")."""
+        return _engines().step(self, state, t, u, np.full(self.system.output_dim, np.nan), dt, u_next=u_next,
+                               gap=gap, engine=engine)
+
+    @_hot_path
+    def update(self, state: FilterState, t: float, y: ArrayLike) -> tuple[FilterState, UpdateResult]:
+        r"""The update of ``state`` at time ``t`` with the sample ``y`` (p,) (NaN: a missing component), and the
+        sample's innovation and log-likelihood under the prior (:class:`UpdateResult`).
+
+        Each present sensor brings its information **per sample** (its ``Noise.sample`` std, the sensor's noise
+        model ``scale`` included: docs/weights.md, "One sample carries its information once"). A density sensor
+        (``Noise.density``) has no information per sample: a present component of one is refused (use
+        :meth:`step`, which spreads it over the interval). Each filter updates as its own step does: the
+        minimum-energy filter by the hybrid filter's sample update (:func:`~liemef.filters.sample_update`, with
+        the filter's ``iterations``, ``order``, ``curvature`` and ``tol``, whatever its ``updates``), a Kalman
+        baseline by its Kalman update. Sensors' gates, robust losses and time-varying weights screen the sample
+        as in ``step`` (the gate reads the same innovation covariance, and counts its rejections in the
+        status); they decide how much of the sample the update uses, not how likely it was: the
+        log-likelihood is the model's, $S = H K H^\top + R$ with R the sample's noise covariance on its present
+        components, H the output's left Jacobian (a Kalman baseline: its own moments, $H P H^\top$ in its error
+        coordinates or the sigma points' spread).
+
+        ``predict(update(state, t, y)[0], t, u, dt)`` is ``step(state, t, u, y, dt)`` to round-off for a
+        Kalman baseline, and for the minimum-energy filter with ``updates="discrete"``, where the present
+        sensors are sample sensors. An update that fails (a non-finite state, a gain no longer positive
+        definite, or a gate's ``max_rejections`` exceeded) keeps the state given with a failed status at the
+        interval that starts at ``t`` (index ``status.steps``), as ``step`` would; it counts no interval
+        (``steps`` and the sub-step counters are the prediction's). A failed state is returned unchanged.
+
+        Compiled by XLA (``jax.jit``, once per filter structure), whatever the engine of ``step``: the C engine
+        has no separate update."""
+        t = check_t(t)
+        self._check_state(state)
+        y = self._check_sample("y", y, self.system.output_dim, missing=True)
+        for b in self.blocks:
+            present = np.isfinite(y[b.start:b.stop])
+            if not b.sample and present.any():
+                raise ValueError(
+                    f"y: sensor {b.name!r} is a density sensor (Noise.density), which has no information per "
+                    f"sample, but y has a sample of it at index {b.start + int(np.argmax(present))}; give NaN for "
+                    "its components here and use step, which spreads its samples over their intervals")
+        return _update_jit(self, state, np.asarray(t), y)
+
     def online(self, state: FilterState, *, engine: str | None = None):
         """The online filter of a robot's loop: :func:`liemef.engines.online`."""
         return _engines().online(self, state, engine=engine)
@@ -343,6 +475,31 @@ class AbstractFilter(eqx.Module):
 
 
 
+_UPDATE_JIT: dict = {}
+
+
+def _update_leaves(static, leaves, state, t, y):
+    TRACES["update"] += 1
+    flt = eqx.combine(jax.tree_util.tree_unflatten(static[0], leaves), static[1])
+    return flt._update_core(state, t, y)
+
+
+def _update_jit(flt, state, t, y):
+    """:meth:`AbstractFilter.update`'s compiled core, one program per filter structure (shared), called on the
+    filter's array leaves, cached beside it: ``eqx.filter_jit`` would flatten the whole filter at every call."""
+    cached = _side.get(flt, "update")
+    if cached is None:
+        dyn, static = eqx.partition(flt, eqx.is_array)
+        leaves, treedef = jax.tree_util.tree_flatten(dyn)
+        key = (treedef, static)
+        if key not in _UPDATE_JIT:
+            _UPDATE_JIT[key] = jax.jit(functools.partial(_update_leaves, key))
+        cached = (_UPDATE_JIT[key], leaves)
+        _side.put(flt, "update", cached)
+    fn, leaves = cached
+    return fn(leaves, state, t, y)
+
+
 def check_element(G: type[LieGroup], name: str, g) -> None:
     """``g`` is a single element of ``G`` with finite parameters (ValueError naming ``name`` otherwise): the
     boundary check of every filter's initial and given states."""
@@ -360,12 +517,21 @@ def check_dt(dt) -> float:
     return value
 
 
+def check_t(t) -> float:
+    """A finite time ``t``, as a float (ValueError naming ``t`` otherwise, also for a non-number)."""
+    try:
+        value = float(t)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not math.isfinite(value):
+        raise ValueError(f"t: expected a finite time, got {t}")
+    return value
+
+
 def check_time(t, dt) -> tuple[float, float]:
     """An online step's finite time ``t`` and time step ``dt`` > 0, as floats (ValueError naming either)."""
     dt = check_dt(dt)
-    if not math.isfinite(t):
-        raise ValueError(f"t: expected a finite time, got {t}")
-    return float(t), dt
+    return check_t(t), dt
 
 
 def check_samples(m: int, p: int, u, y, u_next=None, y_next=None) -> tuple[np.ndarray, ...]:

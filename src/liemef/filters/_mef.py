@@ -192,6 +192,31 @@ class MinimumEnergyFilter(AbstractFilter):
         tm = self._terms(self.weights, g_hat, K, u, y, t)
         return tm.lam + mv(K, tm.r), riccati_rhs(tm, K, self.alpha)
 
+    # --- the update at a sample's time (the hybrid filter's, and update's) -----------------------------------
+    def _sample_update(self, g, K, t, y0, W):
+        """``(g_hat, K)`` after the sample ``y0`` of per-sample information ``W`` (zero rows and columns where
+        missing): :func:`~liemef.filters.sample_update` with the filter's iterations, order, curvature and tol;
+        K kept exactly symmetric where it must be."""
+        def update(gK):
+            g2, K2, _ = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), *gK, y0, W,
+                                      iterations=self.iterations, newton=self.order == "second",
+                                      safe=self.curvature == "safe", tol=self.tol)
+            return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
+
+        # only an interval that starts with a sample is updated: the update of zero information is the
+        # identity, and at 100 Hz against 1 Hz landmarks it was two thirds of a step's arithmetic
+        return jax.lax.cond(jnp.any(W != 0), update, lambda gK: gK, (g, K))
+
+    def _prior_output(self, state: FilterState, t, y0):
+        r"""The output as seen from ``y0`` at the estimate and $Dh\,K\,Dh^\top$ (Dh its left Jacobian): the gates'
+        and the log-likelihood's innovation and covariance from the state."""
+        K = state.K
+        h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), state.g_hat)
+        return h0, mm(Dh, mm(0.5 * (K + K.T), Dh.T)), None
+
+    def _correct(self, state: FilterState, t, y0, mask, W, prior):
+        return self._sample_update(state.g_hat, state.K, t, y0, W)
+
     # --- one sample interval --------------------------------------------------------------------------------
     def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
         """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing); checks the result."""
@@ -206,8 +231,7 @@ class MinimumEnergyFilter(AbstractFilter):
             Wy = self._adapted(
                 information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal), y0)
         if self._screens_samples:
-            h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), g)
-            HKH = mm(Dh, mm(0.5 * (K + K.T), Dh.T))
+            h0, HKH, _ = self._prior_output(state, t, y0)
             W_all = Wy + W_sample / dt if discrete else Wy  # the information in force, as the gate reads it
             scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, W_all, st)
             root = jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
@@ -217,15 +241,7 @@ class MinimumEnergyFilter(AbstractFilter):
         else:
             rejected, consecutive = st.rejected, st.consecutive
         if discrete:
-            def update(gK):
-                g2, K2, _ = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), *gK, y0, W_sample,
-                                          iterations=self.iterations, newton=self.order == "second",
-                                          safe=self.curvature == "safe", tol=self.tol)
-                return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
-
-            # only an interval that starts with a sample is updated: the update of zero information is the
-            # identity, and at 100 Hz against 1 Hz landmarks it was two thirds of a step's arithmetic
-            g, K = jax.lax.cond(jnp.any(W_sample != 0), update, lambda gK: gK, (g, K))
+            g, K = self._sample_update(g, K, t, y0, W_sample)
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
         # static: with only sample sensors, no output acts over the discrete filter's interval
         outputs = not (discrete and all(self.sample))

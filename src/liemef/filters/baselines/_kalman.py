@@ -160,22 +160,39 @@ class AbstractKalmanFilter(AbstractFilter):
         J = self._left_jacobian(g)
         return mm(J, mm(P, J.T))
 
-    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
-        st, g = state.status, state.g_hat
-        u0, _, u_ok, y0, _, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
-        P = self._to_own(g, state.K)
-        # update with y0: the information of the present components over the interval
-        h0, C, P_ey = self._moments(g, P, t, y0)
-        nu = y0 - h0
-        scale, rejected, consecutive = self._sensor_scale(nu, C, t, dt, mask, Wy, st)
-        info = Wy * dt * jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+    def _kalman_update(self, g, P, nu, mask, C, P_ey, info):
+        """Mean and covariance (in the filter's error coordinates, not transported to the new mean) after the
+        innovation ``nu`` (present components ``mask``) of information ``info`` (module docstring)."""
         M = jnp.linalg.inv(jnp.eye(C.shape[0]) + mm(info, C))
         gain = mm(P_ey, mm(M, info))
         plus, _ = retraction(self.error)
         g = plus(g, mv(gain, jnp.where(mask, nu, 0.0)))
         # Joseph's form: P - P_ey K^T - K P_ey^T + K C K^T + K Sigma K^T, with K Sigma K^T = P_ey M I M^T P_ey^T
         KCK = mm(gain, mm(C, gain.T)) + mm(P_ey, mm(mm(M, mm(info, M.T)), P_ey.T))
-        P = P - mm(P_ey, gain.T) - mm(gain, P_ey.T) + KCK
+        return g, P - mm(P_ey, gain.T) - mm(gain, P_ey.T) + KCK
+
+    def _prior_output(self, state: FilterState, t, y0):
+        """The filter's moments at the state (:meth:`_moments`): ``(h0, C, (P, P_ey))``."""
+        P = self._to_own(state.g_hat, state.K)
+        h0, C, P_ey = self._moments(state.g_hat, P, t, y0)
+        return h0, C, (P, P_ey)
+
+    def _correct(self, state: FilterState, t, y0, mask, W, prior):
+        h0, C, (P, P_ey) = prior
+        g, P = self._kalman_update(state.g_hat, P, y0 - h0, mask, C, P_ey, W)
+        # the state's K: the covariance of the left error at the new mean (P is not transported, as in _interval)
+        K = self._to_left(g, 0.5 * (P + P.T))
+        return g, 0.5 * (K + K.T)
+
+    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        st = state.status
+        u0, _, u_ok, y0, _, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
+        # update with y0: the information of the present components over the interval
+        h0, C, (P, P_ey) = self._prior_output(state, t, y0)
+        nu = y0 - h0
+        scale, rejected, consecutive = self._sensor_scale(nu, C, t, dt, mask, Wy, st)
+        info = Wy * dt * jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+        g, P = self._kalman_update(state.g_hat, P, nu, mask, C, P_ey, info)
         # predict with u0 over the interval
         g1, P1 = self._predict(g, 0.5 * (P + P.T), u0, t, dt)
         K1 = self._to_left(g1, 0.5 * (P1 + P1.T))
