@@ -212,6 +212,8 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
         said.append(f"the interval is a gap of {dt:.4g} s, predicted through on held inputs")
     if out["substeps_capped"]:
         said.append("its integration hit the sub-step cap (max_substeps)")
+    if report["cause"] == "non-finite":
+        said += _nonfinite_functions(system, g, log, k, t0)
     Ks = 0.5 * (np.asarray(K) + np.asarray(K).T)
     with np.errstate(all="ignore"):
         cond = float(np.linalg.cond(Ks)) if np.all(np.isfinite(Ks)) else math.inf
@@ -239,7 +241,8 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
                 except np.linalg.LinAlgError:
                     sigmas = math.nan
             names = [system.output_names[i] for i in idx]
-            out["samples"][b.name] = {"components": names, "residual": [float(v) for v in r[idx]],
+            out["samples"][b.name] = {"components": names,
+                                      "residual": [float(v) if math.isfinite(v) else None for v in r[idx]],
                                       "sigmas": sigmas if math.isfinite(sigmas) else None}
             sizes.append((sigmas, b.name))
         shown = ", ".join(f"{name} {s:.3g}" for s, name in sorted(sizes, key=lambda x: -np.nan_to_num(x[0]))
@@ -247,6 +250,27 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
         if shown:
             said.append(f"its samples, in innovation standard deviations from the last good estimate: {shown}")
     out["said"] = "".join(f"; {s}" for s in said)
+    return out
+
+
+def _nonfinite_functions(system, g, log, k: int, t0: float) -> list[str]:
+    """The system's functions that return NaN or infinities at the last good state ``g`` of a run that became
+    non-finite over interval ``k``: the dynamics with the input in force (the last present one), the outputs
+    and the residuals (:meth:`~liemef.systems.AbstractSystem.check_finite_at`), each named."""
+    from ..systems._traced import at_state, check_finite
+
+    us = np.asarray(log.us, dtype=np.float64)
+    rows = np.flatnonzero(np.all(np.isfinite(us[:k + 1]), axis=1))
+    u = us[rows[-1]] if rows.size else np.zeros(us.shape[1])
+    out = []
+    at = at_state("the last good state", t0) + f" with the input {u}"
+    for check in (lambda: check_finite("dynamics", getattr(system, "dynamics_fn", system.dynamics),
+                                       system.dynamics(g, u, t0), at),
+                  lambda: system.check_finite_at(g, t0, state="the last good state")):
+        try:
+            check()
+        except ValueError as err:
+            out.append(str(err).split("; expected")[0])
     return out
 
 
