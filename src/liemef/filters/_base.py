@@ -160,9 +160,9 @@ class AbstractFilter(eqx.Module):
         left-trivialized Hessian of m0. K0 may be singular (positive semidefinite), as in Rigo et al. 2023,
         eq. (63). ``u0`` is the input held until the first present input sample (default zeros).
 
-        The system's outputs and residuals are evaluated once at ``g0`` (t = 0, outside a trace): one that is not
-        finite there is a ValueError naming its sensor and function
-        (:meth:`~liemef.systems.AbstractSystem.check_finite_at`)."""
+        The system's outputs and residuals are evaluated once at ``g0`` (t = 0, outside a trace): an output that
+        is NaN there, or a residual that is not finite at ``y = h``, is a ValueError naming its sensor and function
+        (:meth:`~liemef.systems.AbstractSystem.check_finite_at`; an infinite output, a singularity, passes)."""
         self._check_element("g0", g0)
         if not is_traced(g0):
             self.system.check_finite_at(g0)

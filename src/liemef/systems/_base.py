@@ -172,13 +172,17 @@ class AbstractSystem(eqx.Module):
                      given=f" with g in {G.__name__}, u of shape ({m},) and t a scalar",
                      meaning=f"lambda(g, u, t): one value per direction of the algebra of {G.__name__}")
 
-    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state") -> None:
-        """The output ``h(g, t)`` and the residual at ``y = h``, evaluated once: a ValueError naming the function
-        when either is not finite at ``g`` (``state`` says which; :meth:`liemef.filters.AbstractFilter.init` calls
-        it at the initial state; :class:`~liemef.systems.SensorSystem` names the sensor)."""
+    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """The output ``h(g, t)`` and, where it is finite, the residual at ``y = h`` (0 by its contract),
+        evaluated once: a ValueError naming the function when the output is NaN (also infinite unless
+        ``singular``) or the residual is not finite at ``g`` (``state`` says which;
+        :meth:`liemef.filters.AbstractFilter.init` calls it at the initial state;
+        :class:`~liemef.systems.SensorSystem` names the sensor)."""
         at = at_state(state, t)
-        h = jnp.asarray(check_finite("output", self.output, self.output(g, t), at))
-        check_finite("residual", self.residual, self.residual(h, h, t), f"at y = h, the output {at}")
+        h = check_finite("output", self.output, self.output(g, t), at, singular=singular)
+        if np.all(np.isfinite(h)):
+            hj = jnp.asarray(h)
+            check_finite("residual", self.residual, self.residual(hj, hj, t), f"at y = h, the output {at}")
 
 
 class System(AbstractSystem):
@@ -210,9 +214,10 @@ class System(AbstractSystem):
         check_traced("output", self.output_fn, (G.identity(), jnp.zeros(())), None,
                      given=f" with g in {G.__name__} and t a scalar")
 
-    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state") -> None:
-        """The user's output ``h(g, t)``, evaluated once: a ValueError naming it when it is not finite at ``g``."""
-        check_finite("output", self.output_fn, self.output_fn(g, t), at_state(state, t))
+    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """The user's output ``h(g, t)``, evaluated once: a ValueError naming it when it is NaN (also infinite
+        unless ``singular``) at ``g``."""
+        check_finite("output", self.output_fn, self.output_fn(g, t), at_state(state, t), singular=singular)
 
     @property
     def group(self) -> type[LieGroup]:

@@ -446,14 +446,16 @@ class SensorSystem(AbstractSystem):
                 check_traced(f"sensor {s.name!r}: residual", s.residual, (y, y), (s.dim,), scalar=True,
                              given=f" with y and h of shape ({s.dim},)", meaning=parts)
 
-    def check_finite_at(self, g, t=0.0, *, state: str = "the initial state") -> None:
-        """Each sensor's output ``h(g, t)`` and its residual at ``y = h``, evaluated once: a ValueError naming the
-        sensor and the function when either is not finite at ``g`` (``state`` says which;
+    def check_finite_at(self, g, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """Each sensor's output ``h(g, t)`` and, where it is finite, its residual at ``y = h`` (0 by its
+        contract), evaluated once: a ValueError naming the sensor and the function when an output is NaN (also
+        infinite unless ``singular``) or a residual is not finite at ``g`` (``state`` says which;
         :meth:`liemef.filters.AbstractFilter.init` calls it at the initial state)."""
         at = _at(state, t)
         for s in self.sensors:
-            h = check_finite(f"sensor {s.name!r}: fn", s.fn, jnp.atleast_1d(jnp.asarray(s.fn(g, t))), at)
-            if s.residual is not None:
+            h = check_finite(f"sensor {s.name!r}: fn", s.fn, jnp.atleast_1d(jnp.asarray(s.fn(g, t))), at,
+                             singular=singular)
+            if s.residual is not None and np.all(np.isfinite(h)):
                 hj = jnp.asarray(h, dtype=jnp.float64)
                 check_finite(f"sensor {s.name!r}: residual", s.residual, s.residual(hj, hj),
                              f"at y = h = {np.array2string(h, precision=4, threshold=12)}, the output {at}")

@@ -6,9 +6,11 @@ returns something that is no array, complex, integer or boolean values, a scalar
 the wrong number of components. :func:`check_traced` traces it abstractly (``jax.eval_shape``: no computation)
 when the system is built and refuses each of these with a ValueError that names the function (its sensor, its
 role and its ``__qualname__``) and what came back; an exception raised inside the function is chained
-(``raise ... from``). Values show only when the function runs: :func:`check_finite` evaluates the outputs and
-residuals once at the filter's initial state (:meth:`liemef.filters.AbstractFilter.init`) and refuses NaN or
-infinities there, by name.
+(``raise ... from``). Values show only when the function runs: the filter's :meth:`~liemef.filters.AbstractFilter.init`
+evaluates the outputs and residuals once at its initial state and refuses by name (:func:`check_finite`) an
+output that is NaN there (undefined) and a residual that is not finite at ``y = h``, where it must be 0. An
+infinite output is a singularity of the model (``1 / z`` on ``z = 0``): it passes, since an interval without that
+sensor's sample does not use it; a run that uses it fails as non-finite, and its message names the function.
 """
 
 from __future__ import annotations
@@ -98,12 +100,14 @@ def at_state(state: str, t) -> str:
     return f"at {state}" + (f" (t = {float(t):g})" if float(t) else "")
 
 
-def check_finite(where: str, fn, value, at: str) -> np.ndarray:
+def check_finite(where: str, fn, value, at: str, *, singular: bool = False) -> np.ndarray:
     """``value`` (what ``fn`` returned) as a NumPy array; a ValueError naming ``where``, the function and the
-    values when they are not all finite ``at`` the point said."""
+    values when they are not all finite ``at`` the point said. ``singular``: an infinity passes (a singularity of
+    the model, e.g. ``1 / z`` on ``z = 0``), NaN does not."""
     v = np.asarray(value)
-    if not np.all(np.isfinite(v)):
+    bad = np.isnan(v) if singular else ~np.isfinite(v)
+    if np.any(bad):
         shown = np.array2string(v, precision=4, threshold=12)
-        raise ValueError(f"{where} {function_name(fn)} returned {shown} {at}; expected finite real numbers (a "
-                         "NaN or infinity would fail the filter at run time)")
+        expected = "numbers, not NaN (undefined there)" if singular else "finite real numbers"
+        raise ValueError(f"{where} {function_name(fn)} returned {shown} {at}; expected {expected}")
     return v
