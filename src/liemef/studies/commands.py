@@ -165,7 +165,8 @@ RUN = Command(
         option("--chunk", type=at_least(16), default=65536, show_default=True,
                help="Samples per compiled chunk (progress is shown between chunks)."),
         option("--params", "params_file", type=PATH,
-               help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu."),
+               help="A tuning file of `liemef tune` (JSON) for --system attitude-imu: its final parameter set "
+                    "(recorded in metrics.json with its SHA-256; docs/imu.md)."),
         option("--monitor/--no-monitor", default=True, show_default=True,
                help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
                "inconsistent)."),

@@ -48,8 +48,9 @@ DEFAULT_CHUNK = 65536
 @dataclass(frozen=True)
 class LogSystem:
     """A system to filter logs with, and where its defaults come from: ``label`` and ``description`` name it,
-    ``measured(ys)`` reads state coordinates off measurements (a ready system; None for a user's file) and
-    ``user`` is the user's :class:`~liemef.systems._file.UserSystem` (its ``x0``, ``K0``, ``initial_guess``)."""
+    ``measured(ys)`` reads state coordinates off measurements (a ready system; None for a user's file),
+    ``user`` is the user's :class:`~liemef.systems._file.UserSystem` (its ``x0``, ``K0``, ``initial_guess``) and
+    ``params`` the tuning file applied."""
 
     system: Any
     label: str
@@ -57,6 +58,10 @@ class LogSystem:
     measured: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
     user: Any = field(default=None, repr=False)
     spec: Any = field(default=None, repr=False)
+    params: dict | None = field(default=None, repr=False)
+    """The tuning file applied (``--params``): its ``file``, ``sha256``, ``system``, the names it set
+    (``from_file``) and every parameter ``values`` the system was built with (``metrics.json``'s
+    ``config.params``); None without one."""
 
     def initial_guess(self, ys0) -> np.ndarray:
         """The default initial estimate in coordinates from the first present measurement of each component
@@ -605,7 +610,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
-                   "iterations": flt.iterations, "gap": common["gap"]},
+                   "iterations": flt.iterations, "gap": common["gap"], "params": source.params},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
@@ -759,13 +764,21 @@ def _read(fn, option: str):
 
 
 def _tuned(source: LogSystem, params) -> LogSystem:
-    """``source`` (attitude-imu) with the final parameter set of a `liemef tune` file (``--params``)."""
-    import dataclasses
-
+    """``source`` (a ready system that ``liemef tune`` fits) built with the final parameter set of the tuning file
+    ``params`` (``--params``, read and checked by :func:`liemef.studies.tune.read`: a file for another system is
+    refused), its description and :attr:`LogSystem.params` saying which file (SHA-256) and every value used."""
     from . import tune
 
-    return dataclasses.replace(source, system=_read(lambda: tune.system_from(tune.params_for(tune.load(params)), {}),
-                                                    "--params"))
+    tuned = _read(lambda: tune.read(params, system=source.label), "--params")
+    chosen = tune.params_for(tuned.data)
+    values = tune.parameters(chosen, {}, tuned.system)
+    system = _read(lambda: tune.system_from(chosen, {}, tuned.system), "--params")
+    base = source.description.split("; defaults of ")[0]
+    return dataclasses.replace(
+        source, system=system, params={"file": str(params), "sha256": tuned.sha256, "system": tuned.system,
+                                       "from_file": sorted(chosen), "values": values},
+        description=f"{base}; the final parameter set of the tuning file {params} (sha256 {tuned.sha256[:12]}; "
+                    "every value in metrics.json's config.params)")
 
 
 def _read_bag(path, topics, system):
