@@ -217,8 +217,8 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
              force, progress):
     from .studies.runs import tune_to
 
-    _echo(tune_to(out, data, objective=objective, trials=None if not trials else trials.split(","),
-                  names=None if not names else [n.strip() for n in names.split(",")], seconds=seconds,
+    _echo(tune_to(out, data, objective=objective, trials=None if trials is None else trials.split(","),
+                  names=None if names is None else names.split(","), seconds=seconds,
                   maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates, realdata=realdata,
                   force=force, progress=progress))
 

@@ -291,9 +291,13 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first ``seconds``;
     0 or None: whole trials), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
     ``names``: the parameters to tune (None: the system's defaults). ``attitude-velocity`` takes
-    ``updates="discrete"`` only. Bad input is a ValueError before anything is written."""
+    ``updates="discrete"`` only. Bad input is a ValueError before anything is written; an empty list of
+    ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
+    empty ``--trials ''`` is not every trial)."""
     from .registry import TUNE_DATA
 
+    trials, names = (_entries(v, option, what) for v, option, what in (
+        (trials, "--trials", "BROAD trial ids"), (names, "--params", "parameter names")))
     if data not in TUNE_DATA:
         raise ValueError(f"data: expected one of {list(TUNE_DATA)}, got {data!r}")
     if system == "attitude-velocity" and updates != "discrete":
@@ -302,16 +306,31 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     target = outputs.claim(out, "tune", force)
     from . import tune
 
-    recs = tune.broad_recordings(None if not trials else list(trials), seconds or None,
+    recs = tune.broad_recordings(trials, seconds or None,
                                  None if realdata is None else str(realdata),
                                  gyro="backward" if updates == "discrete" else "forward", system=system)
-    kw = {} if not names else {"names": tuple(names)}
+    kw = {} if names is None else {"names": tuple(names)}
     result = tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
                        updates=updates, **kw)
     text = tune.markdown(result)
     with outputs.staged(target) as d:
         written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
     return SavedTune(result, text, target.path, [target.path / p.name for p in written])
+
+
+def _entries(values, option: str, what: str) -> list[str] | None:
+    """``values`` (None: the default) as a list of stripped, non-empty strings; an OptionError naming
+    ``option`` for an empty list or an empty entry."""
+    from .settings import OptionError
+
+    if values is None:
+        return None
+    values = [values] if isinstance(values, str) else list(values)
+    entries = [str(v).strip() for v in values]
+    if not entries or not all(entries):
+        raise OptionError(f"expected {what} separated by commas, got {','.join(map(str, values))!r} (omit the "
+                          "option for the default)", option)
+    return entries
 
 
 @dataclass(frozen=True)
