@@ -140,8 +140,8 @@ RUN = Command(
                "optionally K0, x0, initial_guess(y0)."),
         option("--log", "log_path", required=True, type=PATH,
                help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
-                    "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag with "
-                    "--topics."),
+                    "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag (a .bag "
+                    "file, or a ROS 2 bag folder with its metadata.yaml) with --topics."),
         option("--topics", type=PATH, help="With a ROS 1 .bag or a ROS 2 bag folder as --log: the JSON/TOML "
                "mapping from topics to the system's columns (liemef.reports.rosbag)."),
         option("--tum/--no-tum", default=False, help="Also write the estimates as a TUM trajectory, estimates.tum."),

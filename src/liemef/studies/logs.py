@@ -642,8 +642,13 @@ def check_log_file(path: str | os.PathLike) -> None:
     p = Path(path)
     if not p.exists():
         raise _bad("--log", f"log: file not found: {str(p)!r}")
+    if p.is_dir():
+        csv = sorted(q.name for q in p.glob("*.csv"))
+        held = f"; it holds {len(csv)} .csv file(s), e.g. {csv[0]!r}: give one of them" if csv else ""
+        raise _bad("--log", f"log: expected a .csv or .npz log file, or a ROS bag (a .bag file, or a ROS 2 bag "
+                            f"folder with a metadata.yaml), got the folder {str(p)!r} without a metadata.yaml{held}")
     if not p.is_file():
-        raise _bad("--log", f"log: expected a file, got a directory {str(p)!r}")
+        raise _bad("--log", f"log: expected a file, got {str(p)!r}")
     if p.suffix.lower() not in (".csv", ".npz"):
         raise _bad("--log", f"log: expected a .csv or .npz file, got {str(p)!r}")
     if p.stat().st_size == 0:
@@ -715,7 +720,7 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     if params is not None and system != "attitude-imu":
         raise _bad("--params", f"expected --system attitude-imu with a tuning file, got {system!r}")
     log = Path(log)
-    bag = log.is_dir() or log.suffix.lower() == ".bag"
+    bag = io.is_bag(log)
     if bag and topics is None:
         raise _bad("--topics", f"{log} is a ROS bag: give --topics MAPPING.json")
     if not bag:
