@@ -81,6 +81,8 @@ ALPHA = option("--alpha", type=float, default=0.0, show_default=True, help="Forg
 SUBSTEPS = option("--substeps", default="auto", show_default=True,
                   help="Integrator steps per sample interval: auto (by stiffness) or a number.")
 SYSTEM_FILE = option("--system-file", type=PATH, help="A Python file that defines `system`.")
+TIMEOUT = option("--timeout", type=float, default=registry.SYSTEM_FILE_TIMEOUT, show_default=True,
+                 help="Seconds --system-file may take to load before it is stopped (0: no limit).")
 
 
 def system(text: str) -> Param:
@@ -137,7 +139,7 @@ RUN = Command(
     sensor and when, and exits with status 3.""", (
         system("A ready system the log was recorded with (or --system-file)."),
         option("--system-file", type=PATH, help="A Python file that defines `system` (your own liemef system) and "
-               "optionally K0, x0, initial_guess(y0)."),
+               "optionally K0, x0, initial_guess(y0)."), TIMEOUT,
         option("--log", "log_path", required=True, type=PATH,
                help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
                     "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag (a .bag "
@@ -178,8 +180,9 @@ EXPORT_C = Command(
     and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
     of the source (export again for new ones). The two files are written in place, each whole or not at all
     (the folder may be your project's). See docs/export-c.md.""", (
-        system("A ready system (or --system-file)."), SYSTEM_FILE,
-        option("--out", required=True, type=PATH, help="Folder for NAME.h and NAME.c (created if missing)."),
+        system("A ready system (or --system-file)."), SYSTEM_FILE, TIMEOUT,
+        option("--out", required=True, type=PATH, help="Folder for NAME.h and NAME.c (created if missing; a "
+                                                        "failed export leaves no folder it created)."),
         option("--name", help="The C prefix of every exported name, a C identifier (default: the system's name with "
                               "- replaced by _)."),
         CONNECTION, ORDER,
@@ -194,7 +197,7 @@ EXPORT_C = Command(
 SCHEMA_COMMAND = Command(
     """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
     sensors' noise levels, and the CSV header that `liemef run` expects.""", (
-        argument("system_name", required=False, type=choice(SYSTEMS), metavar="SYSTEM"), SYSTEM_FILE))
+        argument("system_name", required=False, type=choice(SYSTEMS), metavar="SYSTEM"), SYSTEM_FILE, TIMEOUT))
 
 DATASET = Command(
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for

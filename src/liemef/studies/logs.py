@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, _validate
 from ..reports import io
 
 SCHEMA = "liemef.run/1"
@@ -82,10 +82,11 @@ class LogSystem:
         return np.eye(self.system.group.tangent_dim)
 
 
-def resolve_system(name: str | None = None, file: str | os.PathLike | None = None) -> LogSystem:
+def resolve_system(name: str | None = None, file: str | os.PathLike | None = None, *,
+                   timeout: float | None = None) -> LogSystem:
     """A ready system by ``name`` (:data:`liemef.studies.registry.SYSTEMS`) or a user's system ``file``
-    (exactly one). ValueError when both or neither are given, the name is unknown or the file fails to load
-    (naming ``--system-file``)."""
+    (exactly one). ValueError when both or neither are given, the name is unknown or the file fails to load,
+    or has not finished loading after ``timeout`` seconds (None or 0: no limit) (naming ``--system-file``)."""
     from ..systems import _file as system_file
     from .experiments import get_system
 
@@ -96,16 +97,18 @@ def resolve_system(name: str | None = None, file: str | os.PathLike | None = Non
         spec = get_system(name)
         return LogSystem(spec.make(), spec.name, spec.description, spec.measured, spec=spec)
     path = Path(file)
-    user = system_file.load_system_file(path)
+    user = system_file.load_system_file(path, timeout=timeout)
     return LogSystem(user.system, path.stem, f"user system from {path}", user=user)
 
 
-def schema_text(name: str | None = None, file: str | os.PathLike | None = None) -> str:
-    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`):
-    its label and description, then its log columns, units, roles and noise levels, and the CSV header."""
+def schema_text(name: str | None = None, file: str | os.PathLike | None = None, *,
+                timeout: float | None = None) -> str:
+    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`,
+    with ``timeout``): its label and description, then its log columns, units, roles and noise levels, and the
+    CSV header."""
     from ..systems._file import format_schema
 
-    source = resolve_system(name, file)
+    source = resolve_system(name, file, timeout=timeout)
     return f"{source.label}: {source.description}\n{format_schema(source.system)}"
 
 
@@ -697,20 +700,26 @@ class SavedRun:
 def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,
                   system_file: str | os.PathLike | None = None, topics: str | os.PathLike | None = None,
                   params: str | os.PathLike | None = None, x0=None, K0=None, tum: bool = False, force: bool = False,
-                  **options) -> SavedRun:
+                  timeout: float | None = None, **options) -> SavedRun:
     """Filter the recorded ``log`` and write its outputs to the folder ``out``, whole or not at all: what
     ``liemef run`` does, for a script as well.
 
     ``system`` (a ready system's name) or ``system_file`` (your own), exactly one; ``log`` a CSV or NPZ file, or
     a ROS bag with ``topics`` (the mapping file, :mod:`liemef.reports.rosbag`); ``params`` a `liemef tune` file
     (attitude-imu only); ``x0``, ``K0`` and ``options`` as :func:`filter_log`; ``tum`` also writes
-    ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`).
+    ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`);
+    ``timeout``: the seconds ``system_file`` may take to load (None or 0: no limit; the command line's
+    ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by default).
     Bad input is a ValueError naming the option (``err.option``), raised before anything is written and, for a
     ready system and a CSV or NPZ log, before JAX is imported. A failure inside the filter is no exception:
     ``out`` then holds ``failure.json`` alone and :attr:`LogRun.ok` is False."""
     from ..reports import outputs
     from . import registry
 
+    try:
+        _validate.timeout("--timeout", timeout)
+    except ValueError as err:
+        raise _bad("--timeout", str(err).removeprefix("--timeout: ")) from err
     K0 = None if K0 is None else np.asarray(K0, dtype=np.float64)
     if K0 is not None and K0.ndim == 0 and not (math.isfinite(K0) and K0 >= 0):
         raise _bad("--k0", f"expected a number >= 0, got {float(K0)}")
@@ -739,7 +748,7 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
             layout = io.LogLayout(tuple(known["inputs"]), tuple(known["outputs"]),
                                   tuple(tuple(b) for b in known["blocks"]))
             recorded = _read(lambda: io.read_log(log, layout), "--log")
-    source = resolve_system(system, system_file)
+    source = resolve_system(system, system_file, timeout=timeout)
     if params is not None:
         source = _tuned(source, params)
     n, c = source.system.group.tangent_dim, source.system.group.coords_dim
