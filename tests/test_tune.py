@@ -67,6 +67,7 @@ def test_the_tuned_set_as_a_file(tmp_path, short):
                  start={**FIXED, "mag_std": MAG}, maxfev=4, fold_maxfev=2, progress=False)
     path = T.save(res, tmp_path / "tune.json")
     back = T.load(path)
+    assert set(res) == set(T.FILE_KEYS)  # the file's schema is every key tune writes
     assert back["params"] == pytest.approx(res["params"])
     assert T.params_for(back, "s0") == res["folds"]["s0"]["params"]
     assert T.params_for(back, "other") == res["params"]
