@@ -45,7 +45,9 @@ def test_system_rejects(kwargs, match):
 
 
 def test_user_system_dynamics_shape():
-    with raises(r"dynamics: expected lambda\(g, u, t\) of shape \(3,\) for group R3, got \(2,\)"):
+    with raises(r"dynamics test_user_system_dynamics_shape.<locals>.<lambda> \(test_bad_input.py, line \d+\): "
+                r"expected shape \(3,\) \(lambda\(g, u, t\): one value per direction of the algebra of R3\), "
+                r"got shape \(2,\)"):
         System(group_type=Rn[3], dynamics_fn=lambda g, u, t: g.x[:2], output_fn=lambda g, t: g.x,
                B=np.eye(3), D=np.eye(3), Q=np.eye(3), R=np.eye(3))
 

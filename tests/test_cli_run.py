@@ -167,5 +167,6 @@ def test_run_with_discrete_updates(tmp_path):
     assert "Gate rejected samples: gps 1" in res.output
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert metrics["config"]["updates"] == "discrete" and "updates='discrete'" in metrics["system"]["filter"]
+    assert metrics["config"]["params"] is None  # no tuning file
     est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
     assert np.max(np.linalg.norm(est[:, 2:4] - p, axis=1)) < 1.0

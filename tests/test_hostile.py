@@ -977,3 +977,423 @@ def test_a_system_whose_libraries_the_cache_cannot_check_is_refused_by_name(monk
     np.testing.assert_array_equal(np.asarray(auto.K), np.asarray(flt.run(state, ts, us, ys, engine="xla").K))
     with pytest.raises(RuntimeError, match="ppc64le"):
         liemef.MinimumEnergyFilter(_tiny_system()).run(state, ts, us, ys, engine="c")
+
+
+# --- issue 32: parameter files and user functions ---------------------------------------------------------------
+# A tuning file (`liemef run --params`) is data with a schema: a file for another system, a wrong type, a negative
+# std or an unknown key is refused naming the key, and metrics.json records the file (SHA-256) and every value. A
+# system's functions (dynamics, outputs, residuals) are checked where they are first traced, and at the initial
+# state for NaN: each refusal names the sensor, the function and what came back, at the API and, with exit status
+# 2 and no traceback, at the command line. Then the command line's own items: export-c leaves no folder when it
+# fails and stops a system file that never loads (--timeout), tune refuses an empty --trials, and a folder of CSV
+# logs is not called a ROS bag.
+def _cli(*args):
+    """``liemef ARGS`` in-process: the result, which must be an exit (no exception escaped, no traceback)."""
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    res = CliRunner().invoke(cli, [str(a) for a in args])
+    assert isinstance(res.exception, SystemExit | type(None)), res.exception
+    assert "Traceback" not in res.output, res.output
+    return res
+
+
+def _refused(res, *words):
+    """``res`` exited with status 2 and its output holds every word."""
+    assert res.exit_code == 2, res.output
+    for w in words:
+        assert str(w) in res.output, (w, res.output)
+    return res.output
+
+
+def _tuning_file(**changes) -> dict:
+    """A tuning file of attitude-imu with every key `liemef tune` writes, ``changes`` applied (``...``: the key
+    removed)."""
+    from liemef.studies import tune
+
+    params = {n: 0.5 for n in tune.SYSTEMS["attitude-imu"]}
+    data = {"format": tune.FORMAT, "system": "attitude-imu", "objective": "nll", "names": ["acc_std"],
+            "order": "second", "updates": "hold", "params": params, "train": 1.5,
+            "per_recording": {"07": 1.4, "10": 1.6},
+            "folds": {"07": {"params": dict(params), "train": 1.6, "held_out": 1.4},
+                      "10": {"params": dict(params), "train": 1.4, "held_out": 1.6}},
+            "held_out_mean": 1.5, "train_mean": 1.5, "evaluations": 9, "elapsed_s": 3.5}
+    for path, value in changes.items():
+        *head, last = path.split("__")
+        at = data
+        for k in head:
+            at = at[k]
+        if value is ...:
+            at.pop(last)
+        else:
+            at[last] = value
+    return data
+
+
+def _write_json(path, data):
+    import json
+
+    path.write_text(json.dumps(data))
+    return path
+
+
+VELOCITY_PARAMS = {"mag_std": 0.05, "velocity_std": 0.02}
+TUNING_CASES = {
+    "a file for another system": (dict(system="attitude-velocity", params=VELOCITY_PARAMS, folds=..., names=...),
+                                  ["system: expected a file tuned for attitude-imu", "'attitude-velocity'"]),
+    "a bool for a float": (dict(params__acc_std=True), ["params.acc_std: expected a number > 0", "true (a boolean)"]),
+    "a string for a float": (dict(params__acc_std="0.1"), ["params.acc_std", '"0.1" (str)']),
+    "null for a float": (dict(params__mag_std=None), ["params.mag_std", "null (NoneType)"]),
+    "a list for a float": (dict(params__mag_std=[0.1]), ["params.mag_std", "[0.1] (list)"]),
+    "a negative std": (dict(params__mag_std=-0.1), ["params.mag_std: expected a finite number > 0", "-0.1"]),
+    "a zero std": (dict(params__gyro_std=0.0), ["params.gyro_std: expected a finite number > 0", "0.0"]),
+    "a negative adaptation": (dict(params__acc_adapt=-1.0), ["params.acc_adapt", ">= 0", "-1.0"]),
+    "NaN": (dict(params__bias_walk=float("nan")), ["params.bias_walk: expected a finite number", "nan"]),
+    "an unknown parameter": (dict(params__acc_sdt=0.1), ["params.acc_sdt: unknown parameter of attitude-imu"]),
+    "another model's parameter": (dict(params__velocity_std=0.1), ["params.velocity_std: unknown parameter"]),
+    "an unknown key": (dict(comment="tuned on Monday"), ["comment: unknown key"]),
+    "an unknown key of a fold": (dict(folds__07__note=1), ["folds.07.note: unknown key"]),
+    "a bool in a fold": (dict(folds__10__params__acc_std=False), ["folds.10.params.acc_std", "false (a boolean)"]),
+    "a fold without params": (dict(folds__07__params=...), ["folds.07: expected a fold with its params"]),
+    "names of another model": (dict(names=["velocity_std"]), ["names: expected a list of names from"]),
+    "a negative count": (dict(evaluations=-1), ["evaluations: expected an integer >= 0", "-1"]),
+    "an unknown objective": (dict(objective="mse"), ["objective: expected one of ['truth', 'nll']", '"mse"']),
+    "no system (an old file)": (dict(system=...), ["system: missing", 'add "system": "attitude-imu"']),
+    "no params": (dict(params=...), ["params: missing"]),
+    "another format": (dict(format="liemef-tune-0"), ["format: expected a liemef tuning file"]),
+}
+
+
+def test_every_key_of_a_tuning_file_is_accepted(tmp_path):
+    """The schema takes every key `liemef tune` writes (tests/test_tune.py writes a real one and reads it back)
+    and a 0 where a term may be off; it keeps the file's bytes' SHA-256."""
+    import hashlib
+
+    from liemef.studies import tune
+
+    p = _write_json(tmp_path / "tune.json", _tuning_file(params__acc_adapt=0, params__dip_std=0.0))
+    read = tune.read(p, system="attitude-imu")
+    assert read.system == "attitude-imu" and read.sha256 == hashlib.sha256(p.read_bytes()).hexdigest()
+    assert read.data["params"]["acc_adapt"] == 0 and tune.load(p) == read.data
+    assert set(read.data) == set(tune.FILE_KEYS)
+
+
+@pytest.mark.parametrize("case", sorted(TUNING_CASES))
+def test_a_bad_tuning_file_is_refused_naming_the_key(case, tmp_path):
+    from liemef.studies import tune
+
+    changes, words = TUNING_CASES[case]
+    p = _write_json(tmp_path / "tune.json", _tuning_file(**changes))
+    _raises(lambda: tune.read(p, system="attitude-imu"), "params:", str(p), *words)
+
+
+def test_tuned_values_are_checked_at_the_api_too():
+    from liemef.studies import tune
+
+    _raises(lambda: tune.system_from({"acc_std": True}, {}), "params.acc_std", "true (a boolean)")
+    _raises(lambda: tune.system_from({"acc_std": -1.0}, {}), "params.acc_std", "> 0", "-1.0")
+    _raises(lambda: tune.parameters({"nope": 1.0}, {}), "params.nope: unknown parameter")
+    values = tune.parameters({"acc_std": 0.07}, {"dip": 1.0})
+    assert values["acc_std"] == 0.07 and values["dip"] == 1.0 and values["norm_std"] == [0.1, 1.0]
+
+
+def _imu_log(path):
+    """30 samples at rest of attitude-imu's columns (gyro, unit accelerometer and magnetometer, their norms)."""
+    dip = np.deg2rad(68.0)
+    rows = [f"{k / 100},0.001,0,0,0,0,1,{np.cos(dip)},0,{-np.sin(dip)},9.81,43" for k in range(30)]
+    path.write_text("t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,norm_acc,norm_mag\n"
+                    + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("case", sorted(TUNING_CASES))
+def test_run_refuses_a_bad_tuning_file_with_exit_2(case, tmp_path):
+    changes, words = TUNING_CASES[case]
+    p = _write_json(tmp_path / "tune.json", _tuning_file(**changes))
+    out = _refused(_cli("run", "--system", "attitude-imu", "--params", p, "--log", _imu_log(tmp_path / "log.csv"),
+                        "--out", tmp_path / "o", "--no-progress"), "'--params'", str(p), *words)
+    assert "defaults of" not in out and not (tmp_path / "o").exists()
+
+
+def test_run_records_the_tuning_file_and_every_value_it_used(tmp_path):
+    """metrics.json's config.params: the file, its SHA-256, the names it set and the whole parameter set the
+    system was built with; the description names the file, not the defaults."""
+    import hashlib
+    import json
+
+    from liemef.studies import tune
+
+    changes = {f"params__{n}": ... for n in tune.SYSTEMS["attitude-imu"] if n not in ("acc_std", "mag_std")}
+    p = _write_json(tmp_path / "tune.json", _tuning_file(params__acc_std=0.05, params__mag_std=0.1, **changes))
+    res = _cli("run", "--system", "attitude-imu", "--params", p, "--log", _imu_log(tmp_path / "log.csv"), "--out",
+               tmp_path / "o", "--no-progress", "--no-monitor")
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    record = metrics["config"]["params"]
+    assert record["file"] == str(p) and record["sha256"] == hashlib.sha256(p.read_bytes()).hexdigest()
+    assert record["system"] == "attitude-imu" and record["from_file"] == ["acc_std", "mag_std"]
+    assert record["values"] == tune.parameters({"acc_std": 0.05, "mag_std": 0.1}, {})
+    assert record["values"]["acc_std"] == 0.05 and record["values"]["gyro_std"] > 0  # a default, recorded
+    description = metrics["system"]["description"]
+    assert "defaults of" not in description and str(p) in description and record["sha256"][:12] in description
+
+
+# A user's SE(2) system (planar GPS): what its functions get wrong, by the function.
+def _gps(g, t):
+    return g.cos_sin_xy[2:4]
+
+
+def _dynamics(g, u, t):
+    return jnp.stack([u[1], u[0], 0.0 * u[0]])
+
+
+def _user_system(fn=_gps, residual=None, dynamics=_dynamics):
+    from liemef.systems import Noise, Sensor, SensorSystem
+
+    return SensorSystem(SE2, dynamics, [Sensor("gps", fn, Noise.sample(0.5), ("x", "y"), ("m", "m"),
+                                               residual=residual)],
+                        Noise.density([0.01, 0.02, 0.02]), inputs=("v", "omega"))
+
+
+def uses_numpy(y, h):
+    return np.asarray(y - h)
+
+
+def branches_on_a_value(y, h):
+    return y - h if y[0] > h[0] else h - y
+
+
+FUNCTION_CASES = {
+    # name: (the function's role and its text in a system file, the words of the message, the chained cause)
+    "a residual of the wrong shape": (("residual", "lambda y, h: (y - h)[:1]"),
+                                      ["sensor 'gps': residual <lambda>", "expected shape (2,)", "got shape (1,)"],
+                                      None),
+    "a residual that raises": (("residual", "lambda y, h: 1 / 0"),
+                               ["sensor 'gps': residual <lambda>", "failed when traced", "ZeroDivisionError"],
+                               ZeroDivisionError),
+    "a residual using NumPy on traced values": (("residual", "uses_numpy"),
+                                                ["sensor 'gps': residual uses_numpy", "TracerArrayConversionError",
+                                                 "jax.numpy"], "TracerArrayConversionError"),
+    "a residual branching on a traced value": (("residual", "branches_on_a_value"),
+                                               ["residual branches_on_a_value", "TracerBoolConversionError"],
+                                               "TracerBoolConversionError"),
+    "a scalar residual": (("residual", "lambda y, h: jnp.sum(y - h)"),
+                          ["sensor 'gps': residual <lambda>", "got a scalar (shape ())"], None),
+    "a complex residual": (("residual", "lambda y, h: (y - h) * (1 + 0j)"),
+                           ["residual <lambda>", "expected real floating-point values, got complex values"], None),
+    "an integer residual": (("residual", "lambda y, h: jnp.zeros(2, int)"), ["residual", "integer values"], None),
+    "a boolean residual": (("residual", "lambda y, h: y > h"), ["residual", "boolean values"], None),
+    "an output of the wrong shape": (("fn", "lambda g, t: g.cos_sin_xy[2:3]"),
+                                     ["sensor 'gps': fn <lambda>", "expected shape (2,)", "gps_x, gps_y",
+                                      "got shape (1,)"], None),
+    "an output that raises": (("fn", "lambda g, t: g.nope"), ["sensor 'gps': fn <lambda>", "AttributeError"],
+                              AttributeError),
+    "an output using NumPy": (("fn", "lambda g, t: np.asarray(g.cos_sin_xy[2:4])"),
+                              ["sensor 'gps': fn", "TracerArrayConversionError"], "TracerArrayConversionError"),
+    "a scalar output": (("fn", "lambda g, t: jnp.sum(g.cos_sin_xy)"), ["fn <lambda>", "got a scalar"], None),
+    "a complex output": (("fn", "lambda g, t: g.cos_sin_xy[2:4] * 1j"), ["fn <lambda>", "complex values"], None),
+    "an output that is no array": (("fn", "lambda g, t: None"), ["fn <lambda>", "got NoneType None"], None),
+    "dynamics of the wrong shape": (("dynamics", "lambda g, u, t: u"),
+                                    ["dynamics <lambda>", "expected shape (3,)", "algebra of SE2", "got shape (2,)"],
+                                    None),
+    "dynamics that raise": (("dynamics", "lambda g, u, t: u.nope"), ["dynamics <lambda>", "failed when traced",
+                                                                     "AttributeError"], AttributeError),
+    "dynamics using NumPy": (("dynamics", "lambda g, u, t: np.array([float(u[0]), 0.0, 0.0])"),
+                             ["dynamics <lambda>", "ConcretizationTypeError"], "ConcretizationTypeError"),
+    "complex dynamics": (("dynamics", "lambda g, u, t: jnp.stack([u[1], u[0], 0.0 * u[0]]) * 1j"),
+                         ["dynamics <lambda>", "complex values"], None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(FUNCTION_CASES))
+def test_a_bad_user_function_is_named_when_first_traced(case):
+    (role, text), words, cause = FUNCTION_CASES[case]
+    fn = eval(text)  # noqa: S307 - the cases' own text, shared with the system files below
+    with pytest.raises(ValueError) as err:
+        _user_system(**{role: fn})
+    message = str(err.value)
+    for w in words:
+        assert w in message, (w, message)
+    assert ", line " in message  # the function's file and line
+    if cause is not None:  # the function's own exception, chained
+        assert err.value.__cause__ is not None and (type(err.value.__cause__).__name__ == cause
+                                                    if isinstance(cause, str) else
+                                                    isinstance(err.value.__cause__, cause)), err.value.__cause__
+
+
+def test_a_plain_system_names_its_functions():
+    args = dict(B=np.eye(2), D=np.eye(1), Q=np.eye(1), R=np.eye(2), n_inputs=1)
+    _raises(lambda: System(group_type=Rn[2], dynamics_fn=lambda g, u, t: 1 / 0, output_fn=lambda g, t: g.x[:1],
+                           **args), "dynamics test_a_plain_system", "<lambda>", "ZeroDivisionError")
+    _raises(lambda: System(group_type=Rn[2], dynamics_fn=lambda g, u, t: g.x, output_fn=lambda g, t: g.x[:1] > 0,
+                           **args), "output test_a_plain_system", "boolean values")
+    _raises(lambda: System(group_type=Rn[2], dynamics_fn=lambda g, u, t: g.x, output_fn=lambda g, t: g.x[0],
+                           **args), "output test_a_plain_system", "expected a vector, got a scalar")
+
+
+def test_what_a_one_component_sensor_may_return():
+    """A scalar is one value for a one-component sensor (its output and its residual), a list of scalars is a
+    vector: both are what they say, nothing is changed."""
+    from liemef.systems import Noise, Sensor, SensorSystem
+
+    sensor = Sensor("r", lambda g, t: jnp.linalg.norm(g.cos_sin_xy[2:4]), Noise.sample(0.1),
+                    residual=lambda y, h: jnp.sum(y - h))
+    sysm = SensorSystem(SE2, _dynamics, [sensor], Noise.density([0.01, 0.02, 0.02]), inputs=("v", "omega"))
+    assert sysm.residual(jnp.array([2.0]), jnp.array([0.5])).tolist() == [1.5]
+    listed = _user_system(fn=lambda g, t: [g.cos_sin_xy[2], g.cos_sin_xy[3]])
+    assert listed.output(SE2.identity(), 0.0).shape == (2,)
+
+
+def test_nan_at_the_initial_state_is_refused_by_init():
+    """NaN shows only when a function runs: init evaluates the outputs and residuals at g0. An infinite output
+    is a singularity the filter handles while no sample of its sensor is in force: it passes."""
+    g0, K0 = SE2.from_coords(jnp.array([0.0, 1.0, 2.0])), np.eye(3)
+    nan_residual = liemef.MinimumEnergyFilter(_user_system(residual=lambda y, h: (y - h) * jnp.nan))
+    _raises(lambda: nan_residual.init(g0, K0), "sensor 'gps': residual test_nan_at_", "returned [nan nan]",
+            "at y = h = [1. 2.]", "initial state", "expected finite real numbers")
+    nan_output = liemef.MinimumEnergyFilter(_user_system(fn=lambda g, t: g.cos_sin_xy[2:4] * jnp.nan))
+    _raises(lambda: nan_output.init(g0, K0), "sensor 'gps': fn test_nan_at_", "returned [nan nan] at the initial state",
+            "not NaN")
+    inf_output = liemef.MinimumEnergyFilter(_user_system(fn=lambda g, t: g.cos_sin_xy[2:4] / 0.0))
+    assert inf_output.init(g0, K0).K.shape == (3, 3)
+
+
+def nan_at_speed(g, u, t):
+    return _dynamics(g, u, t) * jnp.where(u[0] > 0.5, jnp.nan, 1.0)
+
+
+def test_a_run_that_turns_non_finite_names_the_function():
+    """NaN dynamics (at run time, with an input) fail the run as non-finite, and the message names the
+    function and what it returned at the last good state; failure.json holds no NaN."""
+    import json
+
+    from liemef.studies import logs
+
+    source = logs.LogSystem(_user_system(dynamics=nan_at_speed), "nan-dynamics", "dynamics NaN above 0.5 m/s")
+    ts = 0.1 * np.arange(6)
+    log = io.RecordedLog(ts, np.tile([1.0, 0.0], (6, 1)), np.full((6, 2), np.nan))
+    run = logs.filter_log(source, log, x0=np.array([0.0, 1.0, 2.0]), K0=1.0)
+    assert not run.ok and "dynamics nan_at_speed" in run.message and "returned [nan nan nan] at the last good state" \
+        in run.message and "with the input [1. 0.]" in run.message, run.message
+    json.dumps(run.failure, allow_nan=False)
+
+
+SYSTEM_FILE_HEAD = """
+import jax.numpy as jnp, numpy as np
+from liemef.groups import SE2
+from liemef.systems import Noise, Sensor, SensorSystem
+
+def uses_numpy(y, h):
+    return np.asarray(y - h)
+
+def branches_on_a_value(y, h):
+    return y - h if y[0] > h[0] else h - y
+
+fn, residual = (lambda g, t: g.cos_sin_xy[2:4]), None
+dynamics = lambda g, u, t: jnp.stack([u[1], u[0], 0.0 * u[0]])
+"""
+SYSTEM_FILE_TAIL = """
+system = SensorSystem(SE2, dynamics, [Sensor("gps", fn, Noise.sample(0.5), ("x", "y"), ("m", "m"),
+                                             residual=residual)],
+                      Noise.density([0.01, 0.02, 0.02]), inputs=("v", "omega"))
+x0 = [0.0, 1.0, 2.0]
+"""
+FILE_CASES = {**{k: (v[0], v[1]) for k, v in FUNCTION_CASES.items()},
+              "a NaN residual": (("residual", "lambda y, h: (y - h) * jnp.nan"),
+                                 ["sensor 'gps': residual <lambda>", "returned [nan nan] at y = h"]),
+              "a NaN output": (("fn", "lambda g, t: g.cos_sin_xy[2:4] * jnp.nan"),
+                               ["sensor 'gps': fn <lambda>", "returned [nan nan] at the initial state"])}
+
+
+@pytest.fixture(scope="module")
+def gps_log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("gps") / "log.csv"
+    rows = [f"{0.1 * k},1,0,{1 + 0.1 * k if k % 5 == 0 else ''},{2 if k % 5 == 0 else ''}" for k in range(20)]
+    path.write_text("t,v,omega,gps_x,gps_y\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("case", sorted(FILE_CASES))
+def test_run_names_a_bad_user_function_with_exit_2(case, tmp_path, gps_log):
+    (role, text), words = FILE_CASES[case]
+    p = tmp_path / "gps.py"
+    p.write_text(SYSTEM_FILE_HEAD + f"{role} = {text}\n" + SYSTEM_FILE_TAIL)
+    out = _refused(_cli("run", "--system-file", p, "--log", gps_log, "--out", tmp_path / "o", "--no-progress"),
+                   *words)
+    assert "gps.py, line" in out and not (tmp_path / "o").exists()
+
+
+# The command line's own items.
+HANGS = {"a loop": "while True:\n    pass\n",
+         "a loop that holds every exception": "while True:\n    try:\n        pass\n    except Exception:\n"
+                                              "        pass\n"}
+
+
+@pytest.mark.parametrize("body", sorted(HANGS))
+def test_a_system_file_that_never_loads_is_stopped(body, tmp_path):
+    p = tmp_path / "hang.py"
+    p.write_text(HANGS[body])
+    _raises(lambda: load_system_file(p, timeout=0.2), "--system-file", str(p), "did not finish within 0.2 s",
+            "--timeout")
+    out = _refused(_cli("export-c", "--system-file", p, "--timeout", "0.2", "--out", tmp_path / "a" / "b"),
+                   str(p), "did not finish within 0.2 s", "--timeout SECONDS")
+    assert "0: no limit" in out and not (tmp_path / "a").exists()
+    _refused(_cli("schema", "--system-file", p, "--timeout", "0.2"), "did not finish")
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf"])
+def test_a_bad_timeout_is_refused(value, tmp_path):
+    from liemef.studies import runs
+
+    _raises(lambda: _validate.timeout("--timeout", float(value)), "--timeout", "expected seconds >= 0")
+    with pytest.raises(ValueError, match=r"expected seconds >= 0 \(0: no limit\)") as err:
+        runs.export_c_to(tmp_path / "c", system="tse2", timeout=float(value))
+    assert err.value.option == "--timeout"
+    _refused(_cli("export-c", "--system", "tse2", "--timeout", value, "--out", tmp_path / "c"), "'--timeout'",
+             "expected seconds >= 0 (0: no limit)")
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_failed_export_leaves_no_folder_it_created(tmp_path):
+    from liemef.studies import runs
+
+    bad = tmp_path / "bad.py"
+    bad.write_text("raise RuntimeError('no system today')\n")
+    _raises(lambda: runs.export_c_to(tmp_path / "x" / "y", system_file=bad), "RuntimeError: no system today")
+    assert not (tmp_path / "x").exists()
+    _refused(_cli("export-c", "--system-file", bad, "--out", tmp_path / "x" / "y"), "no system today")
+    _refused(_cli("export-c", "--out", tmp_path / "x"), "expected exactly one of --system")
+    _refused(_cli("export-c", "--system", "tse2", "--integrator", "euler", "--out", tmp_path / "x"), "--integrator")
+    assert not (tmp_path / "x").exists()
+    (tmp_path / "mine").mkdir()  # a folder that was there stays
+    _refused(_cli("export-c", "--system-file", bad, "--out", tmp_path / "mine"), "no system today")
+    assert (tmp_path / "mine").is_dir()
+
+
+@pytest.mark.parametrize(("args", "option"), [(["--trials", ""], "--trials"), (["--trials", "07,,10"], "--trials"),
+                                              (["--params", ""], "--params"), (["--params", "acc_std, "], "--params")])
+def test_tune_refuses_an_empty_list(args, option, tmp_path):
+    from liemef.studies import runs
+    from liemef.studies.settings import OptionError
+
+    with pytest.raises(OptionError) as err:
+        runs.tune_to(tmp_path / "t", **{"trials" if option == "--trials" else "names": args[1].split(",")})
+    assert err.value.option == option and "separated by commas" in str(err.value)
+    _refused(_cli("tune", "broad", *args, "--out", tmp_path / "t"), f"'{option}'", "separated by commas")
+    assert not (tmp_path / "t").exists()
+
+
+def test_a_folder_of_csv_logs_is_no_ros_bag(tmp_path, gps_log):
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    (folder / "a.csv").write_text(gps_log.read_text())
+    assert not io.is_bag(folder) and not io.is_bag(folder / "a.csv")
+    out = _refused(_cli("run", "--system", "localization", "--log", folder, "--out", tmp_path / "o"), "'--log'",
+                   "got the folder", "without a metadata.yaml", "'a.csv': give one of them")
+    assert "is a ROS bag" not in out
+    (folder / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (tmp_path / "old.bag").write_bytes(b"")
+    assert io.is_bag(folder) and io.is_bag(folder / "metadata.yaml") and io.is_bag(tmp_path / "old.bag")
+    _refused(_cli("run", "--system", "localization", "--log", folder, "--out", tmp_path / "o"), "'--topics'",
+             "is a ROS bag: give --topics")

@@ -3,6 +3,8 @@ and what came, before any compiled code runs."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 ON_GROUP = 1e-6
@@ -161,6 +163,20 @@ def nonnegative(name: str, value) -> float:
     if v < 0:
         raise ValueError(f"{name}: expected a number >= 0, got {v}")
     return v
+
+
+def timeout(name: str, value) -> float | None:
+    """A time limit in seconds: None for none (None or 0), else a finite number > 0; a ValueError naming
+    ``name`` for a negative, non-finite or non-numeric value (a boolean included)."""
+    if value is None:
+        return None
+    try:
+        v = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (math.isfinite(v) and v >= 0):
+        raise ValueError(f"{name}: expected seconds >= 0 (0: no limit), got {value!r}")
+    return v or None
 
 
 def sorted_times(name: str, ts) -> np.ndarray:

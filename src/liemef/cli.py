@@ -156,11 +156,12 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 
 @_command(cli, "run")
-def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_diag, connection, order, alpha,
-            interpolation, updates, curvature, substeps, gap, chunk, params_file, monitor, force, progress):
+def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
+            alpha, interpolation, updates, curvature, substeps, gap, chunk, params_file, monitor, force, progress):
     from .studies import logs
 
-    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, topics=topics,
+    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
+                               topics=topics,
                                params=params_file, x0=_floats(x0, "'--x0'"),
                                K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
                                force=force, connection=connection, order=order, alpha=alpha,
@@ -173,12 +174,13 @@ def run_log(system_name, system_file, log_path, topics, tum, out, x0, k0, k0_dia
 
 
 @_command(cli, "export-c")
-def export_c_cmd(system_name, system_file, out, name, connection, order, integrator, alpha, substeps, max_substeps,
-                 backend):
+def export_c_cmd(system_name, system_file, timeout, out, name, connection, order, integrator, alpha, substeps,
+                 max_substeps, backend):
     from .studies.runs import export_c_to
 
     try:
-        saved = export_c_to(out, system=system_name, system_file=system_file, name=name, connection=connection,
+        saved = export_c_to(out, system=system_name, system_file=system_file, timeout=timeout, name=name,
+                            connection=connection,
                             order=order, integrator=integrator, alpha=alpha, substeps=_substeps(substeps),
                             max_substeps=max_substeps, backend=backend)
     except NotImplementedError as err:  # liemef.codegen.UnsupportedPrimitive: the step uses what C lacks
@@ -187,7 +189,7 @@ def export_c_cmd(system_name, system_file, out, name, connection, order, integra
 
 
 @_command(cli, "schema")
-def schema(system_name, system_file):
+def schema(system_name, system_file, timeout):
     if system_name is not None and system_file is None:  # a ready system: no JAX
         known = registry.system_schema(system_name)
         click.echo(f"{system_name}: {known['description']}")
@@ -195,7 +197,7 @@ def schema(system_name, system_file):
         return
     from .studies.logs import schema_text
 
-    click.echo(schema_text(system_name, system_file))
+    click.echo(schema_text(system_name, system_file, timeout=timeout))
 
 
 @_command(cli, "dataset")
@@ -217,8 +219,8 @@ def tune_cmd(data, out, objective, trials, names, seconds, maxfev, fold_maxfev, 
              force, progress):
     from .studies.runs import tune_to
 
-    _echo(tune_to(out, data, objective=objective, trials=None if not trials else trials.split(","),
-                  names=None if not names else [n.strip() for n in names.split(",")], seconds=seconds,
+    _echo(tune_to(out, data, objective=objective, trials=None if trials is None else trials.split(","),
+                  names=None if names is None else names.split(","), seconds=seconds,
                   maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates, realdata=realdata,
                   force=force, progress=progress))
 

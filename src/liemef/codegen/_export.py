@@ -367,11 +367,19 @@ void {P}_coords(const double *g, double *q) {{ {P}_coords_core(g, q); }}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     h_path, c_path = out / f"{P}.h", out / f"{P}.c"
-    for path, text in ((h_path, header), (c_path, source)):
-        fd, tmp = tempfile.mkstemp(dir=out, prefix=f".{path.name}.", suffix=".tmp")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
+    staged = []  # both files written beside their places first, then renamed: a failure leaves neither
+    try:
+        for path, text in ((h_path, header), (c_path, source)):
+            fd, tmp = tempfile.mkstemp(dir=out, prefix=f".{path.name}.", suffix=".tmp")
+            staged.append((tmp, path))
+            with os.fdopen(fd, "w") as fh:
+                fh.write(text)
+        for tmp, path in staged:
+            os.replace(tmp, path)
+    finally:
+        for tmp, _ in staged:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
     return ExportedC(header=h_path, source=c_path, prefix=P, fields=fields, n=n, input_dim=m, output_dim=p,
                      group_params=g_size, coords_dim=c, backend=backend)
 

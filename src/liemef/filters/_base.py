@@ -29,6 +29,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .. import _side, _validate
 from ..groups import LieGroup
+from ..systems._traced import is_traced
 from ._riccati import information_in_force
 from ._status import CAUSES, DEFINITE_TOL, SYMMETRY_TOL, Status, positive_definite
 
@@ -187,8 +188,14 @@ class AbstractFilter(eqx.Module):
              u0: ArrayLike | None = None) -> FilterState:
         """Initial state: ``g_hat = g0`` (argmin of m0) and ``K = K0``, or ``K = X0^{-1}`` with X0 the
         left-trivialized Hessian of m0. K0 may be singular (positive semidefinite), as in Rigo et al. 2023,
-        eq. (63). ``u0`` is the input held until the first present input sample (default zeros)."""
+        eq. (63). ``u0`` is the input held until the first present input sample (default zeros).
+
+        The system's outputs and residuals are evaluated once at ``g0`` (t = 0, outside a trace): an output that
+        is NaN there, or a residual that is not finite at ``y = h``, is a ValueError naming its sensor and function
+        (:meth:`~liemef.systems.AbstractSystem.check_finite_at`; an infinite output, a singularity, passes)."""
         self._check_element("g0", g0)
+        if not is_traced(g0):
+            self.system.check_finite_at(g0)
         n, m = self.n, self.system.input_dim
         if (K0 is None) == (X0 is None):
             raise ValueError("init: expected exactly one of K0 (initial gain) or X0 (Hessian of m0), got "

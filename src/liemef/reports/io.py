@@ -147,6 +147,20 @@ def write_result(out: str | os.PathLike, metrics: Mapping[str, Any], arrays: Map
 
 
 # --- reading -----------------------------------------------------------------------------------------------
+ROS2_FILES = (".db3", ".mcap", ".yaml")
+"""The files of a ROS 2 bag folder (beside its ``metadata.yaml``): a path to one stands for the folder."""
+
+
+def is_bag(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a ROS bag: a ROS 1 ``.bag`` file, a ROS 2 bag folder (one holding a ``metadata.yaml``)
+    or a file of one (:data:`ROS2_FILES`). Any other folder (of CSV logs, say) is not. ``liemef run`` asks
+    before JAX loads; :mod:`liemef.reports.rosbag` reads the bag."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix.lower() == ".bag" or (p.suffix.lower() in ROS2_FILES and (p.parent / "metadata.yaml").is_file())
+
+
 def _existing_file(path: str | os.PathLike, name: str) -> Path:
     """``path`` as an existing file; a ValueError naming ``name`` otherwise."""
     if not isinstance(path, str | os.PathLike):

@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .io import LogLayout, RecordedLog, _check_log, read_json
+from .io import ROS2_FILES, LogLayout, RecordedLog, _check_log, read_json
 
 MESSAGE_TYPES = {
     "sensor_msgs/msg/Imu": ("sensor_msgs/Imu", "imu"),
@@ -268,7 +268,7 @@ def _bag_paths(path: str | os.PathLike) -> Path:
     p = Path(path)
     if not p.exists():
         raise ValueError(f"bag: expected a ROS 1 .bag file or a ROS 2 bag folder, got {str(p)!r} (not found)")
-    if p.is_file() and p.suffix.lower() in (".db3", ".mcap", ".yaml") and (p.parent / "metadata.yaml").is_file():
+    if p.is_file() and p.suffix.lower() in ROS2_FILES and (p.parent / "metadata.yaml").is_file():
         p = p.parent
     if p.is_dir() and not (p / "metadata.yaml").is_file():
         raise ValueError(f"bag: expected a ROS 2 bag folder with a metadata.yaml, got the folder {str(p)!r}")

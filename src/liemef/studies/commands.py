@@ -81,6 +81,8 @@ ALPHA = option("--alpha", type=float, default=0.0, show_default=True, help="Forg
 SUBSTEPS = option("--substeps", default="auto", show_default=True,
                   help="Integrator steps per sample interval: auto (by stiffness) or a number.")
 SYSTEM_FILE = option("--system-file", type=PATH, help="A Python file that defines `system`.")
+TIMEOUT = option("--timeout", type=float, default=registry.SYSTEM_FILE_TIMEOUT, show_default=True,
+                 help="Seconds --system-file may take to load before it is stopped (0: no limit).")
 
 
 def system(text: str) -> Param:
@@ -137,11 +139,11 @@ RUN = Command(
     sensor and when, and exits with status 3.""", (
         system("A ready system the log was recorded with (or --system-file)."),
         option("--system-file", type=PATH, help="A Python file that defines `system` (your own liemef system) and "
-               "optionally K0, x0, initial_guess(y0)."),
+               "optionally K0, x0, initial_guess(y0)."), TIMEOUT,
         option("--log", "log_path", required=True, type=PATH,
                help="Recorded log: CSV with the system's columns (`liemef schema SYSTEM`; an empty field is a "
-                    "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag with "
-                    "--topics."),
+                    "missing sample), NPZ with ts, us, ys (or one time vector per sensor), or a ROS bag (a .bag "
+                    "file, or a ROS 2 bag folder with its metadata.yaml) with --topics."),
         option("--topics", type=PATH, help="With a ROS 1 .bag or a ROS 2 bag folder as --log: the JSON/TOML "
                "mapping from topics to the system's columns (liemef.reports.rosbag)."),
         option("--tum/--no-tum", default=False, help="Also write the estimates as a TUM trajectory, estimates.tum."),
@@ -165,7 +167,8 @@ RUN = Command(
         option("--chunk", type=at_least(16), default=65536, show_default=True,
                help="Samples per compiled chunk (progress is shown between chunks)."),
         option("--params", "params_file", type=PATH,
-               help="A tuning file of `liemef tune` (JSON): its final parameter set for --system attitude-imu."),
+               help="A tuning file of `liemef tune` (JSON) for --system attitude-imu: its final parameter set "
+                    "(recorded in metrics.json with its SHA-256; docs/imu.md)."),
         option("--monitor/--no-monitor", default=True, show_default=True,
                help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
                "inconsistent)."),
@@ -177,8 +180,9 @@ EXPORT_C = Command(
     and the coordinate maps. No heap, no library but libm; the weights, connection and parameters are constants
     of the source (export again for new ones). The two files are written in place, each whole or not at all
     (the folder may be your project's). See docs/export-c.md.""", (
-        system("A ready system (or --system-file)."), SYSTEM_FILE,
-        option("--out", required=True, type=PATH, help="Folder for NAME.h and NAME.c (created if missing)."),
+        system("A ready system (or --system-file)."), SYSTEM_FILE, TIMEOUT,
+        option("--out", required=True, type=PATH, help="Folder for NAME.h and NAME.c (created if missing; a "
+                                                        "failed export leaves no folder it created)."),
         option("--name", help="The C prefix of every exported name, a C identifier (default: the system's name with "
                               "- replaced by _)."),
         CONNECTION, ORDER,
@@ -193,7 +197,7 @@ EXPORT_C = Command(
 SCHEMA_COMMAND = Command(
     """Print the log columns of SYSTEM (a ready system) or of --system-file: names, units, roles and the
     sensors' noise levels, and the CSV header that `liemef run` expects.""", (
-        argument("system_name", required=False, type=choice(SYSTEMS), metavar="SYSTEM"), SYSTEM_FILE))
+        argument("system_name", required=False, type=choice(SYSTEMS), metavar="SYSTEM"), SYSTEM_FILE, TIMEOUT))
 
 DATASET = Command(
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, _validate
 from ..reports import io
 
 SCHEMA = "liemef.run/1"
@@ -48,8 +48,9 @@ DEFAULT_CHUNK = 65536
 @dataclass(frozen=True)
 class LogSystem:
     """A system to filter logs with, and where its defaults come from: ``label`` and ``description`` name it,
-    ``measured(ys)`` reads state coordinates off measurements (a ready system; None for a user's file) and
-    ``user`` is the user's :class:`~liemef.systems._file.UserSystem` (its ``x0``, ``K0``, ``initial_guess``)."""
+    ``measured(ys)`` reads state coordinates off measurements (a ready system; None for a user's file),
+    ``user`` is the user's :class:`~liemef.systems._file.UserSystem` (its ``x0``, ``K0``, ``initial_guess``) and
+    ``params`` the tuning file applied."""
 
     system: Any
     label: str
@@ -57,6 +58,10 @@ class LogSystem:
     measured: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
     user: Any = field(default=None, repr=False)
     spec: Any = field(default=None, repr=False)
+    params: dict | None = field(default=None, repr=False)
+    """The tuning file applied (``--params``): its ``file``, ``sha256``, ``system``, the names it set
+    (``from_file``) and every parameter ``values`` the system was built with (``metrics.json``'s
+    ``config.params``); None without one."""
 
     def initial_guess(self, ys0) -> np.ndarray:
         """The default initial estimate in coordinates from the first present measurement of each component
@@ -77,10 +82,11 @@ class LogSystem:
         return np.eye(self.system.group.tangent_dim)
 
 
-def resolve_system(name: str | None = None, file: str | os.PathLike | None = None) -> LogSystem:
+def resolve_system(name: str | None = None, file: str | os.PathLike | None = None, *,
+                   timeout: float | None = None) -> LogSystem:
     """A ready system by ``name`` (:data:`liemef.studies.registry.SYSTEMS`) or a user's system ``file``
-    (exactly one). ValueError when both or neither are given, the name is unknown or the file fails to load
-    (naming ``--system-file``)."""
+    (exactly one). ValueError when both or neither are given, the name is unknown or the file fails to load,
+    or has not finished loading after ``timeout`` seconds (None or 0: no limit) (naming ``--system-file``)."""
     from ..systems import _file as system_file
     from .experiments import get_system
 
@@ -91,16 +97,18 @@ def resolve_system(name: str | None = None, file: str | os.PathLike | None = Non
         spec = get_system(name)
         return LogSystem(spec.make(), spec.name, spec.description, spec.measured, spec=spec)
     path = Path(file)
-    user = system_file.load_system_file(path)
+    user = system_file.load_system_file(path, timeout=timeout)
     return LogSystem(user.system, path.stem, f"user system from {path}", user=user)
 
 
-def schema_text(name: str | None = None, file: str | os.PathLike | None = None) -> str:
-    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`):
-    its label and description, then its log columns, units, roles and noise levels, and the CSV header."""
+def schema_text(name: str | None = None, file: str | os.PathLike | None = None, *,
+                timeout: float | None = None) -> str:
+    """What ``liemef schema`` prints for a ready system ``name`` or your own ``file`` (:func:`resolve_system`,
+    with ``timeout``): its label and description, then its log columns, units, roles and noise levels, and the
+    CSV header."""
     from ..systems._file import format_schema
 
-    source = resolve_system(name, file)
+    source = resolve_system(name, file, timeout=timeout)
     return f"{source.label}: {source.description}\n{format_schema(source.system)}"
 
 
@@ -212,6 +220,8 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
         said.append(f"the interval is a gap of {dt:.4g} s, predicted through on held inputs")
     if out["substeps_capped"]:
         said.append("its integration hit the sub-step cap (max_substeps)")
+    if report["cause"] == "non-finite":
+        said += _nonfinite_functions(system, g, log, k, t0)
     Ks = 0.5 * (np.asarray(K) + np.asarray(K).T)
     with np.errstate(all="ignore"):
         cond = float(np.linalg.cond(Ks)) if np.all(np.isfinite(Ks)) else math.inf
@@ -239,7 +249,8 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
                 except np.linalg.LinAlgError:
                     sigmas = math.nan
             names = [system.output_names[i] for i in idx]
-            out["samples"][b.name] = {"components": names, "residual": [float(v) for v in r[idx]],
+            out["samples"][b.name] = {"components": names,
+                                      "residual": [float(v) if math.isfinite(v) else None for v in r[idx]],
                                       "sigmas": sigmas if math.isfinite(sigmas) else None}
             sizes.append((sigmas, b.name))
         shown = ", ".join(f"{name} {s:.3g}" for s, name in sorted(sizes, key=lambda x: -np.nan_to_num(x[0]))
@@ -247,6 +258,27 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
         if shown:
             said.append(f"its samples, in innovation standard deviations from the last good estimate: {shown}")
     out["said"] = "".join(f"; {s}" for s in said)
+    return out
+
+
+def _nonfinite_functions(system, g, log, k: int, t0: float) -> list[str]:
+    """The system's functions that return NaN or infinities at the last good state ``g`` of a run that became
+    non-finite over interval ``k``: the dynamics with the input in force (the last present one), the outputs
+    and the residuals (:meth:`~liemef.systems.AbstractSystem.check_finite_at`), each named."""
+    from ..systems._traced import at_state, check_finite
+
+    us = np.asarray(log.us, dtype=np.float64)
+    rows = np.flatnonzero(np.all(np.isfinite(us[:k + 1]), axis=1))
+    u = us[rows[-1]] if rows.size else np.zeros(us.shape[1])
+    out = []
+    at = at_state("the last good state", t0) + f" with the input {u}"
+    for check in (lambda: check_finite("dynamics", getattr(system, "dynamics_fn", system.dynamics),
+                                       system.dynamics(g, u, t0), at),
+                  lambda: system.check_finite_at(g, t0, state="the last good state", singular=False)):
+        try:
+            check()
+        except ValueError as err:
+            out.append(str(err).split("; expected")[0])
     return out
 
 
@@ -578,7 +610,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
-                   "iterations": flt.iterations, "gap": common["gap"]},
+                   "iterations": flt.iterations, "gap": common["gap"], "params": source.params},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
@@ -625,8 +657,13 @@ def check_log_file(path: str | os.PathLike) -> None:
     p = Path(path)
     if not p.exists():
         raise _bad("--log", f"log: file not found: {str(p)!r}")
+    if p.is_dir():
+        csv = sorted(q.name for q in p.glob("*.csv"))
+        held = f"; it holds {len(csv)} .csv file(s), e.g. {csv[0]!r}: give one of them" if csv else ""
+        raise _bad("--log", f"log: expected a .csv or .npz log file, or a ROS bag (a .bag file, or a ROS 2 bag "
+                            f"folder with a metadata.yaml), got the folder {str(p)!r} without a metadata.yaml{held}")
     if not p.is_file():
-        raise _bad("--log", f"log: expected a file, got a directory {str(p)!r}")
+        raise _bad("--log", f"log: expected a file, got {str(p)!r}")
     if p.suffix.lower() not in (".csv", ".npz"):
         raise _bad("--log", f"log: expected a .csv or .npz file, got {str(p)!r}")
     if p.stat().st_size == 0:
@@ -675,20 +712,26 @@ class SavedRun:
 def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,
                   system_file: str | os.PathLike | None = None, topics: str | os.PathLike | None = None,
                   params: str | os.PathLike | None = None, x0=None, K0=None, tum: bool = False, force: bool = False,
-                  **options) -> SavedRun:
+                  timeout: float | None = None, **options) -> SavedRun:
     """Filter the recorded ``log`` and write its outputs to the folder ``out``, whole or not at all: what
     ``liemef run`` does, for a script as well.
 
     ``system`` (a ready system's name) or ``system_file`` (your own), exactly one; ``log`` a CSV or NPZ file, or
     a ROS bag with ``topics`` (the mapping file, :mod:`liemef.reports.rosbag`); ``params`` a `liemef tune` file
     (attitude-imu only); ``x0``, ``K0`` and ``options`` as :func:`filter_log`; ``tum`` also writes
-    ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`).
+    ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`);
+    ``timeout``: the seconds ``system_file`` may take to load (None or 0: no limit; the command line's
+    ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by default).
     Bad input is a ValueError naming the option (``err.option``), raised before anything is written and, for a
     ready system and a CSV or NPZ log, before JAX is imported. A failure inside the filter is no exception:
     ``out`` then holds ``failure.json`` alone and :attr:`LogRun.ok` is False."""
     from ..reports import outputs
     from . import registry
 
+    try:
+        _validate.timeout("--timeout", timeout)
+    except ValueError as err:
+        raise _bad("--timeout", str(err).removeprefix("--timeout: ")) from err
     K0 = None if K0 is None else np.asarray(K0, dtype=np.float64)
     if K0 is not None and K0.ndim == 0 and not (math.isfinite(K0) and K0 >= 0):
         raise _bad("--k0", f"expected a number >= 0, got {float(K0)}")
@@ -698,7 +741,7 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     if params is not None and system != "attitude-imu":
         raise _bad("--params", f"expected --system attitude-imu with a tuning file, got {system!r}")
     log = Path(log)
-    bag = log.is_dir() or log.suffix.lower() == ".bag"
+    bag = io.is_bag(log)
     if bag and topics is None:
         raise _bad("--topics", f"{log} is a ROS bag: give --topics MAPPING.json")
     if not bag:
@@ -717,7 +760,7 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
             layout = io.LogLayout(tuple(known["inputs"]), tuple(known["outputs"]),
                                   tuple(tuple(b) for b in known["blocks"]))
             recorded = _read(lambda: io.read_log(log, layout), "--log")
-    source = resolve_system(system, system_file)
+    source = resolve_system(system, system_file, timeout=timeout)
     if params is not None:
         source = _tuned(source, params)
     n, c = source.system.group.tangent_dim, source.system.group.coords_dim
@@ -752,13 +795,21 @@ def _read(fn, option: str):
 
 
 def _tuned(source: LogSystem, params) -> LogSystem:
-    """``source`` (attitude-imu) with the final parameter set of a `liemef tune` file (``--params``)."""
-    import dataclasses
-
+    """``source`` (a ready system that ``liemef tune`` fits) built with the final parameter set of the tuning file
+    ``params`` (``--params``, read and checked by :func:`liemef.studies.tune.read`: a file for another system is
+    refused), its description and :attr:`LogSystem.params` saying which file (SHA-256) and every value used."""
     from . import tune
 
-    return dataclasses.replace(source, system=_read(lambda: tune.system_from(tune.params_for(tune.load(params)), {}),
-                                                    "--params"))
+    tuned = _read(lambda: tune.read(params, system=source.label), "--params")
+    chosen = tune.params_for(tuned.data)
+    values = tune.parameters(chosen, {}, tuned.system)
+    system = _read(lambda: tune.system_from(chosen, {}, tuned.system), "--params")
+    base = source.description.split("; defaults of ")[0]
+    return dataclasses.replace(
+        source, system=system, params={"file": str(params), "sha256": tuned.sha256, "system": tuned.system,
+                                       "from_file": sorted(chosen), "values": values},
+        description=f"{base}; the final parameter set of the tuning file {params} (sha256 {tuned.sha256[:12]}; "
+                    "every value in metrics.json's config.params)")
 
 
 def _read_bag(path, topics, system):

@@ -28,6 +28,11 @@ DEFAULT_BATCH_SIZE = 8
 """Monte Carlo trials per compiled ``vmap`` batch unless told otherwise (the results do not depend on it). On a
 2-core CPU, TSE(2) at 1 ms ran 8, 13, 21, 14 and 8 trials/s with batches of 1, 4, 8, 16 and 32 (larger batches
 also compile longer)."""
+SYSTEM_FILE_TIMEOUT = 60.0
+"""Seconds a user's system file (``--system-file``) may take to load before ``liemef run``, ``export-c`` and
+``schema`` stop it (``--timeout``; 0: no limit): a file that never returns is stopped, not waited for.
+Loading builds the system and traces its functions once (a second or two); a file that computes more asks for
+more."""
 DURATION_RULE = ("a statistics window that would start at or after T moves in proportion: each of its times t "
                  "becomes t * T / T0, T0 the study's own final time (the 10-50 s window of a 50 s study is 1-5 s "
                  "with T = 5 s); a window that starts before T is kept, cut at T")

@@ -225,16 +225,20 @@ class SavedC:
 def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
                 name: str | None = None, connection: str = "zero", order: str = "second", integrator: str = "rkmk4",
                 alpha: float = 0.0, substeps: int | str = "auto", max_substeps: int = 256,
-                backend: str = "auto") -> SavedC:
+                backend: str = "auto", timeout: float | None = None) -> SavedC:
     """The minimum-energy filter of a ready ``system`` or of your own ``system_file`` (exactly one) as C99:
     ``NAME.h`` and ``NAME.c`` in the folder ``out`` (created if missing; each file whole or not at all), by
     :func:`liemef.codegen.export_c`. ``name`` is a C identifier (default: the system's name with - replaced by
-    _). Bad input is a ValueError naming its option (``err.option``), the name and ``alpha`` checked before JAX
-    is imported; a step the C translator does not cover is :class:`liemef.codegen.UnsupportedPrimitive`, naming
-    the system and what it uses, with nothing written."""
+    _); ``timeout``: the seconds ``system_file`` may take to load (None or 0: no limit; the command line's
+    ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by default). Bad input is a ValueError
+    naming its option (``err.option``), the name, ``alpha`` and ``timeout`` checked before JAX is imported; a
+    step the C translator does not cover is :class:`liemef.codegen.UnsupportedPrimitive`, naming the system and
+    what it uses, with nothing written. A failed export (bad input, a system file that fails or is stopped, an
+    interruption) leaves no folder it created."""
     import math
     import re
 
+    from .. import _validate
     from .settings import OptionError
 
     given = name is not None
@@ -246,16 +250,34 @@ def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_fil
     if not math.isfinite(alpha) or alpha < 0:
         raise OptionError(f"expected a number >= 0, got {alpha}", "--alpha")
     try:
+        timeout = _validate.timeout("--timeout", timeout)
+    except ValueError as err:
+        raise OptionError(str(err).removeprefix("--timeout: "), "--timeout") from err
+    created = [q for q in (Path(out), *Path(out).parents) if not q.exists()]  # the folders made here, deepest first
+    try:
         d = io.ensure_dir(out)
     except ValueError as err:
         raise OptionError(str(err), "--out") from err
+    try:
+        return _export_c(d, system, system_file, name, timeout, backend, connection=connection, order=order,
+                         integrator=integrator, alpha=alpha, substeps=substeps, max_substeps=max_substeps)
+    except BaseException:
+        for q in created:  # empty unless the files were written: then the export did not fail
+            try:
+                q.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _export_c(d: Path, system, system_file, name, timeout, backend, **options) -> SavedC:
     from ..codegen import UnsupportedPrimitive, export_c
     from ..filters import MinimumEnergyFilter
     from .logs import resolve_system
+    from .settings import OptionError
 
-    source = resolve_system(system, system_file)
-    flt = MinimumEnergyFilter(source.system, connection=connection, order=order, integrator=integrator, alpha=alpha,
-                              substeps=substeps, max_substeps=max_substeps)
+    source = resolve_system(system, system_file, timeout=timeout)
+    flt = MinimumEnergyFilter(source.system, **options)
     try:
         exported = export_c(flt, d, name, backend=backend)
     except UnsupportedPrimitive as err:
@@ -291,9 +313,13 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first ``seconds``;
     0 or None: whole trials), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
     ``names``: the parameters to tune (None: the system's defaults). ``attitude-velocity`` takes
-    ``updates="discrete"`` only. Bad input is a ValueError before anything is written."""
+    ``updates="discrete"`` only. Bad input is a ValueError before anything is written; an empty list of
+    ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
+    empty ``--trials ''`` is not every trial)."""
     from .registry import TUNE_DATA
 
+    trials, names = (_entries(v, option, what) for v, option, what in (
+        (trials, "--trials", "BROAD trial ids"), (names, "--params", "parameter names")))
     if data not in TUNE_DATA:
         raise ValueError(f"data: expected one of {list(TUNE_DATA)}, got {data!r}")
     if system == "attitude-velocity" and updates != "discrete":
@@ -302,16 +328,31 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     target = outputs.claim(out, "tune", force)
     from . import tune
 
-    recs = tune.broad_recordings(None if not trials else list(trials), seconds or None,
+    recs = tune.broad_recordings(trials, seconds or None,
                                  None if realdata is None else str(realdata),
                                  gyro="backward" if updates == "discrete" else "forward", system=system)
-    kw = {} if not names else {"names": tuple(names)}
+    kw = {} if names is None else {"names": tuple(names)}
     result = tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
                        updates=updates, **kw)
     text = tune.markdown(result)
     with outputs.staged(target) as d:
         written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
     return SavedTune(result, text, target.path, [target.path / p.name for p in written])
+
+
+def _entries(values, option: str, what: str) -> list[str] | None:
+    """``values`` (None: the default) as a list of stripped, non-empty strings; an OptionError naming
+    ``option`` for an empty list or an empty entry."""
+    from .settings import OptionError
+
+    if values is None:
+        return None
+    values = [values] if isinstance(values, str) else list(values)
+    entries = [str(v).strip() for v in values]
+    if not entries or not all(entries):
+        raise OptionError(f"expected {what} separated by commas, got {','.join(map(str, values))!r} (omit the "
+                          "option for the default)", option)
+    return entries
 
 
 @dataclass(frozen=True)

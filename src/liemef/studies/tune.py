@@ -25,7 +25,8 @@ evaluation of :func:`liemef.studies.compare.compare_broad` then runs whole recor
 
 The result is saved as JSON (:func:`save`, :func:`load`): the system's name, the parameters, and per fold the
 parameters tuned without that recording, which ``liemef run``, ``liemef compare broad`` and
-:func:`system_from` accept.
+:func:`system_from` accept. A file is data with a schema (:func:`read`, :data:`FILE_KEYS`): a file for another
+system, an unknown key, a value of the wrong type or a negative std is refused by name.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _names
 from ..reports import io
 from . import registry
 
@@ -58,6 +60,9 @@ PARAMETERS = {
     "velocity_std": (1e-2, 10.0),
 }
 """The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
+ZERO_ALLOWED = ("acc_adapt", "mag_adapt", "dip_std")
+"""The parameters that may be 0 in a tuning file (0 turns a noise model's term off); the others, standard
+deviations and ``acc_norm_tol``, must be > 0."""
 DEFAULT_PARAMETERS = ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")
 SYSTEM = "attitude-imu"
 """The default system of a tuning file."""
@@ -160,18 +165,67 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     return out
 
 
-def system_from(params: dict, constants: dict, system: str = SYSTEM):
-    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu` or
-    :func:`liemef.systems.attitude_velocity`) with the recording's ``constants`` and the tuned ``params``."""
+def _factory(system: str):
     from ..systems import attitude_imu, attitude_velocity
 
     if system not in SYSTEMS:
         raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
-    unknown = sorted(set(params) - set(SYSTEMS[system]))
-    if unknown:
-        raise ValueError(f"params: expected names from {sorted(SYSTEMS[system])}, got {unknown}")
-    factory = attitude_imu if system == "attitude-imu" else attitude_velocity
-    return factory(**constants, **{k: float(v) for k, v in params.items()})
+    return attitude_imu if system == "attitude-imu" else attitude_velocity
+
+
+def check_params(params, system: str = SYSTEM, where: str = "params") -> dict:
+    """``params`` as ``{name: float}``: a mapping from names of the system's tunable parameters
+    (:data:`SYSTEMS`) to finite real numbers, > 0 (>= 0 for :data:`ZERO_ALLOWED`). A ValueError naming ``where``
+    and the key otherwise: an unknown name, a boolean, a string, ``null``, NaN or a negative std."""
+    if system not in SYSTEMS:
+        raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
+    if not isinstance(params, dict):
+        raise ValueError(f"{where}: expected a mapping from parameter names to numbers, got "
+                         f"{type(params).__name__} {params!r}")
+    allowed = SYSTEMS[system]
+    out = {}
+    for name, v in params.items():
+        if name not in allowed:
+            raise ValueError(f"{where}.{name}: unknown parameter of {system}; expected names from {sorted(allowed)}")
+        floor = ">= 0" if name in ZERO_ALLOWED else "> 0"
+        if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
+            what = "a boolean" if isinstance(v, bool) else type(v).__name__
+            raise ValueError(f"{where}.{name}: expected a number {floor}, got {_json(v)} ({what})")
+        x = float(v)
+        if not (math.isfinite(x) and (x >= 0 if name in ZERO_ALLOWED else x > 0)):
+            raise ValueError(f"{where}.{name}: expected a finite number {floor}, got {v!r}")
+        out[name] = x
+    return out
+
+
+def parameters(params: dict, constants: dict, system: str = SYSTEM) -> dict:
+    """Every keyword argument the system ``system`` is built with by :func:`system_from`: the factory's
+    defaults (:func:`liemef.systems.attitude_imu` or :func:`liemef.systems.attitude_velocity`), the recording's
+    ``constants`` and the tuned ``params`` (checked, :func:`check_params`) over them, as JSON values."""
+    import inspect
+
+    factory = _factory(system)
+    values = {k: p.default for k, p in inspect.signature(factory).parameters.items()
+              if p.default is not inspect.Parameter.empty}
+    values.update(constants)
+    values.update(check_params(params, system))
+    return {k: _plain(v) for k, v in values.items()}
+
+
+def _plain(v):
+    """A parameter's value as JSON: a float, a list of floats, a string or None."""
+    if v is None or isinstance(v, str | bool):
+        return v
+    a = np.asarray(v, dtype=np.float64)
+    return float(a) if a.ndim == 0 else a.tolist()
+
+
+def system_from(params: dict, constants: dict, system: str = SYSTEM):
+    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu` or
+    :func:`liemef.systems.attitude_velocity`) with the recording's ``constants`` and the tuned ``params``
+    (:func:`check_params`)."""
+    factory = _factory(system)
+    return factory(**constants, **check_params(params, system))
 
 
 # --- objectives -------------------------------------------------------------------------------------------------
@@ -407,24 +461,120 @@ def save(result: dict, path: str | Path) -> Path:
     return io.write_json(Path(path), result)
 
 
-def load(path: str | Path) -> dict:
-    """Read a tuning file (:func:`save`), checked: its format, system, parameter names and values."""
+FILE_KEYS = {"format": "text", "system": "text", "objective": "text", "names": "names", "order": "text",
+             "updates": "text", "params": "params", "train": "number", "per_recording": "numbers",
+             "folds": "folds", "held_out_mean": "number", "train_mean": "number", "evaluations": "count",
+             "elapsed_s": "number"}
+"""The keys of a tuning file (every key :func:`tune` writes) and the kind of each value; ``format``, ``system``
+and ``params`` are required, every other key is optional, and a key not listed is refused."""
+FOLD_KEYS = {"params": "params", "train": "number", "held_out": "number"}
+"""The keys of one fold of a tuning file's ``folds`` (``params`` required)."""
+TEXT_CHOICES = {"format": (FORMAT,), "system": tuple(SYSTEMS), "objective": OBJECTIVES, "order": _names.ORDERS,
+                "updates": _names.UPDATES}
+"""The values a tuning file's text entries may take."""
+
+
+@dataclass(frozen=True)
+class TuningFile:
+    """A tuning file read and checked (:func:`read`): its ``path``, the SHA-256 of its bytes and its ``data``
+    (the JSON object :func:`save` wrote)."""
+
+    path: Path
+    sha256: str
+    data: dict = field(repr=False)
+
+    @property
+    def system(self) -> str:
+        """The system the file was tuned for (a key of :data:`SYSTEMS`)."""
+        return self.data["system"]
+
+
+def read(path: str | Path, system: str | None = None) -> TuningFile:
+    """Read a tuning file (:func:`save`) and check it against its schema (:data:`FILE_KEYS`): an object with
+    ``format`` :data:`FORMAT`, ``system`` (a key of :data:`SYSTEMS`; when ``system`` is given, that one) and
+    ``params``, each parameter set a mapping from the system's names to finite numbers > 0 (>= 0 for
+    :data:`ZERO_ALLOWED`), no key that :func:`tune` does not write. A ValueError starting ``params:`` and naming
+    the file and the key otherwise. A file without ``system`` (written before ``liemef tune`` fitted two models)
+    is refused: it was tuned for attitude-imu, and adding ``"system": "attitude-imu"`` makes it current."""
+    import hashlib
+
     p = io._existing_file(path, "params")
+    where = f"params: {str(p)!r}"
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
+        raw = p.read_bytes()
+        data = json.loads(raw.decode("utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ValueError(f"params: cannot read {str(p)!r} as a liemef tuning file (JSON): {err}") from err
-    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("system") not in SYSTEMS:
-        raise ValueError(f"params: expected a liemef tuning file (format {FORMAT!r}, system from {list(SYSTEMS)}), got "
-                         f"{str(p)!r} with format {data.get('format') if isinstance(data, dict) else None!r}")
-    for where, params in [("params", data.get("params"))] + [(f"folds.{k}.params", v.get("params"))
-                                                            for k, v in (data.get("folds") or {}).items()]:
-        if not isinstance(params, dict) or set(params) - set(SYSTEMS[data["system"]]) or not all(
-                isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in params.values()):
-            allowed = sorted(SYSTEMS[data["system"]])
-            raise ValueError(f"params: {str(p)!r}: expected {where} to map names from {allowed} to numbers >= 0, "
-                             f"got {params!r}")
-    return data
+        raise ValueError(f"{where}: cannot read it as a liemef tuning file (JSON): {err}") from err
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a liemef tuning file (a JSON object with format {FORMAT!r}), got a "
+                         f"JSON {type(data).__name__}")
+    if data.get("format") != FORMAT:
+        raise ValueError(f"{where}: format: expected a liemef tuning file (format {FORMAT!r}), got "
+                         f"{data.get('format')!r}")
+    if "system" not in data:
+        raise ValueError(f"{where}: system: missing; expected the model the file was tuned for, one of "
+                         f"{list(SYSTEMS)} (a file written before liemef tune named it was tuned for attitude-imu: "
+                         "add \"system\": \"attitude-imu\")")
+    if data["system"] not in SYSTEMS:
+        raise ValueError(f"{where}: system: expected one of {list(SYSTEMS)}, got {_json(data['system'])}")
+    if "params" not in data:
+        raise ValueError(f"{where}: params: missing; expected the tuned parameter set")
+    if system is not None and data["system"] != system:
+        raise ValueError(f"{where}: system: expected a file tuned for {system}, got one tuned for "
+                         f"{data['system']!r} (its parameters are another model's)")
+    for key, value in data.items():
+        _check_entry(where, key, value, FILE_KEYS, data["system"])
+    return TuningFile(p, hashlib.sha256(raw).hexdigest(), data)
+
+
+def _number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_entry(where: str, path: str, value, keys: dict, system: str) -> None:
+    """The entry ``path`` (its last part a key of ``keys``: :data:`FILE_KEYS` or :data:`FOLD_KEYS`) of a tuning
+    file against its kind; a ValueError naming the file ``where`` and ``path`` otherwise."""
+    key = path.rsplit(".", 1)[-1]
+    if key not in keys:
+        raise ValueError(f"{where}: {path}: unknown key; expected keys from {sorted(keys)}")
+    kind, at = keys[key], f"{where}: {path}"
+    if kind == "params":
+        check_params(value, system, at)
+        return
+    if kind == "folds":
+        if not isinstance(value, dict):
+            raise ValueError(f"{at}: expected a mapping from recording names to folds, got {_json(value)}")
+        for name, fold in value.items():
+            if not isinstance(fold, dict) or "params" not in fold:
+                raise ValueError(f"{at}.{name}: expected a fold with its params, got {_json(fold)}")
+            for k, v in fold.items():
+                _check_entry(where, f"{path}.{name}.{k}", v, FOLD_KEYS, system)
+        return
+    if kind == "text":
+        ok, expected = value in TEXT_CHOICES[key], f"one of {list(TEXT_CHOICES[key])}"
+    elif kind == "names":
+        ok = isinstance(value, list) and all(isinstance(v, str) and v in SYSTEMS[system] for v in value)
+        expected = f"a list of names from {sorted(SYSTEMS[system])}"
+    elif kind == "number":
+        ok, expected = _number(value), "a finite number"
+    elif kind == "count":
+        ok = isinstance(value, int) and not isinstance(value, bool) and value >= 0
+        expected = "an integer >= 0"
+    else:  # numbers
+        ok = isinstance(value, dict) and all(_number(v) for v in value.values())
+        expected = "a mapping from recording names to finite numbers"
+    if not ok:
+        raise ValueError(f"{at}: expected {expected}, got {_json(value)}")
+
+
+def _json(value) -> str:
+    text = json.dumps(value, default=repr)
+    return text if len(text) <= 200 else text[:200] + "..."
+
+
+def load(path: str | Path, system: str | None = None) -> dict:
+    """A tuning file's content, read and checked by :func:`read`."""
+    return read(path, system).data
 
 
 def params_for(tuned: dict, recording: str | None = None) -> dict:

@@ -12,6 +12,7 @@ from jaxtyping import Array, Float
 
 from .. import _validate
 from ..groups import LieGroup
+from ._traced import at_state, check_finite, check_traced
 
 
 def matrix(x) -> Array:
@@ -157,7 +158,8 @@ class AbstractSystem(eqx.Module):
         B = _validate.array("B", self.B, (n, None))
         d = B.shape[1]
         _validate.symmetric_psd("R", self.R, d)
-        out = jax.eval_shape(self.output, G.identity(), jnp.zeros(()))
+        out = check_traced("output", self.output, (G.identity(), jnp.zeros(())), None,
+                           given=f" with g in {G.__name__} and t a scalar")
         if out.shape != (self.D.shape[0],) or self.D.ndim != 2:
             p = out.shape[0] if out.ndim == 1 else "p"
             raise ValueError(f"D: expected shape ({p}, {p}) to match the output h(g, t) of shape {out.shape}, "
@@ -165,10 +167,22 @@ class AbstractSystem(eqx.Module):
         p = out.shape[0]
         _validate.invertible("D", self.D, p)
         _validate.symmetric_psd("Q", self.Q, p)
-        lam = jax.eval_shape(self.dynamics, G.identity(), jnp.zeros((self.input_dim,)), jnp.zeros(()))
-        if lam.shape != (n,):
-            raise ValueError(f"dynamics: expected lambda(g, u, t) of shape ({n},) for group {G.__name__}, "
-                             f"got {lam.shape}")
+        m = self.input_dim
+        check_traced("dynamics", self.dynamics, (G.identity(), jnp.zeros((m,)), jnp.zeros(())), (n,),
+                     given=f" with g in {G.__name__}, u of shape ({m},) and t a scalar",
+                     meaning=f"lambda(g, u, t): one value per direction of the algebra of {G.__name__}")
+
+    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """The output ``h(g, t)`` and, where it is finite, the residual at ``y = h`` (0 by its contract),
+        evaluated once: a ValueError naming the function when the output is NaN (also infinite unless
+        ``singular``) or the residual is not finite at ``g`` (``state`` says which;
+        :meth:`liemef.filters.AbstractFilter.init` calls it at the initial state;
+        :class:`~liemef.systems.SensorSystem` names the sensor)."""
+        at = at_state(state, t)
+        h = check_finite("output", self.output, self.output(g, t), at, singular=singular)
+        if np.all(np.isfinite(h)):
+            hj = jnp.asarray(h)
+            check_finite("residual", self.residual, self.residual(hj, hj, t), f"at y = h, the output {at}")
 
 
 class System(AbstractSystem):
@@ -189,14 +203,21 @@ class System(AbstractSystem):
     names: tuple[str, ...] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        # the user's functions at their first trace, named (liemef.systems._traced); the output's size against D
+        # is AbstractSystem's check
         _validate.integer("n_inputs", self.n_inputs, 0)
         G = self.group_type
-        for name, fn, args in (("dynamics", self.dynamics_fn, (G.identity(), jnp.zeros((self.n_inputs,)), 0.0)),
-                               ("output", self.output_fn, (G.identity(), 0.0))):
-            for leaf in jax.tree_util.tree_leaves(jax.eval_shape(fn, *args)):
-                dtype = getattr(leaf, "dtype", None)
-                if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
-                    raise ValueError(f"{name}: expected a function returning real values, got dtype {dtype}")
+        m, n = self.n_inputs, G.tangent_dim
+        check_traced("dynamics", self.dynamics_fn, (G.identity(), jnp.zeros((m,)), jnp.zeros(())), (n,),
+                     given=f" with g in {G.__name__}, u of shape ({m},) and t a scalar",
+                     meaning=f"lambda(g, u, t): one value per direction of the algebra of {G.__name__}")
+        check_traced("output", self.output_fn, (G.identity(), jnp.zeros(())), None,
+                     given=f" with g in {G.__name__} and t a scalar")
+
+    def check_finite_at(self, g: LieGroup, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """The user's output ``h(g, t)``, evaluated once: a ValueError naming it when it is NaN (also infinite
+        unless ``singular``) at ``g``."""
+        check_finite("output", self.output_fn, self.output_fn(g, t), at_state(state, t), singular=singular)
 
     @property
     def group(self) -> type[LieGroup]:

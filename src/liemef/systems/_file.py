@@ -4,13 +4,21 @@ The file is executed as a module. It must define ``system`` (a liemef system, e.
 :class:`liemef.systems.SensorSystem`) and may define ``K0`` (n x n initial gain, or a length-n diagonal),
 ``x0`` (initial estimate in the group's coordinates) and ``initial_guess(y0) -> coords`` (an estimate from the
 first row of measurements, NaN where missing).
+
+A file that never finishes (a loop, a wait) is stopped after ``timeout`` seconds: a SIGALRM timer interrupts it
+and the ValueError names the file and ``--timeout`` (the command line's default,
+:data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT`). The timer needs the main thread of a POSIX process;
+elsewhere (a worker thread, Windows) the file runs without one.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
+import signal
 import sys
+import threading
 import types
 import uuid
 from dataclasses import dataclass
@@ -44,10 +52,38 @@ class UserSystem:
         return _validate.array(where, q, (c,))
 
 
-def run_python_file(path: Path, option: str, source: str | None = None):
+class _Expired(BaseException):
+    """The timer of :func:`_deadline` went off (a BaseException: a user's ``except Exception`` does not hold it)."""
+
+
+@contextlib.contextmanager
+def _deadline(seconds: float | None):
+    """Raise :class:`_Expired` in the code of the ``with`` block after ``seconds`` (None or 0: never), by a
+    SIGALRM timer, in the main thread of a POSIX process where no other timer runs (else no limit)."""
+    usable = (seconds and hasattr(signal, "SIGALRM") and threading.current_thread() is threading.main_thread()
+              and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
+    if not usable:
+        yield
+        return
+
+    def expire(signum, frame):
+        raise _Expired
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def run_python_file(path: Path, option: str, source: str | None = None, timeout: float | None = None):
     """Execute a user's Python file as a fresh module (``source``: its text, when the file itself is not on
     this machine, e.g. on a Dask worker) and return the module. ValueError naming ``option`` when it cannot be
-    loaded or raises."""
+    loaded or raises, or when it has not finished after ``timeout`` seconds (None: no limit; module
+    docstring)."""
+    timeout = _validate.timeout("--timeout", timeout)
     name = f"liemef_user_{uuid.uuid4().hex}"
     if source is None:
         spec = importlib.util.spec_from_file_location(name, path)
@@ -59,10 +95,14 @@ def run_python_file(path: Path, option: str, source: str | None = None):
         module.__file__ = str(path)
     sys.modules[name] = module
     try:
-        if source is None:
-            spec.loader.exec_module(module)
-        else:
-            exec(compile(source, str(path), "exec"), module.__dict__)  # noqa: S102 - the user's own file
+        with _deadline(timeout):
+            if source is None:
+                spec.loader.exec_module(module)
+            else:
+                exec(compile(source, str(path), "exec"), module.__dict__)  # noqa: S102 - the user's own file
+    except _Expired as err:
+        raise ValueError(f"{option}: running {str(path)!r} did not finish within {timeout:g} s and was stopped (a "
+                         "loop that never ends?); give it more time with --timeout SECONDS (0: no limit)") from err
     except (Exception, SystemExit) as err:  # a user's file: whatever it raised, named (exit() included)
         raise ValueError(f"{option}: running {str(path)!r} failed: {type(err).__name__}: {err}") from err
     finally:
@@ -70,17 +110,18 @@ def run_python_file(path: Path, option: str, source: str | None = None):
     return module
 
 
-def load_system_file(path: str | os.PathLike) -> UserSystem:
+def load_system_file(path: str | os.PathLike, timeout: float | None = None) -> UserSystem:
     """Execute ``path`` and return its ``system`` (and optional ``K0``, ``x0``, ``initial_guess``).
 
-    ValueError naming ``--system-file`` when the file is missing, fails to run, or defines no liemef system.
+    ValueError naming ``--system-file`` when the file is missing, fails to run, has not finished after
+    ``timeout`` seconds (None: no limit; module docstring) or defines no liemef system.
     """
     from . import AbstractSystem
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"--system-file: expected a Python file defining `system`, got {str(p)!r} (not found)")
-    module = run_python_file(p, "--system-file")
+    module = run_python_file(p, "--system-file", timeout=timeout)
     system = getattr(module, "system", None)
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"--system-file: expected {str(p)!r} to define `system`, a liemef system (e.g. "

@@ -36,6 +36,8 @@ from .. import _validate
 from ..groups import LieGroup
 from ._base import AbstractSystem, Block, matrix
 from ._residuals import AngleResidual
+from ._traced import at_state as _at
+from ._traced import check_finite, check_traced
 
 Meaning = Literal["density", "sample"]
 MEANINGS = ("density", "sample")
@@ -212,6 +214,13 @@ def _angle_mask(name: str, angles, components: tuple[str, ...]) -> tuple[bool, .
     return tuple(mask)
 
 
+def _own_residual(s: Sensor, y, h):
+    """The sensor ``s``'s own residual of ``y`` against ``h`` (``(..., k)``), as float64; a one-component sensor's
+    residual may be a scalar per sample (as its output may)."""
+    r = jnp.asarray(s.residual(y, h), dtype=jnp.float64)
+    return r[..., None] if r.ndim == y.ndim - 1 else r
+
+
 def blocks_of(sensors) -> tuple[Block, ...]:
     """The engine's static layout of ``sensors`` (chi-square thresholds from scipy)."""
     from scipy.stats import chi2
@@ -376,7 +385,7 @@ class SensorSystem(AbstractSystem):
         out, start = [], 0
         for s in self.sensors:
             yb, hb = y[..., start:start + s.dim], h[..., start:start + s.dim]
-            out.append(yb - hb if s.residual is None else jnp.asarray(s.residual(yb, hb), dtype=jnp.float64))
+            out.append(yb - hb if s.residual is None else _own_residual(s, yb, hb))
             start += s.dim
         return jnp.concatenate(out, axis=-1)
 
@@ -390,7 +399,7 @@ class SensorSystem(AbstractSystem):
             hb = jnp.atleast_1d(jnp.asarray(s.fn(g, t), dtype=jnp.float64))
             if s.residual is not None:
                 yb = y[start:start + s.dim]
-                hb = yb - jnp.asarray(s.residual(yb, hb), dtype=jnp.float64)
+                hb = yb - _own_residual(s, yb, hb)
             out.append(hb)
             start += s.dim
         return jnp.concatenate(out)
@@ -421,10 +430,35 @@ class SensorSystem(AbstractSystem):
         return self.coord_units if self.coord_units is not None else super().state_units
 
     def __check_init__(self):
+        # the user's functions at their first trace (liemef.systems._traced), each named: the dynamics, then per
+        # sensor its output h(g, t) and its residual(y, h)
+        G = self.group
+        g, t, m, n = G.identity(), jnp.zeros(()), self.input_dim, G.tangent_dim
+        check_traced("dynamics", self.dynamics_fn, (g, jnp.zeros((m,)), t), (n,),
+                     given=f" with g in {G.__name__}, u of shape ({m},) and t a scalar",
+                     meaning=f"one value per direction of the algebra of {G.__name__}")
         for s in self.sensors:
-            out = jax.eval_shape(s.fn, self.group.identity(), jnp.zeros(()))
-            if out.shape not in ((s.dim,), () if s.dim == 1 else (s.dim,)):
-                raise ValueError(f"sensor {s.name!r}: expected h(g, t) of shape ({s.dim},), got {out.shape}")
+            parts = f"one value per component {', '.join(s.columns)}"
+            check_traced(f"sensor {s.name!r}: fn", s.fn, (g, t), (s.dim,), scalar=True,
+                         given=f" with g in {G.__name__} and t a scalar", meaning=parts)
+            if s.residual is not None:
+                y = jax.ShapeDtypeStruct((s.dim,), jnp.float64)
+                check_traced(f"sensor {s.name!r}: residual", s.residual, (y, y), (s.dim,), scalar=True,
+                             given=f" with y and h of shape ({s.dim},)", meaning=parts)
+
+    def check_finite_at(self, g, t=0.0, *, state: str = "the initial state", singular: bool = True) -> None:
+        """Each sensor's output ``h(g, t)`` and, where it is finite, its residual at ``y = h`` (0 by its
+        contract), evaluated once: a ValueError naming the sensor and the function when an output is NaN (also
+        infinite unless ``singular``) or a residual is not finite at ``g`` (``state`` says which;
+        :meth:`liemef.filters.AbstractFilter.init` calls it at the initial state)."""
+        at = _at(state, t)
+        for s in self.sensors:
+            h = check_finite(f"sensor {s.name!r}: fn", s.fn, jnp.atleast_1d(jnp.asarray(s.fn(g, t))), at,
+                             singular=singular)
+            if s.residual is not None and np.all(np.isfinite(h)):
+                hj = jnp.asarray(h, dtype=jnp.float64)
+                check_finite(f"sensor {s.name!r}: residual", s.residual, s.residual(hj, hj),
+                             f"at y = h = {np.array2string(h, precision=4, threshold=12)}, the output {at}")
 
     def with_noise(self, **levels) -> SensorSystem:
         """A copy with new noise levels, by sensor name (or ``process_noise=``): same structure, so a filter of
