@@ -170,3 +170,62 @@ def test_run_with_discrete_updates(tmp_path):
     assert metrics["config"]["params"] is None  # no tuning file
     est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
     assert np.max(np.linalg.norm(est[:, 2:4] - p, axis=1)) < 1.0
+
+
+def test_set_reaches_a_ready_systems_parameters(tmp_path):
+    """`liemef run --system localization --set gps_std=0.5` builds the ready system with that GPS std (not a
+    system file), records it in metrics.json, and the estimates differ from the default's."""
+    localization_log(tmp_path / "log.csv", N=300)
+    common = ("--system", "localization", "--log", tmp_path / "log.csv", "--updates", "discrete", "--no-progress")
+    assert invoke("run", *common, "--out", tmp_path / "d").exit_code == 0
+    res = invoke("run", *common, "--set", "gps_std=0.5", "--set", "gate=0.999", "--out", tmp_path / "s")
+    assert res.exit_code == 0, res.output
+    metrics = json.loads((tmp_path / "s" / "metrics.json").read_text())
+    assert metrics["config"]["system_settings"] == {"gps_std": 0.5, "gate": 0.999}
+    assert "built with gps_std=0.5, gate=0.999 (--set)" in metrics["system"]["description"]
+    assert json.loads((tmp_path / "d" / "metrics.json").read_text())["config"]["system_settings"] is None
+    default, changed = (np.loadtxt(tmp_path / d / "estimates.csv", delimiter=",", skiprows=1) for d in ("d", "s"))
+    assert default.shape == changed.shape and np.abs(default[-1, 1:] - changed[-1, 1:]).max() > 1e-6
+
+
+@pytest.mark.parametrize(("settings", "words"), [
+    (["gps_sd=0.5"], ["--set", "no parameter 'gps_sd'", "gps_std"]),
+    (["gps_std=true"], ["--set", "gps_std", "expected a finite number", "'true'"]),
+    (["gps_std=nan"], ["--set", "gps_std", "finite number"]),
+    (["gps_std=-1"], ["--set", "localization with gps_std=-1.0", "> 0"]),
+    (["gps_std=0.5", "gps_std=0.4"], ["--set", "gps_std is set twice"]),
+    (["gps_std"], ["--set", "expected KEY=VALUE"]),
+])
+def test_a_bad_ready_system_setting_is_refused_naming_it(tmp_path, settings, words):
+    localization_log(tmp_path / "log.csv", N=300)
+    args = [a for s in settings for a in ("--set", s)]
+    res = invoke("run", "--system", "localization", "--log", tmp_path / "log.csv", "--out", tmp_path / "o", *args)
+    assert res.exit_code == 2, res.output
+    for w in words:
+        assert w in res.output, (w, res.output)
+    assert not (tmp_path / "o").exists()
+
+
+def test_set_is_refused_for_the_papers_systems_and_system_files(tmp_path):
+    localization_log(tmp_path / "log.csv", N=300)
+    res = invoke("run", "--system", "tse2", "--log", tmp_path / "log.csv", "--out", tmp_path / "o", "--set",
+                 "q=1")
+    assert res.exit_code == 2 and "has no parameters to set" in res.output
+    (tmp_path / "s.py").write_text("from liemef.systems import planar_localization\nsystem = planar_localization()\n")
+    res = invoke("run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--set", "gps_std=1")
+    assert res.exit_code == 2 and "a system file sets its own parameters" in res.output
+
+
+def test_a_setting_that_changes_the_state_no_longer_reads_it_off_the_measurements():
+    """inertial-navigation with biases=true is SE_2(3) x R^6: its initial guess is the identity's coordinates,
+    not a position read off the first fix into the wrong slots; the noise and gravity are as set."""
+    from liemef.studies.logs import resolve_system, with_settings
+
+    source = with_settings(resolve_system("inertial-navigation"), ["biases=true", "gnss_std=0.5", "robust=huber"])
+    assert source.system.group.coords_dim == 15 and source.measured is None
+    np.testing.assert_array_equal(source.initial_guess(np.array([1.0, 2.0, 3.0])), np.zeros(15))
+    assert source.settings == {"biases": True, "gnss_std": 0.5, "robust": "huber"}
+    same = with_settings(resolve_system("inertial-navigation"), ["gnss_std=0.5,0.5,1.0"])
+    assert same.measured is not None and same.settings == {"gnss_std": [0.5, 0.5, 1.0]}
+    np.testing.assert_array_equal(same.initial_guess(np.array([1.0, 2.0, 3.0])), [0] * 6 + [1.0, 2.0, 3.0])

@@ -157,12 +157,13 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 @_command(cli, "run")
 def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
-            alpha, interpolation, updates, curvature, substeps, gap, chunk, params_file, monitor, force, progress):
+            alpha, interpolation, updates, curvature, substeps, gap, chunk, params_file, settings, monitor, force,
+            progress):
     from .studies import logs
 
     saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
                                topics=topics,
-                               params=params_file, x0=_floats(x0, "'--x0'"),
+                               params=params_file, settings=settings, x0=_floats(x0, "'--x0'"),
                                K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
                                force=force, connection=connection, order=order, alpha=alpha,
                                interpolation=interpolation, updates=updates, curvature=curvature,

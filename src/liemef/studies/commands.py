@@ -169,6 +169,9 @@ RUN = Command(
         option("--params", "params_file", type=PATH,
                help="A tuning file of `liemef tune` (JSON) for --system attitude-imu: its final parameter set "
                     "(recorded in metrics.json with its SHA-256; docs/imu.md)."),
+        option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+               help="A parameter of the ready system's factory (repeatable), e.g. --set gnss_std=0.5 --set "
+                    "biases=true for inertial-navigation; recorded in metrics.json (config.system_settings)."),
         option("--monitor/--no-monitor", default=True, show_default=True,
                help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
                "inconsistent)."),

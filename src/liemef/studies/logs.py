@@ -21,7 +21,7 @@ import dataclasses
 import math
 import os
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,9 @@ class LogSystem:
     """The tuning file applied (``--params``): its ``file``, ``sha256``, ``system``, the names it set
     (``from_file``) and every parameter ``values`` the system was built with (``metrics.json``'s
     ``config.params``); None without one."""
+    settings: dict | None = field(default=None, repr=False)
+    """The ready system's parameters set by ``--set KEY=VALUE`` (:func:`with_settings`), as parsed
+    (``metrics.json``'s ``config.system_settings``); None without any."""
 
     def initial_guess(self, ys0) -> np.ndarray:
         """The default initial estimate in coordinates from the first present measurement of each component
@@ -72,6 +75,8 @@ class LogSystem:
                 return np.asarray(self.user.x0, dtype=np.float64)
             if self.user.initial_guess is not None:
                 return self.user.guess(ys0)
+            return np.zeros(self.system.group.coords_dim)
+        if self.measured is None:  # a ready system whose --set changed its state or outputs
             return np.zeros(self.system.group.coords_dim)
         return self.spec.initial_guess(ys0)
 
@@ -610,7 +615,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
-                   "iterations": flt.iterations, "gap": common["gap"], "params": source.params},
+                   "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
+                  "system_settings": source.settings},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
@@ -712,13 +718,14 @@ class SavedRun:
 def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str | None = None,
                   system_file: str | os.PathLike | None = None, topics: str | os.PathLike | None = None,
                   params: str | os.PathLike | None = None, x0=None, K0=None, tum: bool = False, force: bool = False,
-                  timeout: float | None = None, **options) -> SavedRun:
+                  timeout: float | None = None, settings: Sequence[str] = (), **options) -> SavedRun:
     """Filter the recorded ``log`` and write its outputs to the folder ``out``, whole or not at all: what
     ``liemef run`` does, for a script as well.
 
     ``system`` (a ready system's name) or ``system_file`` (your own), exactly one; ``log`` a CSV or NPZ file, or
     a ROS bag with ``topics`` (the mapping file, :mod:`liemef.reports.rosbag`); ``params`` a `liemef tune` file
-    (attitude-imu only); ``x0``, ``K0`` and ``options`` as :func:`filter_log`; ``tum`` also writes
+    (attitude-imu only); ``settings`` the ready system's parameters as ``KEY=VALUE`` texts (``--set``,
+    :func:`with_settings`); ``x0``, ``K0`` and ``options`` as :func:`filter_log`; ``tum`` also writes
     ``estimates.tum``; ``force`` replaces a folder of another command (:func:`liemef.reports.outputs.claim`);
     ``timeout``: the seconds ``system_file`` may take to load (None or 0: no limit; the command line's
     ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by default).
@@ -740,6 +747,11 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
                          f"own), got {'both' if system else 'neither'}")
     if params is not None and system != "attitude-imu":
         raise _bad("--params", f"expected --system attitude-imu with a tuning file, got {system!r}")
+    settings = tuple(settings or ())
+    if settings and params is not None:
+        raise _bad("--set", "expected either a tuning file (--params) or --set KEY=VALUE, got both")
+    if settings and system is None:
+        raise _bad("--set", "expected a ready system (--system); a system file sets its own parameters")
     log = Path(log)
     bag = io.is_bag(log)
     if bag and topics is None:
@@ -751,7 +763,7 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
                                     "(not found)")
     target = outputs.claim(out, "run", force)
     recorded = None
-    if system is not None:  # a ready system: its columns and sizes are known without JAX
+    if system is not None and not settings:  # a ready system: its columns and sizes are known without JAX
         known = registry.system_schema(system)
         for name, value, n in (("--x0", x0, known["coords_dim"]), ("--k0-diag", K0, known["tangent_dim"])):
             if value is not None and np.ndim(value) == 1 and np.shape(value) != (n,):
@@ -763,6 +775,8 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     source = resolve_system(system, system_file, timeout=timeout)
     if params is not None:
         source = _tuned(source, params)
+    if settings:
+        source = with_settings(source, settings)
     n, c = source.system.group.tangent_dim, source.system.group.coords_dim
     for name, value, size in (("--x0", x0, c), ("--k0-diag", K0, n)):
         if value is not None and np.ndim(value) == 1 and np.shape(value) != (size,):
@@ -792,6 +806,87 @@ def _read(fn, option: str):
         return fn()
     except ValueError as err:
         raise _bad(option, str(err)) from err
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _system_value(key: str, text: str, default):
+    """``text`` (``--set KEY=VALUE``) as a value of the ready system's parameter ``key`` whose default is
+    ``default``: true/false for a bool, a finite number for a number, null or a number or comma-separated
+    numbers for a parameter that may be None (a name otherwise: robust=huber), one number or comma-separated numbers
+    for a number or a sequence (the factory checks how many), the text for a string."""
+    def number(t):
+        try:
+            v = float(t)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise _bad("--set", f"{key}: expected a finite number, got {t!r}")
+        return v
+
+    t = text.strip()
+    if isinstance(default, bool):
+        if t.lower() not in ("true", "false"):
+            raise _bad("--set", f"{key}: expected true or false, got {text!r}")
+        return t.lower() == "true"
+    if isinstance(default, str):
+        return t
+    if default is None and t.lower() in ("null", "none"):
+        return None
+    parts = [p for p in t.replace(",", " ").split()]
+    if not parts:
+        raise _bad("--set", f"{key}: expected a value, got {text!r}")
+    if default is None and not all(_is_number(p) for p in parts):
+        return t  # a name (robust=huber): the factory checks it
+    values = [number(p) for p in parts]  # one number, or one per axis (gnss_std=0.5,0.5,1): the factory checks
+    return values[0] if len(values) == 1 and not isinstance(default, tuple | list) else tuple(values)
+
+
+def with_settings(source: LogSystem, items) -> LogSystem:
+    """``source`` (a ready system) rebuilt with its factory's parameters set by ``--set KEY=VALUE`` ``items``
+    (for example ``gnss_std=0.5``, ``biases=true``, ``mag_std=0.02``; ``liemef schema`` names the factory). A key
+    that is not a parameter, a value of the wrong type, and a value the factory refuses (a negative std) are
+    ValueErrors naming ``--set``. Where the settings change the state or the outputs, the initial estimate is
+    no longer read off the measurements: it is ``--x0`` (default: the identity's coordinates)."""
+    import inspect
+
+    if source.spec is None:
+        raise _bad("--set", "expected a ready system (--system); a system file sets its own parameters")
+    make = source.spec.make
+    params = {k: p.default for k, p in inspect.signature(make).parameters.items()
+              if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.default is not p.empty}
+    if not params:
+        raise _bad("--set", f"the ready system {source.label!r} has no parameters to set (its paper's weights); "
+                            "write a system file (--system-file) for others")
+    kwargs = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise _bad("--set", f"expected KEY=VALUE, got {item!r}")
+        if key not in params:
+            raise _bad("--set", f"{source.label} has no parameter {key!r}; expected one of {sorted(params)}")
+        if key in kwargs:
+            raise _bad("--set", f"{key} is set twice")
+        kwargs[key] = _system_value(key, text, params[key])
+    shown = ", ".join(f"{k}={v}" for k, v in kwargs.items())
+    try:
+        system = make(**kwargs)
+    except (ValueError, TypeError) as err:
+        raise _bad("--set", f"{source.label} with {shown}: {err}") from err
+    default = source.system
+    same = (system.group is default.group and tuple(b.name for b in system.blocks())
+            == tuple(b.name for b in default.blocks()) and system.output_dim == default.output_dim)
+    base = source.description.split("; defaults of ")[0].split("; the default noise levels")[0]
+    return dataclasses.replace(source, system=system, measured=source.measured if same else None,
+                               settings={k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items()},
+                               description=f"{base}; built with {shown} (--set)")
 
 
 def _tuned(source: LogSystem, params) -> LogSystem:
