@@ -363,3 +363,18 @@ def test_a_filter_built_to_ignore_a_sensor_cannot_win_the_localization_compariso
         assert "far above its band" in w["unranked"]["ignores-gps"]
     md = (out / "comparison.md").read_text()
     assert "Not ranked" in md and "ignores-gps: " in md
+
+
+def test_a_piped_comparison_says_how_far_it_is_on_stderr(tmp_path):
+    """Piped (stderr not a terminal), `liemef compare` still prints a line per filter on stderr, and nothing of
+    it on stdout; --no-progress is quiet."""
+    args = ["compare", "localization", "--runs", "2", "--set", "duration=4", "--set", "steady=2", "--filters",
+            "iekf,ekf", "--set", "batch_size=2"]
+    res = CliRunner().invoke(cli.cli, [*args, "--out", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    lines = [line for line in res.stderr.splitlines() if line.strip().startswith(("iekf", "ekf"))]
+    assert [line.split()[0] for line in lines] == ["iekf", "ekf"] and "heading" in lines[0]
+    assert not any(line.strip().startswith(("iekf ", "ekf ")) for line in res.stdout.splitlines())
+    assert "Wrote" in res.stdout
+    res = CliRunner().invoke(cli.cli, [*args, "--out", str(tmp_path / "b"), "--no-progress"])
+    assert res.exit_code == 0 and res.stderr.strip() == ""

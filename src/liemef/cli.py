@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import signal
-import sys
 from pathlib import Path
 
 import click
@@ -92,8 +91,6 @@ def _param(p: commands.Param):
         attrs["type"] = (click.Path(path_type=Path) if p.type == commands.PATH else
                          click.Choice(p.type[1]) if isinstance(p.type, tuple) and p.type[0] == "choice" else
                          click.IntRange(min=p.type[1]) if isinstance(p.type, tuple) else p.type)
-    if p.decls[0] == commands.PROGRESS:  # True only when stderr is a terminal (quiet in logs and pipes)
-        attrs["callback"] = lambda ctx, param, value: value and sys.stderr.isatty()
     return (click.argument if p.argument else click.option)(*p.decls, **attrs)
 
 

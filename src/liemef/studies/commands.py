@@ -20,7 +20,8 @@ from . import registry
 PATH = "path"
 """The ``type`` of a parameter that is a file or folder."""
 PROGRESS = "--progress/--no-progress"
-"""The progress switch; its value is True only when stderr is a terminal (quiet in logs and pipes)."""
+"""The progress switch, on by default: on stderr, drawn in place on a terminal and a line at a time in logs and
+pipes (a long command piped into a file still says how far it is); ``--no-progress`` is quiet."""
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,9 @@ def argument(*decls: str, type: Any = None, **attrs) -> Param:
 
 
 def progress(text: str) -> Param:
-    """``--progress/--no-progress``, on by default, shown only when stderr is a terminal."""
-    return option(PROGRESS, default=True, show_default=True, help=text + " Shown only when stderr is a terminal.")
+    """``--progress/--no-progress``, on by default (:data:`PROGRESS`)."""
+    return option(PROGRESS, default=True, show_default=True,
+                  help=text + " In place on a terminal, a line at a time when piped.")
 
 
 def choice(names) -> tuple:
@@ -175,7 +177,7 @@ RUN = Command(
         option("--monitor/--no-monitor", default=True, show_default=True,
                help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
                "inconsistent)."),
-        FORCE, progress("Progress on stderr (on a terminal).")))
+        FORCE, progress("Samples filtered, on stderr, between chunks.")))
 
 EXPORT_C = Command(
     """Write the filter of a ready system (--system) or of your own (--system-file) as standalone C99: NAME.h

@@ -161,34 +161,37 @@ def first_present(ys) -> np.ndarray:
 
 def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progress: bool = False):
     """``flt.run`` over the log in chunks of ``chunk`` intervals (one compilation per chunk length), each
-    continuing from the previous chunk's final state, with a progress bar (tqdm, on a terminal); stops at the
-    first failure, and the samples after it have NaN estimates."""
+    continuing from the previous chunk's final state, with ``progress`` the samples done after each chunk on
+    stderr (:class:`~liemef.reports.progress.ProgressLine`: in place on a terminal, a line at a time when piped);
+    stops at the first failure, and the samples after it have NaN estimates."""
+    import time
+
     import jax
     import jax.numpy as jnp
-    from tqdm.auto import tqdm
 
     from ..engines import LogGapWarning
     from ..filters import CAUSES, Trajectory
     from ..filters._base import nan_after_failure
+    from ..reports.progress import ProgressLine
 
     N = log.ts.shape[0]
-    bar = tqdm(total=N, desc="filtering", unit="sample", disable=None if progress and N - 1 > chunk else True,
-               leave=False)
+    line = ProgressLine("filtering") if progress and N - 1 > chunk else None
+    t0 = time.perf_counter()
     pieces, start = [], 0
-    try:
-        while start < N - 1:
-            stop = min(start + chunk, N - 1)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", LogGapWarning)  # said once, from the final status
-                traj = flt.run(state, log.ts[start:stop + 1], log.us[start:stop + 1], log.ys[start:stop + 1],
-                               gap=gap)
-            pieces.append(traj if start == 0 else jax.tree_util.tree_map(lambda a: a[1:], (traj.g_hat, traj.K)))
-            bar.update(stop + 1 - bar.n)
-            state, start = traj.final, stop
-            if not traj.status.code == 0:
-                break
-    finally:
-        bar.close()
+    while start < N - 1:
+        stop = min(start + chunk, N - 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LogGapWarning)  # said once, from the final status
+            traj = flt.run(state, log.ts[start:stop + 1], log.us[start:stop + 1], log.ys[start:stop + 1],
+                           gap=gap)
+        pieces.append(traj if start == 0 else jax.tree_util.tree_map(lambda a: a[1:], (traj.g_hat, traj.K)))
+        state, start = traj.final, stop
+        failed = not traj.status.code == 0
+        if line is not None:
+            line.show(f"filtering: {stop + 1}/{N} samples", time.perf_counter() - t0,
+                      final=failed or stop >= N - 1)
+        if failed:
+            break
     if len(pieces) == 1:
         return pieces[0]
     first = pieces[0]

@@ -57,6 +57,7 @@ cost: it is the Gaussian one.
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 import equinox as eqx
@@ -477,7 +478,7 @@ def _localization(gtsam, system, ts, us, ys, g0, P0f, Qd, W, solver, thr, max_up
             out[i] = _pose2_to_coords(guess)
             graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if progress and k % 500 == 0:
-            print(f"map_estimates: {k}/{N}", flush=True)
+            print(f"map_estimates: {k}/{N}", file=sys.stderr, flush=True)
     est = isam.calculateEstimate()
     smoothed = np.array([_pose2_to_coords(est.atPose2(X(k))) for k in range(N)])
     return SE2.from_coords(out), SE2.from_coords(smoothed), updates
@@ -576,7 +577,7 @@ def _attitude(gtsam, system, ts, us, ys, g0, P0f, Qd, W, solver, thr, max_update
             biases[i] = b
             graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if progress and k % 500 == 0:
-            print(f"map_estimates: {k}/{N}", flush=True)
+            print(f"map_estimates: {k}/{N}", file=sys.stderr, flush=True)
     est = isam.calculateEstimate()
     sq, sb = np.zeros((N, 4)), np.zeros((N, 3))
     for k in range(N):

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -304,7 +305,7 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
         map_cache: dict = {}
         with_optimum = sname == "gyro-bias" and st.optimum_runs > 0
         if progress:
-            print(f"{sname}:", flush=True)
+            print(f"{sname}:", file=sys.stderr, flush=True)
         for name in st.filters_of(sname):
             t0 = time.perf_counter()
             flt = _make_filter(name, system, alpha)
@@ -328,7 +329,7 @@ def compare_attitude_basin(study: AttitudeBasin | None = None, *, progress: bool
             frac.append(fr)
             t_med.append(tm)
             if progress:
-                print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
+                print(progress_line(name, rows, per_filter[name]["elapsed_s"]), file=sys.stderr, flush=True)
         systems[sname] = {"description": SYSTEMS[sname], "setup": setup, "samples": int(len(ts)),
                           "filters": per_filter}
         key = sname.replace("-", "_")

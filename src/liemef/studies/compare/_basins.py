@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -170,7 +171,7 @@ def compare_heading_basin(study: HeadingBasin | None = None, *, progress: bool =
         frac.append(fr)
         t_med.append(tm)
         if progress:
-            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
+            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), file=sys.stderr, flush=True)
     return {"study": {**dataclasses.asdict(st),
                       "scenario": "ukfm 2D localization benchmark with the initial heading error set to +-alpha "
                                   "(sign drawn per trial), position exact",

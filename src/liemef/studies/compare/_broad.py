@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -276,7 +277,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             if progress:
                 r = rows[name]
                 print(f"  trial {tid} {name:15s} total {fmt(r['total'])}, heading {fmt(r['heading'])}, inclination "
-                      f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", flush=True)
+                      f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", file=sys.stderr, flush=True)
         per_trial[tid] = {"file": trial.name, "seconds": float(trial.ts[-1] - trial.ts[0]),
                           "dip_deg": math.degrees(dip), "gravity": gravity, "field_uT": fld,
                           "imu_params": params, "filters": rows,

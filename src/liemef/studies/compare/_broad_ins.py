@@ -65,6 +65,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -458,7 +459,7 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                           f"{fmt(f['inclination'])}) deg, velocity {fmt(f['velocity'])} m/s, position "
                           f"{fmt(f['position'])} m, NEES {fmt(f['nees_pose'], 3)}; run {f['run_s']:.1f} s, "
                           f"with the scoring {f['elapsed_s']:.1f} s",
-                          flush=True)
+                          file=sys.stderr, flush=True)
             entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": rows}
         per_trial[tid] = entry
     attitude_only = _attitude_only(st, progress)

@@ -22,6 +22,7 @@ evo is installed (the test and dev extras): each trial's APE and RPE (over 1 s) 
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -272,7 +273,7 @@ def compare_inertial(study: InertialComparison | None = None, *, progress: bool 
             print(f"  {name:10s} attitude {fmt(e['attitude_rms']['pooled'])} deg, position "
                   f"{fmt(e['position_rms']['pooled'])} m (pooled, all n, {e['status_ok']} trials with status ok); NEES "
                   f"{fmt(e['nees_attitude']['mean'], 3)} / {fmt(e['nees_position']['mean'], 3)}; "
-                  f"{e['diverged']['count']} diverged; {elapsed:.1f} s", flush=True)
+                  f"{e['diverged']['count']} diverged; {elapsed:.1f} s", file=sys.stderr, flush=True)
     unranked = unranked_filters(per_filter, [key for key, _ in NEES])
     winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}, unranked=unranked)
                for key, label, _ in METRICS}

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import sys
 import time
 from dataclasses import dataclass
 
@@ -115,7 +116,7 @@ def compare_inertial_basin(study: InertialBasin | None = None, *, progress: bool
         frac.append(fr)
         t_med.append(tm)
         if progress:
-            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), flush=True)
+            print(progress_line(name, rows, per_filter[name]["elapsed_s"]), file=sys.stderr, flush=True)
     key = SYSTEM.replace("-", "_")
     setup = (f"ukfm's inertial-navigation benchmark (../shared/scenarios/ukfm_inertial_navigation.md), "
              f"{config.duration:g} s at {1 / config.dt:g} Hz, landmarks at {1 / config.obs_period:g} Hz; K0 = "

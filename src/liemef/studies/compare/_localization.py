@@ -14,6 +14,7 @@ from the exact minimum-energy estimate (:mod:`liemef.studies.optimum`) on the fi
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -210,7 +211,7 @@ def compare_localization(study: LocalizationComparison | None = None, *, progres
             print(f"  {name:10s} heading {fmt(e['heading_rms']['mean'])} deg, position "
                   f"{fmt(e['position_rms']['mean'])} m (t >= {st.steady:g} s, mean over {e['status_ok']} trials "
                   "with status ok); "
-                  f"{e['diverged']['count']} diverged; {timing[name]:.1f} s", flush=True)
+                  f"{e['diverged']['count']} diverged; {timing[name]:.1f} s", file=sys.stderr, flush=True)
     unranked = unranked_filters(per_filter, ("nees_heading", "nees_position"))
     winners = {label: paired_comparison({n: trials[n][key] for n in st.filters}, unranked=unranked)
                for key, label, _ in METRICS}

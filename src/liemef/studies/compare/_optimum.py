@@ -3,6 +3,7 @@ minimum-energy (per-step MAP) estimate of the same data (:func:`liemef.studies.o
 
 from __future__ import annotations
 
+import sys
 import time
 
 import jax
@@ -46,7 +47,7 @@ def localization_distances(config: L.LocalizationConfig, draws: L.Draws, coords:
                               ("position_mean", p, slice(None)), ("position_steady", p, steady)):
                 per[n][key].append(float(np.mean(x[m])))
         if progress:
-            print(f"  optimum, trial {i}: {solver} in {elapsed[-1]:.1f} s", flush=True)
+            print(f"  optimum, trial {i}: {solver} in {elapsed[-1]:.1f} s", file=sys.stderr, flush=True)
     filters = {n: {k: json_number(float(np.mean(v))) for k, v in per[n].items()} for n in names}
     labels = {"heading_mean": "heading distance, whole run", "heading_steady": "heading distance t >= steady",
               "position_mean": "position distance, whole run", "position_steady": "position distance t >= steady"}

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -561,7 +562,7 @@ def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress:
             r = rows[name]
             print(f"{case.name:>15} {name:>13}: {r['status']}, attitude {fmt(r['attitude_deg'], 3)} deg, position "
                   f"{fmt(r['position_m'], 3)} m, NEES {fmt(r['nees'], 3)} ({case.dof} dof) "
-                  f"[{r['elapsed_s']:.1f} s]", flush=True)
+                  f"[{r['elapsed_s']:.1f} s]", file=sys.stderr, flush=True)
     return {"filters": {n: rows[n] for n in filters}, "first_order_updates": updates}
 
 

@@ -15,6 +15,7 @@ differences over the seeds (:func:`~liemef.studies.compare.paired_comparison`).
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -135,7 +136,7 @@ def compare_wifibot(study: WifibotComparison | None = None, *, progress: bool = 
             if progress:
                 print(f"  run {rid} {name:10s} heading {fmt(summary[name]['heading_rms']['mean'])} deg, position "
                       f"{fmt(summary[name]['position_rms']['mean'])} m; {summary[name]['elapsed_s']:.1f} s",
-                      flush=True)
+                      file=sys.stderr, flush=True)
         arrays[f"{rid}/ts"] = ts
         out[rid] = {"file": run.name, "rows": int(ts.shape[0]), "seconds": float(ts[-1] - ts[0]),
                     "filters": summary, "trials": trials}
