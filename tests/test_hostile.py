@@ -28,16 +28,7 @@ from liemef.studies.experiments._montecarlo import trial_keys
 from liemef.systems import ChaplyginSleigh, PlanarRigidBody, RigidBodyAttitude, System, planar_localization
 from liemef.systems._file import load_system_file
 from localization_scenario import circle_samples
-
-
-def _raises(fn, *words):
-    """``fn()`` raises a ValueError (not another type) whose message holds every word (regex-escaped)."""
-    with pytest.raises(ValueError) as err:
-        fn()
-    assert type(err.value) is ValueError
-    for w in words:
-        assert re.search(re.escape(str(w)), str(err.value)), (w, str(err.value))
-    return str(err.value)
+from refusals import raises as _raises
 
 
 # --- log files ------------------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from liemef.filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_
 from liemef.groups import SE2, Rn
 from liemef.systems import Noise, Sensor, SensorSystem
 from liemef.systems.localization import gps_position, odometry_dynamics
+from refusals import raises as _raises
 from tolerances import EXPORTED_C_RUN
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -380,12 +381,6 @@ def test_the_docs_loop_runs_and_its_priors_are_runs_states():
 
 
 # --- input checked at the boundary --------------------------------------------------------------------------------
-def _raises(fn, *words):
-    with pytest.raises(ValueError) as err:
-        fn()
-    assert type(err.value) is ValueError
-    for w in words:
-        assert re.search(re.escape(str(w)), str(err.value)), (w, str(err.value))
 
 
 def test_update_refuses_bad_input_naming_the_argument():
