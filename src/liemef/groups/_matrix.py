@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg
 import numpy as np
 
+from .. import _validate
 from ._base import LieGroup, as_float_array, checked_matrix
 
 # Inverse scaling and squaring (Higham, Functions of Matrices, 2008, Sec. 11.5): square roots until
@@ -22,7 +23,14 @@ _GL_NODES, _GL_WEIGHTS = (_GL_NODES + 1.0) / 2.0, _GL_WEIGHTS / 2.0  # on [0, 1]
 # Newton steps on exp after logm (MatrixGroup.log): quadratic convergence from logm's worst start (1e-4 at a
 # rotation angle pi - 1e-6) reaches round-off in two; the third is margin.
 _NEWTON_STEPS = 3
-_LOG_CHECK = 1e-9  # relative |exp(log M) - M|_1 above which log returns NaN (converged: ~1e-15)
+_LOG_CHECK = 1e-9
+"""Relative |exp(log M) - M|_1 above which log returns NaN (converged on the group: ~1e-15), unless Newton's
+iterations converged (:data:`_LOG_OFF_GROUP`)."""
+_LOG_OFF_GROUP = 10 * _validate.ON_GROUP
+"""A matrix a hair off the group (within ``liemef._validate.ON_GROUP``, which every filter's init accepts)
+misses by its distance, up to ~1e-6: its logarithm is kept where Newton's last step was at round-off (the
+logarithm of the nearest element along the algebra) and the miss is below this. A start outside Newton's basin
+(at the cut locus) does not converge, and stays NaN."""
 
 
 def _norm1(A):
@@ -298,8 +306,9 @@ class MatrixGroup(LieGroup):
 @functools.partial(jax.jit, static_argnums=0)  # jitted: eager calls compile the loops once per shape
 def _log(cls: type[MatrixGroup], M):
     """:meth:`MatrixGroup.log` of one matrix ``M`` (m, m)."""
-    xi, miss = _newton_log(cls, M)
-    return jnp.where(miss <= _LOG_CHECK, xi, jnp.nan)
+    xi, miss, step = _newton_log(cls, M)
+    converged = step <= 1e-12 * (1.0 + jnp.sum(jnp.abs(jax.lax.stop_gradient(xi))))
+    return jnp.where((miss <= _LOG_CHECK) | (converged & (miss <= _LOG_OFF_GROUP)), xi, jnp.nan)
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -310,7 +319,8 @@ def _log_miss(cls: type[MatrixGroup], M):
 
 
 def _newton_log(cls: type[MatrixGroup], M):
-    """``(xi, miss)``: the Newton-polished logarithm of one matrix ``M`` and ``|exp(xi) - M|_1 / (1 + |M|_1)``."""
+    """``(xi, miss, step)``: the Newton-polished logarithm of one matrix ``M``, ``|exp(xi) - M|_1 / (1 + |M|_1)``
+    and the 1-norm of Newton's last step."""
     n, m = cls.tangent_dim, cls.matrix_dim
     eye = jnp.eye(m)
 
@@ -325,10 +335,13 @@ def _newton_log(cls: type[MatrixGroup], M):
         return xi + jnp.linalg.solve(J, small_log(exp_inv @ M - eye))
 
     xi = cls.vee(logm(jax.lax.stop_gradient(M)))
-    xi = jax.lax.fori_loop(0, _NEWTON_STEPS, newton, xi)
+    xi = jax.lax.fori_loop(0, _NEWTON_STEPS - 1, newton, xi)
+    last = newton(0, xi)
+    step = jnp.sum(jnp.abs(jax.lax.stop_gradient(last - xi)))
+    xi = last
     # A start outside Newton's basin (at the cut locus) may end anywhere: a value that is not a logarithm is NaN.
     miss = _norm1(jax.lax.stop_gradient(expm(cls.hat(xi)) - M)) / (1.0 + _norm1(jax.lax.stop_gradient(M)))
-    return xi, miss
+    return xi, miss, step
 
 
 def _unit(m, i, j):
