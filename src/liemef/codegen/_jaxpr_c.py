@@ -1094,8 +1094,12 @@ class Translator:
 
     # --- linear algebra -------------------------------------------------------------------------------------
     def lu(self, a: Val, avals) -> list[Val]:
-        """LU with partial pivoting (LAPACK getrf's choice: the first largest |pivot|): ``lu``, ``pivots``
-        (row swapped with row i at step i) and the ``permutation``."""
+        """LU with partial pivoting as XLA's ``getrf`` (SciPy's OpenBLAS) computes it, column by column
+        (left-looking): each entry's dot product with the factors before it first, subtracted once (rounding and
+        the sign of an exact zero as there; subtracting term by term gave other ones); the pivot the first
+        largest |.|, a NaN never chosen over a number; the column below it times the pivot's reciprocal, which
+        BLAS's scaling by 0 (an infinite pivot) makes 0, not NaN. Returns ``lu``, ``pivots`` (row swapped with
+        row i at step i) and the ``permutation``."""
         if len(a.shape) != 2 or a.shape[0] != a.shape[1]:
             raise UnsupportedPrimitive(f"lu of shape {a.shape} (only square, unbatched)")
         n = a.shape[0]
@@ -1105,12 +1109,19 @@ class Translator:
         self.loop(n * n, lambda i: f"{lu.name}[{i}] = {self.elem(a, i)};")
         self.loop(n, lambda i: f"{perm.name}[{i}] = {i};")
         self.emit(f"(void){piv.name}; (void){perm.name};")
-        k, i, j, p = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("p")
+        k, i, j, p, s = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("p"), self.fresh("s")
         L = lu.name
         self.emit(f"for (int {k} = 0; {k} < {n}; {k}++) {{")
+        self.emit(f"    for (int {i} = 1; {i} < {n}; {i}++) {{")
+        self.emit(f"        const int {p} = {i} < {k} ? {i} : {k};")
+        self.emit(f"        double {s} = -0.0;")
+        self.emit(f"        if ({p} == 0) continue;")
+        self.emit(f"        for (int {j} = 0; {j} < {p}; {j}++) {s} += {L}[{i} * {n} + {j}] * {L}[{j} * {n} + {k}];")
+        self.emit(f"        {L}[{i} * {n} + {k}] -= {s};")
+        self.emit("    }")
         self.emit(f"    int {p} = {k};")
         self.emit(f"    for (int {i} = {k} + 1; {i} < {n}; {i}++) if (fabs({L}[{i} * {n} + {k}]) > "
-                  f"fabs({L}[{p} * {n} + {k}])) {p} = {i};")
+                  f"fabs({L}[{p} * {n} + {k}]) || {L}[{p} * {n} + {k}] != {L}[{p} * {n} + {k}]) {p} = {i};")
         self.emit(f"    {piv.name}[{k}] = {p};")
         self.emit(f"    if ({p} != {k}) {{")
         self.emit(f"        for (int {j} = 0; {j} < {n}; {j}++) {{ double t = {L}[{k} * {n} + {j}]; "
@@ -1118,10 +1129,10 @@ class Translator:
         self.emit(f"        {{ int32_t t = {perm.name}[{k}]; {perm.name}[{k}] = {perm.name}[{p}]; "
                   f"{perm.name}[{p}] = t; }}")
         self.emit("    }")
-        self.emit(f"    if ({L}[{k} * {n} + {k}] != 0.0) for (int {i} = {k} + 1; {i} < {n}; {i}++) {{")
-        self.emit(f"        {L}[{i} * {n} + {k}] /= {L}[{k} * {n} + {k}];")
-        self.emit(f"        for (int {j} = {k} + 1; {j} < {n}; {j}++) {L}[{i} * {n} + {j}] -= "
-                  f"{L}[{i} * {n} + {k}] * {L}[{k} * {n} + {j}];")
+        self.emit(f"    if ({L}[{k} * {n} + {k}] != 0.0) {{")
+        self.emit(f"        const double {s} = 1.0 / {L}[{k} * {n} + {k}];")
+        self.emit(f"        for (int {i} = {k} + 1; {i} < {n}; {i}++) "
+                  f"{L}[{i} * {n} + {k}] = {s} == 0.0 ? 0.0 : {L}[{i} * {n} + {k}] * {s};")
         self.emit("    }")
         self.emit("}")
         return [lu, piv, perm]
@@ -1222,16 +1233,22 @@ class Translator:
             cols = b.shape[0]
             X = lambda r, c: f"{out.name}[({c}) * {m} + ({r})]"  # noqa: E731
         self.loop(out.size, lambda i: f"{out.name}[{i}] = {self.elem(b, i)};")
-        c, r, k = self.fresh("i"), self.fresh("i"), self.fresh("i")
+        # as BLAS's dtrsm (XLA calls LAPACK's): each unknown's dot product with the solved ones first (from its
+        # first product: -0 + p is p), subtracted once, then times the diagonal's reciprocal (subtracting term
+        # by term gave another sign to an exact zero: -0 - (-0) - (+0) is +0, -0 - (-0 + +0) is -0)
+        c, r, k, s = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("s")
         self.emit(f"for (int {c} = 0; {c} < {cols}; {c}++) {{")
         if eff_lower:
             self.emit(f"    for (int {r} = 0; {r} < {m}; {r}++) {{")
-            self.emit(f"        for (int {k} = 0; {k} < {r}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+            self.emit(f"        double {s} = -0.0;")
+            self.emit(f"        for (int {k} = 0; {k} < {r}; {k}++) {s} += {T(r, k)} * {X(k, c)};")
         else:
             self.emit(f"    for (int {r} = {m} - 1; {r} >= 0; {r}--) {{")
-            self.emit(f"        for (int {k} = {r} + 1; {k} < {m}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+            self.emit(f"        double {s} = -0.0;")
+            self.emit(f"        for (int {k} = {r} + 1; {k} < {m}; {k}++) {s} += {T(r, k)} * {X(k, c)};")
+        self.emit(f"        if ({r} != {0 if eff_lower else m - 1}) {X(r, c)} -= {s};")
         if not unit:
-            self.emit(f"        {X(r, c)} /= {T(r, r)};")
+            self.emit(f"        {X(r, c)} *= 1.0 / {T(r, r)};")
         self.emit("    }")
         self.emit("}")
         return out

@@ -773,23 +773,36 @@ class ScalarTranslator:
         return np.moveaxis(out, -1, axis)
 
     def cholesky(self, a, dtype):
-        """The lower Cholesky factor of a run-time matrix (its lower triangle read, as LAPACK's ``potrf``),
-        zeros above the diagonal; a matrix that is not positive definite gives NaN everywhere, as XLA's."""
+        """The lower Cholesky factor of a run-time matrix (its lower triangle read), zeros above the diagonal, as
+        XLA's ``potrf`` (SciPy's OpenBLAS) computes it column by column: a pivot ``d`` that is not > 0 makes the
+        whole factor NaN, as XLA's (a NaN pivot is no failure there: it runs on as NaN); the column below it is
+        its entries, less their dot products with the factor's rows, times the reciprocal of sqrt(d), which
+        BLAS's scaling by 0 (an infinite pivot) makes 0, not NaN."""
         if a.ndim != 2 or a.shape[0] != a.shape[1] or np.dtype(dtype) != np.float64:
             raise UnsupportedPrimitive(f"cholesky of shape {a.shape} (only square float64, unbatched)")
         n = a.shape[0]
         L = np.empty((n, n), dtype=object)
         zero = self.const(0.0, dtype)
+        one = self.const(1.0, dtype)
         ok = None
+
+        def less_dot(x, row_i, row_j, j):
+            if j == 0:
+                return x
+            return self.node("sub", (x, self.total([self.node("mul", (L[row_i, k], L[row_j, k]), dtype)
+                                                    for k in range(j)], dtype)), dtype)
+
         for j in range(n):
-            d = self.node("sub", (a[j, j], self.total([self.node("mul", (L[j, k], L[j, k]), dtype)
-                                                         for k in range(j)], dtype)), dtype)
-            pos = self.node("gt", (d, zero), np.bool_)
-            ok = pos if ok is None else self.node("and", (ok, pos), np.bool_)
+            d = less_dot(a[j, j], j, j, j)
+            fails = self.node("le", (d, zero), np.bool_)
+            ok = self.node("not", (fails,), np.bool_) if ok is None else \
+                self.node("and", (ok, self.node("not", (fails,), np.bool_)), np.bool_)
             L[j, j] = self.node("sqrt", (d,), dtype)
+            r = self.node("div", (one, L[j, j]), dtype)
+            by_zero = self.node("eq", (r, zero), np.bool_)
             for i in range(j + 1, n):
-                s = self.total([self.node("mul", (L[i, k], L[j, k]), dtype) for k in range(j)], dtype)
-                L[i, j] = self.node("div", (self.node("sub", (a[i, j], s), dtype), L[j, j]), dtype)
+                t = less_dot(a[i, j], i, j, j)
+                L[i, j] = self.node("sel", (by_zero, zero, self.node("mul", (t, r), dtype)), dtype)
             for i in range(j):
                 L[i, j] = zero
         nan = self.const(np.nan, dtype)
