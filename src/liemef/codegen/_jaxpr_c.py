@@ -99,6 +99,26 @@ def user_frame(frames) -> str:
     return "" if pick is None else f"{pick[0]}:{pick[1]} ({pick[2]})"
 
 
+def liemefs_own(frames) -> bool:
+    """Whether the frames (innermost first) of an equation and the calls around it were traced by liemef's
+    own code: the innermost frame outside JAX and NumPy is in liemef (a user's file, an installed package or
+    no frame at all: not)."""
+    for f in frames:
+        if _inside(f[0], _JAX_DIRS) or f[0].startswith("<frozen"):
+            continue
+        return _inside(f[0], (_LIEMEF_DIR,))
+    return False
+
+
+EIGH_REFUSED = ("eigh (jnp.linalg.eigh, eigvalsh): the sign of each eigenvector, and the basis of a repeated "
+                "eigenvalue's eigenspace, are LAPACK's choice in XLA, which C does not reproduce (eigvalsh's "
+                "derivatives read the eigenvectors too); use engine=\"xla\", or a closed form (the eigenvalues of "
+                "[[a, b], [b, d]] are (a + d)/2 -+ sqrt(((a - d)/2)**2 + b**2))")
+"""Why a user's ``eigh`` has no C: an eigenvector is defined up to its sign (a repeated eigenvalue's up to a
+rotation of its eigenspace), and the C engine gives XLA's result bit for bit or none. liemef's own ``eigh``
+(the UKF-M's square root of P, whose sigma points come in +- pairs) is translated: :func:`liemefs_own`."""
+
+
 def ctype(dtype) -> str:
     """The C type of a NumPy dtype."""
     dt = np.dtype(dtype)
@@ -223,7 +243,7 @@ _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduc
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
           "checkpoint", "remat", "remat2", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
-_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "eigh", "custom_linear_solve",
+_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "custom_linear_solve",
            "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort", "cholesky"}
 _CUMULATIVE = {"cumsum", "cumprod", "cummax", "cummin"}
@@ -232,7 +252,8 @@ PRIMITIVES: frozenset[str] = frozenset(
     set(_FLOAT_UNARY) | set(_INT_UNARY) | set(_BOOL_UNARY) | set(_BINARY) | set(_FLOAT_BINARY) | set(_INT_BINARY)
     | _STRUCTURAL | set(_REDUCE) | _CALLS | _CONTROL | _LINALG | _CUMULATIVE)
 """The primitives the translators cover, in every form (run-time indices, run-time data) by the scalar
-translator (:mod:`._scalar_c`, the engine's and the default export's). The array translator
+translator (:mod:`._scalar_c`, the engine's and the default export's). Not ``eigh``: only liemef's own, whose
+result does not depend on LAPACK's choice of eigenvectors, is translated (:data:`EIGH_REFUSED`). The array translator
 (:func:`jaxpr_to_c`) covers those of :data:`SCALAR_ONLY` only on known constants, gathers with run-time
 indices only along one axis and ``scan`` only in ``fori_loop``'s form."""
 
@@ -274,6 +295,14 @@ def own_precision(params: dict, dtype) -> None:
     if e < fi.nexp or m < fi.nmant:
         raise UnsupportedPrimitive(f"reduce_precision to {e} exponent and {m} mantissa bits of a {np.dtype(dtype)} "
                                    f"(only at its own {fi.nexp} and {fi.nmant}, where it changes nothing)")
+
+
+def refuse_choice(eqn, within) -> None:
+    """Raise :class:`UnsupportedPrimitive` for an ``eigh`` that is not liemef's own (:data:`EIGH_REFUSED`):
+    ``within`` are the equations around it, outermost first, whose frames say who traced it."""
+    frames = [f for e in [eqn, *reversed(within)] for f in eqn_frames(e)]
+    if not liemefs_own(frames):
+        raise UnsupportedPrimitive(EIGH_REFUSED)
 
 
 def _subjaxpr(params: dict, *keys):
@@ -573,6 +602,7 @@ class Translator:
         self.functions: dict[int, tuple[str, object]] = {}
         self.function_texts: list[str] = []
         self.function_min = 40
+        self.within: list = []  # the equations being emitted, outermost first (a call's, then its body's)
 
     # --- names and tables ---------------------------------------------------------------------------------
     def fresh(self, prefix: str = "v") -> str:
@@ -687,12 +717,14 @@ class Translator:
                 and eqn.primitive.name != "custom_linear_solve"
             if leaf:
                 self.begin()
+            self.within.append(eqn)
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
                 e.frames.extend(eqn_frames(eqn))
                 raise
             finally:
+                self.within.pop()
                 if leaf:
                     self.end()
             for var, o in zip(eqn.outvars, outs, strict=True):
@@ -735,6 +767,7 @@ class Translator:
         if name == "triangular_solve":
             return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
         if name == "eigh":
+            refuse_choice(eqn, self.within[:-1])
             return self.eigh(ins[0], params, avals)
         if name == "lu_pivots_to_permutation":
             return [self.pivots_to_permutation(ins[0], int(params["permutation_size"]), *avals[0])]
@@ -1162,7 +1195,8 @@ class Translator:
         the triangle ``lower`` (or upper) of ``a``, by cyclic Jacobi rotations (Golub & Van Loan, Algorithm
         8.5.3) until the off-diagonal part is below the rounding of the whole. Not LAPACK's algorithm: the
         eigenvalues agree to rounding, an eigenvector up to its sign (and, for a repeated eigenvalue, up to a
-        rotation of its eigenspace)."""
+        rotation of its eigenspace). Hence for liemef's own use alone, where that choice does not matter
+        (:func:`refuse_choice`)."""
         if len(a.shape) != 2 or a.shape[0] != a.shape[1] or a.dtype != np.float64:
             raise UnsupportedPrimitive(f"eigh of shape {a.shape} and dtype {a.dtype} (only square float64, "
                                        "unbatched)")

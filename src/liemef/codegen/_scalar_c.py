@@ -65,6 +65,7 @@ from ._jaxpr_c import (
     int_division,
     literal,
     own_precision,
+    refuse_choice,
     saturated,
     shift_left,
     take_layout,
@@ -119,6 +120,7 @@ class ScalarTranslator:
         self.active: str | None = None  # in lane code inside a cond's arm: the C mask of the lanes that take it
         self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
         self.lookups: dict = {}  # constant operands read at run-time indices: their C arrays, by node ids
+        self.within: list = []  # the equations being translated, outermost first (a call's, then its body's)
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -333,11 +335,14 @@ class ScalarTranslator:
             env[var] = a
         for eqn in jaxpr.eqns:
             ins = [read(a) for a in eqn.invars]
+            self.within.append(eqn)
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
                 e.frames.extend(eqn_frames(eqn))
                 raise
+            finally:
+                self.within.pop()
             for var, o in zip(eqn.outvars, outs, strict=True):
                 env[var] = np.asarray(o, dtype=object).reshape(var.aval.shape)
         return [read(a) for a in jaxpr.outvars]
@@ -410,6 +415,8 @@ class ScalarTranslator:
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
         if name in ("lu", "lu_pivots_to_permutation", "triangular_solve", "eigh"):
+            if name == "eigh":
+                refuse_choice(eqn, self.within[:-1])
             return self.block(eqn, ins, idt)
         if name == "integer_pow":
             return [self.map1(lambda x: self.node("ipow", (x,), odt[0], params["y"]), ins[0], oshape[0])]
@@ -837,6 +844,7 @@ class ScalarTranslator:
         tr = Translator()
         tr.indent = 1
         tr._n = 10**6 * (self.counter[0] + 1)  # its names cannot clash with ours
+        tr.within = list(self.within)  # the calls around the equation, and the equation (as in its own run)
         tr.begin(root=True)
         vals = [Val(tuple(x.shape), d, name=tr.fresh("b")) for x, d in zip(ins, idt, strict=True)]
         outs = tr.equation(eqn, vals)
