@@ -263,8 +263,10 @@ SCALAR_ONLY: frozenset[str] = frozenset({"sort", "argmax", "argmin", "cholesky",
 """Primitives that the array translator takes only where their data (or indices) are known constants."""
 
 HELPERS = r"""
-static inline double lm_max(double a, double b) { return isunordered(a, b) ? a + b : (a > b ? a : b); }
-static inline double lm_min(double a, double b) { return isunordered(a, b) ? a + b : (a < b ? a : b); }
+static inline double lm_max(double a, double b)
+{ return isunordered(a, b) ? a + b : (a > b ? a : (b > a ? b : (signbit(a) ? b : a))); }
+static inline double lm_min(double a, double b)
+{ return isunordered(a, b) ? a + b : (a < b ? a : (b < a ? b : (signbit(a) ? a : b))); }
 static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
 static inline _Bool lm_lt_to(double a, double b)
 { union { double d; int64_t i; } x, y; x.d = a; y.d = b; /* lax.sort's total order: flip the negatives */
@@ -275,7 +277,8 @@ static inline _Bool lm_eq_to(double a, double b)
 """Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign, the
 total order of floats that ``lax.sort`` and ``searchsorted`` compare by). The max and min test for a NaN with
 C99's ``isunordered``, one comparison where ``a != a || b != b`` compiled to two and a branch: the TSE(2) step
-(88 of them) 4-6 % faster on a Zen 4, the same values."""
+(88 of them) 4-6 % faster on a Zen 4, the same values. Of +0 and -0, XLA's max is +0 and its min -0, in
+either order (C's ``a > b ? a : b`` returned b)."""
 
 
 def helpers_used(*texts: str) -> str:
@@ -388,8 +391,19 @@ _NP_ELEMENTWISE = {
     "eq": np.equal, "ne": np.not_equal, "lt": np.less, "le": np.less_equal, "gt": np.greater,
     "ge": np.greater_equal, "and": lambda a, b: a & b, "or": lambda a, b: a | b, "not": np.invert,
     "sin": np.sin, "cos": np.cos, "sqrt": np.sqrt, "abs": np.abs, "exp": np.exp, "log": np.log,
-    "max": np.maximum, "min": np.minimum, "stop_gradient": lambda a: a, "is_finite": np.isfinite,
+    "max": lambda a, b: _extremum(a, b, np.maximum), "min": lambda a, b: _extremum(a, b, np.minimum),
+    "stop_gradient": lambda a: a, "is_finite": np.isfinite,
 }
+
+
+def _extremum(a: np.ndarray, b: np.ndarray, fn) -> np.ndarray:
+    """NumPy's ``maximum``/``minimum`` with XLA's signed zeros: max(-0, +0) is +0 and min(-0, +0) -0 in either
+    order (NumPy returns its second operand)."""
+    out = fn(a, b)
+    if out.dtype.kind != "f":
+        return out
+    ties = (a == b) & (np.signbit(a) != np.signbit(b))
+    return np.where(ties, np.asarray(0.0 if fn is np.maximum else -0.0, out.dtype), out)
 
 
 def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[np.ndarray] | None:
@@ -1039,6 +1053,8 @@ class Translator:
         if op in ("argmax", "argmin"):
             raise UnsupportedPrimitive(f"{op} of values known only at run time")
         fmt = combine[op]
+        # XLA's sum of two terms or more starts from +0 (it is never -0): +0 + the first term
+        first = "0.0 + " if op == "sum" and x.dtype.kind == "f" and R >= 2 else ""
         contiguous = (idx == idx[:, :1] + np.arange(R)).all()
         if R == 0:
             init = {"sum": 0, "prod": 1, "and": 1, "or": 0, "max": -np.inf, "min": np.inf}[op]
@@ -1046,7 +1062,7 @@ class Translator:
             return out
         if contiguous and out.size == 1:
             acc = f"{out.name}[0]"
-            self.emit(f"{acc} = {self.elem(x, int(idx[0, 0]))};")
+            self.emit(f"{acc} = {first}{self.elem(x, int(idx[0, 0]))};")
             if R > 1:
                 k = self.fresh("i")
                 nxt = fmt.format(acc=acc, x=self.elem(x, f"{int(idx[0, 0])} + {k}"))
@@ -1055,7 +1071,7 @@ class Translator:
         if out.size * R <= 16:
             for o in range(out.size):
                 acc = f"{out.name}[{o}]"
-                self.emit(f"{acc} = {self.elem(x, int(idx[o, 0]))};")
+                self.emit(f"{acc} = {first}{self.elem(x, int(idx[o, 0]))};")
                 for r in range(1, R):
                     self.emit(f"{acc} = {fmt.format(acc=acc, x=self.elem(x, int(idx[o, r])))};")
             return out
@@ -1063,7 +1079,7 @@ class Translator:
         o, k = self.fresh("i"), self.fresh("i")
         acc = f"{out.name}[{o}]"
         self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
-        self.emit(f"    {acc} = {self.elem(x, f'{tab}[{o} * {R}]')};")
+        self.emit(f"    {acc} = {first}{self.elem(x, f'{tab}[{o} * {R}]')};")
         self.emit(f"    for (int {k} = 1; {k} < {R}; {k}++) {acc} = "
                   f"{fmt.format(acc=acc, x=self.elem(x, f'{tab}[{o} * {R} + {k}]'))};")
         self.emit("}")
@@ -1111,7 +1127,9 @@ class Translator:
             self.indent += 1
             opened += 1
         acc = self.fresh("s")
-        self.emit(f"{ctype(dtype)} {acc} = 0;")
+        # from +0, as XLA's dot (never -0); a contraction of one term is XLA's product: from -0, which adds nothing
+        one_term = int(np.prod([a.shape[d] for d in ca], dtype=np.int64)) == 1 and np.dtype(dtype).kind == "f"
+        self.emit(f"{ctype(dtype)} {acc} = {'-0.0' if one_term else '0'};")
         for v, n in cl:
             self.emit(f"for (int {v} = 0; {v} < {n}; {v}++) {{")
             self.indent += 1
