@@ -610,3 +610,55 @@ def test_a_negative_zero_parameter_is_read_at_run_time_not_folded():
     from liemef.codegen._scalar_c import structural_zero
 
     assert structural_zero(np.array([0.0, -0.0, 1.0, np.nan])).tolist() == [True, False, False, False]
+
+
+CLI_SYSTEM = """import jax, jax.numpy as jnp
+from liemef.groups import Rn
+from liemef.systems import Noise, Sensor, SensorSystem
+
+
+def h(g, t):
+    return {body}
+
+
+system = SensorSystem(Rn[2], lambda g, u, t: jnp.stack([g.x[1], u[0]]), [Sensor("range", h, Noise.sample([0.05]))],
+                      process_noise=Noise.density([0.05, 0.2]), inputs=("throttle",))
+"""
+CLI_BODIES = {
+    "while_loop": "jax.lax.while_loop(lambda c: c[0] < 5, lambda c: (c[0] + 1, 0.9 * c[1] + 0.1 * g.x[0]), "
+                  "(0, g.x[0]))[1][None]",
+    "eigh": "jnp.linalg.eigh(jnp.diag(g.x) + 0.1)[1][:1, 0] * g.x[0]",
+}
+
+
+def _cli_run(tmp_path, body):
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    (tmp_path / "sys.py").write_text(CLI_SYSTEM.format(body=CLI_BODIES[body]))
+    io.write_log(tmp_path / "log.csv", _cart_system(lambda g, t: g.x[:1]), 0.02 * np.arange(10), np.zeros((10, 1)),
+                 np.ones((10, 1)))
+    args = ["run", "--system-file", str(tmp_path / "sys.py"), "--log", str(tmp_path / "log.csv"), "--out",
+            str(tmp_path / "o"), "--x0", "1,0", "--no-progress"]
+    return CliRunner().invoke(cli, args)
+
+
+def test_cli_a_while_loop_in_a_system_files_output_exits_saying_what_to_use(tmp_path):
+    res = _cli_run(tmp_path, "while_loop")
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    for words in ("sensor 'range': h(g, t)", "lax.while_loop on the state", f"{tmp_path / 'sys.py'}:7 (h)",
+                  "lax.fori_loop with Python int bounds", 'order="first"'):
+        assert words in res.output, (words, res.output)
+    assert not (tmp_path / "o").exists()
+
+
+@needs_cc
+def test_cli_an_eigh_in_a_system_files_output_runs_with_xla_naming_it(tmp_path):
+    with pytest.warns(liemef.engines.EngineWarning) as record:
+        res = _cli_run(tmp_path, "eigh")
+    assert res.exit_code == 0, res.output
+    text = " ".join(str(r.message) for r in record if r.category is liemef.engines.EngineWarning)
+    assert "eigh" in text and "LAPACK's choice" in text and f"{tmp_path / 'sys.py'}:7 (h)" in text and \
+        "running with XLA" in text, text
+    assert (tmp_path / "o" / "estimates.csv").exists()
