@@ -604,6 +604,20 @@ def test_a_while_loop_the_state_enters_by_its_test_alone_is_not_refused():
                                             process_noise=Noise.density([0.05, 0.2]), inputs=("throttle",)))
 
 
+def test_a_matrix_groups_log_in_an_output_is_not_refused():
+    """MatrixGroup.log starts its Newton polish from logm (while loops) of stop_gradient(g): JAX takes its Hessian
+    (the Newton map's), so the filter takes it too."""
+    from liemef.groups import SO3, MatrixGroup
+
+    G = MatrixGroup.from_basis("SO3FromBasis", np.asarray(SO3.hat(jnp.eye(3))))
+    sysm = System(group_type=G, dynamics_fn=lambda g, u, t: u, output_fn=lambda g, t: g.log(), B=0.1 * np.eye(3),
+                  D=0.1 * np.eye(3), Q=np.eye(3), R=np.eye(3), n_inputs=3)
+    liemef.MinimumEnergyFilter(sysm)
+    g = G.exp(jnp.array([0.1, -0.2, 0.3]))
+    H = jax.eval_shape(jax.hessian(lambda xi: sysm.output(g.rplus(xi), 0.0)[0]), jnp.zeros(3))
+    assert H.shape == (3, 3)
+
+
 def test_a_negative_zero_parameter_is_read_at_run_time_not_folded():
     """The kernel folds a parameter's +0 entries (its zero pattern); a -0 is read at run time, else its sign
     would be lost in a product."""

@@ -36,8 +36,9 @@ _CALLS = ("pjit", "jit", "closed_call", "core_call", "remat", "remat2", "checkpo
 def _state_while(jaxpr, tainted: set, within: tuple = ()):
     """The first ``while`` equation of ``jaxpr`` whose body or carry depends on the variables ``tainted`` (the
     state's: reverse mode then differentiates through it), with the equations around it, innermost first;
-    else None. A ``while`` that the state enters only through its test is not differentiated (nor the primal of
-    a custom derivative rule: the rule is)."""
+    else None. A ``while`` that the state enters only through its test, through integers or through a
+    ``stop_gradient`` (``MatrixGroup.log``'s start) is not differentiated, nor the primal of a custom derivative
+    rule (the rule is)."""
     from jax.extend import core as jcore
 
     def hot(v):
@@ -64,8 +65,8 @@ def _state_while(jaxpr, tainted: set, within: tuple = ()):
             found = _state_while(sub, {v for v, h in zip(sub.invars, hot_in, strict=True) if h}, (eqn, *within))
             if found is not None:
                 return found
-        if any(ins):
-            tainted.update(eqn.outvars)
+        if any(ins) and name != "stop_gradient":  # integers and booleans carry no derivative
+            tainted.update(v for v in eqn.outvars if jnp.issubdtype(v.aval.dtype, jnp.inexact))
     return None
 
 
