@@ -1400,3 +1400,279 @@ def test_a_folder_of_csv_logs_is_no_ros_bag(tmp_path, gps_log):
     assert io.is_bag(folder) and io.is_bag(folder / "metadata.yaml") and io.is_bag(tmp_path / "old.bag")
     _refused(_cli("run", "--system", "localization", "--log", folder, "--out", tmp_path / "o"), "'--topics'",
              "is a ROS bag: give --topics")
+
+
+# --- issue 32: engines ---------------------------------------------------------------------------------------
+# The C engine gives XLA's result bit for bit where IEEE 754 or LAPACK leaves a choice (NaN propagation, signed
+# zeros, an eigenvector's sign), or refuses the primitive by name with the user's line; a while_loop that the
+# second-order filter would differentiate in reverse mode is refused when the filter is made (docs/engines.md).
+import ctypes  # noqa: E402
+import subprocess  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+
+from liemef import codegen  # noqa: E402
+from liemef.systems import Noise, Sensor, SensorSystem  # noqa: E402
+
+needs_cc = pytest.mark.skipif(codegen.compiler() is None, reason="no C compiler ($CC, cc, gcc or clang)")
+
+# f: R^2 -> R^k, each about one choice; the C of f, jacfwd(f) and hessian(f) against XLA's at every SPECIAL point
+EDGE_FUNCTIONS = {
+    "atan2_of_zero_times_x": lambda x: jnp.stack([jnp.arctan2(0.0 * x[0], -1.0), jnp.arctan2(x[1] * 0.0, -1.0)]),
+    "zero_times_nan": lambda x: jnp.stack([0.0 * x[0] + x[1], jnp.sin(x[0]) * x[1] + x[0] * x[0]]),
+    "plus_zero_of_minus_zero": lambda x: jnp.stack([x[0] + 0.0, x[1] - 0.0, 0.0 - x[0],
+                                                    x[1] + jnp.array([0.0, 1.0])[0]]),
+    "max_min_of_signed_zeros": lambda x: jnp.stack([jnp.maximum(x[0], 0.0), jnp.minimum(0.0, x[1]),
+                                                    jnp.clip(x[0], -0.0, 1.0), jnp.max(jnp.stack([x[1], -x[1]]))]),
+    "sums_of_zeros": lambda x: jnp.stack([jnp.sum(x * 0.0), jnp.dot(x, jnp.zeros(2)), jnp.cumsum(0.0 * x)[1]]),
+    "mask_times_nan": lambda x: x * (x > 0.5).astype(jnp.float64) + jnp.sqrt(x) * x[::-1],
+    "division_and_log": lambda x: jnp.stack([1.0 / x[0], jnp.log(x[1] * x[1]), x[0] / (x[1] - x[1])]),
+}
+SPECIAL = (-0.0, 0.0, np.inf, -np.inf, np.nan)
+EDGE_FORMS = {"value": lambda f: f, "jacfwd": jax.jacfwd, "hessian": jax.hessian}
+
+
+@pytest.fixture(scope="module")
+def edge_library(tmp_path_factory):
+    """Every EDGE_FUNCTIONS form in one C source by the engine's translator, compiled once."""
+    from liemef.codegen._jaxpr_c import helpers_used
+    from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
+
+    tr, texts, sizes = ScalarTranslator(), [], {}
+    for name, f in EDGE_FUNCTIONS.items():
+        for form, d in EDGE_FORMS.items():
+            closed = jax.make_jaxpr(d(f))(jnp.zeros(2))
+            text, tr = scalar_jaxpr_to_c(f"{name}_{form}", closed, ["x"], ["o"], translator=tr)
+            sizes[f"{name}_{form}"] = int(np.prod(closed.jaxpr.outvars[0].aval.shape))
+            texts.append(text + f"void call_{name}_{form}(const double *x, double *o) {{ {name}_{form}(x, o); }}\n")
+    code = "\n".join(tr.table_lines + texts)
+    d = tmp_path_factory.mktemp("edges")
+    (d / "e.c").write_text("#include <math.h>\n#include <stdint.h>\n" + helpers_used(code) + "\n" + code)
+    subprocess.run([codegen.compiler(), "-std=c99", "-O2", "-shared", "-fPIC", "-o", str(d / "e.so"), str(d / "e.c")],
+                   check=True, capture_output=True)
+    return ctypes.CDLL(str(d / "e.so")), sizes
+
+
+@needs_cc
+@pytest.mark.parametrize("form", sorted(EDGE_FORMS))
+@pytest.mark.parametrize("name", sorted(EDGE_FUNCTIONS))
+def test_c_gives_xlas_nan_infinities_and_signed_zeros(edge_library, name, form):
+    lib, sizes = edge_library
+    fn = jax.jit(EDGE_FORMS[form](EDGE_FUNCTIONS[name]))
+    for a in SPECIAL + (-1.5, 2.0):
+        for b in SPECIAL + (0.75,):
+            x = np.array([a, b])
+            want = np.asarray(fn(jnp.asarray(x)), np.float64).ravel()
+            got = np.full(sizes[f"{name}_{form}"], 7.0)
+            getattr(lib, f"call_{name}_{form}")(x.ctypes.data_as(ctypes.c_void_p), got.ctypes.data_as(ctypes.c_void_p))
+            where = f"{name} {form} at {x}: C {got}, XLA {want}"
+            assert np.array_equal(np.isnan(got), np.isnan(want)), where
+            fin = ~np.isnan(want)
+            assert np.array_equal(np.signbit(got[fin & (want == 0)]), np.signbit(want[fin & (want == 0)])), where
+            np.testing.assert_allclose(got[fin], want[fin], rtol=1e-14, atol=0, err_msg=where)
+
+
+@needs_cc
+def test_atan2_of_zero_times_a_negative_is_minus_pi_in_c(edge_library):
+    """The issue's case: C folded 0.0 * x to +0, so atan2(0.0 * x, -1) was +pi where XLA's is -pi for x < 0."""
+    lib, _ = edge_library
+    x, got = np.array([-2.0, 3.0]), np.zeros(2)
+    lib.call_atan2_of_zero_times_x_value(x.ctypes.data_as(ctypes.c_void_p), got.ctypes.data_as(ctypes.c_void_p))
+    assert got.tolist() == [-np.pi, np.pi]
+
+
+def _cart_system(h, p=1):
+    return SensorSystem(Rn[2], lambda g, u, t: jnp.stack([g.x[1], u[0] - 0.3 * g.x[1]]),
+                        [Sensor("range", h, Noise.sample(0.05 * np.ones(p)))],
+                        process_noise=Noise.density([0.05, 0.2]), inputs=("throttle",))
+
+
+def _cart_log(n=5):
+    ts = 0.02 * np.arange(n)
+    return ts, 0.5 * np.ones((n, 1)), np.full((n, 1), 1.2)
+
+
+def eigh_output(g, t):
+    M = jnp.array([[2.0 + g.x[0] ** 2, 0.3 * g.x[1]], [0.3 * g.x[1], 1.0]])
+    return jnp.linalg.eigh(M)[1][:, 0] * g.x[0]  # an eigenvector: its sign is LAPACK's choice
+
+
+def eigvalsh_output(g, t):
+    return jnp.linalg.eigvalsh(jnp.diag(g.x) + 0.1)[1:]  # eigenvalues alone: their derivatives read eigenvectors
+
+
+@needs_cc
+@pytest.mark.parametrize(("fn", "p"), [(eigh_output, 2), (eigvalsh_output, 1)])
+def test_a_users_eigh_is_refused_on_c_by_name_and_line(fn, p):
+    flt = liemef.MinimumEnergyFilter(_cart_system(fn, p))
+    state = flt.init(Rn[2](jnp.array([1.0, 0.5])), np.eye(2))
+    ts, us, ys = _cart_log()
+    ys = np.ones((len(ts), p))
+    line = fn.__code__.co_firstlineno + 1 + (fn is eigh_output)
+    where = f"{Path(__file__).name}:{line} ({fn.__name__})"
+    with pytest.raises(codegen.UnsupportedPrimitive) as err:
+        flt.run(state, ts, us, ys, engine="c")
+    assert "eigh" in str(err.value) and "LAPACK's choice" in str(err.value) and where in str(err.value), str(err.value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", liemef.engines.LogGapWarning)
+        with pytest.warns(liemef.engines.EngineWarning) as record:
+            auto = flt.run(state, ts, us, ys)
+    text = str(record[0].message)
+    assert "eigh" in text and where in text and "running with XLA" in text, text
+    xla = flt.run(state, ts, us, ys, engine="xla")
+    assert np.array_equal(np.asarray(auto.final.K), np.asarray(xla.final.K))
+
+
+def test_a_users_svd_is_refused_by_name_and_line():
+    from liemef.codegen._scalar_c import scalar_jaxpr_to_c
+
+    def singular(x):
+        return jnp.linalg.svd(jnp.outer(x, x), compute_uv=False)  # no C: refused
+
+    line = singular.__code__.co_firstlineno + 1
+    with pytest.raises(codegen.UnsupportedPrimitive, match=rf"'svd'.*{Path(__file__).name}:{line} \(.*singular\)"):
+        scalar_jaxpr_to_c("k", jax.make_jaxpr(jax.jacfwd(singular))(jnp.ones(2)), ["x"], ["o"])
+
+
+@needs_cc
+def test_the_ukfs_own_eigh_agrees_at_a_repeated_eigenvalue():
+    """liemef's own eigh is translated: the UKF-M's symmetric square root of P does not depend on the
+    eigenvectors picked, so a P with a repeated eigenvalue (a rotated diag(0.1, 0.1, 0.3)) gives XLA's run."""
+    from liemef.filters.baselines import UnscentedKalmanFilter
+
+    sysm = planar_localization()
+    flt = UnscentedKalmanFilter(sysm)
+    rng = np.random.default_rng(1)
+    Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    state = flt.init(SE2.identity(), Q @ np.diag([0.1, 0.1, 0.3]) @ Q.T)
+    n = 20
+    ts = 0.01 * np.arange(n)
+    us = 0.3 + 0.1 * rng.standard_normal((n, sysm.input_dim))
+    ys = 0.05 * rng.standard_normal((n, sysm.output_dim))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", liemef.engines.EngineWarning)
+        c = flt.run(state, ts, us, ys, engine="c")
+    x = flt.run(state, ts, us, ys, engine="xla")
+    # rounding apart (Jacobi's and LAPACK's eigenvalues): V sqrt(W) by LAPACK's eigenvectors and by Jacobi's
+    # differed by 8e-11 of K here, a rotation of the sigma points in the repeated eigenvalue's eigenspace
+    K = np.asarray(x.final.K)
+    np.testing.assert_allclose(np.asarray(c.final.K), K, rtol=0, atol=1e-12 * np.abs(K).max())
+    np.testing.assert_allclose(np.asarray(c.coords()), np.asarray(x.coords()), rtol=0, atol=1e-12)
+
+
+def _while_h(g, t):
+    def body(c):
+        return c[0] + 1, c[1] - 0.1 * (c[1] - g.x[0])
+    return jax.lax.while_loop(lambda c: c[0] < 5, body, (0, g.x[0]))[1][None]  # on the state
+
+
+def _traced_bounds_h(g, t):
+    n = jnp.clip(jnp.floor(g.x[1] + 3.0), 1, 5).astype(jnp.int32)
+    return jax.lax.fori_loop(0, n, lambda i, x: x - 0.1 * (x - g.x[0]), g.x[0])[None]  # traced bounds: a while
+
+
+@pytest.mark.parametrize("fn", [_while_h, _traced_bounds_h])
+def test_a_while_loop_on_the_state_in_an_output_is_refused_when_the_filter_is_made(fn):
+    line = fn.__code__.co_firstlineno + (3 if fn is _while_h else 2)
+    sysm = _cart_system(fn)
+    _raises(lambda: liemef.MinimumEnergyFilter(sysm), "sensor 'range': h(g, t)", "lax.while_loop on the state",
+            f"{Path(__file__).name}:{line} ({fn.__name__})", "jax.hessian", "lax.fori_loop with Python int bounds",
+            'order="first"')
+    _raises(lambda: liemef.MinimumEnergyFilter(sysm, updates="discrete"), "lax.while_loop on the state")
+    liemef.MinimumEnergyFilter(sysm, order="first")  # differentiates the output once: forward mode, fine
+
+
+def test_a_while_loop_in_a_plain_systems_output_is_named_as_the_output():
+    sysm = System(group_type=Rn[2], dynamics_fn=lambda g, u, t: jnp.zeros(2), output_fn=_while_h, B=np.eye(2),
+                  D=np.eye(1), Q=np.eye(1), R=np.eye(2))
+    _raises(lambda: liemef.MinimumEnergyFilter(sysm), "output h(g, t)", "lax.while_loop on the state", "_while_h")
+
+
+def test_a_while_loop_the_state_enters_by_its_test_alone_is_not_refused():
+    def h(g, t):  # the loop's count depends on the state, its values do not: nothing to differentiate through it
+        scale = jax.lax.while_loop(lambda c: c[0] < g.x[1] + 3.0, lambda c: (c[0] + 1.0, 0.5 * c[1]), (0.0, 1.0))[1]
+        return g.x[:1] + jax.lax.stop_gradient(scale)
+
+    def dyn(g, u, t):  # the dynamics are differentiated forward (jacfwd): a while on the state is fine there
+        return jnp.stack([jax.lax.while_loop(lambda c: c[0] < 3, lambda c: (c[0] + 1, 0.9 * c[1]), (0, g.x[1]))[1],
+                          u[0]])
+
+    liemef.MinimumEnergyFilter(_cart_system(h))
+    liemef.MinimumEnergyFilter(SensorSystem(Rn[2], dyn, [Sensor("range", lambda g, t: g.x[:1], Noise.sample([0.05]))],
+                                            process_noise=Noise.density([0.05, 0.2]), inputs=("throttle",)))
+
+
+def test_a_matrix_groups_log_in_an_output_is_not_refused():
+    """MatrixGroup.log starts its Newton polish from logm (while loops) of stop_gradient(g): JAX takes its Hessian
+    (the Newton map's), so the filter takes it too."""
+    from liemef.groups import SO3, MatrixGroup
+
+    G = MatrixGroup.from_basis("SO3FromBasis", np.asarray(SO3.hat(jnp.eye(3))))
+    sysm = System(group_type=G, dynamics_fn=lambda g, u, t: u, output_fn=lambda g, t: g.log(), B=0.1 * np.eye(3),
+                  D=0.1 * np.eye(3), Q=np.eye(3), R=np.eye(3), n_inputs=3)
+    liemef.MinimumEnergyFilter(sysm)
+    g = G.exp(jnp.array([0.1, -0.2, 0.3]))
+    H = jax.eval_shape(jax.hessian(lambda xi: sysm.output(g.rplus(xi), 0.0)[0]), jnp.zeros(3))
+    assert H.shape == (3, 3)
+
+
+def test_a_negative_zero_parameter_is_read_at_run_time_not_folded():
+    """The kernel folds a parameter's +0 entries (its zero pattern); a -0 is read at run time, else its sign
+    would be lost in a product."""
+    from liemef.codegen._scalar_c import structural_zero
+
+    assert structural_zero(np.array([0.0, -0.0, 1.0, np.nan])).tolist() == [True, False, False, False]
+
+
+CLI_SYSTEM = """import jax, jax.numpy as jnp
+from liemef.groups import Rn
+from liemef.systems import Noise, Sensor, SensorSystem
+
+
+def h(g, t):
+    return {body}
+
+
+system = SensorSystem(Rn[2], lambda g, u, t: jnp.stack([g.x[1], u[0]]), [Sensor("range", h, Noise.sample([0.05]))],
+                      process_noise=Noise.density([0.05, 0.2]), inputs=("throttle",))
+"""
+CLI_BODIES = {
+    "while_loop": "jax.lax.while_loop(lambda c: c[0] < 5, lambda c: (c[0] + 1, 0.9 * c[1] + 0.1 * g.x[0]), "
+                  "(0, g.x[0]))[1][None]",
+    "eigh": "jnp.linalg.eigh(jnp.diag(g.x) + 0.1)[1][:1, 0] * g.x[0]",
+}
+
+
+def _cli_run(tmp_path, body):
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    (tmp_path / "sys.py").write_text(CLI_SYSTEM.format(body=CLI_BODIES[body]))
+    io.write_log(tmp_path / "log.csv", _cart_system(lambda g, t: g.x[:1]), 0.02 * np.arange(10), np.zeros((10, 1)),
+                 np.ones((10, 1)))
+    args = ["run", "--system-file", str(tmp_path / "sys.py"), "--log", str(tmp_path / "log.csv"), "--out",
+            str(tmp_path / "o"), "--x0", "1,0", "--no-progress"]
+    return CliRunner().invoke(cli, args)
+
+
+def test_cli_a_while_loop_in_a_system_files_output_exits_saying_what_to_use(tmp_path):
+    res = _cli_run(tmp_path, "while_loop")
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    for words in ("sensor 'range': h(g, t)", "lax.while_loop on the state", f"{tmp_path / 'sys.py'}:7 (h)",
+                  "lax.fori_loop with Python int bounds", 'order="first"'):
+        assert words in res.output, (words, res.output)
+    assert not (tmp_path / "o").exists()
+
+
+@needs_cc
+def test_cli_an_eigh_in_a_system_files_output_runs_with_xla_naming_it(tmp_path):
+    with pytest.warns(liemef.engines.EngineWarning) as record:
+        res = _cli_run(tmp_path, "eigh")
+    assert res.exit_code == 0, res.output
+    text = " ".join(str(r.message) for r in record if r.category is liemef.engines.EngineWarning)
+    assert "eigh" in text and "LAPACK's choice" in text and f"{tmp_path / 'sys.py'}:7 (h)" in text and \
+        "running with XLA" in text, text
+    assert (tmp_path / "o" / "estimates.csv").exists()

@@ -99,6 +99,26 @@ def user_frame(frames) -> str:
     return "" if pick is None else f"{pick[0]}:{pick[1]} ({pick[2]})"
 
 
+def liemefs_own(frames) -> bool:
+    """Whether the frames (innermost first) of an equation and the calls around it were traced by liemef's
+    own code: the innermost frame outside JAX and NumPy is in liemef (a user's file, an installed package or
+    no frame at all: not)."""
+    for f in frames:
+        if _inside(f[0], _JAX_DIRS) or f[0].startswith("<frozen"):
+            continue
+        return _inside(f[0], (_LIEMEF_DIR,))
+    return False
+
+
+EIGH_REFUSED = ("eigh (jnp.linalg.eigh, eigvalsh): the sign of each eigenvector, and the basis of a repeated "
+                "eigenvalue's eigenspace, are LAPACK's choice in XLA, which C does not reproduce (eigvalsh's "
+                "derivatives read the eigenvectors too); use engine=\"xla\", or a closed form (the eigenvalues of "
+                "[[a, b], [b, d]] are (a + d)/2 -+ sqrt(((a - d)/2)**2 + b**2))")
+"""Why a user's ``eigh`` has no C: an eigenvector is defined up to its sign (a repeated eigenvalue's up to a
+rotation of its eigenspace), and the C engine gives XLA's result bit for bit or none. liemef's own ``eigh``
+(the UKF-M's square root of P, whose sigma points come in +- pairs) is translated: :func:`liemefs_own`."""
+
+
 def ctype(dtype) -> str:
     """The C type of a NumPy dtype."""
     dt = np.dtype(dtype)
@@ -223,7 +243,7 @@ _REDUCE = {"reduce_sum": "sum", "reduce_max": "max", "reduce_min": "min", "reduc
 _CALLS = {"jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "custom_vjp_call_jaxpr",
           "checkpoint", "remat", "remat2", "custom_lin"}
 _CONTROL = {"while", "cond", "scan"}
-_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "eigh", "custom_linear_solve",
+_LINALG = {"dot_general", "lu", "lu_pivots_to_permutation", "triangular_solve", "custom_linear_solve",
            "select_n", "clamp",
            "convert_element_type", "integer_pow", "iota", "sort", "cholesky"}
 _CUMULATIVE = {"cumsum", "cumprod", "cummax", "cummin"}
@@ -232,7 +252,8 @@ PRIMITIVES: frozenset[str] = frozenset(
     set(_FLOAT_UNARY) | set(_INT_UNARY) | set(_BOOL_UNARY) | set(_BINARY) | set(_FLOAT_BINARY) | set(_INT_BINARY)
     | _STRUCTURAL | set(_REDUCE) | _CALLS | _CONTROL | _LINALG | _CUMULATIVE)
 """The primitives the translators cover, in every form (run-time indices, run-time data) by the scalar
-translator (:mod:`._scalar_c`, the engine's and the default export's). The array translator
+translator (:mod:`._scalar_c`, the engine's and the default export's). Not ``eigh``: only liemef's own, whose
+result does not depend on LAPACK's choice of eigenvectors, is translated (:data:`EIGH_REFUSED`). The array translator
 (:func:`jaxpr_to_c`) covers those of :data:`SCALAR_ONLY` only on known constants, gathers with run-time
 indices only along one axis and ``scan`` only in ``fori_loop``'s form."""
 
@@ -242,8 +263,10 @@ SCALAR_ONLY: frozenset[str] = frozenset({"sort", "argmax", "argmin", "cholesky",
 """Primitives that the array translator takes only where their data (or indices) are known constants."""
 
 HELPERS = r"""
-static inline double lm_max(double a, double b) { return isunordered(a, b) ? a + b : (a > b ? a : b); }
-static inline double lm_min(double a, double b) { return isunordered(a, b) ? a + b : (a < b ? a : b); }
+static inline double lm_max(double a, double b)
+{ return isunordered(a, b) ? a + b : (a > b ? a : (b > a ? b : (signbit(a) ? b : a))); }
+static inline double lm_min(double a, double b)
+{ return isunordered(a, b) ? a + b : (a < b ? a : (b < a ? b : (signbit(a) ? a : b))); }
 static inline double lm_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
 static inline _Bool lm_lt_to(double a, double b)
 { union { double d; int64_t i; } x, y; x.d = a; y.d = b; /* lax.sort's total order: flip the negatives */
@@ -254,7 +277,8 @@ static inline _Bool lm_eq_to(double a, double b)
 """Static inline functions a generated source may start with (XLA's NaN-propagating max and min, sign, the
 total order of floats that ``lax.sort`` and ``searchsorted`` compare by). The max and min test for a NaN with
 C99's ``isunordered``, one comparison where ``a != a || b != b`` compiled to two and a branch: the TSE(2) step
-(88 of them) 4-6 % faster on a Zen 4, the same values."""
+(88 of them) 4-6 % faster on a Zen 4, the same values. Of +0 and -0, XLA's max is +0 and its min -0, in
+either order (C's ``a > b ? a : b`` returned b)."""
 
 
 def helpers_used(*texts: str) -> str:
@@ -274,6 +298,14 @@ def own_precision(params: dict, dtype) -> None:
     if e < fi.nexp or m < fi.nmant:
         raise UnsupportedPrimitive(f"reduce_precision to {e} exponent and {m} mantissa bits of a {np.dtype(dtype)} "
                                    f"(only at its own {fi.nexp} and {fi.nmant}, where it changes nothing)")
+
+
+def refuse_choice(eqn, within) -> None:
+    """Raise :class:`UnsupportedPrimitive` for an ``eigh`` that is not liemef's own (:data:`EIGH_REFUSED`):
+    ``within`` are the equations around it, outermost first, whose frames say who traced it."""
+    frames = [f for e in [eqn, *reversed(within)] for f in eqn_frames(e)]
+    if not liemefs_own(frames):
+        raise UnsupportedPrimitive(EIGH_REFUSED)
 
 
 def _subjaxpr(params: dict, *keys):
@@ -359,8 +391,19 @@ _NP_ELEMENTWISE = {
     "eq": np.equal, "ne": np.not_equal, "lt": np.less, "le": np.less_equal, "gt": np.greater,
     "ge": np.greater_equal, "and": lambda a, b: a & b, "or": lambda a, b: a | b, "not": np.invert,
     "sin": np.sin, "cos": np.cos, "sqrt": np.sqrt, "abs": np.abs, "exp": np.exp, "log": np.log,
-    "max": np.maximum, "min": np.minimum, "stop_gradient": lambda a: a, "is_finite": np.isfinite,
+    "max": lambda a, b: _extremum(a, b, np.maximum), "min": lambda a, b: _extremum(a, b, np.minimum),
+    "stop_gradient": lambda a: a, "is_finite": np.isfinite,
 }
+
+
+def _extremum(a: np.ndarray, b: np.ndarray, fn) -> np.ndarray:
+    """NumPy's ``maximum``/``minimum`` with XLA's signed zeros: max(-0, +0) is +0 and min(-0, +0) -0 in either
+    order (NumPy returns its second operand)."""
+    out = fn(a, b)
+    if out.dtype.kind != "f":
+        return out
+    ties = (a == b) & (np.signbit(a) != np.signbit(b))
+    return np.where(ties, np.asarray(0.0 if fn is np.maximum else -0.0, out.dtype), out)
 
 
 def _np_eval(name: str, params: dict, xs: list[np.ndarray], out_dtypes) -> list[np.ndarray] | None:
@@ -573,6 +616,7 @@ class Translator:
         self.functions: dict[int, tuple[str, object]] = {}
         self.function_texts: list[str] = []
         self.function_min = 40
+        self.within: list = []  # the equations being emitted, outermost first (a call's, then its body's)
 
     # --- names and tables ---------------------------------------------------------------------------------
     def fresh(self, prefix: str = "v") -> str:
@@ -687,12 +731,14 @@ class Translator:
                 and eqn.primitive.name != "custom_linear_solve"
             if leaf:
                 self.begin()
+            self.within.append(eqn)
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
                 e.frames.extend(eqn_frames(eqn))
                 raise
             finally:
+                self.within.pop()
                 if leaf:
                     self.end()
             for var, o in zip(eqn.outvars, outs, strict=True):
@@ -735,6 +781,7 @@ class Translator:
         if name == "triangular_solve":
             return [self.triangular_solve(ins[0], ins[1], params, *avals[0])]
         if name == "eigh":
+            refuse_choice(eqn, self.within[:-1])
             return self.eigh(ins[0], params, avals)
         if name == "lu_pivots_to_permutation":
             return [self.pivots_to_permutation(ins[0], int(params["permutation_size"]), *avals[0])]
@@ -1006,6 +1053,8 @@ class Translator:
         if op in ("argmax", "argmin"):
             raise UnsupportedPrimitive(f"{op} of values known only at run time")
         fmt = combine[op]
+        # XLA's sum of two terms or more starts from +0 (it is never -0): +0 + the first term
+        first = "0.0 + " if op == "sum" and x.dtype.kind == "f" and R >= 2 else ""
         contiguous = (idx == idx[:, :1] + np.arange(R)).all()
         if R == 0:
             init = {"sum": 0, "prod": 1, "and": 1, "or": 0, "max": -np.inf, "min": np.inf}[op]
@@ -1013,7 +1062,7 @@ class Translator:
             return out
         if contiguous and out.size == 1:
             acc = f"{out.name}[0]"
-            self.emit(f"{acc} = {self.elem(x, int(idx[0, 0]))};")
+            self.emit(f"{acc} = {first}{self.elem(x, int(idx[0, 0]))};")
             if R > 1:
                 k = self.fresh("i")
                 nxt = fmt.format(acc=acc, x=self.elem(x, f"{int(idx[0, 0])} + {k}"))
@@ -1022,7 +1071,7 @@ class Translator:
         if out.size * R <= 16:
             for o in range(out.size):
                 acc = f"{out.name}[{o}]"
-                self.emit(f"{acc} = {self.elem(x, int(idx[o, 0]))};")
+                self.emit(f"{acc} = {first}{self.elem(x, int(idx[o, 0]))};")
                 for r in range(1, R):
                     self.emit(f"{acc} = {fmt.format(acc=acc, x=self.elem(x, int(idx[o, r])))};")
             return out
@@ -1030,7 +1079,7 @@ class Translator:
         o, k = self.fresh("i"), self.fresh("i")
         acc = f"{out.name}[{o}]"
         self.emit(f"for (int {o} = 0; {o} < {out.size}; {o}++) {{")
-        self.emit(f"    {acc} = {self.elem(x, f'{tab}[{o} * {R}]')};")
+        self.emit(f"    {acc} = {first}{self.elem(x, f'{tab}[{o} * {R}]')};")
         self.emit(f"    for (int {k} = 1; {k} < {R}; {k}++) {acc} = "
                   f"{fmt.format(acc=acc, x=self.elem(x, f'{tab}[{o} * {R} + {k}]'))};")
         self.emit("}")
@@ -1078,7 +1127,9 @@ class Translator:
             self.indent += 1
             opened += 1
         acc = self.fresh("s")
-        self.emit(f"{ctype(dtype)} {acc} = 0;")
+        # from +0, as XLA's dot (never -0); a contraction of one term is XLA's product: from -0, which adds nothing
+        one_term = int(np.prod([a.shape[d] for d in ca], dtype=np.int64)) == 1 and np.dtype(dtype).kind == "f"
+        self.emit(f"{ctype(dtype)} {acc} = {'-0.0' if one_term else '0'};")
         for v, n in cl:
             self.emit(f"for (int {v} = 0; {v} < {n}; {v}++) {{")
             self.indent += 1
@@ -1094,8 +1145,12 @@ class Translator:
 
     # --- linear algebra -------------------------------------------------------------------------------------
     def lu(self, a: Val, avals) -> list[Val]:
-        """LU with partial pivoting (LAPACK getrf's choice: the first largest |pivot|): ``lu``, ``pivots``
-        (row swapped with row i at step i) and the ``permutation``."""
+        """LU with partial pivoting as XLA's ``getrf`` (SciPy's OpenBLAS) computes it, column by column
+        (left-looking): each entry's dot product with the factors before it first, subtracted once (rounding and
+        the sign of an exact zero as there; subtracting term by term gave other ones); the pivot the first
+        largest |.|, a NaN never chosen over a number; the column below it times the pivot's reciprocal, which
+        BLAS's scaling by 0 (an infinite pivot) makes 0, not NaN. Returns ``lu``, ``pivots`` (row swapped with
+        row i at step i) and the ``permutation``."""
         if len(a.shape) != 2 or a.shape[0] != a.shape[1]:
             raise UnsupportedPrimitive(f"lu of shape {a.shape} (only square, unbatched)")
         n = a.shape[0]
@@ -1105,12 +1160,19 @@ class Translator:
         self.loop(n * n, lambda i: f"{lu.name}[{i}] = {self.elem(a, i)};")
         self.loop(n, lambda i: f"{perm.name}[{i}] = {i};")
         self.emit(f"(void){piv.name}; (void){perm.name};")
-        k, i, j, p = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("p")
+        k, i, j, p, s = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("p"), self.fresh("s")
         L = lu.name
         self.emit(f"for (int {k} = 0; {k} < {n}; {k}++) {{")
+        self.emit(f"    for (int {i} = 1; {i} < {n}; {i}++) {{")
+        self.emit(f"        const int {p} = {i} < {k} ? {i} : {k};")
+        self.emit(f"        double {s} = -0.0;")
+        self.emit(f"        if ({p} == 0) continue;")
+        self.emit(f"        for (int {j} = 0; {j} < {p}; {j}++) {s} += {L}[{i} * {n} + {j}] * {L}[{j} * {n} + {k}];")
+        self.emit(f"        {L}[{i} * {n} + {k}] -= {s};")
+        self.emit("    }")
         self.emit(f"    int {p} = {k};")
         self.emit(f"    for (int {i} = {k} + 1; {i} < {n}; {i}++) if (fabs({L}[{i} * {n} + {k}]) > "
-                  f"fabs({L}[{p} * {n} + {k}])) {p} = {i};")
+                  f"fabs({L}[{p} * {n} + {k}]) || {L}[{p} * {n} + {k}] != {L}[{p} * {n} + {k}]) {p} = {i};")
         self.emit(f"    {piv.name}[{k}] = {p};")
         self.emit(f"    if ({p} != {k}) {{")
         self.emit(f"        for (int {j} = 0; {j} < {n}; {j}++) {{ double t = {L}[{k} * {n} + {j}]; "
@@ -1118,10 +1180,10 @@ class Translator:
         self.emit(f"        {{ int32_t t = {perm.name}[{k}]; {perm.name}[{k}] = {perm.name}[{p}]; "
                   f"{perm.name}[{p}] = t; }}")
         self.emit("    }")
-        self.emit(f"    if ({L}[{k} * {n} + {k}] != 0.0) for (int {i} = {k} + 1; {i} < {n}; {i}++) {{")
-        self.emit(f"        {L}[{i} * {n} + {k}] /= {L}[{k} * {n} + {k}];")
-        self.emit(f"        for (int {j} = {k} + 1; {j} < {n}; {j}++) {L}[{i} * {n} + {j}] -= "
-                  f"{L}[{i} * {n} + {k}] * {L}[{k} * {n} + {j}];")
+        self.emit(f"    if ({L}[{k} * {n} + {k}] != 0.0) {{")
+        self.emit(f"        const double {s} = 1.0 / {L}[{k} * {n} + {k}];")
+        self.emit(f"        for (int {i} = {k} + 1; {i} < {n}; {i}++) "
+                  f"{L}[{i} * {n} + {k}] = {s} == 0.0 ? 0.0 : {L}[{i} * {n} + {k}] * {s};")
         self.emit("    }")
         self.emit("}")
         return [lu, piv, perm]
@@ -1151,7 +1213,8 @@ class Translator:
         the triangle ``lower`` (or upper) of ``a``, by cyclic Jacobi rotations (Golub & Van Loan, Algorithm
         8.5.3) until the off-diagonal part is below the rounding of the whole. Not LAPACK's algorithm: the
         eigenvalues agree to rounding, an eigenvector up to its sign (and, for a repeated eigenvalue, up to a
-        rotation of its eigenspace)."""
+        rotation of its eigenspace). Hence for liemef's own use alone, where that choice does not matter
+        (:func:`refuse_choice`)."""
         if len(a.shape) != 2 or a.shape[0] != a.shape[1] or a.dtype != np.float64:
             raise UnsupportedPrimitive(f"eigh of shape {a.shape} and dtype {a.dtype} (only square float64, "
                                        "unbatched)")
@@ -1222,16 +1285,22 @@ class Translator:
             cols = b.shape[0]
             X = lambda r, c: f"{out.name}[({c}) * {m} + ({r})]"  # noqa: E731
         self.loop(out.size, lambda i: f"{out.name}[{i}] = {self.elem(b, i)};")
-        c, r, k = self.fresh("i"), self.fresh("i"), self.fresh("i")
+        # as BLAS's dtrsm (XLA calls LAPACK's): each unknown's dot product with the solved ones first (from its
+        # first product: -0 + p is p), subtracted once, then times the diagonal's reciprocal (subtracting term
+        # by term gave another sign to an exact zero: -0 - (-0) - (+0) is +0, -0 - (-0 + +0) is -0)
+        c, r, k, s = self.fresh("i"), self.fresh("i"), self.fresh("i"), self.fresh("s")
         self.emit(f"for (int {c} = 0; {c} < {cols}; {c}++) {{")
         if eff_lower:
             self.emit(f"    for (int {r} = 0; {r} < {m}; {r}++) {{")
-            self.emit(f"        for (int {k} = 0; {k} < {r}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+            self.emit(f"        double {s} = -0.0;")
+            self.emit(f"        for (int {k} = 0; {k} < {r}; {k}++) {s} += {T(r, k)} * {X(k, c)};")
         else:
             self.emit(f"    for (int {r} = {m} - 1; {r} >= 0; {r}--) {{")
-            self.emit(f"        for (int {k} = {r} + 1; {k} < {m}; {k}++) {X(r, c)} -= {T(r, k)} * {X(k, c)};")
+            self.emit(f"        double {s} = -0.0;")
+            self.emit(f"        for (int {k} = {r} + 1; {k} < {m}; {k}++) {s} += {T(r, k)} * {X(k, c)};")
+        self.emit(f"        if ({r} != {0 if eff_lower else m - 1}) {X(r, c)} -= {s};")
         if not unit:
-            self.emit(f"        {X(r, c)} /= {T(r, r)};")
+            self.emit(f"        {X(r, c)} *= 1.0 / {T(r, r)};")
         self.emit("    }")
         self.emit("}")
         return out

@@ -58,7 +58,7 @@ from ._cache import Library, cache_dir
 from ._export import _dce, compiler, run_compiler
 from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype, helpers_used
-from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c
+from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c, structural_zero
 
 NATIVE = ("-march=native", "-mno-fma", "-mno-avx512f") \
     if platform.machine().lower() in ("x86_64", "amd64", "i386", "i686") else ("-march=native",)
@@ -182,7 +182,7 @@ class _Traced:
         for c in self.closed.consts:
             h.update(np.asarray(c).tobytes())
         for x in self.pleaves:
-            h.update(str(x.shape).encode() + (x != 0).tobytes())
+            h.update(str(x.shape).encode() + structural_zero(x).tobytes())
         h.update(str(self.used).encode())
         h.update(_GENERATOR_HASH)
         return h.hexdigest()[:24]
@@ -941,7 +941,7 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
     translator has no C for, RuntimeError if there is no C compiler or the build fails."""
     dyn, static = eqx.partition(flt, eqx.is_array)
     pleaves, pdef = jax.tree_util.tree_flatten(dyn)
-    pattern = tuple(_known(x) != 0 for x in pleaves)
+    pattern = tuple(structural_zero(_known(x)) for x in pleaves)
     key = (pdef, static, tuple(x.tobytes() + bytes(str(x.shape), "ascii") for x in pattern))
     try:
         hash(key)

@@ -5,11 +5,15 @@ primitive builds nodes element by element, and the C is straight-line code, one 
 On the way, what the array translator (:mod:`._jaxpr_c`) leaves to the C compiler is done here, where the
 structure is still visible:
 
-* **constants fold** and **zeros vanish**: ``0 * x = 0``, ``x + 0 = x``, ``1 * x = x``, a product with a zero
-  factor is not formed, a sum skips its zero terms. Automatic differentiation fills Jacobians and Hessians
-  with structural zeros (``jacfwd`` pushes a one-hot basis through every operation); here they cost nothing.
-  (``0 * x = 0`` also for a NaN or infinite x: a non-finite state still propagates through the terms that
-  do depend on it, and the health check sees it.)
+* **constants fold**, and an operation is simplified only where the result is the same bits for every value
+  of its operands, NaN, infinities and the sign of zero included (:meth:`ScalarTranslator._simplify`):
+  ``1 * x = x``, ``x - 0 = x``, ``x + (-0) = x``. ``0 * x`` is computed (NaN for an infinite or NaN x, -0 for
+  a negative one), and so are ``x + 0`` (+0 for x = -0) and ``0 / x``. The C is then XLA's computation, also
+  where a Jacobian's or a Hessian's structural zero meets a NaN. XLA's own rewrites are taken as XLA makes
+  them: a product with a boolean array converted to floats (``jacfwd``'s one-hot basis) is a select, NaN
+  times a false is 0 (:meth:`ScalarTranslator._masked`); ``x + 0`` and ``x - 0`` with a whole array of
+  known zeros are x; a sum of two terms or more (``reduce_sum``, ``dot_general``, ``cumsum``) starts from
+  +0, so it is never -0; max and min order -0 below +0.
 * **common subexpressions** are formed once (hash-consing), and data movement (broadcasts, reshapes,
   transposes, slices, gathers with known indices) is free: it only rearranges node ids.
 * **dead code** is never emitted: only the nodes the outputs (and loop tests) need are written.
@@ -33,6 +37,7 @@ products), so that large state dimensions are better served by the array transla
 
 from __future__ import annotations
 
+import math
 import struct
 
 import numpy as np
@@ -54,6 +59,7 @@ from ._jaxpr_c import (
     UnsupportedPrimitive,
     Val,
     _fill_value,
+    _integer_pow,
     _mode,
     _np_eval,
     _size,
@@ -65,6 +71,7 @@ from ._jaxpr_c import (
     int_division,
     literal,
     own_precision,
+    refuse_choice,
     saturated,
     shift_left,
     take_layout,
@@ -80,6 +87,13 @@ _F64 = np.dtype(np.float64)
 _SIMPLIFIED = frozenset({"mul", "add", "add_any", "sub", "div", "neg", "sel", "and", "or", "stop_gradient", "copy",
                          "copy_p", "reduce_precision", "optimization_barrier", "real", "ipow", "convert"})
 """The operations :meth:`ScalarTranslator._simplify` may rewrite (the others it leaves at once)."""
+
+
+def _negative_zero(v) -> bool:
+    """Whether the known value ``v`` is -0.0."""
+    return v == 0 and math.copysign(1.0, float(v)) < 0
+
+
 _PY_F64 = {"add": float.__add__, "add_any": float.__add__, "sub": float.__sub__, "mul": float.__mul__}
 
 
@@ -119,6 +133,10 @@ class ScalarTranslator:
         self.active: str | None = None  # in lane code inside a cond's arm: the C mask of the lanes that take it
         self.const_arrays: dict = {}  # constant arrays by dtype, shape and bytes (their nodes live in the root scope)
         self.lookups: dict = {}  # constant operands read at run-time indices: their C arrays, by node ids
+        self.pinned: set[int] = set()  # constants from a parameter's zero pattern, and those folded from them
+        self.within: list = []  # the equations being translated, outermost first (a call's, then its body's)
+        self.never_neg0: dict[int, bool] = {}  # memo of _never_negative_zero
+        self.preds: dict = {}  # id of an array of node ids -> (the array, the booleans it converts: _note_pred)
 
     def fresh(self, prefix: str) -> str:
         self.counter[0] += 1
@@ -136,14 +154,17 @@ class ScalarTranslator:
             self.scope.stmts.append(("node", i))
         return i
 
-    def const(self, value, dtype) -> int:
+    def const(self, value, dtype, pinned: bool = False) -> int:
+        """The node of a known value. ``pinned``: known only because the code is specialized to a parameter's
+        zero pattern (:func:`scalar_jaxpr_to_c`), a run-time value to XLA (kept apart from true constants:
+        :meth:`_zero_array`)."""
         dt = dtype if type(dtype) is np.dtype else np.dtype(dtype)
         if type(value) is float and dt is _F64:  # the common case, without a NumPy round trip
             v = value
-            key = ("const", _F64.str, _F64_BYTES(v))
+            key = ("const", _F64.str, _F64_BYTES(v), pinned)
         else:
             v = np.asarray(value, dt).item()
-            key = ("const", dt.str, repr(v) if dt.kind != "f" else np.float64(v).tobytes())
+            key = ("const", dt.str, repr(v) if dt.kind != "f" else np.float64(v).tobytes(), pinned)
         s = self.scope
         while s.parent is not None:
             s = s.parent
@@ -152,6 +173,8 @@ class ScalarTranslator:
             saved, self.scope = self.scope, s
             got = s.cse[key] = self._new("const", (), dt, v)
             self.scope = saved
+            if pinned:
+                self.pinned.add(got)
         return got
 
     def leaf(self, expr: str, dtype) -> int:
@@ -174,7 +197,7 @@ class ScalarTranslator:
             else:
                 folded = self._fold(op, args, dt, param)
                 if folded is not None:
-                    return self.const(folded, dt)
+                    return self.const(folded, dt, pinned=not self.pinned.isdisjoint(args))
         simple = self._simplify(op, args, dt, param)
         if simple is not None:
             return simple
@@ -198,45 +221,51 @@ class ScalarTranslator:
                 return xs[1] if bool(xs[0]) else xs[2]
             if op == "convert":
                 return saturated(xs[0], dt) if dt.kind in "iu" and xs[0].dtype.kind == "f" else xs[0].astype(dt)
-            if op == "ipow":
-                return xs[0] ** param if param >= 0 else 1.0 / xs[0] ** (-param)
+            if op == "ipow":  # XLA's products (NumPy's power of a float may differ in the last bit)
+                return _integer_pow(xs[0], param) if xs[0].dtype.kind == "f" or param >= 0 else None
             out = _np_eval(op, {}, xs, [dt])
             return None if out is None else out[0]
 
     def _simplify(self, op, a, dt, param):
+        """A node equal to ``op(a)`` for every value of the operands, bit for bit (IEEE 754: NaN, infinities and
+        the sign of zero included), or None. ``x * 1``, ``x * -1 = -x``, ``x / 1``, ``x - (+0)``, ``x + (-0)``
+        and ``(-0) - x = -x`` are exact, and ``x + (+0)`` where x is never -0 (:meth:`_never_negative_zero`);
+        ``0 * x`` is not (NaN for an infinite or NaN x, -0 for a negative one), nor ``x + (+0)`` of any x (+0
+        for x = -0), ``(+0) - x`` or ``0 / x``: those are computed. (XLA's own rule
+        ``x + 0 = x`` for a whole array of known zeros is :meth:`_zero_array`'s.) Integers fold ``0 * x`` and
+        ``x + 0``, exact for them."""
         if op not in _SIMPLIFIED:
             return None
         ops, values = self.op, self.value
         c = [ops[x] == "const" for x in a]
         v = [values[x] if k else None for x, k in zip(a, c, strict=True)]
+        real = dt.kind == "f"
         if op == "mul":
             for k in (0, 1):
-                if c[k] and v[k] == 0:
+                if c[k] and v[k] == 0 and not real and dt != np.bool_:
                     return self.const(0, dt)
                 if c[k] and v[k] == 1:
                     return a[1 - k]
-                if c[k] and v[k] == -1 and dt.kind == "f":
+                if c[k] and v[k] == -1 and real:
                     return self.node("neg", (a[1 - k],), dt)
             if a[0] > a[1]:
                 return self.node("mul", (a[1], a[0]), dt)
         elif op in ("add", "add_any"):
             for k in (0, 1):
-                if c[k] and v[k] == 0:
+                if c[k] and v[k] == 0 and (not real or _negative_zero(v[k]) or self._never_negative_zero(a[1 - k])):
                     return a[1 - k]
             if op == "add_any" or a[0] > a[1]:
                 return self.node("add", tuple(sorted(a)), dt)
         elif op == "sub":
-            if c[1] and v[1] == 0:
+            if c[1] and v[1] == 0 and not (real and _negative_zero(v[1])):
                 return a[0]
-            if c[0] and v[0] == 0 and dt.kind == "f":
+            if c[0] and v[0] == 0 and real and _negative_zero(v[0]):
                 return self.node("neg", (a[1],), dt)
-            if a[0] == a[1] and dt.kind != "f":
+            if a[0] == a[1] and not real:
                 return self.const(0, dt)
         elif op == "div":
             if c[1] and v[1] == 1:
                 return a[0]
-            if c[0] and v[0] == 0:
-                return self.const(0, dt)
         elif op == "neg":
             if self.op[a[0]] == "neg":
                 return self.args[a[0]][0]
@@ -256,6 +285,8 @@ class ScalarTranslator:
         elif op in ("stop_gradient", "copy", "copy_p", "reduce_precision", "optimization_barrier", "real"):
             return a[0]
         elif op == "ipow":
+            if param == 0:  # XLA's x ** 0 is 1 for every x, NaN included
+                return self.const(1, dt)
             if param == 1:
                 return a[0]
             if param == 2:
@@ -264,16 +295,36 @@ class ScalarTranslator:
             return a[0]
         return None
 
+    def _behind_barrier(self, x: np.ndarray) -> np.ndarray:
+        """``x`` as XLA sees it behind an optimization barrier: the same values, but its known elements are
+        run-time values to XLA (pinned: :meth:`_zero_array`) and the array is no converted boolean
+        (:meth:`_note_pred`): a new array."""
+        out = np.empty(x.shape, dtype=object)
+        for idx in np.ndindex(*x.shape):
+            i = x[idx]
+            out[idx] = self.const(self.value[i], self.dtype[i], pinned=True) if self.op[i] == "const" else i
+        return out
+
+    def _zero_array(self, x: np.ndarray) -> bool:
+        """Whether ``x`` is a whole operand of known zeros (+0 or -0) that XLA sees as a constant: its algebraic
+        simplifier makes ``x + 0`` and ``x - 0`` ``x`` (keeping a -0 that IEEE addition of +0 turns into +0).
+        Not for zeros pinned by a parameter's zero pattern, which XLA reads at run time and adds."""
+        ops, values, pinned = self.op, self.value, self.pinned
+        for i in x.ravel().tolist():
+            if ops[i] != "const" or values[i] != 0 or i in pinned:
+                return False
+        return True
+
     def array(self, v: np.ndarray, dtype) -> np.ndarray:
         return np.asarray(v, dtype=object)
 
-    def const_array(self, value, dtype) -> np.ndarray:
+    def const_array(self, value, dtype, pinned: bool = False) -> np.ndarray:
         value = np.asarray(value, dtype)
-        key = (value.dtype.str, value.shape, value.tobytes())  # the same literal recurs in every equation's copy
+        key = (value.dtype.str, value.shape, value.tobytes(), pinned)  # a literal recurs in every equation's copy
         if key not in self.const_arrays:
             out = np.empty(value.shape, dtype=object)
             for idx in np.ndindex(*value.shape):
-                out[idx] = self.const(value[idx], dtype)
+                out[idx] = self.const(value[idx], dtype, pinned)
             self.const_arrays[key] = out
         return self.const_arrays[key].copy()
 
@@ -333,14 +384,61 @@ class ScalarTranslator:
             env[var] = a
         for eqn in jaxpr.eqns:
             ins = [read(a) for a in eqn.invars]
+            self.within.append(eqn)
             try:
                 outs = self.equation(eqn, ins)
             except UnsupportedPrimitive as e:
                 e.frames.extend(eqn_frames(eqn))
                 raise
+            finally:
+                self.within.pop()
             for var, o in zip(eqn.outvars, outs, strict=True):
                 env[var] = np.asarray(o, dtype=object).reshape(var.aval.shape)
+            self._note_pred(eqn, ins, env)
         return [read(a) for a in jaxpr.outvars]
+
+    _SAME = frozenset({"convert_element_type", "split", "copy", "copy_p", "reduce_precision"})
+
+    def _note_pred(self, eqn, ins, env) -> None:
+        """Remember an array that is a boolean array converted to floats (``jacfwd``'s one-hot basis, a user's
+        ``mask.astype(float)``), as XLA sees it: through the equations it drops as no-ops (a convert to the
+        same type, a split in one piece) and through reshapes and transposes, which XLA moves past a product
+        with a scalar (not through a broadcast or a slice, nor a convert from another float type: there XLA
+        multiplies). XLA's algebraic simplifier makes a product with one a select: :meth:`_masked`."""
+        name, out = eqn.primitive.name, eqn.outvars
+        if len(out) != 1 or not ins or np.dtype(out[0].aval.dtype).kind != "f":
+            return
+        src = eqn.invars[0].aval
+        moved = False
+        if name == "convert_element_type" and np.dtype(src.dtype) == np.bool_:
+            pred = ins[0]
+        elif name in self._SAME and tuple(src.shape) == tuple(out[0].aval.shape) and src.dtype == out[0].aval.dtype \
+                or name in ("reshape", "squeeze", "expand_dims", "transpose"):
+            held = self.preds.get(id(ins[0]))
+            if held is None or held[0] is not ins[0]:
+                return
+            pred = np.transpose(held[1], eqn.params["permutation"]) if name == "transpose" else \
+                held[1].reshape(out[0].aval.shape)
+            moved = held[2] or name not in self._SAME
+        else:
+            return
+        arr = env[out[0]]
+        self.preds[id(arr)] = (arr, pred, moved)  # the array itself is held: its id is not reused meanwhile
+
+    def _masked(self, ins, shape, dtype):
+        """XLA's ``x * convert(p) = select(p, x, 0)`` (its algebraic simplifier's, where the factor is a boolean
+        array converted to floats: :meth:`_note_pred`): x where p holds, else +0, also for a NaN or infinite x
+        and a negative one (IEEE's product: NaN, -0). None where neither factor is one."""
+        for k in (0, 1):
+            held = self.preds.get(id(ins[k]))
+            if held is not None and held[0] is ins[k]:
+                if held[2] and len(set(ins[1 - k].ravel().tolist())) > 1:
+                    continue  # reshaped or transposed: XLA moves that past the product only by a scalar
+                zero = self.const(0.0, dtype)
+                f = np.frompyfunc(lambda p, x, zero=zero: self.node("sel", (p, x, zero), dtype), 2, 1)
+                out = np.asarray(f(held[1], ins[1 - k]), dtype=object)
+                return np.broadcast_to(out, shape).copy() if out.shape != tuple(shape) else out
+        return None
 
     def _known(self, x: np.ndarray) -> bool:
         ops = self.op
@@ -359,6 +457,12 @@ class ScalarTranslator:
         idt = [np.dtype(v.aval.dtype) for v in eqn.invars]
         if name in _CALLS or name == "custom_linear_solve":
             # inlined: a call's constants fold into it, and the zeros of its results reach the caller
+            if name in ("checkpoint", "remat", "remat2") and params.get("differentiated", False):
+                # JAX lowers a differentiated checkpoint with an optimization barrier on the inputs it keeps
+                # from common subexpressions (prevent_cse, one flag or one per input)
+                keep = params.get("prevent_cse", True)
+                keep = (keep,) * len(ins) if isinstance(keep, bool) else tuple(keep)
+                ins = [self._behind_barrier(x) if k else x for x, k in zip(ins, keep, strict=True)]
             return self.run(*inlined(name, params, ins))
         if name == "while":
             return self.while_loop(params, ins)
@@ -367,7 +471,7 @@ class ScalarTranslator:
         if name == "scan":
             return self.scan(params, ins)
         if name == "optimization_barrier":
-            return list(ins)
+            return [self._behind_barrier(x) for x in ins]
         if name == "reduce_precision":
             own_precision(params, idt[0])
         if all(self._known(x) for x in ins):
@@ -378,7 +482,8 @@ class ScalarTranslator:
                 with jax.ensure_compile_time_eval():
                     outs = eqn.primitive.bind(*xs, **params)
                 outs = outs if eqn.primitive.multiple_results else [outs]
-            return [self.const_array(np.asarray(o), d) for o, d in zip(outs, odt, strict=True)]
+            pinned = any(not self.pinned.isdisjoint(x.ravel().tolist()) for x in ins)
+            return [self.const_array(np.asarray(o), d, pinned) for o, d in zip(outs, odt, strict=True)]
         if name == "gather" and not self._known(ins[1]):
             if _mode(params) != "fill":
                 try:
@@ -410,6 +515,8 @@ class ScalarTranslator:
         if name == "dot_general":
             return [self.dot_general(ins[0], ins[1], params["dimension_numbers"], oshape[0], odt[0])]
         if name in ("lu", "lu_pivots_to_permutation", "triangular_solve", "eigh"):
+            if name == "eigh":
+                refuse_choice(eqn, self.within[:-1])
             return self.block(eqn, ins, idt)
         if name == "integer_pow":
             return [self.map1(lambda x: self.node("ipow", (x,), odt[0], params["y"]), ins[0], oshape[0])]
@@ -421,6 +528,16 @@ class ScalarTranslator:
             lo, x, hi = (np.broadcast_to(v, oshape[0]) for v in ins)
             f = np.frompyfunc(lambda a, b, c: self.node("min", (self.node("max", (b, a), odt[0]), c), odt[0]), 3, 1)
             return [f(lo, x, hi)]
+        if name == "mul" and odt[0].kind == "f":
+            masked = self._masked(ins, oshape[0], odt[0])
+            if masked is not None:
+                return [masked]
+        if name in ("add", "add_any", "sub") and odt[0].kind == "f":
+            # XLA's algebraic simplifier: x + 0 and x - 0 are x for a whole operand of zeros it knows
+            if self._zero_array(ins[1]):
+                return [np.broadcast_to(ins[0], oshape[0]).copy()]
+            if name != "sub" and self._zero_array(ins[0]):
+                return [np.broadcast_to(ins[1], oshape[0]).copy()]
         if name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY or name in _BINARY \
                 or name in _FLOAT_BINARY or name in _INT_BINARY or name in _BOOL_BINARY:
             f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(ins), 1)
@@ -633,9 +750,8 @@ class ScalarTranslator:
                 if inb is not None:
                     hit = self.node("and", (hit, inb), np.bool_)
                 p = v + off
-                if add:
-                    out[p] = self.node("add", (out[p], self.node("sel", (hit, ups[u], self.const(0, dtype)), dtype)),
-                                       dtype)
+                if add:  # a missed place keeps its element (adding 0 would make a -0 +0)
+                    out[p] = self.node("sel", (hit, self.node("add", (out[p], ups[u]), dtype), out[p]), dtype)
                 else:
                     out[p] = self.node("sel", (hit, ups[u], out[p]), dtype)
         return out.reshape(x.shape)
@@ -682,18 +798,63 @@ class ScalarTranslator:
         return out.reshape(shape)
 
     # --- sums -----------------------------------------------------------------------------------------------
-    def total(self, terms, dtype, op="sum"):
-        """The sum (or product, max, ...) of node ids, zeros of a sum skipped, pairwise: a tree, not a chain,
-        so that the additions do not wait on each other (and the rounding error grows as log n)."""
+    def total(self, terms, dtype, op="sum", xla=False):
+        """The sum (or product, max, ...) of node ids, pairwise: a tree, not a chain, so that the additions do not
+        wait on each other (and the rounding error grows as log n). Known zeros of a float sum are skipped only
+        where that is exact: -0 always; +0 where the sum is ``xla``'s, which starts from +0 (a ``reduce_sum`` or
+        ``dot_general`` over two terms or more: its result is never -0, so a -0 is made +0 by adding +0,
+        unless a known term that is not 0 already rules out -0)."""
         name = {"sum": "add", "prod": "mul", "max": "max", "min": "min", "and": "and", "or": "or"}[op]
-        terms = [t for t in terms if not (op == "sum" and self.is_const(t) and self.cval(t) == 0)]
+        real = np.dtype(dtype).kind == "f"
+        init = op == "sum" and real and xla and len(terms) >= 2
+        dropped = False
+        if op == "sum":
+            kept = []
+            for t in terms:
+                if self.is_const(t) and self.cval(t) == 0 and (not real or init or _negative_zero(self.cval(t))):
+                    dropped = True
+                    continue
+                kept.append(t)
+            terms = kept
+            # a sum is -0 only if every term is: one term that never is (x * x, exp(x), a known 1) rules it out
+            init = init and not any(self._never_negative_zero(t) for t in terms)
         if not terms:
-            init = {"sum": 0, "prod": 1, "and": True, "or": False, "max": -np.inf, "min": np.inf}[op]
-            return self.const(init, dtype)
+            first = {"sum": 0, "prod": 1, "and": True, "or": False, "max": -np.inf, "min": np.inf}[op]
+            if dropped and real and not init:  # only -0 terms were skipped: their sum is -0
+                first = -0.0
+            return self.const(first, dtype)
         while len(terms) > 1:
             pairs = [self.node(name, (terms[k], terms[k + 1]), dtype) for k in range(0, len(terms) - 1, 2)]
             terms = pairs + ([terms[-1]] if len(terms) % 2 else [])
-        return terms[0]
+        return self.node("add", (terms[0], self.const(0.0, dtype)), dtype) if init else terms[0]
+
+    _NEVER_NEGATIVE_ZERO = frozenset({"exp", "exp2", "cos", "cosh", "abs", "is_finite", "logistic", "erfc"})
+
+    def _never_negative_zero(self, i: int, depth: int = 0) -> bool:
+        """Whether node ``i`` is never -0, whatever the inputs (a NaN is not -0): a known value other than -0,
+        a square, exp, cos, abs, an integer converted, a sum with such a term, a select of two such."""
+        got = self.never_neg0.get(i)
+        if got is not None:
+            return got
+        op, a = self.op[i], self.args[i]
+        if op == "const":
+            out = not _negative_zero(self.value[i]) if self.dtype[i].kind == "f" else True
+        elif op in self._NEVER_NEGATIVE_ZERO or (op == "mul" and a[0] == a[1]) \
+                or (op == "ipow" and self.value[i] % 2 == 0):
+            out = True
+        elif depth > 12 or op not in ("add", "sub", "sel", "convert", "sqrt"):
+            out = False
+        elif op == "add":
+            out = self._never_negative_zero(a[0], depth + 1) or self._never_negative_zero(a[1], depth + 1)
+        elif op == "sel":
+            out = self._never_negative_zero(a[1], depth + 1) and self._never_negative_zero(a[2], depth + 1)
+        elif op == "convert":
+            out = self.dtype[a[0]].kind != "f" or self._never_negative_zero(a[0], depth + 1)
+        else:  # a - b is -0 only for a = -0 (and b = +0); sqrt(-0) is -0
+            out = self._never_negative_zero(a[0], depth + 1)
+        if depth <= 12:
+            self.never_neg0[i] = out
+        return out
 
     def reduce(self, op, x, axes, shape, dtype):
         axes = tuple(int(a) for a in axes)
@@ -702,7 +863,7 @@ class ScalarTranslator:
         keep = [d for d in range(x.ndim) if d not in axes]
         n_out = int(np.prod(shape, dtype=np.int64))
         rows = x.transpose(keep + list(axes)).reshape(n_out, -1)
-        return np.array([self.total(list(r), dtype, op) for r in rows], dtype=object).reshape(shape)
+        return np.array([self.total(list(r), dtype, op, xla=True) for r in rows], dtype=object).reshape(shape)
 
     def argbest(self, op, x, axes, shape, dtype):
         """``argmax``/``argmin`` along one axis, as XLA: the first index of the largest (smallest) value, a NaN
@@ -765,31 +926,46 @@ class ScalarTranslator:
         out = np.moveaxis(x, axis, -1).copy()
         n = out.shape[-1]
         order = range(n - 1, -1, -1) if reverse else range(n)
+        # XLA's cumsum of two terms or more starts each sum from +0 (never -0), as its reduce_sum
+        init = op == "add" and np.dtype(dtype).kind == "f" and n >= 2
         for idx in np.ndindex(*out.shape[:-1]):
             acc = None
             for j in order:
                 acc = out[idx + (j,)] if acc is None else self.node(op, (acc, out[idx + (j,)]), dtype)
-                out[idx + (j,)] = acc
+                out[idx + (j,)] = self.node("add", (acc, self.const(0.0, dtype)), dtype) if init else acc
         return np.moveaxis(out, -1, axis)
 
     def cholesky(self, a, dtype):
-        """The lower Cholesky factor of a run-time matrix (its lower triangle read, as LAPACK's ``potrf``),
-        zeros above the diagonal; a matrix that is not positive definite gives NaN everywhere, as XLA's."""
+        """The lower Cholesky factor of a run-time matrix (its lower triangle read), zeros above the diagonal, as
+        XLA's ``potrf`` (SciPy's OpenBLAS) computes it column by column: a pivot ``d`` that is not > 0 makes the
+        whole factor NaN, as XLA's (a NaN pivot is no failure there: it runs on as NaN); the column below it is
+        its entries, less their dot products with the factor's rows, times the reciprocal of sqrt(d), which
+        BLAS's scaling by 0 (an infinite pivot) makes 0, not NaN."""
         if a.ndim != 2 or a.shape[0] != a.shape[1] or np.dtype(dtype) != np.float64:
             raise UnsupportedPrimitive(f"cholesky of shape {a.shape} (only square float64, unbatched)")
         n = a.shape[0]
         L = np.empty((n, n), dtype=object)
         zero = self.const(0.0, dtype)
+        one = self.const(1.0, dtype)
         ok = None
+
+        def less_dot(x, row_i, row_j, j):
+            if j == 0:
+                return x
+            return self.node("sub", (x, self.total([self.node("mul", (L[row_i, k], L[row_j, k]), dtype)
+                                                    for k in range(j)], dtype)), dtype)
+
         for j in range(n):
-            d = self.node("sub", (a[j, j], self.total([self.node("mul", (L[j, k], L[j, k]), dtype)
-                                                         for k in range(j)], dtype)), dtype)
-            pos = self.node("gt", (d, zero), np.bool_)
-            ok = pos if ok is None else self.node("and", (ok, pos), np.bool_)
+            d = less_dot(a[j, j], j, j, j)
+            fails = self.node("le", (d, zero), np.bool_)
+            ok = self.node("not", (fails,), np.bool_) if ok is None else \
+                self.node("and", (ok, self.node("not", (fails,), np.bool_)), np.bool_)
             L[j, j] = self.node("sqrt", (d,), dtype)
+            r = self.node("div", (one, L[j, j]), dtype)
+            by_zero = self.node("eq", (r, zero), np.bool_)
             for i in range(j + 1, n):
-                s = self.total([self.node("mul", (L[i, k], L[j, k]), dtype) for k in range(j)], dtype)
-                L[i, j] = self.node("div", (self.node("sub", (a[i, j], s), dtype), L[j, j]), dtype)
+                t = less_dot(a[i, j], i, j, j)
+                L[i, j] = self.node("sel", (by_zero, zero, self.node("mul", (t, r), dtype)), dtype)
             for i in range(j):
                 L[i, j] = zero
         nan = self.const(np.nan, dtype)
@@ -814,7 +990,7 @@ class ScalarTranslator:
             for j in range(na):
                 for k in range(nbf):
                     out[i, j, k] = self.total([self.node("mul", (A[i, j, c], B[i, k, c]), dtype) for c in range(nc)],
-                                              dtype)
+                                              dtype, xla=True)
         return out.reshape(shape)
 
     # --- blocks of array code -------------------------------------------------------------------------------
@@ -824,6 +1000,7 @@ class ScalarTranslator:
         tr = Translator()
         tr.indent = 1
         tr._n = 10**6 * (self.counter[0] + 1)  # its names cannot clash with ours
+        tr.within = list(self.within)  # the calls around the equation, and the equation (as in its own run)
         tr.begin(root=True)
         vals = [Val(tuple(x.shape), d, name=tr.fresh("b")) for x, d in zip(ins, idt, strict=True)]
         outs = tr.equation(eqn, vals)
@@ -856,6 +1033,8 @@ class ScalarTranslator:
         outer = self.scope
         cond_scope = Scope(outer)
         self.scope = cond_scope
+        # a loop's body is a computation of its own in XLA: a converted boolean enters it as a parameter
+        cconsts, bconsts = [x.copy() for x in cconsts], [x.copy() for x in bconsts]
         (pred,) = self.run(params["cond_jaxpr"].jaxpr, params["cond_jaxpr"].consts, cconsts + carry_leaves)
         body_scope = Scope(outer)
         self.scope = body_scope
@@ -901,7 +1080,7 @@ class ScalarTranslator:
         outer = self.scope
         body = Scope(outer)
         self.scope = body
-        new = self.run(jaxpr.jaxpr, jaxpr.consts, consts + leaves)
+        new = self.run(jaxpr.jaxpr, jaxpr.consts, [x.copy() for x in consts] + leaves)  # parameters, as in XLA
         self.scope = outer
         flat = lambda arrs: [(nm, n) for a, b in arrs for nm, n in zip(a.ravel(), b.ravel(), strict=True)]  # noqa: E731
         dts = {self.value[i]: self.dtype[i] for lv in leaves for i in lv.ravel()}
@@ -918,11 +1097,12 @@ class ScalarTranslator:
         if length * max(_size(jaxpr.jaxpr), 1) > UNROLL_MAX:
             raise UnsupportedPrimitive(f"scan with per-iteration inputs or outputs over {length} iterations of "
                                        f"{_size(jaxpr.jaxpr)} equations (unrolled up to {UNROLL_MAX} in all)")
-        consts, carry, xs = ins[:nc], list(ins[nc:nc + ncar]), ins[nc + ncar:]
+        # XLA's loop body: its inputs are parameters there (copies: no converted boolean seen through them)
+        consts, carry, xs = [x.copy() for x in ins[:nc]], [x.copy() for x in ins[nc:nc + ncar]], ins[nc + ncar:]
         ys = [None] * length
         for i in (range(length - 1, -1, -1) if params.get("reverse", False) else range(length)):
             outs = self.run(jaxpr.jaxpr, jaxpr.consts, consts + carry + [x[i:i + 1].reshape(x.shape[1:]) for x in xs])
-            carry, ys[i] = list(outs[:ncar]), outs[ncar:]
+            carry, ys[i] = [x.copy() for x in outs[:ncar]], outs[ncar:]
         n_ys = len(jaxpr.jaxpr.outvars) - ncar
         stacked = [np.stack([ys[i][k] for i in range(length)]) if length else
                    np.empty((0,) + tuple(jaxpr.jaxpr.outvars[ncar + k].aval.shape), dtype=object)
@@ -933,6 +1113,8 @@ class ScalarTranslator:
         index, ops = ins[0], ins[1:]
         branches = params["branches"]
         i0 = index.ravel()[0]
+        if not self.is_const(i0):  # an XLA conditional's branches take their operands as parameters
+            ops = [self._behind_barrier(x) for x in ops]
         if self.is_const(i0):
             k = int(np.clip(int(self.cval(i0)), 0, len(branches) - 1))
             return self.run(branches[k].jaxpr, branches[k].consts, ops)
@@ -1284,6 +1466,13 @@ class ScalarTranslator:
             self.active = outer
 
 
+def structural_zero(x) -> np.ndarray:
+    """Where a parameter's value ``x`` is +0, folded as a constant by a kernel of its zero pattern (a -0 is read
+    at run time: folded as +0, it would change the sign of a product)."""
+    x = np.asarray(x)
+    return (x == 0) & ~np.signbit(x) if x.dtype.kind == "f" else x == 0
+
+
 def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: list[str], *,
                       translator: ScalarTranslator | None = None,
                       zero_patterns: dict[str, np.ndarray] | None = None,
@@ -1291,9 +1480,10 @@ def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: 
     """A C function ``void name(const T *arg..., T *out...)`` computing ``closed_jaxpr`` on flat row-major
     arrays, as straight-line scalar code (functions in ``translator.function_texts``).
 
-    ``zero_patterns``: for some arguments (by name), an array of their shape whose zeros are structural: those
-    elements are the constant 0 (folded away), the others are read at run time. The code then serves every
-    value of the argument with that zero pattern (the engine's parameters: a new weight set is data).
+    ``zero_patterns``: for some arguments (by name), an array of their shape whose zeros (+0, not -0:
+    :func:`structural_zero`) are structural: those elements are the constant +0 (folded where that is exact),
+    the others are read at run time. The code then serves every value of the argument with that zero pattern
+    (the engine's parameters: a new weight set is data).
 
     ``lanes``: the names of the arguments shared by every lane, to write the function for ``LANES`` trials at
     once (:meth:`ScalarTranslator.emit_lanes`): the others, and the outputs, are arrays of lane vectors."""
@@ -1306,8 +1496,8 @@ def scalar_jaxpr_to_c(name: str, closed_jaxpr, arg_names: list[str], out_names: 
         arr = np.empty(v.aval.shape, dtype=object)
         pattern = zero_patterns.get(n)
         for j, idx in enumerate(np.ndindex(*v.aval.shape)):
-            zero = pattern is not None and np.asarray(pattern)[idx] == 0
-            arr[idx] = tr.const(0, v.aval.dtype) if zero else tr.leaf(f"{n}[{j}]", v.aval.dtype)
+            zero = pattern is not None and structural_zero(np.asarray(pattern)[idx])
+            arr[idx] = tr.const(0, v.aval.dtype, pinned=True) if zero else tr.leaf(f"{n}[{j}]", v.aval.dtype)
             if lanes is not None and n in lanes and not zero:
                 tr.shared.add(arr[idx])
         args.append(arr)
@@ -1337,7 +1527,8 @@ LANE_SUFFIX = {np.dtype(np.float64).str: "F64", np.dtype(np.int32).str: "I32", n
 
 def lane_typedefs(lanes: int) -> str:
     """The lane vector types (GCC/Clang vector extensions) for ``lanes`` trials, and their selects, broadcast
-    of a scalar boolean and NaN-propagating min and max (XLA's, as ``lm_max``)."""
+    of a scalar boolean and NaN-propagating min and max (XLA's, as ``lm_max``: of equal values, the bits of
+    both and-ed for the max, or-ed for the min, so that +0 and -0 give +0 and -0)."""
     return f"""#define LANES {lanes}
 typedef double lane_f64 __attribute__((vector_size({8 * lanes})));
 typedef int32_t lane_i32 __attribute__((vector_size({4 * lanes})));
@@ -1352,9 +1543,11 @@ static inline lane_i32 LANE_SEL_I32(lane_i64 c, lane_i32 a, lane_i32 b)
 static inline lane_u32 LANE_SEL_U32(lane_i64 c, lane_u32 a, lane_u32 b)
 {{ const lane_u32 m = __builtin_convertvector(c, lane_u32); return (m & a) | (~m & b); }}
 static inline lane_f64 lane_max(lane_f64 a, lane_f64 b)
-{{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a > b, a, b)); }}
+{{ return LANE_SEL_F64((a != a) | (b != b), a + b,
+                       LANE_SEL_F64(a > b, a, LANE_SEL_F64(b > a, b, (lane_f64)((lane_i64)a & (lane_i64)b)))); }}
 static inline lane_f64 lane_min(lane_f64 a, lane_f64 b)
-{{ return LANE_SEL_F64((a != a) | (b != b), a + b, LANE_SEL_F64(a < b, a, b)); }}"""
+{{ return LANE_SEL_F64((a != a) | (b != b), a + b,
+                       LANE_SEL_F64(a < b, a, LANE_SEL_F64(b < a, b, (lane_f64)((lane_i64)a | (lane_i64)b)))); }}"""
 
 
 def lane_type(dtype) -> str:

@@ -21,7 +21,7 @@ from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
 from ..systems import AbstractSystem
 from ._base import AbstractFilter, FilterState, sensor_layout
-from ._derivatives import left_jacobian
+from ._derivatives import left_jacobian, refuse_state_while_in_outputs
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
 from ._update import sample_update
@@ -129,6 +129,8 @@ class MinimumEnergyFilter(AbstractFilter):
         _validate.choice("curvature", curvature, {"exact", "safe"})
         self.updates, self.iterations, self.curvature = updates, iterations, curvature
         self.tol = jnp.asarray(_validate.nonnegative("tol", tol))
+        if order == "second":  # its Hessian of each output: a while_loop there is refused now, by name
+            refuse_state_while_in_outputs(system)
         self.system = system
         self.connection = make_connection(connection, system.group)
         self.order = order

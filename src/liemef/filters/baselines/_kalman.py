@@ -108,10 +108,12 @@ def retraction(error: str) -> tuple[Callable, Callable]:
 
 
 def _sqrt_psd(P: Float[Array, "n n"]) -> Float[Array, "n n"]:
-    """A square root S S^T = P of a positive semidefinite matrix (symmetric, by eigendecomposition: P may be
-    singular, e.g. an initial covariance with exactly known components)."""
+    r"""The symmetric square root S S^T = P of a positive semidefinite matrix, $V \sqrt{W} V^\top$ by
+    eigendecomposition (P may be singular, e.g. an initial covariance with exactly known components). Unique:
+    it does not depend on the eigenvectors LAPACK picks (their signs, a repeated eigenvalue's basis), so that
+    the C engine's eigh (Jacobi sweeps) gives XLA's sigma points to rounding (docs/engines.md)."""
     w, V = jnp.linalg.eigh(0.5 * (P + P.T))
-    return V * jnp.sqrt(jnp.maximum(w, 0.0))[None, :]
+    return (V * jnp.sqrt(jnp.maximum(w, 0.0))[None, :]) @ V.T
 
 
 class AbstractKalmanFilter(AbstractFilter):
