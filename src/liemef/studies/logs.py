@@ -447,7 +447,10 @@ class LogRun:
         return self.failure is None
 
     def warnings(self) -> list[str]:
-        """What the run did that a user should know: gaps predicted through, inputs held."""
+        """What the run did that a user should know: gaps predicted through, inputs held, outliers used (their
+        times relative to the log's start, :func:`liemef._times.time_said`)."""
+        from .._times import time_said
+
         out = []
         if self.report["gaps"]:
             out.append(f"{self.report['gaps']} interval(s) longer than the gap threshold {self.gap:.4g} s (longest "
@@ -457,9 +460,9 @@ class LogRun:
         for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
             if o["count"]:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
-                           f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at t = "
-                           f"{o['largest_t']:.6g} s) and were used; a gate (Sensor(gate=...) in a --system-file) "
-                           "would reject them")
+                           f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at "
+                           f"{time_said(o['largest_t'], self.metrics['log']['t0'])}) and were used; a gate "
+                           "(Sensor(gate=...) in a --system-file) would reject them")
         return out
 
     def rejected(self) -> dict[str, int]:
