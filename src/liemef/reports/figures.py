@@ -170,23 +170,53 @@ def basin_figure(arrays: dict, title: str = ""):
     return fig
 
 
+def distinct_colors(n: int) -> list:
+    """``n`` colours, no two alike and none grey (grey is for references): matplotlib's tab10 without its grey
+    while it suffices, else ``n`` evenly spaced samples of the turbo colormap."""
+    import matplotlib
+
+    if n <= 9:
+        return [matplotlib.colormaps["tab10"](i) for i in (0, 1, 2, 3, 4, 5, 6, 8, 9)[:n]]
+    return [matplotlib.colormaps["turbo"](x) for x in np.linspace(0.05, 0.95, n)]
+
+
 def broad_error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
-    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
+    """The total attitude error over time (rms over each second, log scale) of the filters ``names`` (the ones
+    the study ran) on one BROAD trial, from saved arrays: small multiples, one panel per filter in its own colour
+    (:func:`distinct_colors`), titled with its name and its total rms, and on every other panel the filter with
+    the lowest total rms in grey for reference (named in the figure's title); the panels share their axes, and
+    no legend covers them."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    n = len(names)
+    ncols = min(4, n)
+    nrows = -(-n // ncols)
+    fig = Figure(figsize=(3.3 * ncols + 0.8, 1.9 * nrows + 1.4), layout="constrained")
     FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    for i, n in enumerate(names):
-        e = arrays[f"{trial}/{n}/error_1s"]
-        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
-    ax.set_yscale("log")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("total attitude error, rms per second [deg]")
-    ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.legend(fontsize="small", ncol=3)
-    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
+    axes = np.asarray(fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False))
+    totals = {name: float(np.asarray(arrays[f"{trial}/{name}"])[0]) for name in names}
+    ranked = sorted((v, name) for name, v in totals.items() if np.isfinite(v))
+    best = ranked[0][1] if ranked else None
+    for i, (name, color) in enumerate(zip(names, distinct_colors(n), strict=True)):
+        ax = axes.flat[i]
+        if best is not None and name != best:
+            e = np.asarray(arrays[f"{trial}/{best}/error_1s"])
+            ax.plot(np.arange(e.size), e, color="0.65", lw=0.9, label=f"{best} (reference)")
+        e = np.asarray(arrays[f"{trial}/{name}/error_1s"])
+        ax.plot(np.arange(e.size), e, color=color, lw=1.3, label=name)
+        total = totals[name]
+        ax.set_title(f"{name}: " + (f"{total:.3g} deg total rms" if np.isfinite(total) else "failed")
+                     + (" (lowest)" if name == best else ""), fontsize="small")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    for i in range(n, nrows * ncols):  # the empty slots of the last row: the panel above shows the time axis
+        fig.delaxes(axes.flat[i])
+        axes.flat[i - ncols].tick_params(labelbottom=True)
+    fig.supxlabel("t [s]", fontsize="medium")
+    fig.supylabel("total attitude error, rms per second [deg]", fontsize="medium")
+    fig.suptitle((title or f"BROAD trial {trial}") + ("" if best is None else f"\nin grey on every other panel: "
+                                                      f"{best}, the lowest total rms"), fontsize="medium")
     return fig
 
 
