@@ -204,6 +204,45 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     assert res.exit_code == 2 and "trials" in res.output and "99" in res.output
 
 
+def test_the_broad_figure_is_small_multiples_of_the_chosen_filters():
+    """One panel per filter run, each in its own colour, titled with its name and total rms; the best filter in
+    grey on every other panel; one shared y axis (deg) on a log scale; no legend over the data."""
+    from matplotlib.colors import to_rgba
+
+    from liemef.reports.figures import broad_error_figure
+
+    names = [f"f{i}" for i in range(13)]
+    rng = np.random.default_rng(0)
+    arrays = {}
+    for i, n in enumerate(names):
+        arrays[f"07/{n}/error_1s"] = np.concatenate([np.full(5, np.nan), 1.0 + i + rng.random(30)])
+        arrays[f"07/{n}"] = np.array([np.nan if i == 4 else 1.0 + i + 0.5, 1.0, 1.0])  # f4 failed
+    arrays["07/f0"][0] = 9.0  # the best is f1
+    arrays["07/other/error_1s"] = np.ones(35)  # a filter not chosen: not drawn
+    fig = broad_error_figure(arrays, "07", names, "BROAD trial 07")
+    axes = fig.axes
+    assert len(axes) == 13 and fig.get_suptitle() == "BROAD trial 07\nin grey on every other panel: f1, the lowest " \
+                                                      "total rms"
+    grey = to_rgba("0.65")
+    colours = []
+    for ax, n in zip(axes, names, strict=True):
+        assert ax.get_legend() is None and ax.get_yscale() == "log"
+        lines = {ln.get_label(): ln for ln in ax.get_lines()}
+        assert set(lines) == ({n} if n == "f1" else {n, "f1 (reference)"})
+        np.testing.assert_array_equal(lines[n].get_ydata(), arrays[f"07/{n}/error_1s"])
+        assert lines[n].get_xdata()[0] == 0
+        if n != "f1":
+            assert to_rgba(lines["f1 (reference)"].get_color()) == grey
+            np.testing.assert_array_equal(lines["f1 (reference)"].get_ydata(), arrays["07/f1/error_1s"])
+        colours.append(to_rgba(lines[n].get_color()))
+        assert ax.get_title().startswith(f"{n}: ")
+    assert len(set(colours)) == 13 and grey not in colours
+    assert axes[4].get_title() == "f4: failed" and axes[1].get_title() == "f1: 2.5 deg total rms (lowest)"
+    assert all(ax.get_shared_y_axes().joined(axes[0], ax) for ax in axes)  # one unit, one scale
+    assert fig.legends == []
+    assert all(ax.xaxis.get_tick_params()["labelbottom"] for ax in axes[-4:])  # under every column, the time
+
+
 def test_wilson_interval_of_a_fraction():
     from liemef.metrics import wilson_interval
 

@@ -193,6 +193,19 @@ def test_not_applicable_where_k_is_not_a_covariance_or_no_window_is_full():
     assert [s.samples for s in r.sensors] == [9, 9] and r.sensors[0].window == 500   # 5 s at 100 Hz
 
 
+def test_the_message_says_times_from_the_log_start():
+    from liemef.metrics import InnovationReport, SensorVerdict
+
+    def said(t0):
+        acc = SensorVerdict("acc", 2, 3000, window=100, span=1.0, band=(0.8, 1.2), windows=2900, fraction_out=0.2,
+                            first_out=t0 + 10.5, longest=(t0 + 10.5, t0 + 14.0, "high"), sustain=1.5, mean_nis=3.0)
+        return InnovationReport("inconsistent", (acc,), t0=t0).message()
+
+    assert "from t = 10.5 s to t = 14 s (first out at t = 10.5 s;" in said(0.0)
+    assert ("from t = t0 + 10.5 s (1700000010.5 s) to t = t0 + 14 s (1700000014 s) (first out at t = t0 + 10.5 s "
+            "(1700000010.5 s);") in said(1_700_000_000.0)
+
+
 def test_bad_input_names_the_argument():
     ts, us, ys, _, g0 = simulate_attitude(0, duration=0.5)
     traj = GOOD.run(GOOD.init(g0, ATT_K0), ts, us, ys)

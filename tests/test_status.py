@@ -75,6 +75,8 @@ def test_nonfinite_model_is_reported_with_the_first_bad_interval(nan_run):
     assert np.isnan(x[101:]).all() and np.isnan(K[101:]).all()
     assert np.array_equal(np.asarray(traj.final.g_hat.x), x[100]) and np.array_equal(np.asarray(traj.final.K), K[100])
     assert "[1, 1.01] s" in st.message(ts) and CAUSES[int(st.code)] == "non-finite"
+    # a log with epoch time stamps (a ROS bag's) is said from its start, not as [1.7e+09, 1.7e+09] s
+    assert "interval 100 ([t0 + 1, t0 + 1.01] s, t0 = 1700000000 s)" in st.message(1_700_000_000.0 + ts)
 
 
 def test_step_reports_the_failure_and_then_leaves_the_state_unchanged(nan_run):

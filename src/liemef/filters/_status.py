@@ -19,6 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from .._times import seconds, time_said
+
 SYMMETRY_TOL = 1e-8
 """Largest relative asymmetry ``max|K - K^T| / max(1, max|K|)`` of a gain that should be symmetric."""
 DEFINITE_TOL = 1e-9
@@ -132,12 +134,17 @@ class Status(eqx.Module):
                 "longest_gap": float(self.longest_gap), "inputs_held": int(self.inputs_held)}
 
     def message(self, ts=None) -> str:
-        """One line saying where, when and why a single run failed ("ok" if it did not)."""
+        """One line saying where, when (from the start ``ts[0]`` of the log, :func:`liemef._times.time_said`) and
+        why a single run failed ("ok" if it did not)."""
         if self.ok:
             return "ok"
         k = int(self.index)
-        span = f"[{float(ts[k]):.6g}, {float(ts[k + 1]):.6g}] s" if ts is not None and k + 1 < len(ts) else \
-            f"t = {float(self.time):.6g} s"
+        t0 = 0.0 if ts is None else float(ts[0])
+        if ts is not None and k + 1 < len(ts):
+            a, b = float(ts[k]) - t0, float(ts[k + 1]) - t0
+            span = f"[{a:.6g}, {b:.6g}] s" if t0 == 0.0 else f"[t0 + {a:.6g}, t0 + {b:.6g}] s, t0 = {seconds(t0)} s"
+        else:
+            span = time_said(float(self.time), t0)
         why = CAUSES[int(self.code)].message
         return (f"filter failed over the sample interval {k} ({span}): {why}; the last good state is the one at "
                 f"sample {k}")

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
+from .._times import time_said
 from ._consistency import chi2_bounds
 
 WINDOW_SECONDS, WINDOW_MIN, WINDOW_MAX = 5.0, 20, 500
@@ -199,6 +200,8 @@ class InnovationReport:
     reason: str = ""
     nis: np.ndarray | None = field(default=None, repr=False)
     """(N, sensors): every sample's NIS (NaN where none)."""
+    t0: float = 0.0
+    """The log's first time: the message says its times relative to it (``t = t0 + 12.3 s``)."""
 
     def as_dict(self) -> dict:
         """JSON-ready: the status, the reason, the rules and each sensor's :meth:`SensorVerdict.as_dict`."""
@@ -224,9 +227,10 @@ class InnovationReport:
         for s in bad:
             start, end, side = s.longest
             said.append(f"{s.name}: mean NIS of {s.window} samples {'above' if side == 'high' else 'below'} its "
-                        f"{100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}] from t = {start:.6g} s to "
-                        f"{end:.6g} s (first out at t = {s.first_out:.6g} s; the run's mean NIS {s.mean_nis:.3g} for "
-                        f"{s.dof} dof): K {'understates' if side == 'high' else 'overstates'} the errors")
+                        f"{100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}] from "
+                        f"{time_said(start, self.t0)} to {time_said(end, self.t0)} (first out at "
+                        f"{time_said(s.first_out, self.t0)}; the run's mean NIS {s.mean_nis:.3g} for {s.dof} dof): "
+                        f"K {'understates' if side == 'high' else 'overstates'} the errors")
         return "Innovation monitor: INCONSISTENT: " + "; ".join(said)
 
 
@@ -309,6 +313,7 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
                     for i, (b, d) in enumerate(zip(flt.blocks, dof, strict=True)))
     if not any(s.windows for s in sensors):
         return InnovationReport("not applicable", sensors, reason="no sensor has a full window of samples "
-                                f"({', '.join(f'{s.name} {s.samples}' for s in sensors)} present)", nis=nis, **rules)
+                                f"({', '.join(f'{s.name} {s.samples}' for s in sensors)} present)", nis=nis,
+                                t0=float(t[0]), **rules)
     status = "inconsistent" if any(s.sustained for s in sensors) else "consistent"
-    return InnovationReport(status, sensors, nis=nis, **rules)
+    return InnovationReport(status, sensors, nis=nis, t0=float(t[0]), **rules)

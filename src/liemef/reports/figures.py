@@ -14,44 +14,83 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._times import seconds
 from . import io
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+NO_BAND_NOTE = ("no sigma band: K is not a covariance here (the system's weights are not noise levels in its "
+                "sensors' units), so sqrt(K) is no standard deviation")
+"""What ``liemef run``'s figure says in place of the +-3 sigma band when K is not a covariance."""
+
+
 def run_figure(arrays: Mapping, title: str = "") -> Figure:
     """``liemef run``'s figure, from its saved arrays (:func:`liemef.studies.logs.state_bands`, saved with the
-    prefix ``plot_``): per state component the estimate (green) with its +-3 sigma band from K and the
-    measurements (blue points) where the sensors read that component; roll, pitch and yaw in place of an SO(3)
-    rotation vector, angles unwrapped. For a pose, a panel on the right with the x-y path (and the measured
-    positions)."""
+    prefix ``plot_``): per state component the estimate (green) and the measurements (blue points) where the
+    sensors read that component; roll, pitch and yaw in place of an SO(3) rotation vector, angles unwrapped. For
+    a pose, a panel on the right with the x-y path (and the measured positions).
+
+    The +-3 sigma band from K is drawn only where ``plot_covariance`` is true
+    (:func:`liemef.metrics.gain_is_covariance`: the system's weights are noise levels in its sensors' units);
+    otherwise the figure says why there is none (:data:`NO_BAND_NOTE`). Time runs from the log's first sample
+    t0, stated in the title when it is not 0 (a ROS bag's stamps are epoch seconds). Each panel has its own y
+    axis, in its component's unit, fitted to its own data: the measurements, and the estimate and its band from
+    the sample where K has settled from the prior K0 (:func:`settled`); what lies off scale before is said in the
+    panel."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    ts = np.asarray(arrays["ts"])
+    ts = np.asarray(arrays["ts"], dtype=np.float64)
+    t0 = float(ts[0])
+    t = ts - t0
     names, units = [str(v) for v in arrays["plot_names"]], [str(v) for v in arrays["plot_units"]]
     values, std = np.asarray(arrays["plot_values"]), np.asarray(arrays["plot_std"])
     measured = arrays.get("plot_measured")
+    covariance = bool(np.asarray(arrays.get("plot_covariance", False)))
     path = "plot_path" in arrays
     rows = len(names)
-    fig = Figure(figsize=(12 if path else 7, 1.9 * rows + 0.8), layout="constrained")
+    fig = Figure(figsize=(12 if path else 7, 1.9 * rows + 1.2), layout="constrained")
     FigureCanvasAgg(fig)
     grid = fig.add_gridspec(rows, 2 if path else 1, width_ratios=(3, 2) if path else None)
     axes = []
     for k, (name, unit) in enumerate(zip(names, units, strict=True)):
         ax = fig.add_subplot(grid[k, 0], sharex=axes[0] if axes else None)
-        ax.fill_between(ts, values[:, k] - 3 * std[:, k], values[:, k] + 3 * std[:, k], color="tab:green", alpha=0.2,
-                        lw=0, label="+-3 sigma (K)")
+        lower, upper = values[:, k] - 3 * std[:, k], values[:, k] + 3 * std[:, k]
+        if covariance:
+            ax.fill_between(t, lower, upper, color="tab:green", alpha=0.2, lw=0, label="+-3 sigma (K, a covariance)")
+        seen = np.zeros(0)
         if measured is not None and np.isfinite(measured[:, k]).any():
             ok = np.isfinite(measured[:, k])
-            ax.plot(ts[ok], measured[ok, k], ".", color="tab:blue", ms=2.5, label="measured")
-        ax.plot(ts, values[:, k], color="tab:green", lw=1.0, label="filtered")
+            seen = np.asarray(measured)[ok, k]
+            ax.plot(t[ok], seen, ".", color="tab:blue", ms=2.5, label="measured")
+        ax.plot(t, values[:, k], color="tab:green", lw=1.0, label="filtered")
+        drawn = (values[:, k], lower, upper) if covariance else (values[:, k],)
+        s = settled(std[:, k])
+        fitted = np.concatenate([seen, *(d[s:] for d in drawn)])
+        fitted = fitted[np.isfinite(fitted)]
+        if fitted.size and fitted.max() > fitted.min():
+            lo, hi = float(fitted.min()), float(fitted.max())
+            pad = 0.05 * (hi - lo)
+            ax.set_ylim(lo - pad, hi + pad)
+            early = np.concatenate([d[:s] for d in drawn])
+            if np.any((early < lo - pad) | (early > hi + pad)):
+                ax.text(0.99, 0.96, f"off scale before {t[s]:.3g} s: K settling from K0", transform=ax.transAxes,
+                        ha="right", va="top", fontsize="x-small", color="0.35")
         ax.set_ylabel(f"{name} [{unit}]" if unit else name)
         ax.grid(True, lw=0.3, alpha=0.5)
+        if k < rows - 1:
+            ax.tick_params(labelbottom=False)
         axes.append(ax)
-    axes[-1].set_xlabel("t [s]")
-    axes[0].legend(loc="upper left", fontsize="small", ncols=3)
+    axes[-1].set_xlabel("t [s]" if t0 == 0.0 else "t - t0 [s]")
+    handles, labels = axes[0].get_legend_handles_labels()
+    for ax in axes[1:]:  # "measured" may be on a later panel only
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="outside lower center", fontsize="small", ncols=len(labels))
     if path:
         ax = fig.add_subplot(grid[:, 1])
         xy = np.asarray(arrays["plot_path"])
@@ -67,9 +106,22 @@ def run_figure(arrays: Mapping, title: str = "") -> Figure:
         ax.set_title("x-y path", fontsize="small")
         ax.grid(True, lw=0.3, alpha=0.5)
         ax.legend(loc="best", fontsize="small")
-    if title:
-        fig.suptitle(title, fontsize="medium")
+    notes = ([] if covariance else [NO_BAND_NOTE]) + ([] if t0 == 0.0 else [f"t0 = {seconds(t0)} s, the log's "
+                                                                              "first sample"])
+    if title or notes:
+        fig.suptitle("\n".join([title] * bool(title) + notes), fontsize="medium")
     return fig
+
+
+def settled(std) -> int:
+    """The first sample whose standard deviation from K (a component's, over a run) is at most ten times its
+    median over the run: before it the prior K0 still dominates K, and its band (and the estimate's first
+    response to the data) would flatten the panel. 0 where the first sample already is."""
+    std = np.asarray(std, dtype=np.float64)
+    ok = np.isfinite(std)
+    if not ok.any():
+        return 0
+    return int(np.argmax(ok & (std <= 10 * np.median(std[ok]))))
 
 
 def optimum_figure(arrays: dict):
@@ -118,23 +170,53 @@ def basin_figure(arrays: dict, title: str = ""):
     return fig
 
 
+def distinct_colors(n: int) -> list:
+    """``n`` colours, no two alike and none grey (grey is for references): matplotlib's tab10 without its grey
+    while it suffices, else ``n`` evenly spaced samples of the turbo colormap."""
+    import matplotlib
+
+    if n <= 9:
+        return [matplotlib.colormaps["tab10"](i) for i in (0, 1, 2, 3, 4, 5, 6, 8, 9)[:n]]
+    return [matplotlib.colormaps["turbo"](x) for x in np.linspace(0.05, 0.95, n)]
+
+
 def broad_error_figure(arrays: dict, trial: str, names: list[str], title: str = ""):
-    """Per filter, the total attitude error over time (rms over each second, log scale), from saved arrays."""
+    """The total attitude error over time (rms over each second, log scale) of the filters ``names`` (the ones
+    the study ran) on one BROAD trial, from saved arrays: small multiples, one panel per filter in its own colour
+    (:func:`distinct_colors`), titled with its name and its total rms, and on every other panel the filter with
+    the lowest total rms in grey for reference (named in the figure's title); the panels share their axes, and
+    no legend covers them."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    n = len(names)
+    ncols = min(4, n)
+    nrows = -(-n // ncols)
+    fig = Figure(figsize=(3.3 * ncols + 0.8, 1.9 * nrows + 1.4), layout="constrained")
     FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    for i, n in enumerate(names):
-        e = arrays[f"{trial}/{n}/error_1s"]
-        ax.plot(np.arange(e.size), e, color=f"C{i % 10}", ls="-" if i < 10 else "--", lw=1.0, label=n)
-    ax.set_yscale("log")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("total attitude error, rms per second [deg]")
-    ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.legend(fontsize="small", ncol=3)
-    fig.suptitle(title or f"BROAD trial {trial}", fontsize="medium")
+    axes = np.asarray(fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False))
+    totals = {name: float(np.asarray(arrays[f"{trial}/{name}"])[0]) for name in names}
+    ranked = sorted((v, name) for name, v in totals.items() if np.isfinite(v))
+    best = ranked[0][1] if ranked else None
+    for i, (name, color) in enumerate(zip(names, distinct_colors(n), strict=True)):
+        ax = axes.flat[i]
+        if best is not None and name != best:
+            e = np.asarray(arrays[f"{trial}/{best}/error_1s"])
+            ax.plot(np.arange(e.size), e, color="0.65", lw=0.9, label=f"{best} (reference)")
+        e = np.asarray(arrays[f"{trial}/{name}/error_1s"])
+        ax.plot(np.arange(e.size), e, color=color, lw=1.3, label=name)
+        total = totals[name]
+        ax.set_title(f"{name}: " + (f"{total:.3g} deg total rms" if np.isfinite(total) else "failed")
+                     + (" (lowest)" if name == best else ""), fontsize="small")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    for i in range(n, nrows * ncols):  # the empty slots of the last row: the panel above shows the time axis
+        fig.delaxes(axes.flat[i])
+        axes.flat[i - ncols].tick_params(labelbottom=True)
+    fig.supxlabel("t [s]", fontsize="medium")
+    fig.supylabel("total attitude error, rms per second [deg]", fontsize="medium")
+    fig.suptitle((title or f"BROAD trial {trial}") + ("" if best is None else f"\nin grey on every other panel: "
+                                                      f"{best}, the lowest total rms"), fontsize="medium")
     return fig
 
 

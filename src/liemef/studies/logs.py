@@ -312,7 +312,9 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     The components are the coordinates of ``g_hat`` (batch (N,)), except that each SO(3) rotation vector (which
     jumps at +-pi) is replaced by roll, pitch and yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``); angles are unwrapped
     along time. A component ``f(g)`` has the standard deviation ``sqrt(J K J^T)`` with ``J`` the derivative of
-    ``f(g_hat exp xi)`` at ``xi = 0`` (K is the covariance of the left error xi). ``measured`` (N, c) coordinates
+    ``f(g_hat exp xi)`` at ``xi = 0`` (a standard deviation where K is the covariance of the left error xi, which
+    only a system whose weights are noise levels makes it: the figure draws its band only then, from the flag
+    ``plot_covariance`` that :func:`filter_log` saves beside these). ``measured`` (N, c) coordinates
     read off the measurements (NaN where not measured) are mapped alike and put on the estimate's branch.
     Returns ``names``, ``units``, ``values`` (N, c), ``std`` (N, c), ``measured`` (N, c, when given) and, for a
     pose group, ``path`` (N, 2): the estimate's x-y position (``path_measured`` from ``measured`` when it has x
@@ -479,7 +481,10 @@ class LogRun:
         return self.failure is None
 
     def warnings(self) -> list[str]:
-        """What the run did that a user should know: gaps predicted through, inputs held."""
+        """What the run did that a user should know: gaps predicted through, inputs held, outliers used (their
+        times relative to the log's start, :func:`liemef._times.time_said`)."""
+        from .._times import time_said
+
         out = []
         if self.report["gaps"]:
             out.append(f"{self.report['gaps']} interval(s) longer than the gap threshold {self.gap:.4g} s (longest "
@@ -489,9 +494,9 @@ class LogRun:
         for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
             if o["count"]:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
-                           f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at t = "
-                           f"{o['largest_t']:.6g} s) and were used; a gate (Sensor(gate=...) in a --system-file) "
-                           "would reject them")
+                           f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at "
+                           f"{time_said(o['largest_t'], self.metrics['log']['t0'])}) and were used; a gate "
+                           "(Sensor(gate=...) in a --system-file) would reject them")
         return out
 
     def rejected(self) -> dict[str, int]:
@@ -596,6 +601,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
               updates, substeps, angle_mask, continuous_angles, gain_stats) -> LogRun:
     import jax
 
+    from ..metrics import gain_is_covariance
+
     angles = angle_mask(system.group)
     filt = continuous_angles(np.asarray(traj.coords()), angles)
     K = np.asarray(traj.K)
@@ -607,9 +614,11 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     outliers = innovation_outliers(flt, log, traj, innov)
     label, measured = source.label, source.measured
     bands = state_bands(system, traj.g_hat, K, None if measured is None else measured(log.ys))
+    bands["covariance"] = np.bool_(gain_is_covariance(flt))  # the figure draws K's sigma band only then
     figures = [{"file": "estimate.png", "kind": "run", "components": [str(v) for v in bands["names"]],
-                "title": f"{label}: " + ("measured (blue), " if measured else "") + f"filtered (green) with +-3 "
-                         f"sigma from K, from {Path(common['log_file']).name}"}]
+                "title": f"{label}: " + ("measured (blue), " if measured else "") + "filtered (green)"
+                         + (" with +-3 sigma from K" if bands["covariance"] else "")
+                         + f", from {Path(common['log_file']).name}"}]
     metrics = {
         "schema": SCHEMA,
         "system": {"name": label, "description": source.description, "filter": common["filter"]},
