@@ -212,6 +212,29 @@ SCHEMAS = {'attitude': {'blocks': [['y', 0, 6]],
                            '\n'
                            'CSV header: t,u1,u2,omega,vx,vy\n'
                            'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
+ 'ukfm-attitude': {'blocks': [['acc', 0, 3], ['mag', 3, 6]],
+                   'coords_dim': 3,
+                   'description': "attitude on SO(3) of ukfm's attitude benchmark: input the gyro (rad/s) at 100 "
+                                  'Hz, the gravity vector (acc_x..z, m/s^2, pointing down) and the magnetic field '
+                                  "(mag_x..z) in the body frame; ukfm's noise levels "
+                                  '(liemef.systems.ukfm_attitude)',
+                   'inputs': ['gyro_x', 'gyro_y', 'gyro_z'],
+                   'outputs': ['acc_x', 'acc_y', 'acc_z', 'mag_x', 'mag_y', 'mag_z'],
+                   'tangent_dim': 3,
+                   'text': 'column  unit   role        noise\n'
+                           't       s      time\n'
+                           'gyro_x  rad/s  input\n'
+                           'gyro_y  rad/s  input\n'
+                           'gyro_z  rad/s  input\n'
+                           'acc_x   m/s^2  sensor acc  std 0.4 m/s^2 per sample\n'
+                           'acc_y   m/s^2  sensor acc  std 0.4 m/s^2 per sample\n'
+                           'acc_z   m/s^2  sensor acc  std 0.4 m/s^2 per sample\n'
+                           'mag_x   1      sensor mag  std 0.3 1 per sample\n'
+                           'mag_y   1      sensor mag  std 0.3 1 per sample\n'
+                           'mag_z   1      sensor mag  std 0.3 1 per sample\n'
+                           '\n'
+                           'CSV header: t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z\n'
+                           'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
  'unit-circle': {'blocks': [['y', 0, 2]],
                  'coords_dim': 2,
                  'description': 'unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement '

@@ -223,6 +223,9 @@ SYSTEMS: dict[str, str] = {
                            "default noise levels (liemef.systems.inertial_navigation)",
     "localization": "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
                     "with NaN between fixes; the default noise levels (liemef.systems.localization)",
+    "ukfm-attitude": "attitude on SO(3) of ukfm's attitude benchmark: input the gyro (rad/s) at 100 Hz, the gravity "
+                     "vector (acc_x..z, m/s^2, pointing down) and the magnetic field (mag_x..z) in the body frame; "
+                     "ukfm's noise levels (liemef.systems.ukfm_attitude)",
 }
 """The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``) with their descriptions; each
 is built by :data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""

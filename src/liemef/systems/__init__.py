@@ -9,6 +9,7 @@ from ._residuals import direction_residual, rotation_residual
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
 from .attitude_bias import attitude_gyro_bias, attitude_imu, attitude_velocity
+from .attitude_so3 import ukfm_attitude
 from .chaplygin import ChaplyginSleigh
 from .inertial import inertial_navigation
 from .localization import planar_localization
@@ -19,4 +20,4 @@ from .unit_circle import UnitCircleBias
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
            "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "pose3d", "inertial_navigation",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
-           "tse2_state", "direction_residual", "rotation_residual"]
+           "tse2_state", "direction_residual", "rotation_residual", "ukfm_attitude"]

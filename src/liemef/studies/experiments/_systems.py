@@ -16,8 +16,10 @@ from ...systems import (
     inertial_navigation,
     planar_localization,
     pose3d,
+    ukfm_attitude,
 )
 from ...systems import attitude_bias as _attitude_bias
+from ...systems import attitude_so3 as _attitude_so3
 from .. import registry
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
@@ -92,6 +94,8 @@ SYSTEMS: dict[str, SystemSpec] = {
     "localization": SystemSpec(
         "localization", registry.SYSTEMS["localization"],
         planar_localization, _gps_state),
+    "ukfm-attitude": SystemSpec(
+        "ukfm-attitude", registry.SYSTEMS["ukfm-attitude"], ukfm_attitude, _attitude_so3.measured_state),
 }
 """Systems available to ``liemef run``, by name: each built as in its paper's experiment."""
 
