@@ -10,10 +10,10 @@ import warnings
 import jax
 
 from .. import _side
+from .._frames import is_users
 from ..codegen import _kernel as kmod
 from ..codegen._cache import EngineWarning
 from ..codegen._export import compiler
-from ..codegen._jaxpr_c import is_users
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of

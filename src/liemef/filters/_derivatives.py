@@ -75,7 +75,7 @@ def refuse_state_while(what: str, fn: Callable[[LieGroup], Array], g: LieGroup) 
     ``lax.while_loop`` on the state: ``jax.hessian`` is reverse mode over forward mode, and JAX cannot
     differentiate a while loop in reverse mode (it raises from deep inside the filter's trace). ``what`` names
     the map in the message, which gives the line of the user's code that made the loop."""
-    from ..codegen._jaxpr_c import eqn_frames, user_frame
+    from .._frames import eqn_frames, user_frame
 
     closed = jax.make_jaxpr(fn)(g)
     found = _state_while(closed.jaxpr, set(closed.jaxpr.invars))
