@@ -54,8 +54,9 @@ def gain_is_covariance(flt) -> bool:
 # --- the normalized innovations, compiled once per filter structure ----------------------------------------------
 def _nis_one(flt, g, K, t, dt, y):
     """Per sensor block: the NIS of the sample ``y`` (NaN: a missing component) against the state ``(g, K)``,
-    NaN where the block is not present or the state not finite; and the rank of $J$ (the sample's degrees of
-    freedom)."""
+    NaN where the block is not present or the state not finite; for a system with manifold residuals, instead,
+    ``(present, nu, S, J)`` of the block, whose NIS and rank of $J$ (the sample's degrees of freedom)
+    :func:`_manifold_nis` takes."""
     from ..filters._base import sample_covariance
     from ..filters._derivatives import left_jacobian
     from ..filters._riccati import information_in_force
@@ -72,28 +73,42 @@ def _nis_one(flt, g, K, t, dt, y):
     if system.manifold_residuals:
         h = system.output(g, t)
         J = jax.jacfwd(lambda yy: system.residual(yy, h, t))(y0)
-    nis, rank = [], []
+    out = []
     for b in flt.blocks:
         sl = slice(b.start, b.stop)
         present = jnp.all(mask[sl])
         R = sample_covariance(Wy, dt, present, b)
         if system.manifold_residuals:
+            # S is singular where J is (a direction's normal component): its pseudo-inverse on J's range, taken
+            # by NumPy after the program (_manifold_nis): a batched SVD or eigh inside this vmapped XLA program
+            # stalled XLA CPU's Eigen pool now and then (every worker idle)
             Jb = J[sl, sl]
-            S = FKF[sl, sl] + Jb @ R @ Jb.T
-            s = jnp.linalg.svd(Jb, compute_uv=False)
-            rank.append(jnp.sum(s > 1e-6 * jnp.max(s)))
-            # S is singular where J is (a direction's normal component): its pseudo-inverse on J's range
-            q = nu[sl] @ jnp.linalg.pinv(S, rtol=1e-9, hermitian=True) @ nu[sl]
+            out.append((present, nu[sl], FKF[sl, sl] + Jb @ R @ Jb.T, Jb))
         else:
-            rank.append(jnp.asarray(b.dim))
             q = nu[sl] @ jnp.linalg.solve(FKF[sl, sl] + R, nu[sl])
-        nis.append(jnp.where(present & jnp.isfinite(q), q, jnp.nan))
-    return jnp.stack(nis), jnp.stack(rank)
+            out.append(jnp.where(present & jnp.isfinite(q), q, jnp.nan))
+    return out
+
+
+def _manifold_nis(present, nu, S, J):
+    """The NIS of a manifold-residual block over all samples, by NumPy: ``nu`` (M, d) against the
+    pseudo-inverse of ``S`` (M, d, d) on the range of ``J`` (M, d, d), and the rank of ``J`` (the sample's
+    degrees of freedom); NaN where the block is not present or the result not finite."""
+    present, nu, S, J = (np.asarray(a) for a in (present, nu, S, J))
+    finite = np.isfinite(S).all(axis=(1, 2)) & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(nu).all(axis=1)
+    S, J, nu = (np.where(finite.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in (S, J, nu))
+    s = np.linalg.svd(J, compute_uv=False)
+    rank = np.sum(s > 1e-6 * s.max(axis=1, keepdims=True), axis=1)
+    q = np.einsum("ni,nij,nj->n", nu, np.linalg.pinv(S, rcond=1e-9, hermitian=True), nu)
+    return np.where(present & finite & np.isfinite(q), q, np.nan), rank
 
 
 @eqx.filter_jit
 def _nis_all(flt, g, K, ts, dts, ys):
-    return jax.vmap(lambda gg, KK, t, dt, y: _nis_one(flt, gg, KK, t, dt, y))(g, K, ts, dts, ys)
+    # a loop over the samples (lax.map), not a vmap: the vmapped program's large batched contractions stalled
+    # XLA CPU's multi-threaded Eigen pool now and then (every worker idle, the caller waiting for ever), in the
+    # test suite and on a 17 143-sample log; the loop's small per-sample products stay on one thread
+    return jax.lax.map(lambda a: _nis_one(flt, *a), (g, K, ts, dts, ys))
 
 
 def _samples_of(traj, ts, name="traj"):
@@ -138,9 +153,14 @@ def innovation_nis(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike
 
     if M == 0:
         return np.full((ts.size, len(flt.blocks)), np.nan), tuple(b.dim for b in flt.blocks)
-    q, rank = _nis_all(flt, jax.tree_util.tree_map(padded, g), padded(K[use]), padded(ts[idx]), padded(dts),
-                       padded(ys[idx], np.nan))
-    q, rank = np.asarray(q)[:M], np.asarray(rank)[:M]
+    blocks = _nis_all(flt, jax.tree_util.tree_map(padded, g), padded(K[use]), padded(ts[idx]), padded(dts),
+                      padded(ys[idx], np.nan))
+    q, rank = np.empty((M, len(blocks))), np.empty((M, len(blocks)), dtype=int)
+    for i, (b, out) in enumerate(zip(flt.blocks, blocks, strict=True)):
+        if isinstance(out, tuple):
+            q[:, i], rank[:, i] = _manifold_nis(*(np.asarray(a)[:M] for a in out))
+        else:
+            q[:, i], rank[:, i] = np.asarray(out)[:M], b.dim
     nis = np.full((ts.size, len(flt.blocks)), np.nan)
     nis[idx] = q
     seen = np.isfinite(q)
