@@ -496,7 +496,8 @@ class LogRun:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
                            f"their innovation (largest {o['largest_sigmas']:.3g} standard deviations, at "
                            f"{time_said(o['largest_t'], self.metrics['log']['t0'])}) and were used; a gate "
-                           "(Sensor(gate=...) in a --system-file) would reject them")
+                           "(Sensor(gate=...) in a --system-file, or --set gate=P for a ready system whose "
+                           "factory takes one) would reject them")
         return out
 
     def rejected(self) -> dict[str, int]:
