@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out/tse2
 MINUTES ?= 60
 
-.PHONY: venv demo test test-slow bench bench-soak bench-campaign bench-scaling lint docs clean
+.PHONY: venv demo test test-slow claims bench bench-soak bench-campaign bench-scaling lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,6 +40,13 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -q -m slow
+
+# Every table of numbers in README.md and docs/ that a command makes, made again into out/claims and compared
+# (docs/claims.toml lists the commands; tools/claims.py says how they are compared). Over an hour on 2 cores;
+# CLAIMS="NAME ..." runs some, CLAIMS_ARGS=--fast only those of a minute, --coverage counts what is checked.
+# The real-data tables need LIEMEF_REALDATA.
+claims: $(STAMP)
+	$(JAX_CACHE) $(PY) tools/claims.py --out out/claims $(CLAIMS_ARGS) $(CLAIMS)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_tse2.py
