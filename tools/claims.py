@@ -5,8 +5,8 @@ the site):
 
 - ``<!-- claim: NAME -->``: the table is a copy of the first table of the file that entry NAME of
   ``docs/claims.toml`` writes (``NAME#K``: its table K; ``NAME/FILE#K``: table K of another file of the same
-  commands; a mark ending in `` (some rows)`` copies some of its rows). The entry names the commands (``{out}`` is the claim's folder), the file, and how long it takes;
-  ``make claims`` runs them and compares.
+  commands; a mark ending in `` (some rows)`` copies some of its rows). The entry names the commands (``{out}``
+  is the claim's folder), the file, and how long it takes; ``make claims`` runs them and compares.
 - ``<!-- unchecked: REASON -->``: measured, but not regenerated here (timings of one machine, another library's
   code, an external data set). It counts against the coverage.
 - ``<!-- not-measured: REASON -->``: settings, definitions, a paper's printed values: nothing to regenerate.
