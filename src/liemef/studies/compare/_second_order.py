@@ -9,7 +9,11 @@ beside the first-order filter, the invariant EKF and the UKF-M on the systems wh
 where it should not (:data:`CASES`):
 
 * a quadrotor on $SE_2(3)$ (IMU 100 Hz) with a downward range sensor (20 Hz) and a magnetometer (50 Hz), its
-  horizontal position unobservable by design; the same with an altimeter instead of the range sensor;
+  horizontal position unobservable by design; the same with an altimeter instead of the range sensor; and both
+  written on $SO(3) \times \mathbb R^3 \times \mathbb R^3$ (world-frame velocity and position,
+  :data:`QUAD_WORLD`), the same flight, sensors and noise: which group the filters' errors live in, apart from the
+  filters (on $SE_2(3)$ the exponential chart puts the attitude error times the unobservable horizontal position
+  error into the observed vertical, docs/second-order.md);
 * :func:`~liemef.systems.inertial_navigation` with a barometer and a magnetometer, and with GNSS;
 * planar localization on SE(2) from odometry with bearings (``angles=True``), ranges, or range and bearing to
   landmarks (the last one close, with a large initial error: a strongly curved output);
@@ -45,7 +49,7 @@ import numpy as np
 
 from ...filters import CAUSES, MinimumEnergyFilter
 from ...filters.baselines import ExtendedKalmanFilter, ukf_m
-from ...groups import R3, SE2, SE23, SO3, TSO3
+from ...groups import R3, SE2, SE23, SO3, TSO3, Product
 from ...metrics import chi2_bounds, innovation_monitor, left_error, nees
 from ...reports import io
 from ...simulation import simulate
@@ -167,22 +171,42 @@ FLIGHT_G0 = ((0.0, _R * _W, _AZ * _NU), (_R, 0.0, _Z0))
 """The flight's initial (velocity, position), level and facing +x."""
 
 
+QUAD_WORLD = Product[SO3, R3, R3]
+r"""The quadrotor's second group, $SO(3) \times \mathbb R^3 \times \mathbb R^3$: the attitude with the velocity and the
+position in the world frame, each a factor, so that its left error is the body-frame attitude error and the
+world-frame velocity and position differences (no rotation of one into the others, as $SE_2(3)$'s exponential has)."""
+
+
+def _rvp(g):
+    """(R, v, p) of a quadrotor state on $SE_2(3)$ or on :data:`QUAD_WORLD`: v and p in the world frame."""
+    if isinstance(g, SE23):
+        v, p = g.vectors()
+        return g.rotation().as_matrix(), v, p
+    return g.factors[0].as_matrix(), g.factors[1].x, g.factors[2].x
+
+
 def imu_dynamics(g, u, t):
-    """g^-1 dg/dt of (R; v, p): the gyro, the specific force plus gravity seen in the body, and R^T v."""
-    Rt = g.rotation().as_matrix().T
-    v, p = g.vectors()
-    return jnp.concatenate([u[:3], u[3:] + Rt @ jnp.array([0.0, 0.0, -GRAVITY]), Rt @ v])
+    """g^-1 dg/dt of (R; v, p) on $SE_2(3)$: the gyro, the specific force plus gravity seen in the body, and R^T v."""
+    R, v, _ = _rvp(g)
+    return jnp.concatenate([u[:3], u[3:] + R.T @ jnp.array([0.0, 0.0, -GRAVITY]), R.T @ v])
+
+
+def world_imu_dynamics(g, u, t):
+    """g^-1 dg/dt of (R, v, p) on :data:`QUAD_WORLD`: the gyro, the acceleration R f + gravity, and v (the
+    translations' algebra is their derivative)."""
+    R, v, _ = _rvp(g)
+    return jnp.concatenate([u[:3], R @ u[3:] + jnp.array([0.0, 0.0, -GRAVITY]), v])
 
 
 def downward_range(g, t):
     """The range along the body's -z axis to flat ground at z = 0: p_z / (R e_3)_z."""
-    R = g.rotation().as_matrix()
-    return g.vectors()[1][2:3] / R[2, 2]
+    R, _, p = _rvp(g)
+    return p[2:3] / R[2, 2]
 
 
 def altitude(g, t):
     """The altitude p_z (m)."""
-    return g.vectors()[1][2:3]
+    return _rvp(g)[2][2:3]
 
 
 DIP = math.radians(60.0)
@@ -191,7 +215,7 @@ M_REF = (0.0, math.cos(DIP), -math.sin(DIP))
 
 def magnetometer(g, t):
     """The magnetic field's direction in the body frame, R^T m."""
-    return g.rotation().as_matrix().T @ jnp.asarray(M_REF)
+    return _rvp(g)[0].T @ jnp.asarray(M_REF)
 
 
 TRUTH_SUBSTEPS = 1
@@ -206,25 +230,33 @@ QUAD_K0 = np.diag([math.radians(2.0) ** 2] * 3 + [0.1**2] * 3 + [1.0**2] * 3)
 """The quadrotor's prior: 2 deg per axis, 0.1 m/s, 1 m (the left error's)."""
 
 
-def _flight_g0():
-    return SE23.from_rotation_vectors(SO3.identity(), jnp.asarray(FLIGHT_G0))
+def _flight_g0(world: bool = False):
+    v, p = (jnp.asarray(x) for x in FLIGHT_G0)
+    if world:
+        return QUAD_WORLD((SO3.identity(), R3(v), R3(p)))
+    return SE23.from_rotation_vectors(SO3.identity(), jnp.stack([v, p]))
 
 
-def _quadrotor(duration: float, altimeter: bool) -> Case:
+def _quadrotor(duration: float, altimeter: bool, world: bool = False) -> Case:
+    """The quadrotor on $SE_2(3)$, or with ``world`` on :data:`QUAD_WORLD`. There the accelerometer's noise n
+    enters the velocity's rate as R n, which has the law of n because its three stds are equal: the same constant
+    noise map is the model of both."""
     height = (Sensor("alt", altitude, Noise.sample(0.05), ["z"], ["m"]) if altimeter
               else Sensor("range", downward_range, Noise.sample(0.05), ["r"], ["m"]))
     noise_map = np.zeros((9, 6))
     noise_map[:6, :6] = np.eye(6)
-    system = SensorSystem(SE23, imu_dynamics,
+    system = SensorSystem(QUAD_WORLD if world else SE23, world_imu_dynamics if world else imu_dynamics,
                           [height, Sensor("mag", magnetometer, Noise.sample(0.02), ["x", "y", "z"], ["1"] * 3)],
                           process_noise=Noise.sample(QUAD_IMU_STD, rate=100.0), noise_map=noise_map,
                           inputs=["gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"])
     what = "an altimeter p_z" if altimeter else "a downward range sensor p_z / (R e3)_z"
-    return Case("quad-altimeter" if altimeter else "quad-range",
-                f"quadrotor on SE_2(3): IMU 100 Hz, {what} (0.05 m, 20 Hz), a magnetometer direction (0.02, 50 Hz); "
-                "horizontal position unobservable", system, _flight_g0(), flight_imu, _grid(duration, 100.0),
-                QUAD_K0, periods={height.name: 5, "mag": 2}, input_noise=np.diag(QUAD_IMU_STD), substeps=TRUTH_SUBSTEPS,
-                side="right", position=(6, 9))
+    name = ("quad-altimeter" if altimeter else "quad-range") + ("-world" if world else "")
+    group = "SO(3) x R^3 x R^3 (world-frame velocity and position)" if world else "SE_2(3)"
+    return Case(name, f"quadrotor on {group}: IMU 100 Hz, {what} (0.05 m, 20 Hz), a magnetometer direction (0.02, "
+                "50 Hz); horizontal position unobservable", system, _flight_g0(world), flight_imu,
+                _grid(duration, 100.0), QUAD_K0, periods={height.name: 5, "mag": 2},
+                input_noise=np.diag(QUAD_IMU_STD), substeps=TRUTH_SUBSTEPS, side="left" if world else "right",
+                position=(6, 9))
 
 
 def _ins(duration: float, gnss: bool) -> Case:
@@ -395,6 +427,8 @@ def _chaplygin(duration: float) -> Case:
 CASES: dict[str, tuple[str, Callable[[float], Case]]] = {
     "quad-range": ("quadrotor, range sensor + magnetometer", lambda d: _quadrotor(d, False)),
     "quad-altimeter": ("quadrotor, altimeter + magnetometer", lambda d: _quadrotor(d, True)),
+    "quad-range-world": ("the quadrotor with its range sensor on SO(3) x R^6", lambda d: _quadrotor(d, False, True)),
+    "quad-altimeter-world": ("the quadrotor with its altimeter on SO(3) x R^6", lambda d: _quadrotor(d, True, True)),
     "ins-baro-mag": ("inertial navigation, barometer + magnetometer", lambda d: _ins(d, False)),
     "ins-gnss": ("inertial navigation, GNSS", lambda d: _ins(d, True)),
     "se2-bearing": ("SE(2), bearings to 3 landmarks", lambda d: _planar(d, "bearing")),
