@@ -337,12 +337,11 @@ def markdown(result: dict) -> str:
         ratio = result.get("ratio_to_vqf", {}).get(n)
         lines.append(f"| {n} | " + " | ".join(fmt(v) for v in tot) + f" | {fmt(result['means'][n]['total'])} | "
                      + ("-" if ratio is None else f"{ratio:.2f}") + " |")
-    lines.append("")
     pub = [result["trials"][t]["published"] for t in st["trials"]]
-    if all(p is not None for p in pub):
+    if all(p is not None for p in pub):  # BROAD publishes the total rms only: rows of this table
         for who in ("madgwick", "mahony"):
-            lines.append(f"| BROAD's own {who} (published) | " + " | ".join(f"{p[who]:g} / - / -" for p in pub)
-                         + f" | {np.mean([p[who] for p in pub]):.3f} |")
+            lines.append(f"| BROAD's own {who} (published) | " + " | ".join(f"{p[who]:g}" for p in pub)
+                         + f" | {fmt(float(np.mean([p[who] for p in pub])))} | - |")
     lines += ["", "## Winners", "", "| trial | metric | winner | rms [deg] | runner-up | lead [deg] | beyond the "
               "reference's accuracy? |", "|---|---|---|---:|---|---:|---|"]
     for t, per in result["winners"].items():
