@@ -131,7 +131,7 @@ def test_on_so3_r6_the_quadrotor_is_consistent_where_on_se23_it_is_not(fast):
         assert r["status"] == "ok" and r["nees_flag"] == "within", (name, r["status"], r["nees"])
 
 
-@pytest.mark.slow  # the whole study: 12 systems x 5 filters x 5 trials of 20 s, a few minutes on the C engine
+@pytest.mark.slow  # the whole study: 14 systems x 9 filters x 5 trials of 20 s, 15-30 minutes on the C engine
 def test_the_full_suite():
     result = compare_second_order(SecondOrderSuite(), progress=False)
     _check_rows(result, tuple(CASES), tuple(FILTERS))

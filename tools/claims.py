@@ -68,11 +68,9 @@ class Claim:
     name: str
     commands: tuple[str, ...]
     file: str
-    index: int = 0
     minutes: float = 1.0
     realdata: bool = False
     units: float = 1.0
-    rows: str = "all"
 
     @property
     def fast(self) -> bool:
@@ -166,13 +164,22 @@ def mismatches(doc: Table, new: Table, units: float = 1.0, rows: str = "all") ->
     return out
 
 
+def parse_claim(mark: str) -> tuple[str, str | None, int, bool]:
+    """A claim mark's value ``NAME[/FILE][#K][ (some rows)]``: the claim's name, the file of its output (None:
+    the claim's own), the index of the table in that file and whether the docs copy only some of its rows."""
+    some = mark.endswith(SOME_ROWS)
+    rest, _, index = mark.removesuffix(SOME_ROWS).partition("#")
+    name, _, file = rest.partition("/")
+    return name, file or None, int(index or 0), some
+
+
 def marked() -> dict[str, list[Table]]:
-    """The docs' claim tables, by claim name (a mark ``NAME/FILE#K`` copies table K of FILE of claim NAME)."""
+    """The docs' claim tables, by claim name."""
     out: dict[str, list[Table]] = {}
     for path in doc_files():
         for t in tables(path):
             if t.mark and t.mark[0] == "claim":
-                out.setdefault(re.split(r"[/#]", t.mark[1].removesuffix(SOME_ROWS))[0], []).append(t)
+                out.setdefault(parse_claim(t.mark[1])[0], []).append(t)
     return out
 
 
@@ -204,26 +211,19 @@ def regenerate(claim: Claim, out: Path) -> None:
         subprocess.run(_argv(command, out), cwd=ROOT, env=env, check=True, stdout=subprocess.DEVNULL)
 
 
-def where_in_output(claim: Claim, mark: str) -> tuple[str, int]:
-    """The file of the claim's output and the index of the table in it that a mark ``NAME[/FILE][#K]`` names."""
-    rest, _, index = mark.removesuffix(SOME_ROWS).partition("#")
-    _, _, file = rest.partition("/")
-    return file or claim.file, int(index or 0)
-
-
 def check(claim: Claim, out: Path, docs: list[Table]) -> list[str]:
     """The mismatches of every docs table of ``claim`` against the table it copies in ``out``."""
     problems = []
     for t in docs:
-        file, index = where_in_output(claim, t.mark[1])
-        path = out / file
+        _, file, index, some = parse_claim(t.mark[1])
+        path = out / (file or claim.file)
         found = tables(path) if path.exists() else []
         if len(found) <= index:
             state = f"has {len(found)} tables" if path.exists() else "was not written"
             problems.append(f"{t.where}: {path} {state}, the claim reads table {index}")
             continue
-        rows = "subset" if t.mark[1].endswith(SOME_ROWS) else claim.rows
-        problems += [f"{t.where}: {m}" for m in mismatches(t, found[index], claim.units, rows)]
+        problems += [f"{t.where}: {m}" for m in mismatches(t, found[index], claim.units,
+                                                           "subset" if some else "all")]
     return problems
 
 
