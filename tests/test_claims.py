@@ -82,6 +82,16 @@ def test_marks_are_read_before_indented_tables_and_not_inside_code(tmp_path):
     assert table.mark == ("claim", "x") and table.rows == (("r", "1"),)
 
 
+def test_a_registry_entry_with_a_wrong_key_is_refused_by_name(tmp_path):
+    path = tmp_path / "claims.toml"
+    path.write_text('[x]\ncommand = "liemef compare localization --out {out}"\nfile = "a.md"\nrows = "subset"\n')
+    with pytest.raises(ValueError, match=r"claims.toml \[x\].*unknown \['rows'\]"):
+        claims.registry(path)
+    path.write_text('[y]\ncommand = "liemef compare localization --out {out}"\n')
+    with pytest.raises(ValueError, match=r"\[y\].*missing \['file'\]"):
+        claims.registry(path)
+
+
 def test_the_coverage_is_reported():
     checked, unchecked, _ = claims.coverage()
     assert checked > 0 and checked + unchecked > checked

@@ -110,9 +110,17 @@ def doc_files() -> list[Path]:
 
 
 def registry(path: Path = REGISTRY) -> dict[str, Claim]:
+    """The claims of ``path``; an entry without ``command`` or ``file``, or with a key a claim does not have, is
+    refused by name."""
     raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    keys = {"command"} | {f.name for f in dataclasses.fields(Claim)} - {"name", "commands"}
     out = {}
     for name, entry in raw.items():
+        missing, unknown = {"command", "file"} - set(entry), set(entry) - keys
+        if missing or unknown:
+            raise ValueError(f"{path.name} [{name}]: expected the keys {sorted(keys)} with command and file, got "
+                             f"{sorted(entry)}" + (f" (missing {sorted(missing)})" if missing else "")
+                             + (f" (unknown {sorted(unknown)})" if unknown else ""))
         commands = entry.pop("command")
         out[name] = Claim(name, tuple([commands] if isinstance(commands, str) else commands), **entry)
     return out
