@@ -6,8 +6,9 @@ call fed numpy arrays, as a robot loop would (``flt.step``, a FilterState in and
 the state kept in C between calls). Both by the default engine (``engine``: "c" where a C compiler is
 found, the filter's interval as a compiled C kernel) and, for RKMK4, by XLA (``*_xla``). The C engine's compile
 is measured twice: the first build (``run_rkmk4.compile_s``: trace, translation and C compiler at -O0, into a
-fresh kernel cache, until the first result; ``optimized_build_s``: until the -O2 build, compiled beside it,
-serves) and in a new process that finds the kernel on disk (``compile_new_process``: the trace only).
+fresh kernel cache, until the first result; ``optimized_build_s``: from then until the -O2 build serves, which
+``Kernel.wait()`` starts: a first call this short never pays for it, ``OPTIMIZE_AFTER_S``) and in a new
+process that finds the kernel on disk (``compile_new_process``: the trace only).
 Every figure is repeated (``--repeats``, default 5) and reported as its minimum and median (``min``,
 ``median``, and ``all``); the targets are decided on the **median** of the repeats, so that one noisy repeat
 decides nothing, and the minimum shows what the machine does when nothing interferes. On a shared machine
@@ -69,8 +70,9 @@ from 1.42x to 3.42x the reference and the export from about 1.7x to 2.13x:
   the same kernel is a smaller multiple of it (issue 22: 3.0x against a plain ``-O2`` reference, where this
   benchmark printed 4.55x against its ``-march=native`` one). A ratio means something only with the same
   flags on both sides: ``machine`` prints both. A CPU with AVX-512 also gets ``-mno-avx512f`` (``NATIVE``).
-* **The -O2 kernel not yet in place.** The first build serves at ``-O0`` (about 3x slower per step) while
-  the ``-O2`` build runs beside it; a ``run`` timed before ``Kernel.wait()`` measures the ``-O0`` kernel.
+* **The -O2 kernel not yet in place.** The first build serves at ``-O0`` (about 3x slower per step) until the
+  ``-O2`` build, started after 2 s of calls or by ``Kernel.wait()``, replaces it; a ``run`` timed before
+  ``Kernel.wait()`` measures the ``-O0`` kernel.
   Every timed run here waits for it. The first build is timed in its own process on a 100-sample log: the
   previous ``compile_s`` subtracted the ``-O2`` run from a first call that filtered 50,000 samples at ``-O0``
   while the ``-O2`` compiler ran on the same pinned core.

@@ -319,16 +319,24 @@ def test_without_a_compiler_auto_is_xla(monkeypatch):
 
 
 def test_kernel_disk_cache(tmp_path, monkeypatch):
-    """The first build is quick (-O0) and the -O2 one replaces it when done, with the same numbers bit for bit;
-    a second process finds the -O2 kernel on disk (here: the in-process cache emptied): no new build."""
+    """The first build is quick (-O0); the -O2 one starts once the quick one has served OPTIMIZE_AFTER_S of
+    calls, and replaces it when done, with the same numbers bit for bit; a second process finds the -O2 kernel
+    on disk (here: the in-process cache emptied): no new build."""
     monkeypatch.setenv("LIEMEF_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(_kernel, "_KERNELS", {})
     flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
     k1 = _kernel.kernel_for(flt)
-    assert len(list(tmp_path.glob("quick_*.so"))) == 1  # the first build serves while -O2 builds
+    assert len(list(tmp_path.glob("quick_*.so"))) == 1  # the first build serves
     state, ts, us, ys = _log(flt, n=200, seed=5)
     theta, x = k1.theta(flt), k1.pack(state)
-    quick = _kernel.Kernel(next(tmp_path.glob("quick_*.so")), k1.traced).scan(theta, x, ts, us, ys, 0.2, 3)
+    quick = k1.scan(theta, x, ts, us, ys, 0.2, 3)  # a short call: far below the rent, no -O2 build
+    assert not k1.optimized and k1._optimizer is None and 0.0 < k1._served < _kernel.OPTIMIZE_AFTER_S
+    assert not list(tmp_path.glob("kernel_*.so"))
+    monkeypatch.setattr(_kernel, "OPTIMIZE_AFTER_S", k1._served)  # the rent is paid by any further call
+    again = k1.scan(theta, x, ts, us, ys, 0.2, 3)
+    assert k1._optimizer is not None  # the -O2 build started, beside the quick one
+    for a, b in zip(quick, again, strict=True):
+        np.testing.assert_array_equal(a, b)
     assert k1.wait().optimized and k1.optimize_error is None
     files = sorted(tmp_path.glob("kernel_*.so"))
     assert len(files) == 1 and k1.path == files[0]

@@ -38,10 +38,12 @@ import dataclasses
 import functools
 import hashlib
 import itertools
+import math
 import os
 import platform
 import tempfile
 import threading
+import time
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,9 +78,16 @@ three-operand instructions: a TSE(2) step in 1.04-1.16 us against 1.41-1.46 us, 
 IEEE-identical)."""
 
 QUICK_CFLAGS = ("-std=c99", "-O0", "-fno-math-errno")
-"""The first build's flags, while the -O2 build runs beside it: on TSE(2) -O0 compiles in 0.3 s against
-1.2 s, and runs a step in 3.0 us against 1.0 us. Both are ISO C without contraction: the same numbers, bit for
-bit (tested)."""
+"""The first build's flags: on TSE(2) -O0 compiles in 0.3 s against 1.2 s, and runs a step in 3.0 us against
+1.0 us. Both are ISO C without contraction: the same numbers, bit for bit (tested)."""
+
+OPTIMIZE_AFTER_S = 2.0
+"""Seconds of C calls (``scan``, ``history``, ``batch``) that the quick build serves in a process before the
+-O2 build starts beside it: a ski-rental rule. The -O2 build costs about as much compiling as this (1.2 s for
+TSE(2), more for larger systems) and saves about two thirds of every later call, so a process that
+has spent this long on the quick build has work enough to repay it; one that filters a few short logs
+(a test, one ``liemef run`` of a minute of samples) never pays it, and does not wait for it at its exit.
+An online filter (:meth:`Kernel.fast_ctl`) and :meth:`Kernel.wait` start it at once."""
 
 
 @dataclass(frozen=True)
@@ -636,7 +645,9 @@ class Kernel:
         self._reader = None  # the state reader, made on first use (:meth:`state`)
         self._c_state = None  # (SPEC, TREE) of the reader made in C (._fast_step.c's state), once it is made
         self._optimizer: threading.Thread | None = None
-        self._source: str | None = None  # the C source while the -O2 build is under way
+        self._source: str | None = None  # the C source of the quick build, kept for the -O2 one
+        self._served = 0.0  # seconds of C calls the quick build has served (OPTIMIZE_AFTER_S)
+        self._start = threading.Lock()  # one -O2 build thread, whichever thread asks first
         self.optimize_error: str | None = None
         # where the fast step (._fast) finds kernel_step: a pointer each _load sets, so that states and online
         # filters made before the -O2 build run by it once it serves
@@ -668,16 +679,26 @@ class Kernel:
         self._step_cell.value = _fast.address(step)
         self.path = built.path if isinstance(built, Library) else Path(built)
 
-    def _optimize(self, source: str) -> None:
-        """Build ``source`` with :data:`KERNEL_CFLAGS` in a thread (the compiler runs on another core) and load
-        it when done; until then the quick build serves. A failure is kept in ``optimize_error`` (the quick
-        build goes on serving). The thread is not a daemon: a process that ends first waits for it, so that the
-        next one finds the -O2 build on disk. A child forked meanwhile starts its own (:func:`_after_fork`): it
-        finds the parent's build on disk, or builds it."""
+    def _optimize(self, source: str | None) -> None:
+        """Build ``source`` (None: translated again) with :data:`KERNEL_CFLAGS` in a thread (the compiler runs
+        on another core) and load it when done; until then the quick build serves. A failure is kept in
+        ``optimize_error`` (the quick build goes on serving). The thread is not a daemon: a process that ends
+        first waits for it, so that the next one finds the -O2 build on disk. A child forked meanwhile starts
+        its own (:func:`_after_fork`): it finds the parent's build on disk, or builds it."""
         self._source = source
         _PENDING.add(self)
         self._optimizer = threading.Thread(target=self._finish_optimizing, name="liemef-kernel-build")
         self._optimizer.start()
+
+    def _optimize_soon(self, seconds: float) -> None:
+        """Count ``seconds`` of C calls served by the quick build, and start the -O2 build once they reach
+        :data:`OPTIMIZE_AFTER_S` (``inf``: at once); nothing for a kernel already optimized or optimizing."""
+        if self._optimizer is not None or self.optimized or self.optimize_error is not None:
+            return
+        with self._start:
+            self._served += seconds
+            if self._optimizer is None and self._served >= OPTIMIZE_AFTER_S:
+                self._optimize(self._source)
 
     def _finish_optimizing(self) -> None:
         try:
@@ -694,8 +715,9 @@ class Kernel:
         return self.path.name.startswith("kernel_")
 
     def wait(self) -> Kernel:
-        """Wait for the -O2 build, if one is running (or build it here, in a forked child whose build thread
-        was the parent's)."""
+        """Wait for the -O2 build: start it if it has not started (:data:`OPTIMIZE_AFTER_S`), or build it here
+        in a forked child whose build thread was the parent's."""
+        self._optimize_soon(math.inf)
         if self._optimizer is not None:
             self._optimizer.join()
         if not self.optimized and self.optimize_error is None:
@@ -769,6 +791,7 @@ class Kernel:
         """The ``ctl`` of the fast step (:mod:`._fast`) for the parameter vector at ``theta_address``, or None
         where the extension is not available (the ctypes path serves)."""
         self._fast = _fast.module()  # built and cached on first use
+        self._optimize_soon(math.inf)  # an online filter steps for as long as it runs: its kernel is worth -O2
         if self._fast is None:
             return None
         return (ctypes.addressof(self._step_cell), theta_address, self.n_state, self.m, self.p)
@@ -832,7 +855,9 @@ class Kernel:
         N = ts.shape[0]
         rows = np.empty((1 + (N - 1) // keep, self.n_state))
         x = np.array(x, np.float64)
+        t0 = time.perf_counter()
         self._scan(_ptr(theta), _ptr(x), N, _ptr(ts), _ptr(us), _ptr(ys), gap, keep, _ptr(rows))
+        self._optimize_soon(time.perf_counter() - t0)
         return rows, x
 
     def history(self, theta, x, ts, us, ys, gap: float, keep: int, leaves: list) -> np.ndarray:
@@ -848,7 +873,9 @@ class Kernel:
                                  f"got {a.dtype} {a.shape}")
         outs = (ctypes.c_void_p * max(1, len(leaves)))(*[None if a is None else a.ctypes.data for a in leaves])
         x = np.array(x, np.float64)
+        t0 = time.perf_counter()
         self._history(_ptr(theta), _ptr(x), ts.shape[0], _ptr(ts), _ptr(us), _ptr(ys), gap, keep, outs)
+        self._optimize_soon(time.perf_counter() - t0)
         return x
 
     def lanes(self):
@@ -907,10 +934,15 @@ class Kernel:
         bounds[-1] = B
         pool = [threading.Thread(target=work, args=(lo, hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
                 if hi > lo]
+        t0 = time.perf_counter()
         for th in pool:
             th.start()
         for th in pool:
             th.join()
+        # this kernel's share of the wall time: the batch kernel (-O3) served the whole lane groups
+        ranges = list(zip(bounds[:-1], bounds[1:], strict=True))
+        alone = B if simd is None else sum((hi - lo) % LANES for lo, hi in ranges)
+        self._optimize_soon((time.perf_counter() - t0) * alone / max(B, 1))
         if errors:
             raise errors[0]
         return rows, x, codes
@@ -959,7 +991,7 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         else:  # a quick build to start with, the -O2 one beside it
             source = _translate(tr)
             kern = Kernel(_build(tr, QUICK_CFLAGS, "quick", source), tr)
-            kern._optimize(source)
+            kern._source = source  # the -O2 build's, once the quick one has served enough (OPTIMIZE_AFTER_S)
         if key is not None:
             _KERNELS[key] = kern
         return kern
