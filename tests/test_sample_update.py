@@ -173,15 +173,15 @@ def _update(output, g_hat, K, y, W, **kw):
 def test_update_is_the_minimizer_and_K_the_inverse_hessian_there(name, output, g_hat, K, y, W):
     xi_ref, c = _scipy_minimizer(output, g_hat, K, y, W)
     g_ref = g_hat.rplus(jnp.asarray(xi_ref))
+    # the Hessian of the new value function in the coordinates at the new estimate (no J of the update enters),
+    # compiled once for both updates
+    value_hessian = jax.jit(jax.hessian(lambda z, shift: c(shift.rplus(z).log())))
     for safe in (False, True):
         g_plus, K_plus, info = _update(output, g_hat, K, y, W, safe=safe)
         assert bool(info.converged), (name, safe, info)
         assert float(info.cost) <= float(info.cost0)
         np.testing.assert_allclose(np.asarray(g_plus.rminus(g_ref)), 0.0, atol=MINIMIZER, err_msg=name)
-        # the new value function in the coordinates at the new estimate: no J of the update enters
-        shift = g_hat.inverse() @ g_plus
-        V = lambda z: c((shift.rplus(z)).log())  # noqa: B023, E731
-        H = np.asarray(jax.hessian(V)(jnp.zeros(K.shape[0])))
+        H = np.asarray(value_hessian(jnp.zeros(K.shape[0]), g_hat.inverse() @ g_plus))
         assert np.all(np.linalg.eigvalsh(0.5 * (H + H.T)) > 0), name  # a strict minimum: Newton's Hessian is used
         if not bool(info.modified):
             np.testing.assert_allclose(np.asarray(K_plus), np.linalg.inv(H), rtol=INVERSE_HESSIAN,
