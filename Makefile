@@ -33,10 +33,14 @@ JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(C
 # change the numbers or save nothing cold: --xla_backend_optimization_level=0 and
 # --xla_cpu_use_fusion_emitters=false (28 % less CPU on an XLA filter run, but other bits),
 # --xla_llvm_disable_expensive_passes (no gain), jax_persistent_cache_min_compile_time_secs=0 (the two workers
-# compile the same small programs at the same time: no gain cold). `make test-slow` runs only the
+# compile the same small programs at the same time: no gain cold). Measured and kept: each kernel's -O2 build
+# only once its quick build has served 2 s of calls (262 -O2 builds in a cold run before, the bulk of the
+# C compiler's time; test_engine.py alone 198 s -> 149 s), and --dist loadfile (a file's tests in one worker,
+# the heaviest files first: tests/conftest.py) instead of worksteal, which split a file's tests and compiled
+# their programs in both workers: a cold run from 1064 s to 838-903 s. `make test-slow` runs only the
 # `@pytest.mark.slow` tests: the full-size studies and the heaviest variants of fast tests.
 test: $(STAMP)
-	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist worksteal -q --durations=30
+	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q --durations=30
 
 test-slow: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -q -m slow
