@@ -348,6 +348,27 @@ def test_kernel_disk_cache(tmp_path, monkeypatch):
     assert k2.optimized and k2.path == files[0] and files[0].stat().st_mtime_ns == stamp
 
 
+def test_a_quick_build_on_disk_serves_a_new_process_untranslated(tmp_path, monkeypatch):
+    """A process that finds only the quick build on disk (the one before it never paid for -O2) loads it
+    without translating the jaxpr again, with the same bits; the -O2 build translates when it starts."""
+    monkeypatch.setenv("LIEMEF_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_kernel, "_KERNELS", {})
+    flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
+    k1 = _kernel.kernel_for(flt)
+    state, ts, us, ys = _log(flt, n=200, seed=5)
+    theta, x = k1.theta(flt), k1.pack(state)
+    first = k1.scan(theta, x, ts, us, ys, 0.2, 3)
+    assert not list(tmp_path.glob("kernel_*.so"))
+    monkeypatch.setattr(_kernel, "_KERNELS", {})  # as in a new process
+    translated, translate = [], _kernel._translate
+    monkeypatch.setattr(_kernel, "_translate", lambda tr: translated.append(tr) or translate(tr))
+    k2 = _kernel.kernel_for(flt)
+    assert k2 is not k1 and not k2.optimized and k2.path == k1.path and not translated
+    for a, b in zip(first, k2.scan(theta, x, ts, us, ys, 0.2, 3), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert k2.wait().optimized and k2.optimize_error is None and len(translated) == 1
+
+
 def _two_weight_sets(flt):
     """The localization filter's parameters and those of one with a 2 m GPS std, stacked on a leading axis (to
     vmap over), and the static part to combine them with."""

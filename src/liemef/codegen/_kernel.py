@@ -986,12 +986,15 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         with _eager():  # also when asked from inside a trace (scan under jit)
             tr = _trace(flt)
         optimized = _cached(tr)
+        quick = None if optimized is not None else _cached(tr, QUICK_CFLAGS, "quick")
         if optimized is not None:
             kern = Kernel(optimized, tr)
-        else:  # a quick build to start with, the -O2 one beside it
+        elif quick is not None:  # an earlier process's quick build: translated only if -O2 is built
+            kern = Kernel(quick, tr)
+        else:  # a quick build to start with, the -O2 one once it has served enough (OPTIMIZE_AFTER_S)
             source = _translate(tr)
             kern = Kernel(_build(tr, QUICK_CFLAGS, "quick", source), tr)
-            kern._source = source  # the -O2 build's, once the quick one has served enough (OPTIMIZE_AFTER_S)
+            kern._source = source
         if key is not None:
             _KERNELS[key] = kern
         return kern
