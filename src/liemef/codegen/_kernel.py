@@ -932,15 +932,14 @@ class Kernel:
         groups = -(-B // LANES)
         bounds = [min(B, round(groups * j / threads) * LANES) for j in range(threads + 1)]
         bounds[-1] = B
-        pool = [threading.Thread(target=work, args=(lo, hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
-                if hi > lo]
+        ranges = list(zip(bounds[:-1], bounds[1:], strict=True))
+        pool = [threading.Thread(target=work, args=(lo, hi)) for lo, hi in ranges if hi > lo]
         t0 = time.perf_counter()
         for th in pool:
             th.start()
         for th in pool:
             th.join()
         # this kernel's share of the wall time: the batch kernel (-O3) served the whole lane groups
-        ranges = list(zip(bounds[:-1], bounds[1:], strict=True))
         alone = B if simd is None else sum((hi - lo) % LANES for lo, hi in ranges)
         self._optimize_soon((time.perf_counter() - t0) * alone / max(B, 1))
         if errors:
@@ -985,12 +984,12 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         TRACES["kernel"] += 1
         with _eager():  # also when asked from inside a trace (scan under jit)
             tr = _trace(flt)
-        optimized = _cached(tr)
-        quick = None if optimized is not None else _cached(tr, QUICK_CFLAGS, "quick")
-        if optimized is not None:
-            kern = Kernel(optimized, tr)
-        elif quick is not None:  # an earlier process's quick build: translated only if -O2 is built
-            kern = Kernel(quick, tr)
+        # the -O2 build, else an earlier process's quick one (translated again only if -O2 is built)
+        found = _cached(tr)
+        if found is None:
+            found = _cached(tr, QUICK_CFLAGS, "quick")
+        if found is not None:
+            kern = Kernel(found, tr)
         else:  # a quick build to start with, the -O2 one once it has served enough (OPTIMIZE_AFTER_S)
             source = _translate(tr)
             kern = Kernel(_build(tr, QUICK_CFLAGS, "quick", source), tr)
