@@ -32,7 +32,7 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from _timing import cpu_model  # noqa: E402
+from _timing import cpu_model, one_core  # noqa: E402
 
 
 def one(name: str, samples: int) -> dict:
@@ -62,15 +62,12 @@ def measure(name: str, samples: int) -> dict:
     """A fresh process for ``name`` into an empty kernel cache: its own figures and the process's."""
     cache = tempfile.mkdtemp(prefix="liemef-bench-first-")
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env.update(LIEMEF_CACHE_DIR=cache, XLA_FLAGS=(env.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false "
-                                                  "intra_op_parallelism_threads=1").strip())
+    env["LIEMEF_CACHE_DIR"] = cache
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
-    cmd = [sys.executable, __file__, "--one", name, "--samples", str(samples)]
-    if hasattr(os, "sched_getaffinity"):  # one core, as the other benchmarks
-        cmd = ["taskset", "-c", str(min(os.sched_getaffinity(0))), *cmd]
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    proc = subprocess.run([sys.executable, __file__, "--one", name, "--samples", str(samples)], capture_output=True,
+                          text=True, env=env)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
@@ -91,6 +88,7 @@ def main(argv=None) -> None:
     if args.samples < 2:
         ap.error(f"--samples: expected at least 2 samples, got {args.samples}")
     if args.one is not None:
+        one_core(fresh_kernel_cache=False)  # before JAX starts; the parent made this process's empty cache
         print(json.dumps(one(args.one, args.samples)), flush=True)
         return
     from liemef.studies.experiments import SYSTEMS
