@@ -11,8 +11,9 @@ the comparisons of :mod:`liemef.studies.compare` and :func:`liemef.studies.campa
 Output folders are complete or absent (:mod:`liemef.reports.outputs`): written beside ``--out`` and renamed into
 place with a ``manifest.json``; a folder holding another command's files is refused unless ``--force``.
 Exit status: 0 ok, 1 a failed run (or a Monte Carlo or comparison with no usable trial, or a full disk),
-2 bad input, 3 a run of ``liemef run`` whose innovations are inconsistent with its K (outputs written whole),
-130 interrupted (Ctrl-C or SIGTERM).
+2 bad input, 3 a run of ``liemef run`` whose innovations are inconsistent with its K, 4 one whose innovations
+are consistent but whose linearization the monitor calls nonlinear (outputs written whole in both), 130
+interrupted (Ctrl-C or SIGTERM).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from . import __version__
 from .reports import outputs
 from .studies import commands, registry
 
-EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INCONSISTENT, EXIT_INTERRUPTED = 1, 2, 3, 130
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INCONSISTENT, EXIT_NONLINEAR, EXIT_INTERRUPTED = 1, 2, 3, 4, 130
 
 
 class _Commands(click.Group):
@@ -169,6 +170,8 @@ def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k
     _echo(saved)
     if saved.run.inconsistent:  # the outputs are written: an exit status of its own, for scripts
         click.get_current_context().exit(EXIT_INCONSISTENT)
+    if saved.run.nonlinear:
+        click.get_current_context().exit(EXIT_NONLINEAR)
 
 
 @_command(cli, "export-c")

@@ -36,7 +36,11 @@ SUSTAIN_WINDOWS = 1.5
 """The default sustain time of a sensor: this many of its windows' spans. One gross outlier keeps the windows that
 hold it out of band for one span, a burst of them for the burst's length more: with 1.5, a burst shorter than half a
 window is not enough, a fault that lasts is (for as long as half a window past its first window out)."""
-STATUSES = ("consistent", "inconsistent", "not applicable")
+LEAK_LIMIT = 1.0
+r"""The default limit of a window's linearization leak $\sum \ell_k$ over a sensor's window: at 1, the samples of one
+window can, by their linearization at the estimate, give a direction they do not observe up to twice the information
+K holds there (docs/innovations.md)."""
+STATUSES = ("consistent", "inconsistent", "nonlinear", "not applicable")
 
 
 def gain_is_covariance(flt) -> bool:
@@ -52,13 +56,14 @@ def gain_is_covariance(flt) -> bool:
 
 
 # --- the normalized innovations, compiled once per filter structure ----------------------------------------------
-def _nis_one(flt, g, K, t, dt, y):
-    """Per sensor block: the NIS of the sample ``y`` (NaN: a missing component) against the state ``(g, K)``,
+def _nis_one(flt, g, K, t, dt, y, leak):
+    r"""Per sensor block: the NIS of the sample ``y`` (NaN: a missing component) against the state ``(g, K)``,
     NaN where the block is not present or the state not finite; for a system with manifold residuals, instead,
     ``(present, nu, S, J)`` of the block, whose NIS and rank of $J$ (the sample's degrees of freedom)
-    :func:`_manifold_nis` takes."""
+    :func:`_manifold_nis` takes. With ``leak`` (static), each block's result is a pair: that and the sample's
+    linearization leak $\operatorname{tr}(S^{-1} N)$ (module :func:`linearization_leak`; for manifold residuals
+    the block's $N$, which :func:`_manifold_nis` projects)."""
     from ..filters._base import sample_covariance
-    from ..filters._derivatives import left_jacobian
     from ..filters._riccati import information_in_force
 
     system = flt.system
@@ -67,9 +72,15 @@ def _nis_one(flt, g, K, t, dt, y):
     sample = jnp.asarray(flt.sample, dtype=bool)
     # the information in force and the sample's own noise as the filter's gates read them (filters._base)
     Wy = flt._adapted(information_in_force(flt.weights.Wy, sample, mask, dt, diagonal=flt.diagonal), y0)
-    h0, F = left_jacobian(lambda gg: system.output_seen_from(y0, gg, t), g)
+    seen = lambda xi: system.output_seen_from(y0, g.rplus(xi), t)  # noqa: E731
+    zero = jnp.zeros(type(g).tangent_dim)
+    h0, F = seen(zero), jax.jacfwd(seen)(zero)
     nu = y0 - h0
-    FKF = F @ (0.5 * (K + K.T)) @ F.T
+    Ks = 0.5 * (K + K.T)
+    FKF = F @ Ks @ F.T
+    if leak:
+        HK = jnp.einsum("iab,bc->iac", jax.jacfwd(jax.jacfwd(seen))(zero), Ks)
+        N = 0.5 * jnp.einsum("iab,jba->ij", HK, HK)  # the quadratic term's covariance under N(0, K)
     if system.manifold_residuals:
         h = system.output(g, t)
         J = jax.jacfwd(lambda yy: system.residual(yy, h, t))(y0)
@@ -83,32 +94,47 @@ def _nis_one(flt, g, K, t, dt, y):
             # by NumPy after the program (_manifold_nis): a batched SVD or eigh inside this vmapped XLA program
             # stalled XLA CPU's Eigen pool now and then (every worker idle)
             Jb = J[sl, sl]
-            out.append((present, nu[sl], FKF[sl, sl] + Jb @ R @ Jb.T, Jb))
+            one = (present, nu[sl], FKF[sl, sl] + Jb @ R @ Jb.T, Jb)
+            out.append((one, N[sl, sl]) if leak else one)
         else:
-            q = nu[sl] @ jnp.linalg.solve(FKF[sl, sl] + R, nu[sl])
-            out.append(jnp.where(present & jnp.isfinite(q), q, jnp.nan))
+            S = FKF[sl, sl] + R
+            q = nu[sl] @ jnp.linalg.solve(S, nu[sl])
+            one = jnp.where(present & jnp.isfinite(q), q, jnp.nan)
+            if leak:
+                ell = jnp.trace(jnp.linalg.solve(S, N[sl, sl]))
+                one = (one, jnp.where(present & jnp.isfinite(ell), ell, jnp.nan))
+            out.append(one)
     return out
 
 
-def _manifold_nis(present, nu, S, J):
-    """The NIS of a manifold-residual block over all samples, by NumPy: ``nu`` (M, d) against the
+def _manifold_nis(present, nu, S, J, N=None):
+    r"""The NIS of a manifold-residual block over all samples, by NumPy: ``nu`` (M, d) against the
     pseudo-inverse of ``S`` (M, d, d) on the range of ``J`` (M, d, d), and the rank of ``J`` (the sample's
-    degrees of freedom); NaN where the block is not present or the result not finite."""
+    degrees of freedom); NaN where the block is not present or the result not finite. With ``N`` (M, d, d), the
+    quadratic term's covariance, also the leak $\operatorname{tr}(S^+ J N J^\top)$: the part of the curvature
+    that moves the residual (not the part normal to a direction's sphere)."""
     present, nu, S, J = (np.asarray(a) for a in (present, nu, S, J))
     finite = np.isfinite(S).all(axis=(1, 2)) & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(nu).all(axis=1)
     S, J, nu = (np.where(finite.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in (S, J, nu))
     s = np.linalg.svd(J, compute_uv=False)
     rank = np.sum(s > 1e-6 * s.max(axis=1, keepdims=True), axis=1)
-    q = np.einsum("ni,nij,nj->n", nu, np.linalg.pinv(S, rcond=1e-9, hermitian=True), nu)
-    return np.where(present & finite & np.isfinite(q), q, np.nan), rank
+    Sp = np.linalg.pinv(S, rcond=1e-9, hermitian=True)
+    q = np.einsum("ni,nij,nj->n", nu, Sp, nu)
+    q = np.where(present & finite & np.isfinite(q), q, np.nan)
+    if N is None:
+        return q, rank
+    N = np.asarray(N)
+    ok = finite & np.isfinite(N).all(axis=(1, 2))
+    ell = np.einsum("nij,njk,nkl,nil->n", Sp, J, np.where(ok[:, None, None], N, 0.0), J)
+    return q, rank, np.where(present & ok & np.isfinite(ell), ell, np.nan)
 
 
 @eqx.filter_jit
-def _nis_all(flt, g, K, ts, dts, ys):
+def _nis_all(flt, g, K, ts, dts, ys, leak=False):
     # a loop over the samples (lax.map), not a vmap: the vmapped program's large batched contractions stalled
     # XLA CPU's multi-threaded Eigen pool now and then (every worker idle, the caller waiting for ever), in the
     # test suite and on a 17 143-sample log; the loop's small per-sample products stay on one thread
-    return jax.lax.map(lambda a: _nis_one(flt, *a), (g, K, ts, dts, ys))
+    return jax.lax.map(lambda a: _nis_one(flt, *a, leak), (g, K, ts, dts, ys))
 
 
 def _samples_of(traj, ts, name="traj"):
@@ -128,6 +154,24 @@ def innovation_nis(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike
     log's last, which no interval uses) and ``dof`` the sensors' degrees of freedom. ``flt`` the filter that made
     ``traj`` from the log ``ts``, ``us``, ``ys`` (checked as :meth:`~liemef.filters.AbstractFilter.run` checks
     them). NumPy arrays."""
+    nis, dof, _ = _per_sample(flt, traj, ts, us, ys, leak=False)
+    return nis, dof
+
+
+def linearization_leak(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike) -> np.ndarray:
+    r"""The linearization leak $\ell_k = \operatorname{tr}(S_k^{-1} N_k)$ of every sample of every sensor of a run
+    (module docstring): (N, number of sensors), NaN where :func:`innovation_nis` has no NIS. $N_k$, with
+    $(N_k)_{ij} = \tfrac12 \operatorname{tr}(H_i K_k H_j K_k)$ and $H_i$ the Hessian of output $i$ in the left
+    coordinates at $\hat g_k$, is the covariance of the output's quadratic term under $\xi \sim N(0, K_k)$; $2\ell_k$
+    bounds the information that the sample's linearization at $\hat g_k$ rather than at the truth can give a
+    direction it does not observe, relative to what $K_k$ holds there (docs/innovations.md derives it). Same
+    arguments and checks as :func:`innovation_nis`."""
+    return _per_sample(flt, traj, ts, us, ys, leak=True)[2]
+
+
+def _per_sample(flt, traj, ts, us, ys, leak):
+    """``(nis, dof, leak)`` of :func:`innovation_nis` and :func:`linearization_leak` from one compiled loop (the
+    leak None unless asked for)."""
     from ..filters._base import check_log
 
     ts, us, ys, _ = check_log(flt, ts, us, ys, (), math.inf)
@@ -151,21 +195,31 @@ def innovation_nis(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike
         extra = np.repeat(a[:1], pad, axis=0) if fill is None else np.full((pad,) + a.shape[1:], fill)
         return np.concatenate([a, extra]) if M else np.zeros((0,) + a.shape[1:])
 
+    nis = np.full((ts.size, len(flt.blocks)), np.nan)
+    ell = nis.copy() if leak else None
     if M == 0:
-        return np.full((ts.size, len(flt.blocks)), np.nan), tuple(b.dim for b in flt.blocks)
+        return nis, tuple(b.dim for b in flt.blocks), ell
     blocks = _nis_all(flt, jax.tree_util.tree_map(padded, g), padded(K[use]), padded(ts[idx]), padded(dts),
-                      padded(ys[idx], np.nan))
-    q, rank = np.empty((M, len(blocks))), np.empty((M, len(blocks)), dtype=int)
+                      padded(ys[idx], np.nan), leak)
+    q, rank, e = np.empty((M, len(blocks))), np.empty((M, len(blocks)), dtype=int), np.empty((M, len(blocks)))
     for i, (b, out) in enumerate(zip(flt.blocks, blocks, strict=True)):
+        if leak:
+            out, extra = out  # the leak, or a manifold residual's N
         if isinstance(out, tuple):
-            q[:, i], rank[:, i] = _manifold_nis(*(np.asarray(a)[:M] for a in out))
+            parts = _manifold_nis(*(np.asarray(a)[:M] for a in out), *((np.asarray(extra)[:M],) if leak else ()))
+            q[:, i], rank[:, i] = parts[:2]
+            if leak:
+                e[:, i] = parts[2]
         else:
             q[:, i], rank[:, i] = np.asarray(out)[:M], b.dim
-    nis = np.full((ts.size, len(flt.blocks)), np.nan)
+            if leak:
+                e[:, i] = np.asarray(extra)[:M]
     nis[idx] = q
+    if leak:
+        ell[idx] = e
     seen = np.isfinite(q)
     dof = tuple(int(rank[seen[:, i], i].max()) if seen[:, i].any() else b.dim for i, b in enumerate(flt.blocks))
-    return nis, dof
+    return nis, dof, ell
 
 
 # --- the verdict -------------------------------------------------------------------------------------------------
@@ -188,11 +242,24 @@ class SensorVerdict:
     longest: tuple[float, float, str] | None = None
     sustain: float | None = None
     mean_nis: float | None = None
+    leak_limit: float | None = None
+    """The limit of a window's leak (None: the leak was not computed)."""
+    leak_peak: float | None = None
+    r"""The largest window's leak $\sum \ell_k$."""
+    leak_median: float | None = None
+    """The median window's leak: the run's typical one, which an early transient from a large K0 does not move."""
+    leak_longest: tuple[float, float] | None = None
+    """Start and end time of the longest run of windows whose leak reached ``leak_limit``."""
 
     @property
     def sustained(self) -> bool:
         """Whether the longest excursion lasted at least the sustain time."""
         return self.longest is not None and self.longest[1] - self.longest[0] >= self.sustain
+
+    @property
+    def nonlinear(self) -> bool:
+        """Whether the windows' leak stayed at or above its limit for at least the sustain time."""
+        return self.leak_longest is not None and self.leak_longest[1] - self.leak_longest[0] >= self.sustain
 
     def as_dict(self) -> dict:
         """JSON-ready."""
@@ -203,23 +270,31 @@ class SensorVerdict:
                 "longest_excursion": None if self.longest is None else {
                     "start": self.longest[0], "end": self.longest[1], "side": self.longest[2],
                     "sustained": self.sustained},
-                "sustain_s": self.sustain, "inconsistent": self.sustained}
+                "sustain_s": self.sustain, "inconsistent": self.sustained,
+                "leak": None if self.leak_limit is None else {
+                    "limit": self.leak_limit, "peak": self.leak_peak, "median": self.leak_median,
+                    "longest": None if self.leak_longest is None else {
+                        "start": self.leak_longest[0], "end": self.leak_longest[1]},
+                    "nonlinear": self.nonlinear}}
 
 
 @dataclass(frozen=True)
 class InnovationReport:
     """What :func:`innovation_monitor` found: ``status`` (one of :data:`STATUSES`), per sensor a
-    :class:`SensorVerdict`, the rules applied (``window``, ``prob``, ``sustain`` as given, None: the defaults)
-    and, for "not applicable", the ``reason``."""
+    :class:`SensorVerdict`, the rules applied (``window``, ``prob``, ``sustain`` as given, None: the defaults;
+    ``leak``, the leak's limit) and, for "not applicable", the ``reason``."""
 
     status: str
     sensors: tuple[SensorVerdict, ...] = ()
     window: int | None = None
     prob: float = 0.999
     sustain: float | None = None
+    leak: float = LEAK_LIMIT
     reason: str = ""
     nis: np.ndarray | None = field(default=None, repr=False)
     """(N, sensors): every sample's NIS (NaN where none)."""
+    leaks: np.ndarray | None = field(default=None, repr=False)
+    """(N, sensors): every sample's linearization leak (NaN where none)."""
     t0: float = 0.0
     """The log's first time: the message says its times relative to it (``t = t0 + 12.3 s``)."""
 
@@ -229,12 +304,15 @@ class InnovationReport:
                 "definition": "per sensor, the mean over a sliding window of its last `window` present samples of "
                               "the normalized innovation squared nu^T S^-1 nu (nu = y (-) h(g_hat) before the "
                               "sample's update, S = F K F^T + J R J^T); inconsistent where it stays outside its "
-                              "chi-square `prob` band for `sustain_s` seconds",
-                "window": self.window, "prob": self.prob, "sustain": self.sustain,
+                              "chi-square `prob` band for `sustain_s` seconds; nonlinear (where not inconsistent) "
+                              "where the sum over the same windows of the linearization leak tr(S^-1 N) (N the "
+                              "covariance of the output's quadratic term under N(0, K)) stays at or above `leak` "
+                              "for `sustain_s` seconds",
+                "window": self.window, "prob": self.prob, "sustain": self.sustain, "leak": self.leak,
                 "sensors": [s.as_dict() for s in self.sensors]}
 
     def message(self) -> str:
-        """One line: the status and, where inconsistent, which sensor, when and on which side."""
+        """One line: the status and, where inconsistent or nonlinear, which sensor, when and on which side."""
         if self.status == "not applicable":
             return f"Innovation monitor: not applicable ({self.reason})"
         judged = [s for s in self.sensors if s.windows]
@@ -242,16 +320,25 @@ class InnovationReport:
             return ("Innovation monitor: consistent (" + "; ".join(
                 f"{s.name}: {100 * (1 - s.fraction_out):.1f} % of {s.windows} windows of {s.window} samples in "
                 f"the {100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}]" for s in judged) + ")")
-        bad = [s for s in judged if s.sustained]
         said = []
-        for s in bad:
+        for s in (s for s in judged if s.sustained):
             start, end, side = s.longest
             said.append(f"{s.name}: mean NIS of {s.window} samples {'above' if side == 'high' else 'below'} its "
                         f"{100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}] from "
                         f"{time_said(start, self.t0)} to {time_said(end, self.t0)} (first out at "
                         f"{time_said(s.first_out, self.t0)}; the run's mean NIS {s.mean_nis:.3g} for {s.dof} dof): "
                         f"K {'understates' if side == 'high' else 'overstates'} the errors")
-        return "Innovation monitor: INCONSISTENT: " + "; ".join(said)
+        curved = []
+        for s in (s for s in judged if s.nonlinear):
+            start, end = s.leak_longest
+            curved.append(f"{s.name}: the linearization leak of {s.window} samples reached {s.leak_limit:g} from "
+                          f"{time_said(start, self.t0)} to {time_said(end, self.t0)} (peak {s.leak_peak:.3g}): "
+                          "over K's spread the output's curvature can feed directions this sensor does not "
+                          "observe with information no sample holds, and K may understate the errors there, where "
+                          "the innovations cannot show it")
+        if self.status == "inconsistent":
+            return "Innovation monitor: INCONSISTENT: " + "; ".join(said + [f"also nonlinear: {c}" for c in curved])
+        return "Innovation monitor: NONLINEAR: " + "; ".join(curved)
 
 
 def _excursions(out, side, t):
@@ -267,8 +354,9 @@ def _excursions(out, side, t):
     return runs
 
 
-def _verdict(name, dof, ts, q, window, prob, sustain) -> SensorVerdict:
-    """One sensor's windows over its present samples ``q`` at times ``ts``."""
+def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT) -> SensorVerdict:
+    """One sensor's windows over its present samples ``q`` at times ``ts``, and over their leaks ``ell`` (None:
+    not computed) with the window's limit ``limit``."""
     ok = np.isfinite(q)
     t, q = ts[ok], q[ok]
     if t.size < 2:
@@ -290,13 +378,25 @@ def _verdict(name, dof, ts, q, window, prob, sustain) -> SensorVerdict:
     for a, b in _excursions(out, side, tw):
         if longest is None or tw[b] - tw[a] > longest[1] - longest[0]:
             longest = (float(tw[a]), float(tw[b]), "high" if side[a] > 0 else "low")
+    leaks = {}
+    if ell is not None:
+        e = np.nan_to_num(np.asarray(ell, dtype=np.float64)[ok], nan=0.0)  # a leak not computable counts as none
+        ce = np.concatenate([[0.0], np.cumsum(e)])
+        total = ce[N:] - ce[:-N]
+        over = total >= limit
+        leaks = {"leak_limit": float(limit), "leak_peak": float(total.max()), "leak_median": float(np.median(total)),
+                 "leak_longest": None}
+        for a, b in _excursions(over, np.ones(over.size), tw):
+            if leaks["leak_longest"] is None or tw[b] - tw[a] > leaks["leak_longest"][1] - leaks["leak_longest"][0]:
+                leaks["leak_longest"] = (float(tw[a]), float(tw[b]))
     return SensorVerdict(name, dof, int(t.size), window=N, span=float(span), band=(lo, hi), windows=int(mean.size),
                          fraction_out=float(out.mean()), first_out=first, longest=longest, sustain=float(hold),
-                         mean_nis=float(q.mean()))
+                         mean_nis=float(q.mean()), **leaks)
 
 
 def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *, window: int | None = None,
-                       prob: float = 0.999, sustain: float | None = None) -> InnovationReport:
+                       prob: float = 0.999, sustain: float | None = None,
+                       leak: float = LEAK_LIMIT) -> InnovationReport:
     r"""Whether the run ``traj`` of the filter ``flt`` over the log ``ts``, ``us``, ``ys`` is consistent with its
     own innovations (module docstring), without a truth.
 
@@ -304,7 +404,11 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     within 5 s, at least 20 and at most 500) is compared with its two-sided ``prob`` band
     $(\chi^2_{dN}((1-p)/2), \chi^2_{dN}((1+p)/2))/N$ (:func:`chi2_bounds`, $d$ the sensor's degrees of
     freedom). A run of windows out of band on one side that lasts at least ``sustain`` seconds (default: 1.5
-    windows' spans, per sensor) makes the status "inconsistent"; otherwise "consistent". "not applicable" where
+    windows' spans, per sensor) makes the status "inconsistent". Otherwise, where the sum of the
+    linearization leak (:func:`linearization_leak`) over the same windows stays at or above ``leak`` for the
+    sustain time on some sensor, the status is "nonlinear": the innovations do not contradict K, but the
+    output's curvature over K's spread can make K understate the errors along directions that sensor does not
+    observe, which no innovation shows (``leak=math.inf`` turns this off). Else "consistent". "not applicable" where
     K is not a covariance (:func:`gain_is_covariance`) or no sensor has a full window. States that are NaN
     after a failure are skipped (the run's status speaks for them). Works on a run of either engine, with
     ``keep_every`` (only the samples with a state kept are judged), for every filter of the library.
@@ -318,22 +422,27 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
                                 or not (math.isfinite(sustain) and sustain >= 0)):
         raise ValueError(f"sustain: expected a finite time >= 0 in seconds (or None: 1.5 windows' spans), "
                          f"got {sustain!r}")
+    if isinstance(leak, bool) or not (isinstance(leak, int | float | np.number) and leak > 0):
+        raise ValueError(f"leak: expected a window's linearization leak > 0 (math.inf: no limit), got {leak!r}")
     for name, v in (("flt", flt), ("traj", traj)):
         if not all(hasattr(v, a) for a in (("system",) if name == "flt" else ("ts", "g_hat", "K"))):
             raise ValueError(f"{name}: expected a liemef {'filter' if name == 'flt' else 'Trajectory'}, got "
                              f"{type(v).__name__}")
     rules = {"window": None if window is None else int(window), "prob": float(prob),
-             "sustain": None if sustain is None else float(sustain)}
+             "sustain": None if sustain is None else float(sustain), "leak": float(leak)}
     if not gain_is_covariance(flt):
         return InnovationReport("not applicable", reason="K is not a covariance: the system's weights are not noise "
                                 "levels in the sensors' units, or the filter keeps no covariance", **rules)
-    nis, dof = innovation_nis(flt, traj, ts, us, ys)
+    measured = math.isfinite(leak)
+    nis, dof, ell = _per_sample(flt, traj, ts, us, ys, leak=measured)
     t = np.asarray(ts, dtype=np.float64)
-    sensors = tuple(_verdict(b.name, d, t, nis[:, i], rules["window"], rules["prob"], rules["sustain"])
+    sensors = tuple(_verdict(b.name, d, t, nis[:, i], rules["window"], rules["prob"], rules["sustain"],
+                             ell[:, i] if measured else None, leak)
                     for i, (b, d) in enumerate(zip(flt.blocks, dof, strict=True)))
     if not any(s.windows for s in sensors):
         return InnovationReport("not applicable", sensors, reason="no sensor has a full window of samples "
                                 f"({', '.join(f'{s.name} {s.samples}' for s in sensors)} present)", nis=nis,
-                                t0=float(t[0]), **rules)
-    status = "inconsistent" if any(s.sustained for s in sensors) else "consistent"
-    return InnovationReport(status, sensors, nis=nis, t0=float(t[0]), **rules)
+                                leaks=ell, t0=float(t[0]), **rules)
+    status = ("inconsistent" if any(s.sustained for s in sensors) else
+              "nonlinear" if any(s.nonlinear for s in sensors) else "consistent")
+    return InnovationReport(status, sensors, nis=nis, leaks=ell, t0=float(t[0]), **rules)

@@ -138,7 +138,9 @@ RUN = Command(
     innovations to --out. A failed run (non-finite, K no longer symmetric or positive definite, a gate) writes
     only failure.json, says where, when and why, and exits with status 1. A run whose innovations are
     inconsistent with K (the innovation monitor, metrics.json's "innovations") writes all its outputs, says which
-    sensor and when, and exits with status 3.""", (
+    sensor and when, and exits with status 3; one whose innovations are consistent but whose outputs are so curved
+    over K's spread that K may understate the errors where no sensor looks (the monitor's "nonlinear") does the
+    same with status 4.""", (
         system("A ready system the log was recorded with (or --system-file)."),
         option("--system-file", type=PATH, help="A Python file that defines `system` (your own liemef system) and "
                "optionally K0, x0, initial_guess(y0)."), TIMEOUT,
@@ -176,7 +178,8 @@ RUN = Command(
                     "biases=true for inertial-navigation; recorded in metrics.json (config.system_settings)."),
         option("--monitor/--no-monitor", default=True, show_default=True,
                help="Test the innovations against K (chi-square windows per sensor; exit status 3 where they are "
-               "inconsistent)."),
+               "inconsistent) and the outputs' linearization over K's spread (exit status 4 where it is "
+               "nonlinear)."),
         FORCE, progress("Samples filtered, on stderr, between chunks.")))
 
 EXPORT_C = Command(

@@ -476,6 +476,12 @@ class LogRun:
         return self.monitor is not None and self.monitor.status == "inconsistent"
 
     @property
+    def nonlinear(self) -> bool:
+        """The run did not fail and its innovations are consistent, but the monitor found an output so curved over
+        K's spread that K may understate the errors where no sensor looks (``liemef run`` exits with status 4)."""
+        return self.monitor is not None and self.monitor.status == "nonlinear"
+
+    @property
     def ok(self) -> bool:
         """The filter ran over the whole log with status ok."""
         return self.failure is None
