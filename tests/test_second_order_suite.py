@@ -129,6 +129,19 @@ def test_on_so3_r6_the_quadrotor_is_consistent_where_on_se23_it_is_not(fast):
     _check_rows(world, ("quad-range-world",), ("mef-hold", "mef-hold-safe"))
     for name, r in world["cases"]["quad-range-world"]["filters"].items():
         assert r["status"] == "ok" and r["nees_flag"] == "within", (name, r["status"], r["nees"])
+        assert r["monitor_trials"] == ["consistent"] * 2 and r["leak"] < 0.01, (name, r["leak"])
+
+
+def test_the_leak_tells_the_two_quadrotors_apart(fast):
+    """The linearization leak (liemef.metrics.linearization_leak) of the range sensor: on SE_2(3) its median
+    window is above the monitor's limit of 1 for the first order and the invariant EKF, whose NEES is far above
+    its band; on SE(2) with bearings to 3 landmarks it is far below it (the fast fixture's 10 s trials end before
+    a leak can last the sustain time, 7.5 s from the first window at 5 s, so this is the leak, not the status)."""
+    quad = fast["cases"]["quad-range"]["filters"]
+    for name in ("mef-first", "iekf"):
+        assert quad[name]["leak"] > 1.0, (name, quad[name]["leak_trials"])
+    for name, r in fast["cases"]["se2-bearing"]["filters"].items():
+        assert r["leak"] < 0.01, (name, r["leak_trials"])
 
 
 @pytest.mark.slow  # the whole study: 14 systems x 9 filters x 5 trials of 20 s, 15-30 minutes on the C engine
@@ -146,3 +159,10 @@ def test_the_full_suite():
         assert r["failed"] >= 1 or r["nees_flag"] == "far above", name
     nees = np.array([rows[n]["mef-first"]["nees"] / rows[n]["mef-first"]["dof"] for n in ("ins-gnss", "attitude")])
     assert np.all(nees < 3.0)
+    # issue 31's bar as far as the monitor meets it: where the default runs with a NEES far above its band, no
+    # trial of it is called consistent, but on se2-near-rb, whose damage comes in its first second
+    # (docs/second-order.md)
+    for name, r in rows.items():
+        d = r["mef-hold-safe"]
+        if d["status"] == "ok" and d["nees_flag"] == "far above" and name != "se2-near-rb":
+            assert "consistent" not in d["monitor_trials"], (name, d["monitor_trials"])

@@ -58,7 +58,7 @@ from ...systems import attitude_bias as ab
 from ._common import check_counts, fmt, nees_flag, parse_names
 
 SCHEMA = "liemef.compare.second-order/1"
-MONITOR_STATUSES = ("inconsistent", "consistent", "not applicable")
+MONITOR_STATUSES = ("inconsistent", "nonlinear", "consistent", "not applicable")
 """The innovation monitor's statuses (:func:`liemef.metrics.innovation_monitor`), in the order the table counts
 them."""
 
@@ -557,15 +557,18 @@ def better_updates(rows: dict) -> str:
     return SECOND_ORDER[min(present, key=badness)]
 
 
-def monitor(flt, traj, ts, us, ys) -> list[str]:
+def monitor(flt, traj, ts, us, ys) -> tuple[list[str], list[float | None]]:
     """The innovation monitor's status (:func:`liemef.metrics.innovation_monitor`) of each trial of a batched
-    run."""
-    statuses = []
+    run, and its largest median window leak over the sensors (None where not applicable)."""
+    statuses, leaks = [], []
     for i in range(ys.shape[0]):
         one = SimpleNamespace(ts=traj.ts if np.ndim(traj.ts) == 1 else traj.ts[i], K=traj.K[i],
                               g_hat=jax.tree_util.tree_map(lambda a, i=i: a[i], traj.g_hat))
-        statuses.append(innovation_monitor(flt, one, ts, us[i], ys[i]).status)
-    return statuses
+        report = innovation_monitor(flt, one, ts, us[i], ys[i])
+        statuses.append(report.status)
+        medians = [s.leak_median for s in report.sensors if s.leak_median is not None]
+        leaks.append(max(medians) if medians else None)
+    return statuses, leaks
 
 
 def monitor_cell(statuses: Sequence[str]) -> str:
@@ -589,8 +592,10 @@ def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress:
         states = _stack([flt.init(jax.tree_util.tree_map(lambda a, i=i: a[i], g0s), case.K0) for i in range(runs)])
         traj = flt.run_batch(states, case.ts, us, ys)
         rows[name] = summary(case, evaluate(case, truth, traj))
-        rows[name]["monitor_trials"] = monitor(flt, traj, case.ts, us, ys)
+        rows[name]["monitor_trials"], rows[name]["leak_trials"] = monitor(flt, traj, case.ts, us, ys)
         rows[name]["monitor"] = monitor_cell(rows[name]["monitor_trials"])
+        measured = [v for v in rows[name]["leak_trials"] if v is not None]
+        rows[name]["leak"] = float(np.median(measured)) if measured else None
         rows[name]["elapsed_s"] = time.perf_counter() - t0
         if progress:
             r = rows[name]
@@ -619,7 +624,7 @@ def compare_second_order(study: SecondOrderSuite | None = None, *, progress: boo
 
 # --- tables and files -----------------------------------------------------------------------------------------
 COLUMNS = ("system", "filter", "status", "attitude [deg]", "position [m]", "NEES", "dof", "95 % band",
-           "NEES vs band", "monitor")
+           "NEES vs band", "leak", "monitor")
 
 
 def table_rows(result: dict) -> list[list[str]]:
@@ -632,7 +637,8 @@ def table_rows(result: dict) -> list[list[str]]:
                 label += f" ({s['side']})"
             lo, hi = r["nees_band"]
             rows.append([sname, label, r["status"], fmt(r["attitude_deg"], 3), fmt(r["position_m"], 3),
-                         fmt(r["nees"], 3), str(r["dof"]), f"{lo:.3g}-{hi:.3g}", r["nees_flag"] or "-", r["monitor"]])
+                         fmt(r["nees"], 3), str(r["dof"]), f"{lo:.3g}-{hi:.3g}", r["nees_flag"] or "-",
+                         fmt(r["leak"], 2), r["monitor"]])
     return rows
 
 
@@ -655,9 +661,13 @@ def markdown(result: dict) -> str:
               "step's average over those trials (a mean over time as well is tighter, so 'above' and 'below' are "
               "the conservative reading); 'far above' is beyond 10 times the band's top: K does not describe the "
               "error whatever the status says. mef-first ran with the updates shown, those of the better "
-              "second-order row; iekf and ukf-m with the error side shown. monitor: how many trials the innovation "
-              "monitor (liemef.metrics.innovation_monitor, from the innovations alone, no truth) called "
-              "inconsistent, consistent or not applicable, failed trials included.", ""]
+              "second-order row; iekf and ukf-m with the error side shown. leak: the median over the trials of "
+              "the largest sensor's median window leak (liemef.metrics.linearization_leak summed over the "
+              "monitor's windows; 1 is the monitor's limit). monitor: how many trials the innovation "
+              "monitor (liemef.metrics.innovation_monitor, from the innovations and the outputs' curvature, no "
+              "truth) called inconsistent, nonlinear (innovations in band, but an output so curved over K's "
+              "spread that K may understate the errors where no sensor looks), consistent or not applicable, "
+              "failed trials included.", ""]
     return "\n".join(lines)
 
 
