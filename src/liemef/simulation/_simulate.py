@@ -156,6 +156,9 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
     """
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
+    if not system.constant_process_noise:
+        raise ValueError(f"system: expected a system with a constant noise map B, got {type(system).__name__}, whose "
+                         "process noise depends on the state (simulate the system it was made from)")
     G = system.group
     _validate.element("g0", g0, G)
     ts = _validate.sorted_times("ts", ts)

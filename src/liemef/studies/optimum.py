@@ -87,6 +87,9 @@ _BATCH_SOLVER = "levenberg-marquardt (jax), steps by block-tridiagonal eliminati
 def _check_log(system: AbstractSystem, ts, us, ys, g0, P0, floor_std):
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
+    if not system.constant_process_noise:
+        raise ValueError(f"system: expected a system with a constant noise map B, got {type(system).__name__}, whose "
+                         "process noise depends on the state")
     G, n = system.group, system.group.tangent_dim
     ts = _validate.sorted_times("ts", ts)
     N = ts.shape[0]

@@ -53,7 +53,15 @@ from ...groups import R3, SE2, SE23, SO3, TSO3, Product
 from ...metrics import chi2_bounds, innovation_monitor, left_error, nees
 from ...reports import io
 from ...simulation import simulate
-from ...systems import Noise, Sensor, SensorSystem, attitude_gyro_bias, inertial_navigation
+from ...systems import (
+    Noise,
+    RightErrorSystem,
+    Sensor,
+    SensorSystem,
+    attitude_gyro_bias,
+    inertial_navigation,
+    right_error,
+)
 from ...systems import attitude_bias as ab
 from ._common import check_counts, fmt, nees_flag, parse_names
 
@@ -90,13 +98,19 @@ FILTERS: dict[str, tuple[str, Callable]] = {
                            "(iterations=10, as the second order's default)",
                            lambda system, case, updates: MinimumEnergyFilter(system, order="first", updates="discrete",
                                                                              iterations=10)),
+    "mef-hold-right": ("the defaults on the system's right error (liemef.systems.right_error): the filter keeps "
+                       "the right error, the invariant EKF's 'right' side; its estimates and K are mapped back to "
+                       "the left error for the NEES. Sensor systems only",
+                       lambda system, case, updates: (MinimumEnergyFilter(right_error(system))
+                                                      if isinstance(system, SensorSystem) else None)),
     "iekf": ("invariant EKF, the error side that fits the system (column 'side')",
              lambda system, case, updates: ExtendedKalmanFilter(system, case.side)),
     "ukf-m": ("UKF-M, the retraction of the same side",
               lambda system, case, updates: ukf_m(system, case.side)),
 }
 """The study's filters: name -> (description, factory(system, case, updates)); ``updates`` is the best
-second-order row's (:func:`better_updates`)."""
+second-order row's (:func:`better_updates`). A factory returns None where its filter does not apply to the
+system (a row "not applicable")."""
 
 
 # --- the systems ----------------------------------------------------------------------------------------------
@@ -543,6 +557,14 @@ def summary(case: Case, per_trial: dict) -> dict:
     return row
 
 
+def not_applicable(case: Case, runs: int) -> dict:
+    """The row of a filter that does not apply to the system."""
+    return {"runs": runs, "failed": 0, "failures": [], "attitude_deg": None, "position_m": None, "nees": None,
+            "dof": case.dof, "nees_band": list(chi2_bounds(case.dof, runs)), "nees_flag": None,
+            "status": "not applicable", "monitor_trials": [], "leak_trials": [], "monitor": "-", "leak": None,
+            "elapsed_s": 0.0}
+
+
 def better_updates(rows: dict) -> str:
     """The updates of the best second-order row present (:data:`SECOND_ORDER`): fewer failures, then a NEES
     closer to its dof (by ratio); ``"discrete"`` without any, or on a tie."""
@@ -589,9 +611,19 @@ def run_case(case: Case, filters: Sequence[str], runs: int, seed: int, progress:
             updates = better_updates(rows)
         t0 = time.perf_counter()
         flt = FILTERS[name][1](case.system, case, updates)
-        states = _stack([flt.init(jax.tree_util.tree_map(lambda a, i=i: a[i], g0s), case.K0) for i in range(runs)])
+        if flt is None:
+            rows[name] = not_applicable(case, runs)
+            continue
+        right = isinstance(flt.system, RightErrorSystem)
+        start = flt.system.state_of if right else lambda g, K: (g, K)
+        states = _stack([flt.init(*start(jax.tree_util.tree_map(lambda a, i=i: a[i], g0s), case.K0))
+                         for i in range(runs)])
         traj = flt.run_batch(states, case.ts, us, ys)
-        rows[name] = summary(case, evaluate(case, truth, traj))
+        seen = traj
+        if right:  # the estimates of the original system, and K of its left error
+            g_hat, K = flt.system.estimates_of(traj.g_hat, traj.K)
+            seen = SimpleNamespace(ts=traj.ts, g_hat=g_hat, K=K, status=traj.status)
+        rows[name] = summary(case, evaluate(case, truth, seen))
         rows[name]["monitor_trials"], rows[name]["leak_trials"] = monitor(flt, traj, case.ts, us, ys)
         rows[name]["monitor"] = monitor_cell(rows[name]["monitor_trials"])
         measured = [v for v in rows[name]["leak_trials"] if v is not None]

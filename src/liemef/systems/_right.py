@@ -1,0 +1,104 @@
+r"""The right error of a system: the same system with its state inverted, for filters that work in left coordinates.
+
+Every filter of liemef describes its uncertainty by the left error $\xi$, $g = \hat g\exp\xi$. The invariant EKF
+owes its consistency on some systems to the other choice, the right error $\eta$ with $\hat g g^{-1} = \exp\eta$:
+for a sensor that sees the world from the body (a landmark's range and bearing, a known field's direction), the
+output's Jacobian in $\eta$ does not depend on the estimate, so that a direction no sample observes gets no
+information from a linearization at the wrong place (docs/second-order.md, ``se2-near-rb``).
+
+:func:`right_error` gives a system whose state is $h = g^{-1}$. Its left error is the original's right error,
+$\hat h^{-1} h = \hat g g^{-1}$, so any filter of the library run on it works in right coordinates:
+
+* dynamics: $\dot g = g(\lambda + B\delta)$ gives $h^{-1}\dot h = -\mathrm{Ad}_{h^{-1}}(\lambda(h^{-1}, u, t) +
+  B\delta)$;
+* outputs: $h(h^{-1}, t)$, each sensor with its noise, residual, gate and robust loss unchanged;
+* process noise: $B' = -\mathrm{Ad}_{h^{-1}} B$ depends on the state, so its density on the algebra is
+  $\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$ (:meth:`RightErrorSystem.process_noise_at`), which
+  the filters evaluate at their estimate.
+
+:meth:`RightErrorSystem.state_of` turns an initial estimate and its left-error covariance into the inverted
+state's, and :meth:`RightErrorSystem.estimates_of` turns the inverted filter's estimates and K back:
+$\hat g = \hat h^{-1}$ and, from $\xi = -\mathrm{Ad}_{\hat g^{-1}}\eta$, $K_\xi = \mathrm{Ad}_{\hat h} K_\eta
+\mathrm{Ad}_{\hat h}^\top$. The simulator and the batch solvers need a constant process noise and refuse it:
+simulate the original system and invert its truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax.numpy as jnp
+
+from ..groups import LieGroup
+from ._sensors import Sensor, SensorSystem
+
+
+@dataclasses.dataclass(frozen=True)
+class _AtInverse:
+    """``fn(h^-1, t)``: a sensor's output at the inverted state (hashable: equal wrappers compile once)."""
+
+    fn: Callable
+
+    def __call__(self, h, t):
+        return self.fn(h.inverse(), t)
+
+
+@dataclasses.dataclass(frozen=True)
+class _InverseDynamics:
+    """$h^{-1}\\dot h = -\\mathrm{Ad}_{h^{-1}}\\lambda(h^{-1}, u, t)$."""
+
+    fn: Callable
+
+    def __call__(self, h, u, t):
+        g = h.inverse()
+        return -(g.Ad() @ jnp.asarray(self.fn(g, u, t), dtype=jnp.float64))
+
+
+def _inverted_sensor(s: Sensor) -> Sensor:
+    """``s`` with its output read at the inverted state; everything else (noise, gate, residual...) as it was."""
+    out = object.__new__(Sensor)
+    for f in dataclasses.fields(Sensor):
+        object.__setattr__(out, f.name, getattr(s, f.name))
+    object.__setattr__(out, "fn", _AtInverse(s.fn))
+    return out
+
+
+class RightErrorSystem(SensorSystem):
+    """A :class:`SensorSystem` on the inverted state $h = g^{-1}$ of ``base`` (module docstring): its left error
+    is the right error of ``base``. Build it with :func:`right_error`."""
+
+    base: SensorSystem
+
+    def __init__(self, base: SensorSystem):
+        if not isinstance(base, SensorSystem) or isinstance(base, RightErrorSystem):
+            raise ValueError(f"system: expected a SensorSystem (not already inverted), got {type(base).__name__}")
+        super().__init__(base.group, _InverseDynamics(base.dynamics_fn), [_inverted_sensor(s) for s in base.sensors],
+                         base.process_noise, base.noise_map, inputs=base.inputs, input_units=base.input_units)
+        self.base = base
+
+    def process_noise_at(self, g: LieGroup, BRB):
+        """$\\mathrm{Ad}_{h^{-1}} B R^{-1} B^\\top \\mathrm{Ad}_{h^{-1}}^\\top$ at the inverted state ``g`` = h."""
+        A = g.inverse().Ad()
+        return A @ BRB @ A.T
+
+    def state_of(self, g0: LieGroup, K0):
+        r"""The inverted state of the estimate ``g0`` with left-error covariance ``K0``: $(g_0^{-1},
+        \mathrm{Ad}_{g_0} K_0 \mathrm{Ad}_{g_0}^\top)$, to start a filter of this system with."""
+        A = g0.Ad()
+        return g0.inverse(), A @ jnp.asarray(K0, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
+
+    def estimates_of(self, h_hat: LieGroup, K):
+        r"""The estimates of ``base`` from this system's (any batch shape): $(\hat h^{-1}, \mathrm{Ad}_{\hat h} K
+        \mathrm{Ad}_{\hat h}^\top)$, K the covariance of the left error of ``base``."""
+        A = h_hat.Ad()
+        return h_hat.inverse(), A @ jnp.asarray(K, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
+
+
+def right_error(system: SensorSystem) -> RightErrorSystem:
+    """``system`` with its state inverted, so that a filter of it keeps the right error of ``system`` (module
+    docstring). ValueError for anything but a :class:`SensorSystem`."""
+    return RightErrorSystem(system)
+
+
+__all__ = ["RightErrorSystem", "right_error"]
