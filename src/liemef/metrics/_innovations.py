@@ -12,8 +12,15 @@ the interval, a sample sensor's per sample) and $J = \partial(y \ominus h)/\part
 $y - h$; for a direction on $S^2$ the projection onto the tangent plane, one degree of freedom less). When K
 is the covariance of the left error, $\epsilon_k$ is $\chi^2$ with the sensor's degrees of freedom. The
 monitor slides a window of the last $N$ present samples of each sensor along the run and flags the run where
-the window's mean leaves its ``prob`` band $\chi^2_{dN}((1 \mp p)/2)/N$ for a sustained time. The rules and
-the false-alarm rates measured are in the docs' page on the monitor (docs/innovations.md).
+the window's mean leaves its ``prob`` band $\chi^2_{dN}((1 \mp p)/2)/N$ for a sustained time.
+
+What the innovations cannot see, a K wrong along a direction no sensor observes, the linearization leak bounds:
+with $H_i$ the Hessian of output $i$ in the left coordinates at $\hat g_k$, $(N_k)_{ij} = \tfrac12
+\operatorname{tr}(H_i K_k H_j K_k)$ is the covariance that the output's quadratic term adds to the innovation under
+$\xi \sim N(0, K_k)$, and $\ell_k = \operatorname{tr}(S_k^{-1} N_k)$ is half a bound on the information that the
+sample's linearization at $\hat g_k$ rather than at the truth can give any direction, relative to what $K_k$ holds
+there. Summed over the same windows, a leak that stays at or above its limit makes a run "nonlinear". The rules,
+the derivation and the rates measured are in the docs' page on the monitor (docs/innovations.md).
 """
 
 from __future__ import annotations
@@ -111,13 +118,15 @@ def _manifold_nis(present, nu, S, J, N=None):
     r"""The NIS of a manifold-residual block over all samples, by NumPy: ``nu`` (M, d) against the
     pseudo-inverse of ``S`` (M, d, d) on the range of ``J`` (M, d, d), and the rank of ``J`` (the sample's
     degrees of freedom); NaN where the block is not present or the result not finite. With ``N`` (M, d, d), the
-    quadratic term's covariance, also the leak $\operatorname{tr}(S^+ J N J^\top)$: the part of the curvature
-    that moves the residual (not the part normal to a direction's sphere)."""
+    quadratic term's covariance in the residual's space, also the leak $\operatorname{tr}(S^+ P N P)$ with $P$
+    the orthogonal projector onto the range of $J$: the part of the curvature that moves the residual (not the
+    part normal to a direction's sphere)."""
     present, nu, S, J = (np.asarray(a) for a in (present, nu, S, J))
     finite = np.isfinite(S).all(axis=(1, 2)) & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(nu).all(axis=1)
     S, J, nu = (np.where(finite.reshape((-1,) + (1,) * (a.ndim - 1)), a, 0.0) for a in (S, J, nu))
-    s = np.linalg.svd(J, compute_uv=False)
-    rank = np.sum(s > 1e-6 * s.max(axis=1, keepdims=True), axis=1)
+    U, s, _ = np.linalg.svd(J)
+    kept = s > 1e-6 * s.max(axis=1, keepdims=True)
+    rank = np.sum(kept, axis=1)
     Sp = np.linalg.pinv(S, rcond=1e-9, hermitian=True)
     q = np.einsum("ni,nij,nj->n", nu, Sp, nu)
     q = np.where(present & finite & np.isfinite(q), q, np.nan)
@@ -125,7 +134,8 @@ def _manifold_nis(present, nu, S, J, N=None):
         return q, rank
     N = np.asarray(N)
     ok = finite & np.isfinite(N).all(axis=(1, 2))
-    ell = np.einsum("nij,njk,nkl,nil->n", Sp, J, np.where(ok[:, None, None], N, 0.0), J)
+    P = np.einsum("nik,nk,njk->nij", U, kept.astype(float), U)
+    ell = np.einsum("nij,njk,nkl,nli->n", Sp, P, np.where(ok[:, None, None], N, 0.0), P)
     return q, rank, np.where(present & ok & np.isfinite(ell), ell, np.nan)
 
 
@@ -164,8 +174,9 @@ def linearization_leak(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     $(N_k)_{ij} = \tfrac12 \operatorname{tr}(H_i K_k H_j K_k)$ and $H_i$ the Hessian of output $i$ in the left
     coordinates at $\hat g_k$, is the covariance of the output's quadratic term under $\xi \sim N(0, K_k)$; $2\ell_k$
     bounds the information that the sample's linearization at $\hat g_k$ rather than at the truth can give a
-    direction it does not observe, relative to what $K_k$ holds there (docs/innovations.md derives it). Same
-    arguments and checks as :func:`innovation_nis`."""
+    direction it does not observe, relative to what $K_k$ holds there (docs/innovations.md derives it). For a
+    sensor with its own residual, only the part of $N$ in the range of $J = \partial(y \ominus h)/\partial y$
+    counts. Same arguments and checks as :func:`innovation_nis`."""
     return _per_sample(flt, traj, ts, us, ys, leak=True)[2]
 
 
@@ -247,7 +258,8 @@ class SensorVerdict:
     leak_peak: float | None = None
     r"""The largest window's leak $\sum \ell_k$."""
     leak_median: float | None = None
-    """The median window's leak: the run's typical one, which an early transient from a large K0 does not move."""
+    """The median window's leak, each sample's counted up to the limit: the run's typical one, which an early
+    transient from a large K0 does not move."""
     leak_longest: tuple[float, float] | None = None
     """Start and end time of the longest run of windows whose leak reached ``leak_limit``."""
 
@@ -308,7 +320,8 @@ class InnovationReport:
                               "where the sum over the same windows of the linearization leak tr(S^-1 N) (N the "
                               "covariance of the output's quadratic term under N(0, K)) stays at or above `leak` "
                               "for `sustain_s` seconds",
-                "window": self.window, "prob": self.prob, "sustain": self.sustain, "leak": self.leak,
+                "window": self.window, "prob": self.prob, "sustain": self.sustain,
+                "leak": self.leak if math.isfinite(self.leak) else None,
                 "sensors": [s.as_dict() for s in self.sensors]}
 
     def message(self) -> str:
@@ -380,12 +393,18 @@ def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT
             longest = (float(tw[a]), float(tw[b]), "high" if side[a] > 0 else "low")
     leaks = {}
     if ell is not None:
-        e = np.nan_to_num(np.asarray(ell, dtype=np.float64)[ok], nan=0.0)  # a leak not computable counts as none
-        ce = np.concatenate([[0.0], np.cumsum(e)])
+        # a leak that cannot be computed where the NIS can (a Hessian that is not finite) counts as the limit.
+        # Each sample's leak enters the windows' verdicts and median clipped at the limit: that changes no verdict
+        # (one such sample puts its window at the limit), and the cumulative sum of the windows after a huge early
+        # leak (K0 far larger than the errors) stays exact. The peak is of the leaks as they are.
+        e = np.asarray(ell, dtype=np.float64)[ok]
+        e = np.where(np.isfinite(e), e, limit)
+        ce = np.concatenate([[0.0], np.cumsum(np.minimum(e, limit))])
         total = ce[N:] - ce[:-N]
+        cu = np.concatenate([[0.0], np.cumsum(e)])
         over = total >= limit
-        leaks = {"leak_limit": float(limit), "leak_peak": float(total.max()), "leak_median": float(np.median(total)),
-                 "leak_longest": None}
+        leaks = {"leak_limit": float(limit), "leak_peak": float(np.max(cu[N:] - cu[:-N])),
+                 "leak_median": float(np.median(total)), "leak_longest": None}
         for a, b in _excursions(over, np.ones(over.size), tw):
             if leaks["leak_longest"] is None or tw[b] - tw[a] > leaks["leak_longest"][1] - leaks["leak_longest"][0]:
                 leaks["leak_longest"] = (float(tw[a]), float(tw[b]))

@@ -551,10 +551,16 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     """
     from ..filters import MinimumEnergyFilter
     from ..metrics import angle_mask, continuous_angles, gain_stats, innovation_monitor, state_labels
+    from ..systems import RightErrorSystem
 
     if isinstance(source, str):
         source = resolve_system(source)
     system = source.system
+    if isinstance(system, RightErrorSystem):
+        raise ValueError("system: expected a system whose state is the one to estimate, got the right error of "
+                         f"a {type(system.base).__name__} (liemef.systems.right_error): its state is the inverse, and "
+                         "the run's x0, K0 and outputs would be of the inverse; filter it from Python, with "
+                         "state_of and estimates_of")
     n, c = system.group.tangent_dim, system.group.coords_dim
     if log_file is None:
         log_file = str(log) if isinstance(log, str | os.PathLike) else "<log>"
@@ -717,7 +723,7 @@ class SavedRun:
         if not run.ok:
             return lines
         if run.monitor is not None:
-            lines.append((run.monitor.message(), run.inconsistent))
+            lines.append((run.monitor.message(), run.inconsistent or run.nonlinear))
         return lines + [("Innovation y - h(g_hat) over the present samples:", False), (run.innovation_text, False),
                         (f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
                          f"{run.report['substeps_max']} in one)", False),
