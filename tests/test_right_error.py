@@ -12,6 +12,7 @@ original's right error.
 """
 
 import math
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -21,8 +22,9 @@ import pytest
 from liemef.groups import SE2, SE23
 from liemef.simulation import simulate
 from liemef.studies.compare._second_order import CASES, SecondOrderSuite, compare_second_order
+from liemef.studies.logs import LogSystem, filter_log
 from liemef.studies.optimum import batch_map
-from liemef.systems import RightErrorSystem, right_error
+from liemef.systems import Noise, RightErrorSystem, right_error
 from tolerances import ROUNDOFF
 
 SE2_CASE = CASES["se2-near-rb"][1](2.0)
@@ -106,3 +108,29 @@ def test_what_needs_a_constant_noise_map_refuses_it():
     with pytest.raises(ValueError, match="system: expected a SensorSystem"):
         right_error("se2")
     assert isinstance(right, RightErrorSystem) and right.base is SE2_CASE.system
+    # liemef run would read x0, K0 and write the outputs of the inverse: refused
+    log = SimpleNamespace(ts=ts, us=np.zeros((5, 3)), ys=np.full((5, 2), np.nan))
+    with pytest.raises(ValueError, match="system: expected a system whose state is the one to estimate"):
+        filter_log(LogSystem(right, "right", "the right error"), log, x0=np.zeros(3))
+
+
+def test_new_noise_levels_keep_the_inverted_base():
+    """with_noise on the right error is the right error of the base with that noise: the same structure (one
+    compilation), the base's and its own B alike."""
+    right = right_error(SE2_CASE.system)
+    louder = right.with_noise(process_noise=Noise.sample([0.5, 0.5, 0.5], rate=100.0))
+    assert isinstance(louder, RightErrorSystem)
+    np.testing.assert_array_equal(louder.B, louder.base.B)
+    assert float(louder.B[0, 0]) > float(right.B[0, 0])
+    assert jax.tree_util.tree_structure(louder) == jax.tree_util.tree_structure(right)
+
+
+def test_a_filter_of_sensor_systems_is_not_applicable_to_a_papers_system():
+    from liemef.studies.compare._second_order import FILTERS, not_applicable, table_rows
+
+    tse2 = CASES["tse2"][1](1.0)
+    assert FILTERS["mef-hold-right"][1](tse2.system, tse2, "hold") is None
+    row = not_applicable(tse2, 5)
+    result = {"cases": {"tse2": {"filters": {"mef-hold-right": row}, "first_order_updates": "hold", "side": "left"}}}
+    assert table_rows(result) == [["tse2", "mef-hold-right", "not applicable", "-", "-", "-", "6", "3.36-9.4", "-",
+                                   "-", "-"]]

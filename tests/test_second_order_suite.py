@@ -168,3 +168,11 @@ def test_the_full_suite():
         d = r["mef-hold-safe"]
         if d["status"] == "ok" and d["nees_flag"] == "far above" and name != "se2-near-rb":
             assert "consistent" not in d["monitor_trials"], (name, d["monitor_trials"])
+    # and so for every far-above row of the first order, the invariant EKF and the UKF-M on the SE_2(3) systems
+    for name in ("quad-range", "quad-altimeter", "ins-baro-mag"):
+        for f in ("mef-first", "mef-first-hold", "mef-first-iterated", "iekf", "ukf-m"):
+            r = rows[name][f]
+            if r["nees_flag"] == "far above":
+                assert "consistent" not in r["monitor_trials"], (name, f, r["monitor_trials"])
+    # the right error keeps K on the near landmark, where the default in left coordinates is far above
+    assert rows["se2-near-rb"]["mef-hold-right"]["nees_flag"] == "within"

@@ -3,8 +3,9 @@ r"""The right error of a system: the same system with its state inverted, for fi
 Every filter of liemef describes its uncertainty by the left error $\xi$, $g = \hat g\exp\xi$. The invariant EKF
 owes its consistency on some systems to the other choice, the right error $\eta$ with $\hat g g^{-1} = \exp\eta$:
 for a sensor that sees the world from the body (a landmark's range and bearing, a known field's direction), the
-output's Jacobian in $\eta$ does not depend on the estimate, so that a direction no sample observes gets no
-information from a linearization at the wrong place (docs/second-order.md, ``se2-near-rb``).
+null space of the output's Jacobian in $\eta$, the directions the sensor does not observe, does not depend on the
+estimate, so that such a direction gets no information from a linearization at the wrong place
+(docs/second-order.md, ``se2-near-rb``).
 
 :func:`right_error` gives a system whose state is $h = g^{-1}$. Its left error is the original's right error,
 $\hat h^{-1} h = \hat g g^{-1}$, so any filter of the library run on it works in right coordinates:
@@ -76,6 +77,14 @@ class RightErrorSystem(SensorSystem):
         super().__init__(base.group, _InverseDynamics(base.dynamics_fn), [_inverted_sensor(s) for s in base.sensors],
                          base.process_noise, base.noise_map, inputs=base.inputs, input_units=base.input_units)
         self.base = base
+
+    def with_noise(self, **levels) -> RightErrorSystem:
+        """The right error of ``base.with_noise(**levels)``: the base system stays the one inverted."""
+        return RightErrorSystem(self.base.with_noise(**levels))
+
+    def with_scale_params(self, **params) -> RightErrorSystem:
+        """The right error of ``base.with_scale_params(**params)``."""
+        return RightErrorSystem(self.base.with_scale_params(**params))
 
     def process_noise_at(self, g: LieGroup, BRB):
         """$\\mathrm{Ad}_{h^{-1}} B R^{-1} B^\\top \\mathrm{Ad}_{h^{-1}}^\\top$ at the inverted state ``g`` = h."""

@@ -65,7 +65,7 @@ from ...systems import (
 from ...systems import attitude_bias as ab
 from ._common import check_counts, fmt, nees_flag, parse_names
 
-SCHEMA = "liemef.compare.second-order/1"
+SCHEMA = "liemef.compare.second-order/2"
 MONITOR_STATUSES = ("inconsistent", "nonlinear", "consistent", "not applicable")
 """The innovation monitor's statuses (:func:`liemef.metrics.innovation_monitor`), in the order the table counts
 them."""
