@@ -41,24 +41,28 @@ def test_the_dynamics_and_noise_are_the_inverted_flows(case):
     dynamics at h, and its derivative in delta gives B' with B' R^-1 B'^T = process_noise_at(h) (autodiff of the
     flow, to round-off)."""
     base, right = case.system, right_error(case.system)
-    rng = np.random.default_rng(3)
-    for seed in range(3):
-        g = _random(base.group, seed)
-        h = g.inverse()
-        u, t = jnp.asarray(rng.normal(size=base.input_dim)), jnp.asarray(0.3)
-        lam = base.dynamics(g, u, t)
+    BRB = base.B @ jnp.linalg.solve(base.R, base.B.T)
 
-        def flow(s, d, g=g, lam=lam):  # log(h^-1 h(s)) with h^-1 = g
+    @jax.jit
+    def both(g, u, t):
+        """The flow's derivatives at 0 and the right error's own, in one compiled program."""
+        h, lam, d0 = g.inverse(), base.dynamics(g, u, t), jnp.zeros(base.B.shape[1])
+
+        def flow(s, d):  # log(h^-1 h(s)) with h^-1 = g
             return (g @ g.rplus(s * (lam + base.B @ d)).inverse()).log()
 
-        d0 = jnp.zeros(base.B.shape[1])
-        np.testing.assert_allclose(jax.jacfwd(flow)(0.0, d0), right.dynamics(h, u, t), atol=ROUNDOFF * 10)
-        Bp = jax.jacfwd(lambda d, flow=flow: jax.jacfwd(flow)(0.0, d))(d0)
-        BRB = base.B @ jnp.linalg.solve(base.R, base.B.T)
-        np.testing.assert_allclose(Bp @ jnp.linalg.solve(base.R, Bp.T), right.process_noise_at(h, BRB),
-                                   atol=ROUNDOFF * 10 * float(jnp.max(jnp.abs(BRB))))
-        np.testing.assert_allclose(right.output(h, t), base.output(g, t), rtol=ROUNDOFF, atol=ROUNDOFF)
-        assert right.constant_process_noise is False and base.constant_process_noise is True
+        Bp = jax.jacfwd(lambda d: jax.jacfwd(flow)(0.0, d))(d0)
+        return (jax.jacfwd(flow)(0.0, d0), right.dynamics(h, u, t), Bp @ jnp.linalg.solve(base.R, Bp.T),
+                right.process_noise_at(h, BRB), right.output(h, t), base.output(g, t))
+
+    rng = np.random.default_rng(3)
+    for seed in range(3):
+        u, t = jnp.asarray(rng.normal(size=base.input_dim)), jnp.asarray(0.3)
+        lam_flow, lam_right, Q_flow, Q_right, y_right, y = both(_random(base.group, seed), u, t)
+        np.testing.assert_allclose(lam_flow, lam_right, atol=ROUNDOFF * 10)
+        np.testing.assert_allclose(Q_flow, Q_right, atol=ROUNDOFF * 10 * float(jnp.max(jnp.abs(BRB))))
+        np.testing.assert_allclose(y_right, y, rtol=ROUNDOFF, atol=ROUNDOFF)
+    assert right.constant_process_noise is False and base.constant_process_noise is True
     assert right.blocks() == base.blocks() and right.output_names == base.output_names
     np.testing.assert_array_equal(right.information(), base.information())
 
