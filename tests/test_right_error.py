@@ -11,7 +11,6 @@ original's right error.
 * What needs a constant noise map refuses it, naming the argument.
 """
 
-import math
 from types import SimpleNamespace
 
 import jax
@@ -87,17 +86,15 @@ def test_state_of_and_estimates_of_map_the_errors_exactly():
 def test_the_right_error_keeps_k_where_no_sample_observes():
     """The second-order suite's near landmark, 5 trials of 20 s from 60 deg off: the default filter keeps the left
     error with a NEES of 113 for 3 dof (band 1.25-5.5) and the same filter of the right error 2.77, within it
-    (the invariant EKF of the right error: 3.24). On bearings to 3 landmarks, which observe every direction, the
-    two agree (3.88 and 3.88)."""
-    result = compare_second_order(SecondOrderSuite(runs=5, duration=20.0, systems="se2-near-rb,se2-bearing",
+    (the invariant EKF of the right error: 3.24). Where every direction is observed the two agree (the slow
+    full-suite test checks bearings to 3 landmarks: 3.88 and 3.88)."""
+    result = compare_second_order(SecondOrderSuite(runs=5, duration=20.0, systems="se2-near-rb",
                                                    filters="mef-hold-safe,mef-hold-right"), progress=False)
-    near, bearing = (result["cases"][s]["filters"] for s in ("se2-near-rb", "se2-bearing"))
+    near = result["cases"]["se2-near-rb"]["filters"]
     print({k: (r["nees"], r["attitude_deg"]) for k, r in near.items()})
     assert near["mef-hold-safe"]["nees_flag"] == "far above"
     assert near["mef-hold-right"]["status"] == "ok" and near["mef-hold-right"]["nees_flag"] == "within"
     assert near["mef-hold-right"]["attitude_deg"] <= near["mef-hold-safe"]["attitude_deg"]
-    assert math.isclose(bearing["mef-hold-right"]["nees"], bearing["mef-hold-safe"]["nees"], rel_tol=0.05)
-    assert math.isclose(bearing["mef-hold-right"]["position_m"], bearing["mef-hold-safe"]["position_m"], rel_tol=0.05)
 
 
 def test_what_needs_a_constant_noise_map_refuses_it():

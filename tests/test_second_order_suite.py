@@ -176,3 +176,8 @@ def test_the_full_suite():
                 assert "consistent" not in r["monitor_trials"], (name, f, r["monitor_trials"])
     # the right error keeps K on the near landmark, where the default in left coordinates is far above
     assert rows["se2-near-rb"]["mef-hold-right"]["nees_flag"] == "within"
+    # and is the default where every direction is observed
+    for name in ("se2-bearing", "se2-range"):
+        r, d = rows[name]["mef-hold-right"], rows[name]["mef-hold-safe"]
+        assert math.isclose(r["nees"], d["nees"], rel_tol=0.05) and math.isclose(r["position_m"], d["position_m"],
+                                                                                 rel_tol=0.05), name
