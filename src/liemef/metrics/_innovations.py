@@ -79,6 +79,8 @@ def _nis_one(flt, g, K, t, dt, y, leak):
     sample = jnp.asarray(flt.sample, dtype=bool)
     # the information in force and the sample's own noise as the filter's gates read them (filters._base)
     Wy = flt._adapted(information_in_force(flt.weights.Wy, sample, mask, dt, diagonal=flt.diagonal), y0)
+    # forward over forward (not jax.hessian's reverse inside): an output linear in the coordinates gets a leak of
+    # exactly 0
     seen = lambda xi: system.output_seen_from(y0, g.rplus(xi), t)  # noqa: E731
     zero = jnp.zeros(type(g).tangent_dim)
     h0, F = seen(zero), jax.jacfwd(seen)(zero)
@@ -354,7 +356,7 @@ class InnovationReport:
         return "Innovation monitor: NONLINEAR: " + "; ".join(curved)
 
 
-def _excursions(out, side, t):
+def _excursions(out, side):
     """The runs of consecutive True in ``out`` with one ``side`` each: (start, end) indices."""
     runs, start = [], None
     for j in range(out.size + 1):
@@ -365,6 +367,19 @@ def _excursions(out, side, t):
         if here and start is None:
             start = j
     return runs
+
+
+def _longest(out, side, tw) -> tuple[int, int] | None:
+    """The (start, end) indices of the longest excursion of ``out`` (:func:`_excursions`) in the windows' times
+    ``tw``; None without any."""
+    runs = _excursions(out, side)
+    return max(runs, key=lambda r: tw[r[1]] - tw[r[0]]) if runs else None
+
+
+def _window_sums(x, N: int):
+    """The sums of ``x`` over every window of ``N`` consecutive samples."""
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    return c[N:] - c[:-N]
 
 
 def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT) -> SensorVerdict:
@@ -381,16 +396,13 @@ def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT
     span = N / rate
     hold = SUSTAIN_WINDOWS * span if sustain is None else sustain
     lo, hi = chi2_bounds(dof, N, prob)
-    c = np.concatenate([[0.0], np.cumsum(q)])
-    mean = (c[N:] - c[:-N]) / N
+    mean = _window_sums(q, N) / N
     tw = t[N - 1:]  # a window's time: its last sample's
     out = (mean < lo) | (mean > hi)
     side = np.where(mean > hi, 1, -1)
     first = float(tw[np.argmax(out)]) if out.any() else None
-    longest = None
-    for a, b in _excursions(out, side, tw):
-        if longest is None or tw[b] - tw[a] > longest[1] - longest[0]:
-            longest = (float(tw[a]), float(tw[b]), "high" if side[a] > 0 else "low")
+    run = _longest(out, side, tw)
+    longest = None if run is None else (float(tw[run[0]]), float(tw[run[1]]), "high" if side[run[0]] > 0 else "low")
     leaks = {}
     if ell is not None:
         # a leak that cannot be computed where the NIS can (a Hessian that is not finite) counts as the limit.
@@ -399,15 +411,11 @@ def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT
         # leak (K0 far larger than the errors) stays exact. The peak is of the leaks as they are.
         e = np.asarray(ell, dtype=np.float64)[ok]
         e = np.where(np.isfinite(e), e, limit)
-        ce = np.concatenate([[0.0], np.cumsum(np.minimum(e, limit))])
-        total = ce[N:] - ce[:-N]
-        cu = np.concatenate([[0.0], np.cumsum(e)])
-        over = total >= limit
-        leaks = {"leak_limit": float(limit), "leak_peak": float(np.max(cu[N:] - cu[:-N])),
-                 "leak_median": float(np.median(total)), "leak_longest": None}
-        for a, b in _excursions(over, np.ones(over.size), tw):
-            if leaks["leak_longest"] is None or tw[b] - tw[a] > leaks["leak_longest"][1] - leaks["leak_longest"][0]:
-                leaks["leak_longest"] = (float(tw[a]), float(tw[b]))
+        total = _window_sums(np.minimum(e, limit), N)
+        run = _longest(total >= limit, np.ones(total.size), tw)
+        leaks = {"leak_limit": float(limit), "leak_peak": float(np.max(_window_sums(e, N))),
+                 "leak_median": float(np.median(total)),
+                 "leak_longest": None if run is None else (float(tw[run[0]]), float(tw[run[1]]))}
     return SensorVerdict(name, dof, int(t.size), window=N, span=float(span), band=(lo, hi), windows=int(mean.size),
                          fraction_out=float(out.mean()), first_out=first, longest=longest, sustain=float(hold),
                          mean_nis=float(q.mean()), **leaks)
