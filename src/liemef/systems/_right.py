@@ -29,7 +29,9 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..groups import LieGroup
 from ._sensors import Sensor, SensorSystem
@@ -104,10 +106,101 @@ class RightErrorSystem(SensorSystem):
         return h_hat.inverse(), A @ jnp.asarray(K, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
 
 
+SIDES = ("left", "right", "both", "neither")
+"""What :func:`invariant_sides` says of a sensor: in which error coordinates the directions it observes do not
+depend on the state."""
+
+
+def _row_space(J: np.ndarray, rtol: float = 1e-9) -> np.ndarray | None:
+    """An orthonormal basis (r x n) of the row space of ``J``; None where ``J`` is not finite."""
+    if not np.all(np.isfinite(J)):
+        return None
+    _, s, Vt = np.linalg.svd(J)
+    return Vt[: int(np.sum(s > rtol * max(s.max(initial=0.0), 1e-300)))]
+
+
+def _same_space(bases: list[np.ndarray], tol: float) -> bool:
+    """Whether the row spaces ``bases`` are one space: equal ranks, and each inside the first to ``tol`` (the
+    largest sine of their principal angles)."""
+    V0 = bases[0]
+    P0 = V0.T @ V0
+    for V in bases[1:]:
+        if V.shape != V0.shape:
+            return False
+        if V.size and np.linalg.norm(V - V @ P0, 2) > tol:
+            return False
+    return True
+
+
+def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol: float = 1e-6) -> dict[str, str]:
+    r"""Per sensor of ``system`` (by name): ``"left"``, ``"right"``, ``"both"`` or ``"neither"``, the error
+    coordinates in which the directions the sensor observes (the row space of its output's Jacobian) are the same
+    at every state.
+
+    A sensor of the world seen from the body (a landmark's range and bearing, a known field's direction,
+    $y = g^{-1}b$) observes fixed directions of the right error $\eta$ ($g = \exp(\eta)\hat g$): its Jacobian
+    there is an invertible map of the output times a constant matrix, so a linearization at a wrong estimate
+    gives no information along what it does not observe. A sensor of the body seen from the world (a position
+    fix, $y = g b$) does the same in the left error $\xi$ ($g = \hat g\exp\xi$) (Barrau and Bonnabel 2017).
+    A sensor that observes every direction, or none, is ``"both"``; one that is curved in both (an altimeter's
+    $p_z$ on $SE_2(3)$, whose rows turn with the attitude in one and with the position in the other),
+    ``"neither"``.
+
+    Measured, not declared: the Jacobians at the identity and at ``states`` random states $\exp\zeta$,
+    $\zeta \sim N(0, I)$ (``seed``), at t = 0, their row spaces compared to ``tol`` (the largest sine of the
+    principal angles). States where a sensor's output is not finite are skipped; a sensor finite at fewer than
+    two is ``"neither"``."""
+    if not isinstance(system, SensorSystem):
+        raise ValueError(f"system: expected a SensorSystem, got {type(system).__name__}")
+    G = system.group
+    n = G.tangent_dim
+    zetas = np.vstack([np.zeros(n), np.random.default_rng(seed).standard_normal((states, n))])
+    points = G.exp(jnp.asarray(zetas))
+    zero, t = jnp.zeros(n), jnp.asarray(0.0)
+    moves = {"left": lambda g, e: g.rplus(e), "right": lambda g, e: G.exp(e) @ g}
+    out = {}
+    for s in system.sensors:
+        verdict = {}
+        for side, move in moves.items():
+            # every state at once (one pass of JAX's eager dispatch, not one per state)
+            Js = np.asarray(jax.vmap(lambda g, s=s, move=move: jax.jacfwd(lambda e: s.fn(move(g, e), t))(zero))(
+                points), np.float64).reshape(len(zetas), -1, n)
+            bases = [b for b in map(_row_space, Js) if b is not None]
+            verdict[side] = len(bases) >= 2 and _same_space(bases, tol)
+        out[s.name] = ("both" if verdict["left"] and verdict["right"] else "left" if verdict["left"]
+                       else "right" if verdict["right"] else "neither")
+    return out
+
+
+def natural_error(system) -> str:
+    """``"right"`` where some sensor of ``system`` observes fixed directions of the right error only and none
+    observes fixed directions of the left error only (:func:`invariant_sides`); ``"left"`` otherwise, and for a
+    system that is not a :class:`SensorSystem` (the papers' systems, whose filters the papers write in the left
+    error). The side a filter's ``error="auto"`` takes."""
+    if not isinstance(system, SensorSystem) or isinstance(system, RightErrorSystem):
+        return "left"
+    # the verdict depends on the group and the output functions only: kept per (group, functions), as a new
+    # weight set of the same system must not measure again
+    key = (system.group, tuple((s.name, s.fn) for s in system.sensors))
+    try:
+        cached = _NATURAL.get(key)
+    except TypeError:  # an output function that cannot be hashed: measured each time
+        key = cached = None
+    if cached is None:
+        sides = set(invariant_sides(system).values())
+        cached = "right" if "right" in sides and "left" not in sides else "left"
+        if key is not None:
+            _NATURAL[key] = cached
+    return cached
+
+
+_NATURAL: dict = {}
+
+
 def right_error(system: SensorSystem) -> RightErrorSystem:
     """``system`` with its state inverted, so that a filter of it keeps the right error of ``system`` (module
     docstring). ValueError for anything but a :class:`SensorSystem`."""
     return RightErrorSystem(system)
 
 
-__all__ = ["RightErrorSystem", "right_error"]
+__all__ = ["RightErrorSystem", "right_error", "invariant_sides", "natural_error", "SIDES"]
