@@ -20,3 +20,6 @@ UPDATES = ("hold", "discrete")
 """How a sample-meaning measurement enters: ``"hold"`` (its information spread over the interval after its time
 stamp, the papers' zero-order hold) or ``"discrete"`` (used at its own time: the hybrid minimum-energy filter's
 update, :mod:`liemef.filters._update`)."""
+ERROR_SIDES = ("auto", "left", "right")
+"""The minimum-energy filter's error coordinates (``MinimumEnergyFilter(error=...)``): chosen from the sensors
+(:func:`liemef.systems.natural_error`), the left error (Theorem 4.1's) or the right error."""

@@ -13,13 +13,14 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mm, mv
-from .._names import INTERPOLATIONS, ORDERS, UPDATES
+from .._names import ERROR_SIDES, INTERPOLATIONS, ORDERS, UPDATES
 from ..connections import Connection, ConnectionFunction
 from ..connections import connection as make_connection
 from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
-from ..systems import AbstractSystem
+from ..systems import AbstractSystem, RightErrorSystem, SensorSystem
+from ..systems._right import natural_error
 from ._base import AbstractFilter, FilterState, sensor_layout
 from ._derivatives import left_jacobian, refuse_state_while_in_outputs
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
@@ -78,6 +79,14 @@ class MinimumEnergyFilter(AbstractFilter):
             bit for bit, inside that band); the connection term W, which grows with the same residual, is 0.
             ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their reproductions use).
             Ignored by the first order.
+        error: the error coordinates the filter's terms and K are written in. ``"left"``: the left error $\xi$,
+            $g = \hat g\exp\xi$, Theorem 4.1's (the papers' filter). ``"right"``: the right error $\eta$,
+            $g = \exp(\eta)\hat g$, by running Theorem 4.1 on the system's inverted state
+            (:func:`liemef.systems.right_error`; sensor systems only). ``"auto"`` (the default): ``"right"`` where
+            the system's sensors observe fixed directions of the right error and none observes fixed directions of
+            the left error only (a landmark's range and bearing, a known field's direction), else ``"left"``
+            (:func:`liemef.systems.natural_error`, docs/second-order.md). Whatever the side, the state's K is the
+            covariance of the left error, as every filter of the library keeps it.
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -103,6 +112,8 @@ class MinimumEnergyFilter(AbstractFilter):
     updates: str = eqx.field(static=True, default="hold")
     iterations: int = eqx.field(static=True, default=1)
     curvature: str = eqx.field(static=True, default="safe")
+    error: str = eqx.field(static=True, default="left")
+    right: RightErrorSystem | None = None
     tol: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(1e-14))
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
@@ -111,7 +122,8 @@ class MinimumEnergyFilter(AbstractFilter):
                  substeps: Literal["auto"] | int = "auto", max_substeps: int = 256,
                  constant_E: Literal["weighted", "unit"] = "weighted",
                  updates: Literal["hold", "discrete"] = "hold", iterations: int | None = None,
-                 tol: float = 1e-14, curvature: Literal["exact", "safe"] = "safe"):
+                 tol: float = 1e-14, curvature: Literal["exact", "safe"] = "safe",
+                 error: Literal["auto", "left", "right"] = "auto"):
         if not isinstance(system, AbstractSystem):
             raise ValueError(f"system: expected a liemef system (AbstractSystem), got {type(system).__name__}")
         _validate.choice("order", order, set(ORDERS))
@@ -131,6 +143,15 @@ class MinimumEnergyFilter(AbstractFilter):
         self.tol = jnp.asarray(_validate.nonnegative("tol", tol))
         if order == "second":  # its Hessian of each output: a while_loop there is refused now, by name
             refuse_state_while_in_outputs(system)
+        _validate.choice("error", error, set(ERROR_SIDES))
+        if error == "right" and not isinstance(system, SensorSystem):
+            raise ValueError(f"error: 'right' needs a SensorSystem (its right error is a sensor system), got "
+                             f"{type(system).__name__}; use error='left'")
+        if isinstance(system, RightErrorSystem) and error == "right":
+            raise ValueError(f"error: a RightErrorSystem is already the right error of its base; expected "
+                             f"error='left' (or the base system with error='right'), got {error!r}")
+        self.error = natural_error(system) if error == "auto" else error
+        self.right = RightErrorSystem(system) if self.error == "right" else None
         self.system = system
         self.connection = make_connection(connection, system.group)
         self.order = order
@@ -147,13 +168,32 @@ class MinimumEnergyFilter(AbstractFilter):
     def __repr__(self) -> str:
         updates = f", updates={self.updates!r}" if self.updates != "hold" else ""
         updates += f", curvature={self.curvature!r}" if self.curvature != "safe" else ""
+        updates += f", error={self.error!r}" if self.error != "left" else ""
         return (f"MinimumEnergyFilter({type(self.system).__name__}, connection={self.connection.name!r}, "
                 f"order={self.order!r}, integrator={self.integrator.name!r}, alpha={float(self.alpha)}{updates}"
                 + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))
 
+    # --- the error coordinates ------------------------------------------------------------------------------
+    @property
+    def _model(self) -> AbstractSystem:
+        """The system Theorem 4.1 runs on: ``system``, or its right error (``error="right"``)."""
+        return self.system if self.right is None else self.right
+
+    def _to_model(self, g, K):
+        """``(g_hat, K)`` of the system's left error in the model's coordinates (the identity for ``"left"``)."""
+        return (g, K) if self.right is None else self.right.state_of(g, K)
+
+    def _from_model(self, g, K):
+        """The model's ``(g_hat, K)`` back to the system's left error, K kept exactly symmetric where it must be."""
+        if self.right is None:
+            return g, K
+        g, K = self.right.estimates_of(g, K)
+        return g, jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
+
     # --- the mathematics ----------------------------------------------------------------------------------
     def _terms(self, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
-        tm = terms(self.system, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs,
+        """Theorem 4.1's terms at ``(g_hat, K)`` in the model's coordinates (:attr:`_model`)."""
+        tm = terms(self._model, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs,
                    self.curvature == "safe")
         if self.constant_E == "weighted":
             return tm
@@ -168,11 +208,13 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def terms(self, g_hat: LieGroup, K: ArrayLike, u: ArrayLike, y: ArrayLike, t: float = 0.0, *,
               dt: float | None = None) -> Terms:
-        """r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
+        r"""r, A, E, W and B R^{-1} B^T of Theorem 4.1 at a state, to compare with the papers' printed forms.
 
         A NaN in ``y`` is a missing component; sample-meaning sensors need the interval ``dt`` their sample is
         spread over. ``K`` may be any finite n x n matrix (not only a gain a run can reach: the closed-form tests
-        evaluate the terms at random K); ``t`` and ``dt`` must be finite."""
+        evaluate the terms at random K); ``t`` and ``dt`` must be finite. ``g_hat`` and ``K`` are the system's
+        (K of its left error); the terms are those of the filter's coordinates: with ``error="right"``, of
+        :func:`~liemef.systems.right_error` at $\hat g^{-1}$ and $\mathrm{Ad}_{\hat g} K \mathrm{Ad}_{\hat g}^\top$."""
         self._check_element("g_hat", g_hat)
         K = _validate.square("K", K, self.n)  # any finite K: the terms are polynomials in it
         t = _validate.real("t", t)
@@ -186,21 +228,30 @@ class MinimumEnergyFilter(AbstractFilter):
         weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
                                                   diagonal=self.diagonal),
                           BRB=self.weights.BRB)
-        return self._terms(weights, g_hat, jnp.asarray(K), u, jnp.where(mask, y, 0.0), jnp.asarray(t))
+        return self._terms(weights, *self._to_model(g_hat, jnp.asarray(K)), u, jnp.where(mask, y, 0.0),
+                           jnp.asarray(t))
 
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;
-        traceable)."""
-        tm = self._terms(self.weights, g_hat, K, u, y, t)
-        return tm.lam + mv(K, tm.r), riccati_rhs(tm, K, self.alpha)
+        traceable), K the covariance of the left error. With ``error="right"`` the filter's flow
+        $(v, \dot K_\eta)$ of $\hat h = \hat g^{-1}$ maps back by $\hat g^{-1}\dot{\hat g} = -\mathrm{Ad}_{\hat h} v$
+        and $\dot K = \mathrm{Ad}_{\hat h}(\dot K_\eta + \mathrm{ad}_v K_\eta + K_\eta\mathrm{ad}_v^\top)
+        \mathrm{Ad}_{\hat h}^\top$ (from $K = \mathrm{Ad}_{\hat h} K_\eta \mathrm{Ad}_{\hat h}^\top$)."""
+        h, Kh = self._to_model(g_hat, K)
+        tm = self._terms(self.weights, h, Kh, u, y, t)
+        v, K_dot = tm.lam + mv(Kh, tm.r), riccati_rhs(tm, Kh, self.alpha)
+        if self.right is None:
+            return v, K_dot
+        A, ad = h.Ad(), type(h).ad(v)
+        return -mv(A, v), mm(A, mm(K_dot + mm(ad, Kh) + mm(Kh, ad.T), A.T))
 
     # --- the update at a sample's time (the hybrid filter's, and update's) -----------------------------------
     def _sample_update(self, g, K, t, y0, W):
-        """``(g_hat, K)`` after the sample ``y0`` of per-sample information ``W`` (zero rows and columns where
-        missing): :func:`~liemef.filters.sample_update` with the filter's iterations, order, curvature and tol;
-        K kept exactly symmetric where it must be."""
+        """``(g_hat, K)`` (in the model's coordinates) after the sample ``y0`` of per-sample information ``W``
+        (zero rows and columns where missing): :func:`~liemef.filters.sample_update` with the filter's
+        iterations, order, curvature and tol; K kept exactly symmetric where it must be."""
         def update(gK):
-            g2, K2, _ = sample_update(lambda gg: self.system.output_seen_from(y0, gg, t), *gK, y0, W,
+            g2, K2, _ = sample_update(lambda gg: self._model.output_seen_from(y0, gg, t), *gK, y0, W,
                                       iterations=self.iterations, newton=self.order == "second",
                                       safe=self.curvature == "safe", tol=self.tol)
             return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
@@ -211,13 +262,14 @@ class MinimumEnergyFilter(AbstractFilter):
 
     def _prior_output(self, state: FilterState, t, y0):
         r"""The output as seen from ``y0`` at the estimate and $Dh\,K\,Dh^\top$ (Dh its left Jacobian): the gates'
-        and the log-likelihood's innovation and covariance from the state."""
+        and the log-likelihood's innovation and covariance from the state (the same in either error coordinates:
+        the linearization is one map, written in two)."""
         K = state.K
         h0, Dh = left_jacobian(lambda gg: self.system.output_seen_from(y0, gg, t), state.g_hat)
         return h0, mm(Dh, mm(0.5 * (K + K.T), Dh.T)), None
 
     def _correct(self, state: FilterState, t, y0, mask, W, prior):
-        return self._sample_update(state.g_hat, state.K, t, y0, W)
+        return self._from_model(*self._sample_update(*self._to_model(state.g_hat, state.K), t, y0, W))
 
     # --- one sample interval --------------------------------------------------------------------------------
     def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
@@ -242,6 +294,7 @@ class MinimumEnergyFilter(AbstractFilter):
                 W_sample = W_sample * root
         else:
             rejected, consecutive = st.rejected, st.consecutive
+        g, K = self._to_model(g, K)  # the interval in the model's coordinates; the state's are the system's
         if discrete:
             g, K = self._sample_update(g, K, t, y0, W_sample)
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
@@ -326,5 +379,6 @@ class MinimumEnergyFilter(AbstractFilter):
                 g1, K1 = jax.lax.fori_loop(1, self.substeps, lambda j, gK: self.integrator.step(f, *gK, t + j * h, h),
                                            (g1, K1))
 
+        g1, K1 = self._from_model(g1, K1)
         return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
                             consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
