@@ -155,8 +155,8 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 @_command(cli, "run")
 def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
-            alpha, interpolation, updates, curvature, substeps, gap, chunk, params_file, settings, monitor, force,
-            progress):
+            alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings, monitor,
+            force, progress):
     from .studies import logs
 
     saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
@@ -164,7 +164,7 @@ def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k
                                params=params_file, settings=settings, x0=_floats(x0, "'--x0'"),
                                K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
                                force=force, connection=connection, order=order, alpha=alpha,
-                               interpolation=interpolation, updates=updates, curvature=curvature,
+                               interpolation=interpolation, updates=updates, curvature=curvature, error=error,
                                substeps=_substeps(substeps), gap=gap,
                                chunk=chunk, progress=progress, monitor=monitor)
     _echo(saved)

@@ -165,6 +165,10 @@ RUN = Command(
         option("--curvature", type=choice(("safe", "exact")), default="safe", show_default=True,
                help="The outputs' second-order term: safe (kept where it lowers the Gauss-Newton information, never "
                "below zero; dropped elsewhere) or exact (Theorem 4.1's, the papers' filter)."),
+        option("--error", type=choice(_names.ERROR_SIDES), default="auto", show_default=True,
+               help="The error coordinates of the filter: auto (the right error where a sensor sees the world from "
+               "the body, a landmark or a field's direction, and none is a position fix; else the left), left "
+               "(Theorem 4.1's) or right. K is written as the left error's covariance either way."),
         SUBSTEPS,
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),

@@ -536,8 +536,8 @@ class LogRun:
 
 def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
                alpha: float = 0.0, interpolation: str = "hold", updates: str = "hold", substeps: int | str = "auto",
-               curvature: str = "safe", gap: float | None = None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
-               log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
+               curvature: str = "safe", error: str = "auto", gap: float | None = None, chunk: int = DEFAULT_CHUNK,
+               progress: bool = False, log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
     log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
 
@@ -580,7 +580,7 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
         raise ValueError(f"{what}: expected the coordinates of an element of {system.group.__name__}, got "
                          f"{q0.tolist()}; {problem}")
     flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, interpolation=interpolation,
-                              substeps=substeps, updates=updates, curvature=curvature)
+                              substeps=substeps, updates=updates, curvature=curvature, error=error)
     state = flt.init(g0, K0)
     if gap is None:
         gap = 10.0 * float(np.median(np.diff(log.ts)))
@@ -640,7 +640,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
-                   "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
+                   "error": flt.error, "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
                   "system_settings": source.settings},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",

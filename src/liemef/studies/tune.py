@@ -313,7 +313,8 @@ def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: s
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     system = system_from(params, rec.constants, rec.system)
-    flt = MinimumEnergyFilter(system, order=order, updates=updates, curvature="exact")  # compare broad's mef-vel
+    # compare broad's mef-vel
+    flt = MinimumEnergyFilter(system, order=order, updates=updates, curvature="exact", error="left")
     traj = flt.run(flt.init(rec.g0, rec.K0), rec.ts, rec.us, rec.ys, engine=engine)
     if int(traj.status.code) != 0:
         return float("inf")

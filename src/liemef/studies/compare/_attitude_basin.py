@@ -240,7 +240,8 @@ def _logs_fn(make_log):
 def _make_filter(name: str, system, alpha: float):
     if name in MEF_VARIANTS:
         connection, order = MEF_VARIANTS[name]
-        return MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, curvature="exact")
+        return MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, curvature="exact",
+                                   error="left")
     if name in AHRS:
         return AHRS[name][1](system)
     return FILTERS[name][1](system)

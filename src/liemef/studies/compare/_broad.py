@@ -83,33 +83,35 @@ def _velocity(ctx):
 
 BROAD_FILTERS = {
     "mef": ("minimum-energy filter, second order, (0)-connection",
-            lambda c: MinimumEnergyFilter(_plain(c), curvature="exact")),
-    "mef-first": ("first-order minimum-energy filter", lambda c: MinimumEnergyFilter(_plain(c), order="first")),
+            lambda c: MinimumEnergyFilter(_plain(c), curvature="exact", error="left")),
+    "mef-first": ("first-order minimum-energy filter",
+                  lambda c: MinimumEnergyFilter(_plain(c), order="first", error="left")),
     "mef-minus": ("minimum-energy filter, (-)-connection", lambda c: MinimumEnergyFilter(
-        _plain(c), connection="minus", curvature="exact")),
+        _plain(c), connection="minus", curvature="exact", error="left")),
     "mef-plus": ("minimum-energy filter, (+)-connection", lambda c: MinimumEnergyFilter(
-        _plain(c), connection="plus", curvature="exact")),
+        _plain(c), connection="plus", curvature="exact", error="left")),
     "mef-robust": ("minimum-energy filter with Huber losses on the accelerometer and the magnetometer",
                    lambda c: MinimumEnergyFilter(attitude_gyro_bias(dip=c["dip"], acc_robust="huber",
                                                                     mag_robust="huber"),
-                                                       curvature="exact")),
+                                                       curvature="exact", error="left")),
     "mef-imu": ("minimum-energy filter, IMU noise model (attitude_imu: linear acceleration, magnetic "
-                "disturbance, heading-only magnetometer)", lambda c: MinimumEnergyFilter(_imu(c), curvature="exact")),
+                "disturbance, heading-only magnetometer)",
+                lambda c: MinimumEnergyFilter(_imu(c), curvature="exact", error="left")),
     "mef-imu-first": ("first-order minimum-energy filter, IMU noise model",
-                      lambda c: MinimumEnergyFilter(_imu(c), order="first")),
+                      lambda c: MinimumEnergyFilter(_imu(c), order="first", error="left")),
     "mef-imu-d": ("minimum-energy filter, IMU noise model, samples at their own time (updates='discrete', gyro "
                   "sample k over the interval ending at t_k as in vqf-broad)",
-                  lambda c: MinimumEnergyFilter(_imu(c), updates="discrete", curvature="exact")),
+                  lambda c: MinimumEnergyFilter(_imu(c), updates="discrete", curvature="exact", error="left")),
     "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
-                        lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete")),
+                        lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete", error="left")),
     "mef-vel": ("minimum-energy filter, bounded-velocity model (attitude_velocity: linear acceleration as a "
                 "velocity state, heading-only magnetometer), samples at their own time",
-                lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="exact")),
+                lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="exact", error="left")),
     "mef-vel-safe": ("minimum-energy filter, bounded-velocity model, samples at their own time, the safe curvature "
                      "(the library's default; mef-vel keeps Theorem 4.1's)",
-                     lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="safe")),
+                     lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="safe", error="left")),
     "mef-vel-first": ("first-order minimum-energy filter, bounded-velocity model, samples at their own time",
-                      lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete")),
+                      lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete", error="left")),
     "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
                  lambda c: invariant_ekf(_velocity(c))),
     "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),

@@ -106,9 +106,9 @@ RPE_DELTA = 10
 
 INS_FILTERS = {
     "mef": ("minimum-energy filter, second order, (0)-connection, samples at their own time",
-            lambda s: MinimumEnergyFilter(s, updates="discrete", curvature="exact")),
+            lambda s: MinimumEnergyFilter(s, updates="discrete", curvature="exact", error="left")),
     "mef-first": ("first-order minimum-energy filter, samples at their own time",
-                  lambda s: MinimumEnergyFilter(s, order="first", updates="discrete")),
+                  lambda s: MinimumEnergyFilter(s, order="first", updates="discrete", error="left")),
     **{n: FILTERS[n] for n in ("iekf-right", "iekf", "ekf", "ukf-left", "ukf-right", "ukf-local")},
 }
 """The inertial filters of the study: a description and a factory from the system."""

@@ -16,11 +16,11 @@ from ...metrics._stats import json_number
 from .. import registry
 
 _FACTORIES = {
-    "mef": lambda s: MinimumEnergyFilter(s, curvature="exact"),
-    "mef-safe": lambda s: MinimumEnergyFilter(s, curvature="safe"),
-    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus", curvature="exact"),
-    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus", curvature="exact"),
-    "mef-first": lambda s: MinimumEnergyFilter(s, order="first"),
+    "mef": lambda s: MinimumEnergyFilter(s, curvature="exact", error="left"),
+    "mef-safe": lambda s: MinimumEnergyFilter(s, curvature="safe", error="left"),
+    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus", curvature="exact", error="left"),
+    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus", curvature="exact", error="left"),
+    "mef-first": lambda s: MinimumEnergyFilter(s, order="first", error="left"),
     "iekf": invariant_ekf,
     "iekf-right": lambda s: ExtendedKalmanFilter(s, "right"),
     "ekf": local_ekf,

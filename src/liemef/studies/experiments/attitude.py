@@ -198,7 +198,7 @@ def _setup(config: AttitudeConfig) -> Setup:
                                B=np.vstack([np.zeros((3, 3)), sd * np.eye(3)]), D=se * np.eye(6),
                                Q=(se**2 if printed else 1.0) * np.eye(6),
                                R=(sd**2 if printed else 1.0) * np.eye(3))  # eqs. (84)-(85)
-    filters = tuple(MinimumEnergyFilter(system, curvature="exact", connection=conn, order=config.order,
+    filters = tuple(MinimumEnergyFilter(system, curvature="exact", error="left", connection=conn, order=config.order,
                                         integrator=config.integrator, alpha=config.alpha, substeps=PAPER_SUBSTEPS)
                     for conn in config.connections)
     state0 = filters[0].init(initial_estimate(config), np.diag(config.K0_diag))

@@ -343,7 +343,7 @@ def setup(config: InertialConfig) -> Setup:
 @functools.lru_cache(maxsize=8)
 def _setup(config: InertialConfig) -> Setup:
     system = system_of(config)
-    flt = MinimumEnergyFilter(system, curvature="exact", connection=config.connection, order=config.order,
+    flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,
                               integrator=config.integrator, interpolation=config.interpolation)
     truth, u_true = simulate_truth(config)
     return Setup(config=config, system=system, filter=flt, truth=truth, u_true=u_true)

@@ -245,7 +245,7 @@ def setup(config: LocalizationConfig) -> Setup:
 def _setup(config: LocalizationConfig) -> Setup:
     vx, vy, w = config.odometry_std
     system = planar_localization(odometry_std=(w, vx, vy), odometry_rate=1.0 / config.dt, gps_std=config.gps_std)
-    flt = MinimumEnergyFilter(system, curvature="exact", connection=config.connection, order=config.order,
+    flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,
                               integrator=config.integrator, interpolation=config.interpolation)
     state0 = flt.init(SE2.identity(), np.diag([config.theta0_std**2, 0.0, 0.0]))
     return Setup(config=config, filter=flt, state0=state0, truth=jax.jit(simulate_truth, static_argnums=0)(config))

@@ -143,7 +143,7 @@ def _setup(config: TSE2Config) -> Setup:
     system = PlanarRigidBody(sensor=config.sensor)
     if config.weights == "consistent":
         system = PlanarRigidBody(sensor=config.sensor, Q=np.eye(system.output_dim), R=np.eye(system.B.shape[1]))
-    flt = MinimumEnergyFilter(system, curvature="exact", connection=config.connection, order=config.order,
+    flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,
                               integrator=config.integrator, alpha=config.alpha, substeps=PAPER_SUBSTEPS)
     state0 = flt.init(tse2_state(*config.filter0), np.diag(config.K0_diag))
     return Setup(config=config, system=system, filter=flt, g0=tse2_state(*config.truth0), state0=state0,

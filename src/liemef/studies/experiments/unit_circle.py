@@ -151,7 +151,7 @@ def _setup(config: UnitCircleConfig) -> Setup:
     system = UnitCircleBias(measurement=config.measurement, B_omega=config.B_omega_deg * DEG,
                             B_b=config.B_b_deg * DEG,
                             D=config.noise_std * np.eye(2) if config.measurement == "vector" else None)
-    flt = MinimumEnergyFilter(system, curvature="exact", connection=config.connection, order=config.order,
+    flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,
                               integrator=config.integrator, substeps=PAPER_SUBSTEPS)
     # Zamani et al., eq. (39): X_hat(0) = I, b_hat(0) = 0, P(0) = diag(1/K1, 1/K2), K = P^-1
     state0 = flt.init(UnitCircleBias.state(0.0, 0.0), np.diag([config.K1, config.K2]))

@@ -38,7 +38,7 @@ class PrintedWeightsFilter(AbstractFilter):
     filter: MinimumEnergyFilter
 
     def __init__(self, system: ChaplyginSleigh, **options):
-        self.filter = MinimumEnergyFilter(system, constant_E="unit", curvature="exact", **options)
+        self.filter = MinimumEnergyFilter(system, constant_E="unit", curvature="exact", error="left", **options)
 
     def __repr__(self) -> str:
         return "PrintedWeightsFilter" + repr(self.filter).removeprefix("MinimumEnergyFilter").replace(
