@@ -406,7 +406,13 @@ def test_liemef_run_writes_the_monitor_and_exits_3_when_inconsistent(tmp_path):
         assert (out / "estimates.csv").is_file() and (out / "manifest.json").is_file()
         assert "Innovation monitor: " + ("consistent" if std == 1.0 else "INCONSISTENT: gps") in res.output
         assert m["status"] == ("consistent" if std == 1.0 else "inconsistent")
+        # --error auto (the default) resolved from the sensors: a position fix keeps the left error
+        assert json.loads((out / "metrics.json").read_text())["config"]["error"] == "left"
     assert codes == {1.0: 0, 10.0: 3}
+    res = CliRunner().invoke(cli, [str(a) for a in (
+        "run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log1.0.csv", "--out", tmp_path / "bad",
+        "--error", "up")])
+    assert res.exit_code == 2 and "--error" in res.output and "'up'" in res.output
     res = CliRunner().invoke(cli, [str(a) for a in (
         "run", "--system-file", tmp_path / "s.py", "--log", tmp_path / "log10.0.csv", "--out", tmp_path / "off",
         "--x0", "0,0,0", "--k0-diag", "1e-4,1e-4,1e-4", "--updates", "discrete", "--no-progress", "--no-monitor")],
