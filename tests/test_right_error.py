@@ -147,7 +147,7 @@ def test_new_noise_levels_keep_the_inverted_base():
 
 
 def test_a_filter_of_sensor_systems_is_not_applicable_to_a_papers_system():
-    from liemef.studies.compare._second_order import FILTERS, not_applicable, table_rows
+    from liemef.studies.compare._second_order import FILTERS, not_applicable, side_rows, table_rows
 
     tse2 = CASES["tse2"][1](1.0)
     assert FILTERS["mef-hold-right"][1](tse2.system, tse2, "hold") is None
@@ -155,6 +155,12 @@ def test_a_filter_of_sensor_systems_is_not_applicable_to_a_papers_system():
     result = {"cases": {"tse2": {"filters": {"mef-hold-right": row}, "first_order_updates": "hold", "side": "left"}}}
     assert table_rows(result) == [["tse2", "mef-hold-right", "not applicable", "-", "-", "-", "6", "3.36-9.4", "-",
                                    "-", "-"]]
+    # the sides table: a papers' system has no sensors to measure, and the defaults keep the left error there
+    result["cases"]["tse2"].update(error="left", sensor_sides=None)
+    result["cases"]["se2-near-rb"] = {"filters": {}, "first_order_updates": "hold", "side": "right",
+                                      "error": "right", "sensor_sides": {"rb": "right"}}
+    assert side_rows(result) == [["tse2", "- (not a sensor system)", "left", "left"],
+                                 ["se2-near-rb", "rb: right", "right", "right"]]
 
 
 def _se2_system(*sensors):

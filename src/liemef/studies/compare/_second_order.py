@@ -59,6 +59,8 @@ from ...systems import (
     SensorSystem,
     attitude_gyro_bias,
     inertial_navigation,
+    invariant_sides,
+    natural_error,
 )
 from ...systems import attitude_bias as ab
 from ._common import check_counts, fmt, nees_flag, parse_names
@@ -638,7 +640,10 @@ def compare_second_order(study: SecondOrderSuite | None = None, *, progress: boo
     for name in st.systems:
         case = CASES[name][1](st.duration)
         res = run_case(case, st.filters, st.runs, st.seed, progress, st.initial_scale)
+        sensor_system = isinstance(case.system, SensorSystem)
         systems[name] = {"description": case.description, "dof": case.dof, "side": case.side,
+                         "error": natural_error(case.system),
+                         "sensor_sides": invariant_sides(case.system) if sensor_system else None,
                          "samples": int(case.ts.size), "note": case.note, **res}
     return {"study": {**dataclasses.asdict(st), "filters_described": {n: FILTERS[n][0] for n in st.filters},
                       "keys": f"trial i: simulation key jax.random.split(jax.random.key({st.seed}), {st.runs})[i], "
@@ -667,19 +672,40 @@ def table_rows(result: dict) -> list[list[str]]:
     return rows
 
 
+SIDE_COLUMNS = ("system", "sensors: where their observed directions stay fixed", "the default's error",
+                "iekf, ukf-m")
+
+
+def side_rows(result: dict) -> list[list[str]]:
+    """The second table: per system its sensors' :func:`~liemef.systems.invariant_sides`, the error the defaults
+    choose (``error="auto"``) and the side the Kalman baselines were given."""
+    rows = []
+    for sname, s in result["cases"].items():
+        sides = s.get("sensor_sides")
+        cell = ", ".join(f"{k}: {v}" for k, v in sides.items()) if sides else "- (not a sensor system)"
+        rows.append([sname, cell, s.get("error", "-"), s["side"]])
+    return rows
+
+
 def markdown(result: dict) -> str:
     """The study's report: the settings, the filters, the table and what its columns mean."""
     st = result["study"]
     lines = ["# Second-order safety suite", "",
              f"{len(result['cases'])} systems x {len(st['filters'])} filters, {st['runs']} trials of "
              f"{st['duration']:g} s each (seed {st['seed']}); errors and NEES over {st['window']}, means over the "
-             "trials that ran through.", "", "Filters:", ""]
+             "trials that ran through.", "",
+             "Filters (every mef row but mef-hold-left and mef-hold-right in the error the defaults choose, "
+             "error='auto': the second table):", ""]
     lines += [f"* `{n}`: {d}" for n, d in st["filters_described"].items()]
     lines += ["", "Systems:", ""]
     lines += [f"* `{n}`: {s['description']}" + (f" ({s['note']})" if s["note"] else "")
               for n, s in result["cases"].items()]
     lines += ["", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(r) + " |" for r in table_rows(result)]
+    lines += ["", "The sides (liemef.systems.invariant_sides per sensor; the defaults' error='auto' takes the right "
+              "error where some sensor is 'right' and none 'left', liemef.systems.natural_error):", "",
+              "| " + " | ".join(SIDE_COLUMNS) + " |", "|" + "---|" * len(SIDE_COLUMNS)]
+    lines += ["| " + " | ".join(r) + " |" for r in side_rows(result)]
     lines += ["", "status: `ok` when every trial ran through, else the number that failed and the first failure's "
               "cause and time. NEES: the mean of the left error's NEES over the window and the trials that ran "
               "through, for a consistent filter about its dof; the band is the 95 % chi-square band of one "
