@@ -261,3 +261,41 @@ def test_user_system_batch_in_simd_equals_single_runs(name):
             one = flt.run(flt.init(g0, np.eye(flt.n)), ts, u, y, engine="c")
             mine = jax.tree_util.tree_map(lambda a, b=b: a[b], (batch.g_hat, batch.K, batch.final))
             _assert_close(mine, (one.g_hat, one.K, one.final), f"{name} trial {b}")
+
+
+def _landmark_system(landmark):
+    """SE(2) with odometry and the range and bearing of a landmark that the output function closes over."""
+    point = jnp.asarray(landmark, dtype=jnp.float64)
+
+    def rb(g, t):
+        b = (point - g.translation()) @ g.rotation().as_matrix()
+        return jnp.array([jnp.linalg.norm(b), jnp.arctan2(b[1], b[0])])
+
+    return SensorSystem(SE2, lambda g, u, t: u, [Sensor("rb", rb, Noise.sample([0.5, 0.1]), ["r", "b"],
+                                                        angles=["b"])],
+                        Noise.sample([0.01, 0.01, 0.01], rate=10.0), inputs=("w", "vx", "vy"))
+
+
+def test_a_kernel_is_not_shared_by_systems_that_close_over_other_arrays():
+    """Two systems alike but for the landmark their output closes over (the jaxprs print the same: the landmark
+    is a constant of the jit inside the filter's terms): their kernels' keys differ, and each C run is its own
+    system's, as XLA's. A key that missed the constants inside served the first landmark's kernel for the second
+    from the disk cache: a run 'ok' with the wrong answer."""
+    keys, runs = [], []
+    ts = np.arange(40) * 0.1
+    us = np.tile([0.1, 0.5, 0.0], (40, 1))
+    for landmark in ((1.0, 1.0), (101.0, 101.0)):
+        system = _landmark_system(landmark)
+        flt = liemef.MinimumEnergyFilter(system, error="left")
+        keys.append(_kernel._trace(flt).key)
+        g0 = SE2.from_coords(jnp.array([0.1, landmark[0] - 3.0, landmark[1] - 1.0]))
+        ys = np.asarray(jax.vmap(lambda t, g0=g0, system=system: system.output(g0, t))(ts))  # a parked robot's
+        state = flt.init(SE2.from_coords(jnp.array([0.0, landmark[0] - 2.8, landmark[1] - 1.1])), 0.1 * np.eye(3))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", EngineWarning)  # no fallback to XLA
+            c = flt.run(state, ts, us * 0.0, ys, engine="c")
+        x = flt.run(state, ts, us * 0.0, ys, engine="xla")
+        _assert_close(c, x, f"landmark {landmark}: c vs xla")
+        runs.append(np.asarray(c.g_hat.coords()[-1]) - np.array([0.0, *landmark]))
+    assert keys[0] != keys[1]
+    np.testing.assert_allclose(runs[0], runs[1], atol=1e-6)  # the same relative run, wherever the landmark is

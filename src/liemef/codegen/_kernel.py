@@ -184,17 +184,38 @@ class _Traced:
 
     @functools.cached_property
     def key(self) -> str:
-        """The hash of everything the source depends on: the jaxpr and its constants, the zero pattern and
+        """The hash of everything the source depends on: the jaxpr and its constants, those of every jaxpr
+        inside it too (a ``jit`` inside the filter, :func:`~liemef.filters.terms`, closes over a system's
+        arrays: a landmark's position; the printed jaxpr names them, not their values), the zero pattern and
         the generator's own code (a new liemef writes new kernels). Kept: printing the jaxpr takes 0.1 s."""
         h = hashlib.sha256()
         h.update(str(self.closed.jaxpr).encode())
-        for c in self.closed.consts:
-            h.update(np.asarray(c).tobytes())
+        for c in _all_consts(self.closed):
+            c = np.asarray(c)
+            h.update(str((c.dtype, c.shape)).encode() + c.tobytes())
         for x in self.pleaves:
             h.update(str(x.shape).encode() + structural_zero(x).tobytes())
         h.update(str(self.used).encode())
         h.update(_GENERATOR_HASH)
         return h.hexdigest()[:24]
+
+
+def _all_consts(closed) -> list:
+    """The constants of a closed jaxpr and of every closed jaxpr in its equations' parameters (``pjit``,
+    ``cond``'s branches, ``while``'s body...), in one fixed order."""
+    out = list(closed.consts)
+    stack = [closed.jaxpr]
+    while stack:
+        jaxpr = stack.pop()
+        for eqn in jaxpr.eqns:
+            for param in eqn.params.values():
+                for sub in param if isinstance(param, list | tuple) else (param,):
+                    if hasattr(sub, "consts") and hasattr(sub, "jaxpr"):  # a ClosedJaxpr
+                        out.extend(sub.consts)
+                        stack.append(sub.jaxpr)
+                    elif hasattr(sub, "eqns"):  # an open Jaxpr
+                        stack.append(sub)
+    return out
 
 
 def _generator_hash() -> bytes:
