@@ -126,8 +126,8 @@ def test_connection_with_torsion_may_make_K_asymmetric():
 class _SkewedE(liemef.MinimumEnergyFilter):
     """A filter whose E has a (wrong) skew part: with the (0)-connection K must stay symmetric, so it fails."""
 
-    def _terms(self, weights, g_hat, K, u, y, t, **kwargs):
-        tm = super()._terms(weights, g_hat, K, u, y, t, **kwargs)
+    def _terms(self, model, weights, g_hat, K, u, y, t, **kwargs):
+        tm = super()._terms(model, weights, g_hat, K, u, y, t, **kwargs)
         return eqx.tree_at(lambda m: m.E, tm, tm.E + jnp.array([[0.0, 0.5, 0.0], [-0.5, 0.0, 0.0], [0.0, 0.0, 0.0]]))
 
 

@@ -20,7 +20,7 @@ from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
 from ..systems import AbstractSystem, RightErrorSystem, SensorSystem
-from ..systems._right import natural_error
+from ..systems._right import RightErrorAbout, natural_error
 from ._base import AbstractFilter, FilterState, sensor_layout
 from ._derivatives import left_jacobian, refuse_state_while_in_outputs
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
@@ -79,14 +79,17 @@ class MinimumEnergyFilter(AbstractFilter):
             bit for bit, inside that band); the connection term W, which grows with the same residual, is 0.
             ``"exact"``: Theorem 4.1's, whatever its sign (the papers' filter, which their reproductions use).
             Ignored by the first order.
-        error: the error coordinates the filter's terms and K are written in. ``"left"``: the left error $\xi$,
+        error: the error coordinates the filter's terms are written in. ``"left"``: the left error $\xi$,
             $g = \hat g\exp\xi$, Theorem 4.1's (the papers' filter). ``"right"``: the right error $\eta$,
-            $g = \exp(\eta)\hat g$, by running Theorem 4.1 on the system's inverted state
-            (:func:`liemef.systems.right_error`; sensor systems only). ``"auto"`` (the default): ``"right"`` where
-            the system's sensors observe fixed directions of the right error and none observes fixed directions of
-            the left error only (a landmark's range and bearing, a known field's direction), else ``"left"``
-            (:func:`liemef.systems.natural_error`, docs/second-order.md). Whatever the side, the state's K is the
-            covariance of the left error, as every filter of the library keeps it.
+            $\hat g g^{-1} = \exp\eta$, by running Theorem 4.1 on the system's state inverted about each
+            interval's first estimate (:class:`~liemef.systems._right.RightErrorAbout`; sensor systems only).
+            ``"auto"`` (the default): ``"right"`` where some sensor observes fixed directions of the right error
+            and none observes fixed directions of the left error only (a landmark's range and bearing, a known
+            field's direction, and no position fix), else ``"left"`` (:func:`liemef.systems.natural_error`). With
+            held samples, the right error keeps K from taking information along a direction no sample observes
+            where the left error does not (docs/second-order.md, "The side of the error"); with samples at their
+            own time and the (0)-connection the two give the same estimates. Whatever the side, the state's K
+            is the covariance of the left error, as every filter of the library keeps it.
 
     Samples: a NaN in ``y`` is a missing sample (that component carries no information over the interval);
     a NaN in ``u`` holds the last input. Sample-meaning sensors carry each sample's information once
@@ -113,7 +116,6 @@ class MinimumEnergyFilter(AbstractFilter):
     iterations: int = eqx.field(static=True, default=1)
     curvature: str = eqx.field(static=True, default="safe")
     error: str = eqx.field(static=True, default="left")
-    right: RightErrorSystem | None = None
     tol: Float[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(1e-14))
 
     def __init__(self, system: AbstractSystem, connection: str | float | ConnectionFunction | Connection = "zero",
@@ -151,7 +153,6 @@ class MinimumEnergyFilter(AbstractFilter):
             raise ValueError(f"error: a RightErrorSystem is already the right error of its base; expected "
                              f"error='left' (or the base system with error='right'), got {error!r}")
         self.error = natural_error(system) if error == "auto" else error
-        self.right = RightErrorSystem(system) if self.error == "right" else None
         self.system = system
         self.connection = make_connection(connection, system.group)
         self.order = order
@@ -174,26 +175,29 @@ class MinimumEnergyFilter(AbstractFilter):
                 + (f", constant_E={self.constant_E!r})" if self.constant_E != "weighted" else ")"))
 
     # --- the error coordinates ------------------------------------------------------------------------------
-    @property
-    def _model(self) -> AbstractSystem:
-        """The system Theorem 4.1 runs on: ``system``, or its right error (``error="right"``)."""
-        return self.system if self.right is None else self.right
+    def _model_at(self, g):
+        """The system Theorem 4.1 runs on over an interval that starts at the estimate ``g``: ``system``, or
+        (``error="right"``) its right error about ``g`` (:class:`~liemef.systems._right.RightErrorAbout`), whose
+        state starts at the identity, so that nothing in it grows with the distance from the world's origin."""
+        return self.system if self.error == "left" else RightErrorAbout(self.system, g)
 
     def _to_model(self, g, K):
-        """``(g_hat, K)`` of the system's left error in the model's coordinates (the identity for ``"left"``)."""
-        return (g, K) if self.right is None else self.right.state_of(g, K)
+        """``(g_hat, K)`` of the system's left error as the state of :meth:`_model_at` ``(g_hat)``: the same for
+        ``"left"``; the identity and the same K for ``"right"`` (about g_hat, the two left errors coincide)."""
+        return (g, K) if self.error == "left" else (type(g).identity(), K)
 
-    def _from_model(self, g, K):
-        """The model's ``(g_hat, K)`` back to the system's left error, K kept exactly symmetric where it must be."""
-        if self.right is None:
-            return g, K
-        g, K = self.right.estimates_of(g, K)
+    def _from_model(self, model, h, K):
+        """The ``model``'s ``(h_hat, K)`` back to the system's left error, K kept exactly symmetric where it must
+        be."""
+        if self.error == "left":
+            return h, K
+        g, K = model.estimates_of(h, K)
         return g, jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
 
     # --- the mathematics ----------------------------------------------------------------------------------
-    def _terms(self, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
-        """Theorem 4.1's terms at ``(g_hat, K)`` in the model's coordinates (:attr:`_model`)."""
-        tm = terms(self._model, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs,
+    def _terms(self, model, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
+        """Theorem 4.1's terms of ``model`` (:meth:`_model_at`) at ``(g_hat, K)`` in its coordinates."""
+        tm = terms(model, weights, self.connection, self.order == "second", g_hat, K, u, y, t, outputs,
                    self.curvature == "safe")
         if self.constant_E == "weighted":
             return tm
@@ -213,8 +217,8 @@ class MinimumEnergyFilter(AbstractFilter):
         A NaN in ``y`` is a missing component; sample-meaning sensors need the interval ``dt`` their sample is
         spread over. ``K`` may be any finite n x n matrix (not only a gain a run can reach: the closed-form tests
         evaluate the terms at random K); ``t`` and ``dt`` must be finite. ``g_hat`` and ``K`` are the system's
-        (K of its left error); the terms are those of the filter's coordinates: with ``error="right"``, of
-        :func:`~liemef.systems.right_error` at $\hat g^{-1}$ and $\mathrm{Ad}_{\hat g} K \mathrm{Ad}_{\hat g}^\top$."""
+        (K of its left error); the terms are those of the filter's coordinates: with ``error="right"``, those of
+        the right error about $\hat g$ (:meth:`_model_at`) at the identity, where its K is this K."""
         self._check_element("g_hat", g_hat)
         K = _validate.square("K", K, self.n)  # any finite K: the terms are polynomials in it
         t = _validate.real("t", t)
@@ -228,30 +232,31 @@ class MinimumEnergyFilter(AbstractFilter):
         weights = Weights(Wy=information_in_force(self.weights.Wy, np.asarray(self.sample, bool), mask, dt,
                                                   diagonal=self.diagonal),
                           BRB=self.weights.BRB)
-        return self._terms(weights, *self._to_model(g_hat, jnp.asarray(K)), u, jnp.where(mask, y, 0.0),
-                           jnp.asarray(t))
+        return self._terms(self._model_at(g_hat), weights, *self._to_model(g_hat, jnp.asarray(K)), u,
+                           jnp.where(mask, y, 0.0), jnp.asarray(t))
 
     def vector_field(self, g_hat: LieGroup, K, u, y, t):
         r"""$(\hat g^{-1}\dot{\hat g}, \dot K)$ at a state with the nominal weights (every sample present;
-        traceable), K the covariance of the left error. With ``error="right"`` the filter's flow
-        $(v, \dot K_\eta)$ of $\hat h = \hat g^{-1}$ maps back by $\hat g^{-1}\dot{\hat g} = -\mathrm{Ad}_{\hat h} v$
-        and $\dot K = \mathrm{Ad}_{\hat h}(\dot K_\eta + \mathrm{ad}_v K_\eta + K_\eta\mathrm{ad}_v^\top)
-        \mathrm{Ad}_{\hat h}^\top$ (from $K = \mathrm{Ad}_{\hat h} K_\eta \mathrm{Ad}_{\hat h}^\top$)."""
+        traceable), K the covariance of the left error. With ``error="right"`` the flow $(v, \dot K_h)$ of the
+        right error about $\hat g$ (:meth:`_model_at`) at its identity maps back by $\hat g^{-1}\dot{\hat g} = -v$
+        and $\dot K = \dot K_h + \mathrm{ad}_v K + K\mathrm{ad}_v^\top$ (from $\hat g = T\hat h^{-1}$ and
+        $K = \mathrm{Ad}_{\hat h} K_h \mathrm{Ad}_{\hat h}^\top$ at $\hat h = I$)."""
+        model = self._model_at(g_hat)
         h, Kh = self._to_model(g_hat, K)
-        tm = self._terms(self.weights, h, Kh, u, y, t)
+        tm = self._terms(model, self.weights, h, Kh, u, y, t)
         v, K_dot = tm.lam + mv(Kh, tm.r), riccati_rhs(tm, Kh, self.alpha)
-        if self.right is None:
+        if self.error == "left":
             return v, K_dot
-        A, ad = h.Ad(), type(h).ad(v)
-        return -mv(A, v), mm(A, mm(K_dot + mm(ad, Kh) + mm(Kh, ad.T), A.T))
+        ad = type(h).ad(v)
+        return -v, K_dot + mm(ad, Kh) + mm(Kh, ad.T)
 
     # --- the update at a sample's time (the hybrid filter's, and update's) -----------------------------------
-    def _sample_update(self, g, K, t, y0, W):
+    def _sample_update(self, model, g, K, t, y0, W):
         """``(g_hat, K)`` (in the model's coordinates) after the sample ``y0`` of per-sample information ``W``
         (zero rows and columns where missing): :func:`~liemef.filters.sample_update` with the filter's
         iterations, order, curvature and tol; K kept exactly symmetric where it must be."""
         def update(gK):
-            g2, K2, _ = sample_update(lambda gg: self._model.output_seen_from(y0, gg, t), *gK, y0, W,
+            g2, K2, _ = sample_update(lambda gg: model.output_seen_from(y0, gg, t), *gK, y0, W,
                                       iterations=self.iterations, newton=self.order == "second",
                                       safe=self.curvature == "safe", tol=self.tol)
             return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
@@ -269,7 +274,8 @@ class MinimumEnergyFilter(AbstractFilter):
         return h0, mm(Dh, mm(0.5 * (K + K.T), Dh.T)), None
 
     def _correct(self, state: FilterState, t, y0, mask, W, prior):
-        return self._from_model(*self._sample_update(*self._to_model(state.g_hat, state.K), t, y0, W))
+        model = self._model_at(state.g_hat)
+        return self._from_model(model, *self._sample_update(model, *self._to_model(state.g_hat, state.K), t, y0, W))
 
     # --- one sample interval --------------------------------------------------------------------------------
     def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
@@ -294,9 +300,11 @@ class MinimumEnergyFilter(AbstractFilter):
                 W_sample = W_sample * root
         else:
             rejected, consecutive = st.rejected, st.consecutive
-        g, K = self._to_model(g, K)  # the interval in the model's coordinates; the state's are the system's
+        # the interval in the model's coordinates; the state's are the system's
+        model = self._model_at(g)
+        g, K = self._to_model(g, K)
         if discrete:
-            g, K = self._sample_update(g, K, t, y0, W_sample)
+            g, K = self._sample_update(model, g, K, t, y0, W_sample)
         weights = Weights(Wy=Wy, BRB=self.weights.BRB)
         # static: with only sample sensors, no output acts over the discrete filter's interval
         outputs = not (discrete and all(self.sample))
@@ -310,7 +318,7 @@ class MinimumEnergyFilter(AbstractFilter):
         def f_of(outputs):
             def f(gg, KK, tau):
                 u, y = data(tau)
-                tm = self._terms(weights, gg, KK, u, y, tau, outputs=outputs)
+                tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
                 return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
             return f
 
@@ -319,7 +327,7 @@ class MinimumEnergyFilter(AbstractFilter):
                 # the vector field at a point, and its stiffness rate: the step h is budgeted so that
                 # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (docs/weights.md)
                 u, y = data(tau)
-                tm = self._terms(weights, gg, KK, u, y, tau, outputs=outputs)
+                tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
                 xi = tm.lam + mv(KK, tm.r)
                 fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
                 # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
@@ -379,6 +387,6 @@ class MinimumEnergyFilter(AbstractFilter):
                 g1, K1 = jax.lax.fori_loop(1, self.substeps, lambda j, gK: self.integrator.step(f, *gK, t + j * h, h),
                                            (g1, K1))
 
-        g1, K1 = self._from_model(g1, K1)
+        g1, K1 = self._from_model(model, g1, K1)
         return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
                             consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)

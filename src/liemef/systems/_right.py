@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -106,6 +107,47 @@ class RightErrorSystem(SensorSystem):
         return h_hat.inverse(), A @ jnp.asarray(K, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
 
 
+class RightErrorAbout(eqx.Module):
+    r"""The right error of ``base`` about an ``anchor`` T: the state $h = g^{-1}T$, the inverted state of the
+    system whose world is translated by $T^{-1}$, $g' = T^{-1}g$. Its left error is $\mathrm{Ad}_{T^{-1}}\eta$, a
+    constant linear map of the right error $\eta$ ($\hat g g^{-1} = \exp\eta$), so that a filter of it keeps the
+    right error; with T the estimate, $\hat h = I$ and its quantities stay of the size of the left error's, where
+    those of :class:`RightErrorSystem` grow with the distance from the world's origin ($\mathrm{Ad}_{\hat g}$
+    holds the position). What :class:`~liemef.MinimumEnergyFilter` with ``error="right"`` runs each interval on,
+    anchored at the interval's first estimate: the dynamics, the outputs and the process noise (the methods its
+    terms and its sample update read), with ``base``'s sensors, residuals and weights. A plain module, built inside
+    a trace (``anchor`` a traced element)."""
+
+    base: SensorSystem
+    anchor: LieGroup
+
+    @property
+    def group(self) -> type[LieGroup]:
+        return self.base.group
+
+    def _g(self, h):
+        return self.anchor @ h.inverse()
+
+    def dynamics(self, h, u, t):
+        r"""$h^{-1}\dot h = -\mathrm{Ad}_{h^{-1}}\lambda(T h^{-1}, u, t)$."""
+        return -(h.inverse().Ad() @ jnp.asarray(self.base.dynamics(self._g(h), u, t), dtype=jnp.float64))
+
+    def output_seen_from(self, y, h, t):
+        """``base``'s output, as seen from ``y``, at $g = T h^{-1}$."""
+        return self.base.output_seen_from(y, self._g(h), t)
+
+    def process_noise_at(self, h, BRB):
+        r"""$\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$."""
+        A = h.inverse().Ad()
+        return A @ BRB @ A.T
+
+    def estimates_of(self, h_hat, K):
+        r"""The system's estimate and left-error covariance: $(T\hat h^{-1}, \mathrm{Ad}_{\hat h} K
+        \mathrm{Ad}_{\hat h}^	op)$ (with $h = \hat h\exp\zeta$: $g = \hat g\exp(-\mathrm{Ad}_{\hat h}\zeta)$)."""
+        A = h_hat.Ad()
+        return self._g(h_hat), A @ jnp.asarray(K, dtype=jnp.float64) @ A.T
+
+
 SIDES = ("left", "right", "both", "neither")
 """What :func:`invariant_sides` says of a sensor: in which error coordinates the directions it observes do not
 depend on the state."""
@@ -138,7 +180,7 @@ def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol
     at every state.
 
     A sensor of the world seen from the body (a landmark's range and bearing, a known field's direction,
-    $y = g^{-1}b$) observes fixed directions of the right error $\eta$ ($g = \exp(\eta)\hat g$): its Jacobian
+    $y = g^{-1}b$) observes fixed directions of the right error $\eta$ ($\hat g g^{-1} = \exp\eta$): its Jacobian
     there is an invertible map of the output times a constant matrix, so a linearization at a wrong estimate
     gives no information along what it does not observe. A sensor of the body seen from the world (a position
     fix, $y = g b$) does the same in the left error $\xi$ ($g = \hat g\exp\xi$) (Barrau and Bonnabel 2017).
@@ -146,28 +188,44 @@ def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol
     $p_z$ on $SE_2(3)$, whose rows turn with the attitude in one and with the position in the other),
     ``"neither"``.
 
-    Measured, not declared: the Jacobians at the identity and at ``states`` random states $\exp\zeta$,
-    $\zeta \sim N(0, I)$ (``seed``), at t = 0, their row spaces compared to ``tol`` (the largest sine of the
-    principal angles). States where a sensor's output is not finite are skipped; a sensor finite at fewer than
-    two is ``"neither"``."""
+    Measured, not declared: the Jacobians of the outputs as the filter linearizes them (a sensor's own residual
+    included), at the identity at t = 0 and at ``states`` random states $\exp\zeta$, $\zeta \sim N(0, I)$, at
+    random times in [0, 10] s (``seed``), their row spaces compared to ``tol`` (the largest sine of the
+    principal angles). States where a sensor's output is not finite, or where it observes nothing, are skipped;
+    a sensor with fewer than two such states is ``"neither"``, one that observes nothing anywhere ``"both"``, and
+    every sensor of a system whose outputs raise at one of the states ``"neither"``."""
     if not isinstance(system, SensorSystem):
         raise ValueError(f"system: expected a SensorSystem, got {type(system).__name__}")
     G = system.group
     n = G.tangent_dim
-    zetas = np.vstack([np.zeros(n), np.random.default_rng(seed).standard_normal((states, n))])
+    rng = np.random.default_rng(seed)
+    zetas = np.vstack([np.zeros(n), rng.standard_normal((states, n))])
     points = G.exp(jnp.asarray(zetas))
-    zero, t = jnp.zeros(n), jnp.asarray(0.0)
+    times = jnp.asarray(np.concatenate([[0.0], rng.uniform(0.0, 10.0, states)]))  # an output may vary with t
+    zero = jnp.zeros(n)
     moves = {"left": lambda g, e: g.rplus(e), "right": lambda g, e: G.exp(e) @ g}
+
+    def jacobians(move):
+        """The Jacobian of the outputs as the filter linearizes them (a sensor's own residual included: the
+        output as seen from the sample y = h(g)), at every state and its time at once (one pass of JAX's eager
+        dispatch, not one per state)."""
+        def one(g, t):
+            y = system.output(g, t)
+            return jax.jacfwd(lambda e: system.output_seen_from(y, move(g, e), t))(zero)
+        return np.asarray(jax.vmap(one)(points, times), np.float64)
+
     out = {}
-    for s in system.sensors:
+    try:
+        J = {side: jacobians(move) for side, move in moves.items()}
+    except Exception:  # noqa: BLE001 (a user's output that fails at a random state: nothing measured)
+        return {s.name: "neither" for s in system.sensors}
+    for b in system.blocks():
         verdict = {}
-        for side, move in moves.items():
-            # every state at once (one pass of JAX's eager dispatch, not one per state)
-            Js = np.asarray(jax.vmap(lambda g, s=s, move=move: jax.jacfwd(lambda e: s.fn(move(g, e), t))(zero))(
-                points), np.float64).reshape(len(zetas), -1, n)
-            bases = [b for b in map(_row_space, Js) if b is not None]
-            verdict[side] = len(bases) >= 2 and _same_space(bases, tol)
-        out[s.name] = ("both" if verdict["left"] and verdict["right"] else "left" if verdict["left"]
+        for side in moves:
+            bases = [v for v in map(_row_space, J[side][:, b.start:b.stop]) if v is not None]
+            seen = [v for v in bases if v.shape[0] > 0]  # a state where it observes nothing says nothing
+            verdict[side] = (len(seen) >= 2 and _same_space(seen, tol)) or (len(bases) >= 2 and not seen)
+        out[b.name] = ("both" if verdict["left"] and verdict["right"] else "left" if verdict["left"]
                        else "right" if verdict["right"] else "neither")
     return out
 
@@ -181,7 +239,7 @@ def natural_error(system) -> str:
         return "left"
     # the verdict depends on the group and the output functions only: kept per (group, functions), as a new
     # weight set of the same system must not measure again
-    key = (system.group, tuple((s.name, s.fn) for s in system.sensors))
+    key = (system.group, tuple((s.name, s.fn, s.residual) for s in system.sensors))
     try:
         cached = _NATURAL.get(key)
     except TypeError:  # an output function that cannot be hashed: measured each time
@@ -190,11 +248,14 @@ def natural_error(system) -> str:
         sides = set(invariant_sides(system).values())
         cached = "right" if "right" in sides and "left" not in sides else "left"
         if key is not None:
+            if len(_NATURAL) >= _NATURAL_MAX:  # the oldest verdict goes (the keys hold the output functions)
+                _NATURAL.pop(next(iter(_NATURAL)))
             _NATURAL[key] = cached
     return cached
 
 
 _NATURAL: dict = {}
+_NATURAL_MAX = 256
 
 
 def right_error(system: SensorSystem) -> RightErrorSystem:
