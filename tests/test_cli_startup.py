@@ -17,7 +17,7 @@ import liemef
 from liemef import cli
 from liemef.codegen import BACKENDS
 from liemef.connections import CARTAN_SCHOUTEN
-from liemef.filters import INTERPOLATIONS, ORDERS, UPDATES
+from liemef.filters import ERROR_SIDES, INTERPOLATIONS, ORDERS, UPDATES
 from liemef.studies import registry
 from liemef.studies.compare import STUDIES
 from liemef.studies.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
@@ -139,6 +139,8 @@ def test_the_choices_of_the_cli_are_the_registry():
     assert list(params["run"]["interpolation"].type.choices) == list(INTERPOLATIONS)
     assert list(params["run"]["updates"].type.choices) == list(UPDATES)
     assert list(params["export-c"]["backend"].type.choices) == list(BACKENDS)
+    for cmd in ("run", "export-c"):
+        assert list(params[cmd]["error"].type.choices) == list(ERROR_SIDES)
     assert params["montecarlo"]["batch_size"].default == DEFAULT_BATCH_SIZE
     assert list(params["dataset"]["kind"].type.choices) == list(registry.DATASETS)
 

@@ -480,6 +480,17 @@ def test_export_c_options_reach_the_filter(tmp_path):
     assert "int circle_step(circle_state *s" in header and "#define CIRCLE_N 2" in header
 
 
+def test_export_c_exports_the_side_the_filter_takes(tmp_path):
+    """--error reaches the filter: ukfm's attitude (accelerometer and magnetometer directions) takes the right
+    error by default, and --error left the left one; the header's filter says which."""
+    for error, said in (("auto", "error='right'"), ("left", None)):
+        res = invoke("export-c", "--system", "ukfm-attitude", "--out", tmp_path / error, "--name", "att",
+                     "--error", error)
+        assert res.exit_code == 0, res.output
+        header = (tmp_path / error / "att.h").read_text()
+        assert (said in header) if said else ("error=" not in header), header[:400]
+
+
 SYSTEM_FILE = '''
 import jax.numpy as jnp
 import numpy as np
@@ -529,6 +540,8 @@ def test_export_c_names_an_unsupported_primitive(tmp_path):
     (["--system", "tse2", "--out", "FILE"], ["'--out'", "expected a directory"]),
     (["--system", "tse2", "--substeps", "0"], ["'--substeps'"]),
     (["--system", "tse2", "--alpha", "-1"], ["'--alpha'"]),
+    (["--system", "tse2", "--error", "up"], ["'--error'", "'up' is not one of"]),
+    (["--system", "tse2", "--error", "right"], ["error: 'right' needs a SensorSystem", "PlanarRigidBody"]),
     ([], ["expected exactly one of --system NAME"]),
 ])
 def test_export_c_bad_input_names_the_option(tmp_path, args, words):

@@ -175,13 +175,13 @@ def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k
 
 
 @_command(cli, "export-c")
-def export_c_cmd(system_name, system_file, timeout, out, name, connection, order, integrator, alpha, substeps,
-                 max_substeps, backend):
+def export_c_cmd(system_name, system_file, timeout, out, name, connection, order, error, integrator, alpha,
+                 substeps, max_substeps, backend):
     from .studies.runs import export_c_to
 
     try:
         saved = export_c_to(out, system=system_name, system_file=system_file, timeout=timeout, name=name,
-                            connection=connection,
+                            connection=connection, error=error,
                             order=order, integrator=integrator, alpha=alpha, substeps=_substeps(substeps),
                             max_substeps=max_substeps, backend=backend)
     except NotImplementedError as err:  # liemef.codegen.UnsupportedPrimitive: the step uses what C lacks

@@ -10,12 +10,13 @@ Lie-group integrator (:mod:`liemef.integrators`); the baselines (:mod:`liemef.fi
 from ._base import TRACES, AbstractFilter, FilterState, Trajectory, UpdateResult, sensor_layout
 from ._curvature import safe_curvature
 from ._derivatives import left_hessian, left_jacobian
-from ._mef import INTERPOLATIONS, ORDERS, UPDATES, MinimumEnergyFilter
+from ._mef import ERROR_SIDES, INTERPOLATIONS, ORDERS, UPDATES, MinimumEnergyFilter
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import CAUSES, Status
 from ._update import UpdateInfo, sample_update
 
-__all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "UPDATES", "TRACES",
+__all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "INTERPOLATIONS", "UPDATES",
+           "ERROR_SIDES", "TRACES",
            "Status", "CAUSES", "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms",
            "riccati_rhs", "left_jacobian", "left_hessian", "safe_curvature", "sample_update", "UpdateInfo",
            "UpdateResult"]

@@ -85,6 +85,10 @@ SUBSTEPS = option("--substeps", default="auto", show_default=True,
 SYSTEM_FILE = option("--system-file", type=PATH, help="A Python file that defines `system`.")
 TIMEOUT = option("--timeout", type=float, default=registry.SYSTEM_FILE_TIMEOUT, show_default=True,
                  help="Seconds --system-file may take to load before it is stopped (0: no limit).")
+ERROR = option("--error", type=choice(_names.ERROR_SIDES), default="auto", show_default=True,
+               help="The error coordinates of the filter: auto (the right error where a sensor sees the world from "
+               "the body, a landmark or a field's direction, and none is a position fix; else the left), left "
+               "(Theorem 4.1's) or right. K is written as the left error's covariance either way.")
 
 
 def system(text: str) -> Param:
@@ -165,11 +169,7 @@ RUN = Command(
         option("--curvature", type=choice(("safe", "exact")), default="safe", show_default=True,
                help="The outputs' second-order term: safe (kept where it lowers the Gauss-Newton information, never "
                "below zero; dropped elsewhere) or exact (Theorem 4.1's, the papers' filter)."),
-        option("--error", type=choice(_names.ERROR_SIDES), default="auto", show_default=True,
-               help="The error coordinates of the filter: auto (the right error where a sensor sees the world from "
-               "the body, a landmark or a field's direction, and none is a position fix; else the left), left "
-               "(Theorem 4.1's) or right. K is written as the left error's covariance either way."),
-        SUBSTEPS,
+        ERROR, SUBSTEPS,
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),
         option("--chunk", type=at_least(16), default=65536, show_default=True,
@@ -197,7 +197,7 @@ EXPORT_C = Command(
                                                         "failed export leaves no folder it created)."),
         option("--name", help="The C prefix of every exported name, a C identifier (default: the system's name with "
                               "- replaced by _)."),
-        CONNECTION, ORDER,
+        CONNECTION, ORDER, ERROR,
         option("--integrator", type=choice(_names.EXPORT_INTEGRATORS), default="rkmk4", show_default=True),
         ALPHA, SUBSTEPS,
         option("--max-substeps", type=at_least(1), default=256, show_default=True,

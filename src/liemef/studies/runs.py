@@ -225,16 +225,18 @@ class SavedC:
 def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_file: str | os.PathLike | None = None,
                 name: str | None = None, connection: str = "zero", order: str = "second", integrator: str = "rkmk4",
                 alpha: float = 0.0, substeps: int | str = "auto", max_substeps: int = 256,
-                backend: str = "auto", timeout: float | None = None) -> SavedC:
+                backend: str = "auto", timeout: float | None = None, error: str = "auto") -> SavedC:
     """The minimum-energy filter of a ready ``system`` or of your own ``system_file`` (exactly one) as C99:
     ``NAME.h`` and ``NAME.c`` in the folder ``out`` (created if missing; each file whole or not at all), by
     :func:`liemef.codegen.export_c`. ``name`` is a C identifier (default: the system's name with - replaced by
-    _); ``timeout``: the seconds ``system_file`` may take to load (None or 0: no limit; the command line's
-    ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by default). Bad input is a ValueError
-    naming its option (``err.option``), the name, ``alpha`` and ``timeout`` checked before JAX is imported; a
-    step the C translator does not cover is :class:`liemef.codegen.UnsupportedPrimitive`, naming the system and
-    what it uses, with nothing written. A failed export (bad input, a system file that fails or is stopped, an
-    interruption) leaves no folder it created."""
+    _); ``error``: the filter's error coordinates (``"auto"``, ``"left"`` or ``"right"``, as
+    :class:`~liemef.MinimumEnergyFilter`'s); ``timeout``: the seconds ``system_file`` may take to load (None or
+    0: no limit; the command line's ``--timeout``, :data:`liemef.studies.registry.SYSTEM_FILE_TIMEOUT` by
+    default). Bad input is a ValueError naming its option (``err.option``), the name, ``alpha`` and ``timeout``
+    checked before JAX is imported; a step the C translator does not cover is
+    :class:`liemef.codegen.UnsupportedPrimitive`, naming the system and what it uses, with nothing written. A
+    failed export (bad input, a system file that fails or is stopped, an interruption) leaves no folder it
+    created."""
     import math
     import re
 
@@ -260,7 +262,7 @@ def export_c_to(out: str | os.PathLike, *, system: str | None = None, system_fil
         raise OptionError(str(err), "--out") from err
     try:
         return _export_c(d, system, system_file, name, timeout, backend, connection=connection, order=order,
-                         integrator=integrator, alpha=alpha, substeps=substeps, max_substeps=max_substeps)
+                         error=error, integrator=integrator, alpha=alpha, substeps=substeps, max_substeps=max_substeps)
     except BaseException:
         for q in created:  # empty unless the files were written: then the export did not fail
             try:
