@@ -246,7 +246,7 @@ def system_schema(name: str) -> dict:
 
 FILTERS: dict[str, str] = {
     "mef": "minimum-energy filter, second order, (0)-connection, Theorem 4.1's curvature (curvature='exact')",
-    "mef-safe": "minimum-energy filter, second order, (0)-connection, the safe curvature (the default)",
+    "mef-safe": "minimum-energy filter, second order, (0)-connection, the safe curvature (the default's), left error",
     "mef-minus": "minimum-energy filter, second order, (-)-connection",
     "mef-plus": "minimum-energy filter, second order, (+)-connection",
     "mef-first": "first-order minimum-energy filter (continuous-time left-invariant EKF)",
