@@ -57,6 +57,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_real_logs.py
 	$(PY) benchmarks/bench_first_call.py
+	$(PY) benchmarks/bench_side.py
 
 # One hour of 1 kHz TSE(2) data (3.6 M filter steps), chunk by chunk; MINUTES=2 for a smoke test.
 # The hour takes 5-11 min on one core of a shared 2-core machine (load average 4-8), 30-40 s of it compiling;
