@@ -226,7 +226,7 @@ def test_c_step_of_the_array_backend_equals_the_jax_step(build, system):
     check_against_jax(flt, cf, seed=sorted(SYSTEMS).index(system))
 
 
-@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("order", [o if o == "second" else pytest.param(o, marks=pytest.mark.slow) for o in ORDERS])
 def test_c_step_of_the_right_error_equals_the_jax_step(build, order):
     """The default's side on attitude with a gyro bias (error="auto" chooses "right": the accelerometer and the
     magnetometer see known directions from the body): the step maps the state to the inverted system's and back,
