@@ -38,6 +38,21 @@ from ..groups import LieGroup
 from ._sensors import Sensor, SensorSystem
 
 
+def _congruence(A, K):
+    r"""$A K A^\top$ (any batch shape): a covariance of one error carried to another by the linear map A."""
+    return A @ jnp.asarray(K, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
+
+
+def _inverted_velocity(h, lam):
+    r"""$h^{-1}\dot h = -\mathrm{Ad}_{h^{-1}}\lambda$ of an inverted state, from the system's body velocity."""
+    return -(h.inverse().Ad() @ jnp.asarray(lam, dtype=jnp.float64))
+
+
+def _inverted_noise(h, BRB):
+    r"""$\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$: the process noise of an inverted state."""
+    return _congruence(h.inverse().Ad(), BRB)
+
+
 @dataclasses.dataclass(frozen=True)
 class _AtInverse:
     """``fn(h^-1, t)``: a sensor's output at the inverted state (hashable: equal wrappers compile once)."""
@@ -55,8 +70,7 @@ class _InverseDynamics:
     fn: Callable
 
     def __call__(self, h, u, t):
-        g = h.inverse()
-        return -(g.Ad() @ jnp.asarray(self.fn(g, u, t), dtype=jnp.float64))
+        return _inverted_velocity(h, self.fn(h.inverse(), u, t))
 
 
 def _inverted_sensor(s: Sensor) -> Sensor:
@@ -91,20 +105,17 @@ class RightErrorSystem(SensorSystem):
 
     def process_noise_at(self, g: LieGroup, BRB):
         """$\\mathrm{Ad}_{h^{-1}} B R^{-1} B^\\top \\mathrm{Ad}_{h^{-1}}^\\top$ at the inverted state ``g`` = h."""
-        A = g.inverse().Ad()
-        return A @ BRB @ A.T
+        return _inverted_noise(g, BRB)
 
     def state_of(self, g0: LieGroup, K0):
         r"""The inverted state of the estimate ``g0`` with left-error covariance ``K0``: $(g_0^{-1},
         \mathrm{Ad}_{g_0} K_0 \mathrm{Ad}_{g_0}^\top)$, to start a filter of this system with."""
-        A = g0.Ad()
-        return g0.inverse(), A @ jnp.asarray(K0, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
+        return g0.inverse(), _congruence(g0.Ad(), K0)
 
     def estimates_of(self, h_hat: LieGroup, K):
         r"""The estimates of ``base`` from this system's (any batch shape): $(\hat h^{-1}, \mathrm{Ad}_{\hat h} K
         \mathrm{Ad}_{\hat h}^\top)$, K the covariance of the left error of ``base``."""
-        A = h_hat.Ad()
-        return h_hat.inverse(), A @ jnp.asarray(K, dtype=jnp.float64) @ jnp.swapaxes(A, -1, -2)
+        return h_hat.inverse(), _congruence(h_hat.Ad(), K)
 
 
 class RightErrorAbout(eqx.Module):
@@ -130,7 +141,7 @@ class RightErrorAbout(eqx.Module):
 
     def dynamics(self, h, u, t):
         r"""$h^{-1}\dot h = -\mathrm{Ad}_{h^{-1}}\lambda(T h^{-1}, u, t)$."""
-        return -(h.inverse().Ad() @ jnp.asarray(self.base.dynamics(self._g(h), u, t), dtype=jnp.float64))
+        return _inverted_velocity(h, self.base.dynamics(self._g(h), u, t))
 
     def output_seen_from(self, y, h, t):
         """``base``'s output, as seen from ``y``, at $g = T h^{-1}$."""
@@ -138,19 +149,12 @@ class RightErrorAbout(eqx.Module):
 
     def process_noise_at(self, h, BRB):
         r"""$\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$."""
-        A = h.inverse().Ad()
-        return A @ BRB @ A.T
+        return _inverted_noise(h, BRB)
 
     def estimates_of(self, h_hat, K):
         r"""The system's estimate and left-error covariance: $(T\hat h^{-1}, \mathrm{Ad}_{\hat h} K
-        \mathrm{Ad}_{\hat h}^	op)$ (with $h = \hat h\exp\zeta$: $g = \hat g\exp(-\mathrm{Ad}_{\hat h}\zeta)$)."""
-        A = h_hat.Ad()
-        return self._g(h_hat), A @ jnp.asarray(K, dtype=jnp.float64) @ A.T
-
-
-SIDES = ("left", "right", "both", "neither")
-"""What :func:`invariant_sides` says of a sensor: in which error coordinates the directions it observes do not
-depend on the state."""
+        \mathrm{Ad}_{\hat h}^\top)$ (with $h = \hat h\exp\zeta$: $g = \hat g\exp(-\mathrm{Ad}_{\hat h}\zeta)$)."""
+        return self._g(h_hat), _congruence(h_hat.Ad(), K)
 
 
 def _row_space(J: np.ndarray, rtol: float = 1e-9) -> np.ndarray | None:
@@ -264,4 +268,4 @@ def right_error(system: SensorSystem) -> RightErrorSystem:
     return RightErrorSystem(system)
 
 
-__all__ = ["RightErrorSystem", "right_error", "invariant_sides", "natural_error", "SIDES"]
+__all__ = ["RightErrorSystem", "right_error", "invariant_sides", "natural_error"]
