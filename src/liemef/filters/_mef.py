@@ -192,7 +192,12 @@ class MinimumEnergyFilter(AbstractFilter):
         if self.error == "left":
             return h, K
         g, K = model.estimates_of(h, K)
-        return g, jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
+        return g, self._mirrored(K)
+
+    def _mirrored(self, K):
+        """K with its lower triangle the mirror of its upper one where K must stay symmetric (K as it is
+        otherwise): exactly symmetric, and the other triangle not computed where the compiler can see it."""
+        return jnp.triu(K) + jnp.triu(K, 1).T if self.symmetric else K
 
     # --- the mathematics ----------------------------------------------------------------------------------
     def _terms(self, model, weights: Weights, g_hat, K, u, y, t, outputs: bool = True) -> Terms:
@@ -208,7 +213,7 @@ class MinimumEnergyFilter(AbstractFilter):
         """K's rate (eq. (11)); where K stays symmetric, one triangle mirrored: K stays exactly symmetric, and
         the other triangle is not computed where the compiler can see it (exported C) (docs/theorem.md)."""
         Kd = riccati_rhs(tm, K, self.alpha)
-        return jnp.triu(Kd) + jnp.triu(Kd, 1).T if self.symmetric else Kd
+        return self._mirrored(Kd)
 
     def terms(self, g_hat: LieGroup, K: ArrayLike, u: ArrayLike, y: ArrayLike, t: float = 0.0, *,
               dt: float | None = None) -> Terms:
@@ -259,7 +264,7 @@ class MinimumEnergyFilter(AbstractFilter):
             g2, K2, _ = sample_update(lambda gg: model.output_seen_from(y0, gg, t), *gK, y0, W,
                                       iterations=self.iterations, newton=self.order == "second",
                                       safe=self.curvature == "safe", tol=self.tol)
-            return g2, jnp.triu(K2) + jnp.triu(K2, 1).T if self.symmetric else K2
+            return g2, self._mirrored(K2)
 
         # only an interval that starts with a sample is updated: the update of zero information is the
         # identity, and at 100 Hz against 1 Hz landmarks it was two thirds of a step's arithmetic
