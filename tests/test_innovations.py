@@ -439,3 +439,27 @@ def test_liemef_run_exits_4_when_nonlinear(tmp_path):
     assert m["status"] == "nonlinear" and m["leak"] == 1.0
     assert m["sensors"][0]["leak"]["nonlinear"] is True and m["sensors"][1]["leak"]["nonlinear"] is False
     assert (tmp_path / "out" / "estimates.csv").is_file() and (tmp_path / "out" / "manifest.json").is_file()
+
+
+def test_a_short_log_whose_every_window_is_out_is_inconsistent():
+    """A 10 s log of a 10 Hz sensor, windows of 50 samples (5 s): the default sustain of 1.5 windows (7.5 s) is
+    longer than its windows' 5 s, so no excursion could last it. There the sustain is the windows' own span, their
+    first and last sharing no sample: a fault from t = 3 s on (NIS 1e4 for 2 dof) is inconsistent, one gross
+    outlier at t = 3 s is not, and a log under two windows keeps the 1.5 windows (nothing can be sustained)."""
+    from liemef.metrics._innovations import _verdict
+
+    ts = np.arange(100) * 0.1
+    rng = np.random.default_rng(3)
+    calm = rng.chisquare(2, ts.size)
+    fault = np.where(ts >= 3.0, 1e4, calm)
+    outlier = calm.copy()
+    outlier[30] = 1e6
+    v = _verdict("s", 2, ts, fault, 50, 0.999, None)
+    assert v.sustained and v.sustain == pytest.approx(5.0) and v.fraction_out == 1.0
+    w = _verdict("s", 2, ts, outlier, 50, 0.999, None)
+    assert w.fraction_out > 0.3 and not w.sustained
+    assert _verdict("s", 2, ts, calm, 50, 0.999, None).longest is None
+    short = _verdict("s", 2, ts[:90], fault[:90], 50, 0.999, None)
+    assert short.sustain == pytest.approx(7.5) and not short.sustained
+    given = _verdict("s", 2, ts, fault, 50, 0.999, 7.5)  # a sustain given is the user's rule, kept
+    assert given.sustain == 7.5 and not given.sustained

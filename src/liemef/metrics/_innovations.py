@@ -42,7 +42,9 @@ WINDOW_SECONDS, WINDOW_MIN, WINDOW_MAX = 5.0, 20, 500
 SUSTAIN_WINDOWS = 1.5
 """The default sustain time of a sensor: this many of its windows' spans. One gross outlier keeps the windows that
 hold it out of band for one span, a burst of them for the burst's length more: with 1.5, a burst shorter than half a
-window is not enough, a fault that lasts is (for as long as half a window past its first window out)."""
+window is not enough, a fault that lasts is (for as long as half a window past its first window out). In a log too
+short for that, the time from its first window to its last, where those two share no sample: no single sample can
+put every window out, and a log whose every window is out says so."""
 LEAK_LIMIT = 1.0
 r"""The default limit of a window's linearization leak $\sum \ell_k$ over a sensor's window: at 1, the samples of one
 window can, by their linearization at the estimate, give a direction they do not observe up to twice the information
@@ -394,10 +396,12 @@ def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT
     if t.size < N:
         return SensorVerdict(name, dof, int(t.size), window=N)
     span = N / rate
-    hold = SUSTAIN_WINDOWS * span if sustain is None else sustain
     lo, hi = chi2_bounds(dof, N, prob)
     mean = _window_sums(q, N) / N
     tw = t[N - 1:]  # a window's time: its last sample's
+    hold = SUSTAIN_WINDOWS * span if sustain is None else sustain
+    if sustain is None and t.size >= 2 * N:  # a short log (SUSTAIN_WINDOWS): its first and last windows are disjoint
+        hold = min(hold, float(tw[-1] - tw[0]))
     out = (mean < lo) | (mean > hi)
     side = np.where(mean > hi, 1, -1)
     first = float(tw[np.argmax(out)]) if out.any() else None
@@ -431,7 +435,8 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     within 5 s, at least 20 and at most 500) is compared with its two-sided ``prob`` band
     $(\chi^2_{dN}((1-p)/2), \chi^2_{dN}((1+p)/2))/N$ (:func:`chi2_bounds`, $d$ the sensor's degrees of
     freedom). A run of windows out of band on one side that lasts at least ``sustain`` seconds (default: 1.5
-    windows' spans, per sensor) makes the status "inconsistent". Otherwise, where the sum of the
+    windows' spans, per sensor, or in a shorter log the time from its first window to its last where those share
+    no sample, :data:`SUSTAIN_WINDOWS`) makes the status "inconsistent". Otherwise, where the sum of the
     linearization leak (:func:`linearization_leak`) over the same windows stays at or above ``leak`` for the
     sustain time on some sensor, the status is "nonlinear": the innovations do not contradict K, but the
     output's curvature over K's spread can make K understate the errors along directions that sensor does not
