@@ -81,6 +81,68 @@ def test_the_tuned_set_as_a_file(tmp_path, short):
         T.load(_write(tmp_path / "other.json", "{}"))
 
 
+TARGETS = {"r0": (-1.5, -1.0), "r1": (-1.2, -1.4), "r2": (-1.8, -1.1), "r3": (-1.0, -1.6)}
+"""Per recording, the log10 (acc_std, mag_std) where the fake loss of :func:`_nested` is least."""
+
+
+def _nested(monkeypatch, targets):
+    """tune on four recordings whose loss is a cheap quadratic in log10 (acc_std, mag_std) around ``targets``
+    (``evaluate`` replaced), with every filter run and every search's start and end logged in order."""
+    log = []
+
+    def evaluate(rec, params, objective="truth", **kw):
+        x = np.log10([params["acc_std"], params["mag_std"]])
+        log.append(("run", rec.name, tuple(np.round(x, 9))))
+        return float(np.sum((x - np.array(targets[rec.name])) ** 2))
+
+    def search(loss_of, train, x0, maxfev, step):
+        log.append(("search", tuple(train)))
+        x = real_search(loss_of, train, x0, maxfev, step)
+        log.append(("fixed", tuple(train)))
+        return x
+
+    real_search = T._search
+    monkeypatch.setattr(T, "evaluate", evaluate)
+    monkeypatch.setattr(T, "_search", search)
+    recs = [T.Recording(n, np.zeros(1), np.zeros((1, 3)), np.zeros((1, 6)), {}, None, np.eye(6)) for n in targets]
+    res = T.tune(recs, names=("acc_std", "mag_std"), start={"acc_std": 0.02, "mag_std": 0.05}, maxfev=40,
+                 progress=False)
+    return res, log
+
+
+def test_no_fold_s_search_sees_its_held_out_recording(monkeypatch):
+    res, log = _nested(monkeypatch, TARGETS)
+    names = list(TARGETS)
+    starts = [k for k, e in enumerate(log) if e[0] == "search"]
+    assert len(starts) == len(names) + 1  # a search per fold, then the final one on every recording
+    for k in starts:
+        train = log[k][1]
+        end = log.index(("fixed", train), k)
+        runs = {e[1] for e in log[k:end] if e[0] == "run"}
+        held = [n for n, t in zip(names, train, strict=True) if not t]
+        assert not runs & set(held), (held, runs)  # no run of the held-out recording before the point is fixed
+    for name, fold in res["folds"].items():  # the held-out error is that recording's loss at the fold's point
+        x = np.log10([fold["params"]["acc_std"], fold["params"]["mag_std"]])
+        assert fold["held_out"] == pytest.approx(np.sum((x - np.array(TARGETS[name])) ** 2))
+    # a (point, recording) runs once: the start, where every search begins, once per recording
+    runs = [e for e in log if e[0] == "run"]
+    assert res["evaluations"] == len(runs) == len(set(runs))
+    x0 = tuple(np.round(np.log10([0.02, 0.05]), 9))
+    assert sorted(e[1] for e in runs if e[2] == x0) == names
+    assert res["cross_validation"] == "nested" and res["params_from"] == "search-on-all-recordings"
+    # changing recording r0's losses leaves the fold without it unchanged, and moves the others and the final set
+    moved, _ = _nested(monkeypatch, {**TARGETS, "r0": (-2.5, -0.5)})
+    assert moved["folds"]["r0"]["params"] == res["folds"]["r0"]["params"]
+    assert moved["folds"]["r0"]["train"] == res["folds"]["r0"]["train"]
+    assert moved["folds"]["r0"]["held_out"] != res["folds"]["r0"]["held_out"]
+    for name in names[1:]:
+        assert moved["folds"][name]["params"] != res["folds"][name]["params"], name
+    assert moved["params"] != res["params"]
+    text = T.markdown(res)
+    assert "held-out (fold without it)" in text and "final set, in-sample" in text
+    assert f"| mean | {res['held_out_mean']:.3f} | {res['train_mean']:.3f} | {res['train']:.3f} |" in text
+
+
 def _write(path, text):
     path.write_text(text)
     return path
@@ -94,6 +156,10 @@ def test_bad_settings_are_refused(short):
         T.tune(recordings[:2], names=("nope",))
     with pytest.raises(ValueError, match="^objective:"):
         T.tune(recordings[:2], objective="mse")
+    with pytest.raises(ValueError, match="^maxfev: expected an integer >= 1"):
+        T.tune(recordings[:2], maxfev=0)
+    with pytest.raises(ValueError, match="^fold_maxfev: expected an integer >= 1"):
+        T.tune(recordings[:2], fold_maxfev=2.5)
     with pytest.raises(ValueError, match="^objective: 'truth' needs a truth"):
         T.evaluate(recordings[0], FIXED, "truth")
     with pytest.raises(ValueError, match="^params.nope: unknown parameter of attitude-imu"):

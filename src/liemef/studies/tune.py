@@ -15,13 +15,17 @@ sub-steps (a ``while_loop``) have no reverse-mode derivative, and the noise mode
 count, so the objective is piecewise smooth at best: a gradient through the compiled filter does not exist
 where it would be needed. Every evaluation reuses the compiled filter (the parameters are array leaves).
 
-Cross-validation: for each recording $i$, the parameters are tuned on the others and evaluated on $i$ (its
-*held-out* error); the report puts it beside the training error. To keep this affordable the search is shared:
-a first Nelder-Mead on all recordings records every recording's loss at every point it visits; each fold
-starts from the visited point that is best on its own training recordings and refines it with a shorter
-Nelder-Mead on them. The final set (for unseen recordings) is the search's best on all recordings.
-Objectives may be computed on each recording's first ``seconds`` (windowed, for speed); the held-out
-evaluation of :func:`liemef.studies.compare.compare_broad` then runs whole recordings.
+Cross-validation, nested: the outer loop holds recording $i$ out; the inner search, a Nelder-Mead from the
+common start (``start`` or the system's defaults) on the mean over the other recordings, never asks for
+recording $i$, so its path does not depend on it. Once the fold's point is fixed, recording $i$ is run there
+once: its *held-out* error, which the report puts beside the fold's training error. The final set is the same
+search on every recording (:data:`PARAMS_FROM`); its errors on those recordings are training errors, and the
+folds' held-out mean is the estimate of its error on a recording it has not seen. The cost is $R + 1$ searches
+for $R$ recordings, about $R$ times one search's filter runs; runs are cached per (point, recording), so the
+searches share the points where they coincide (the initial simplex, the same for every search), and a cached
+value is what a fresh run would give. Objectives may be computed on each recording's first ``seconds``
+(windowed, for speed); the held-out evaluation of :func:`liemef.studies.compare.compare_broad` then runs whole
+recordings.
 
 The result is saved as JSON (:func:`save`, :func:`load`): the system's name, the parameters, and per fold the
 parameters tuned without that recording, which ``liemef run``, ``liemef compare broad`` and
@@ -40,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import _names
+from .. import _names, _validate
 from ..reports import io
 from . import registry
 
@@ -79,6 +83,14 @@ DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
                  "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
 """The parameters :func:`tune` fits by default, per system."""
 FORMAT = "liemef-tune-1"
+CROSS_VALIDATION = "nested"
+"""A tuning file's ``cross_validation``: each fold's search ran on its training recordings only and never saw its
+held-out recording (a file without the key was written by the earlier shared search, whose held-out errors are
+partly in-sample)."""
+PARAMS_FROM = "search-on-all-recordings"
+"""A tuning file's ``params_from``: its final set ``params`` is a search, from the same start with the same
+budget as each fold's, over every recording. Its own errors (``per_recording``, ``train``) are training errors;
+the folds' held-out mean is the estimate of its error on recordings it has not seen."""
 
 
 @dataclass(frozen=True)
@@ -324,14 +336,6 @@ def evaluate(rec: Recording, params: dict, objective: str = "truth", *, order: s
 
 
 # --- the search -------------------------------------------------------------------------------------------------
-@dataclass
-class _Cache:
-    """Every visited point (log10 parameters) and every recording's loss there."""
-
-    points: list = field(default_factory=list)
-    losses: list = field(default_factory=list)
-
-
 def _to_params(names, x) -> dict:
     out = {}
     for n, v in zip(names, x, strict=True):
@@ -340,14 +344,14 @@ def _to_params(names, x) -> dict:
     return out
 
 
-def _search(loss_of: Callable[[np.ndarray], np.ndarray], weights: np.ndarray, x0: np.ndarray, maxfev: int,
-            step: float) -> np.ndarray:
-    """Nelder-Mead on the mean over the recordings with ``weights`` (1 = in the training set), from ``x0``."""
+def _search(loss_of: Callable[[np.ndarray, np.ndarray], np.ndarray], train: np.ndarray, x0: np.ndarray,
+            maxfev: int, step: float) -> np.ndarray:
+    """Nelder-Mead on the mean loss over the recordings ``train`` (a bool mask), from ``x0``: ``loss_of(x, train)``
+    is asked for those recordings only, so the path depends on nothing else."""
     from scipy.optimize import minimize
 
     def f(x):
-        v = loss_of(x)[weights > 0]
-        m = float(np.mean(v))
+        m = float(np.mean(loss_of(x, train)))
         return m if math.isfinite(m) else 1e300
 
     simplex = np.vstack([x0] + [x0 + step * e for e in np.eye(len(x0))])
@@ -357,26 +361,31 @@ def _search(loss_of: Callable[[np.ndarray], np.ndarray], weights: np.ndarray, x0
 
 
 def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, objective: str = "truth", *,
-         start: dict | None = None, maxfev: int = 40, fold_maxfev: int = 12, step: float = 0.5,
+         start: dict | None = None, maxfev: int = 40, fold_maxfev: int | None = None, step: float = 0.5,
          order: str = "second", updates: str = "hold", progress: bool = True) -> dict:
-    """Tune ``names`` on ``recordings`` with leave-one-recording-out cross-validation (module docstring).
+    """Tune ``names`` on ``recordings`` with nested leave-one-recording-out cross-validation (module docstring).
 
     Args:
         recordings: two or more :class:`Recording` (e.g. :func:`broad_recordings`).
         names: the parameters to tune (of the recordings' system, :data:`SYSTEMS`; default
             :data:`DEFAULT_NAMES`); the others stay at ``start`` or the system's defaults.
         objective: ``"truth"`` or ``"nll"``.
-        start: the starting values (default: :func:`liemef.systems.attitude_imu`'s defaults).
-        maxfev: evaluations of the shared search (each runs every recording).
-        fold_maxfev: evaluations of each fold's refinement (each runs the fold's training recordings).
+        start: the starting values of every search (default: the system's defaults).
+        maxfev: points of the final search (each point runs every recording).
+        fold_maxfev: points of each fold's own search (each runs the fold's training recordings); default
+            ``maxfev``, the final search's procedure, whose held-out error it then estimates.
         step: the initial simplex's size, in decades.
         order: the filter's order.
         updates: the filter's sample updates (``"discrete"``: samples at their own time; give it recordings with
             ``gyro="backward"``).
-        progress: a tqdm progress bar (on stderr).
+        progress: a tqdm progress bar (on stderr), counting the searches' points.
 
-    Returns ``{"system", "objective", "names", "params", "folds": {name: {"params", "train", "held_out"}},
-    "evaluations", "elapsed_s"}``.
+    Returns ``{"format", "system", "objective", "names", "order", "updates", "cross_validation", "params_from",
+    "params", "train", "per_recording", "folds": {name: {"params", "train", "held_out"}}, "held_out_mean",
+    "train_mean", "evaluations", "elapsed_s"}``: ``params`` is the final set (the search on every recording;
+    ``per_recording`` and ``train`` are its training errors), ``folds[name]`` the search without ``name``, its
+    training error and its error on ``name`` (held out); ``evaluations`` counts the filter runs (one recording at
+    one point; a run shared by several searches counts once).
     """
     import inspect
 
@@ -396,6 +405,8 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
         raise ValueError(f"names: expected distinct parameter names from {sorted(allowed)}, got {list(names)}")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
+    maxfev = _validate.integer("maxfev", maxfev, 1)
+    fold_maxfev = maxfev if fold_maxfev is None else _validate.integer("fold_maxfev", fold_maxfev, 1)
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
     base = {**defaults, **(start or {})}
@@ -405,49 +416,44 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)
-    cache, t0 = _Cache(), time.perf_counter()
-    total = maxfev + 2 * len(names) + 2 + R * (fold_maxfev + len(names) + 2)
-    bar = _progress(total, progress)
+    cache: dict[tuple, float] = {}  # (point, recording index) -> loss: a value, never a search's history
+    t0 = time.perf_counter()
+    bar = _progress(maxfev + R * fold_maxfev, progress)
 
-    def run(x, which):
-        """Losses of the recordings ``which`` (bool mask) at x; those already computed there are reused."""
-        key = tuple(np.round(x, 12))
-        if key in cache.points:
-            losses = cache.losses[cache.points.index(key)]
-        else:
-            losses = np.full(R, np.nan)
-            cache.points.append(key)
-            cache.losses.append(losses)
-            bar.update(1)
-        params = {**fixed, **_to_params(names, x)}
-        for i in np.flatnonzero(which & np.isnan(losses)):
-            losses[i] = evaluate(recs[i], params, objective, order=order, updates=updates)
-        return losses
+    def loss(x, i):
+        key = (tuple(np.round(x, 12)), i)
+        if key not in cache:
+            cache[key] = evaluate(recs[i], {**fixed, **_to_params(names, x)}, objective, order=order,
+                                  updates=updates)
+        return cache[key]
+
+    def losses(x, which):
+        """The losses of the recordings ``which`` (a bool mask) at x, and of no other."""
+        bar.update(1)
+        return np.array([loss(x, i) for i in np.flatnonzero(which)])
 
     everyone = np.ones(R, bool)
-    x_all = _search(lambda x: run(x, everyone), everyone.astype(float), x0, maxfev, step)
     folds = {}
     for i, rec in enumerate(recs):
         train = everyone.copy()
         train[i] = False
-        full = [(float(np.mean(ls[train])), p) for p, ls in zip(cache.points, cache.losses, strict=True)
-                if np.all(np.isfinite(ls[train]))]
-        start_i = np.array(min(full)[1]) if full else x_all
-        x_i = _search(lambda x, tr=train: run(x, tr), train.astype(float), start_i, fold_maxfev, step / 2)
-        losses = run(x_i, everyone)
-        folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)}, "train": float(np.mean(losses[train])),
-                           "held_out": float(losses[i])}
-        bar.set_postfix_str(f"fold {rec.name}: held-out {losses[i]:.3g}")
-    final = run(x_all, everyone)
+        bar.set_postfix_str(f"fold without {rec.name}")
+        x_i = _search(losses, train, x0, fold_maxfev, step)  # recording i is not asked for until x_i is fixed
+        folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)},
+                           "train": float(np.mean([loss(x_i, j) for j in np.flatnonzero(train)])),
+                           "held_out": loss(x_i, i)}
+    bar.set_postfix_str("final set (all recordings)")
+    x_all = _search(losses, everyone, x0, maxfev, step)
+    final = [loss(x_all, i) for i in range(R)]
     bar.close()
     held = [f["held_out"] for f in folds.values()]
     return {"format": FORMAT, "system": sysname, "objective": objective, "names": list(names), "order": order,
-            "updates": updates,
+            "updates": updates, "cross_validation": CROSS_VALIDATION, "params_from": PARAMS_FROM,
             "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
             "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
             "folds": folds, "held_out_mean": float(np.mean(held)),
             "train_mean": float(np.mean([f["train"] for f in folds.values()])),
-            "evaluations": len(cache.points), "elapsed_s": time.perf_counter() - t0}
+            "evaluations": len(cache), "elapsed_s": time.perf_counter() - t0}
 
 
 def _progress(total: int, enabled: bool):
@@ -463,7 +469,8 @@ def save(result: dict, path: str | Path) -> Path:
 
 
 FILE_KEYS = {"format": "text", "system": "text", "objective": "text", "names": "names", "order": "text",
-             "updates": "text", "params": "params", "train": "number", "per_recording": "numbers",
+             "updates": "text", "cross_validation": "text", "params_from": "text", "params": "params",
+             "train": "number", "per_recording": "numbers",
              "folds": "folds", "held_out_mean": "number", "train_mean": "number", "evaluations": "count",
              "elapsed_s": "number"}
 """The keys of a tuning file (every key :func:`tune` writes) and the kind of each value; ``format``, ``system``
@@ -471,7 +478,7 @@ and ``params`` are required, every other key is optional, and a key not listed i
 FOLD_KEYS = {"params": "params", "train": "number", "held_out": "number"}
 """The keys of one fold of a tuning file's ``folds`` (``params`` required)."""
 TEXT_CHOICES = {"format": (FORMAT,), "system": tuple(SYSTEMS), "objective": OBJECTIVES, "order": _names.ORDERS,
-                "updates": _names.UPDATES}
+                "updates": _names.UPDATES, "cross_validation": (CROSS_VALIDATION,), "params_from": (PARAMS_FROM,)}
 """The values a tuning file's text entries may take."""
 
 
@@ -588,17 +595,29 @@ def params_for(tuned: dict, recording: str | None = None) -> dict:
 
 
 def markdown(result: dict) -> str:
-    """The tuning report: per recording the held-out loss beside the training loss, and the parameters."""
+    """The tuning report: per recording, side by side, the held-out error (the fold tuned without it), the
+    fold's training error (its mean over the other recordings) and the final set's error on it (in-sample), their
+    means, and the parameters."""
     unit = "deg (BROAD total rms)" if result["objective"] == "truth" else "(mean NLL per sample)"
+    nested = result.get("cross_validation") == CROSS_VALIDATION
+    how = ("Nested leave-one-recording-out: each fold's search ran without its recording, which was then run once "
+           "at the fold's point (held-out)." if nested else
+           "Leave-one-recording-out with a shared search (a file without cross_validation): the folds started "
+           "from a search that saw every recording, so their held-out errors are partly in-sample.")
+    per = result.get("per_recording") or {}
+    names = result["names"]
     lines = [f"# liemef tune: {result['system']}, objective {result['objective']} {unit}", "",
-             f"{result['evaluations']} points, {result['elapsed_s']:.0f} s. Leave-one-recording-out: each row's "
-             "parameters were tuned without that recording.", "",
-             "| recording | held-out | training (the other recordings) | " + " | ".join(result["names"]) + " |",
-             "|---|---:|---:|" + "---:|" * len(result["names"])]
+             f"{result['evaluations']} filter runs, {result['elapsed_s']:.0f} s. {how}", "",
+             "| recording | held-out (fold without it) | fold's training (the other recordings) "
+             "| final set, in-sample | " + " | ".join(f"fold's {n}" for n in names) + " |",
+             "|---|---:|---:|---:|" + "---:|" * len(names)]
     for name, f in result["folds"].items():
-        lines.append(f"| {name} | {f['held_out']:.3f} | {f['train']:.3f} | "
-                     + " | ".join(f"{f['params'][n]:.4g}" for n in result["names"]) + " |")
-    lines.append(f"| mean | {result['held_out_mean']:.3f} | {result['train_mean']:.3f} | |")
-    lines += ["", "Final set (all recordings): " + ", ".join(f"{k} = {v:.4g}" for k, v in result["params"].items()),
-              ""]
+        final = f"{per[name]:.3f}" if name in per else "-"
+        lines.append(f"| {name} | {f['held_out']:.3f} | {f['train']:.3f} | {final} | "
+                     + " | ".join(f"{f['params'][n]:.4g}" for n in names) + " |")
+    final = f"{result['train']:.3f}" if "train" in result else "-"
+    lines.append(f"| mean | {result['held_out_mean']:.3f} | {result['train_mean']:.3f} | {final} |" + " |" * len(names))
+    lines += ["", "Final set (a search on all recordings; its column above is a training error, the held-out mean "
+              "estimates its error on an unseen recording): "
+              + ", ".join(f"{k} = {v:.4g}" for k, v in result["params"].items()), ""]
     return "\n".join(lines)
