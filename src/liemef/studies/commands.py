@@ -228,8 +228,9 @@ DATASET = Command(
 
 TUNE = Command(
     """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free
-    search, with leave-one-trial-out cross-validation; writes the held-out and training errors and the tuned
-    set (tune.json, accepted by `liemef run --params` and `liemef compare broad --set params=...`).""", (
+    search, with nested leave-one-trial-out cross-validation (each fold's search never sees its trial); writes
+    the held-out, training and final set's errors and the tuned set (tune.json, accepted by `liemef run
+    --params` and `liemef compare broad --set params=...`).""", (
         argument("data", type=choice(registry.TUNE_DATA)),
         option("--out", required=True, type=PATH,
                help="Output folder: tune.json (the tuned set, for run/compare --set params=...) and tune.md."),
@@ -240,9 +241,10 @@ TUNE = Command(
         option("--seconds", type=float, default=90.0, show_default=True,
                help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`."),
         option("--maxfev", type=at_least(1), default=40, show_default=True,
-               help="Evaluations of the shared search (each runs every trial)."),
-        option("--fold-maxfev", type=at_least(1), default=12, show_default=True,
-               help="Evaluations of each leave-one-out fold's refinement."),
+               help="Points of the final search (each runs every trial), and of each fold's unless --fold-maxfev."),
+        option("--fold-maxfev", type=at_least(1),
+               help="Points of each leave-one-out fold's own search, on the other trials only (default: --maxfev, "
+                    "the final search's procedure). The tune runs about (trials + 1) searches."),
         option("--system", "system_name", type=choice(registry.TUNE_SYSTEMS), default="attitude-imu",
                show_default=True, help="The model: " + " or ".join(f"{k} ({v})" for k, v in
                                                                    registry.TUNE_SYSTEMS.items()) + "."),

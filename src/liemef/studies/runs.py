@@ -307,13 +307,14 @@ class SavedTune:
 
 
 def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "truth", trials=None,
-            names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int = 12,
+            names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int | None = None,
             system: str = "attitude-imu", updates: str = "hold", realdata: str | os.PathLike | None = None,
             force: bool = False, progress: bool = False) -> SavedTune:
     """Fit ``system``'s noise levels (:data:`liemef.studies.registry.TUNE_SYSTEMS`) to the recordings ``data``
     (:data:`~liemef.studies.registry.TUNE_DATA`: the BROAD ``trials`` present, each id a string; None: all) with
-    leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first ``seconds``;
-    0 or None: whole trials), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
+    nested leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first
+    ``seconds``; 0 or None: whole trials; ``maxfev`` points for the final search and ``fold_maxfev``, default
+    ``maxfev``, for each fold's), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
     ``names``: the parameters to tune (None: the system's defaults). ``attitude-velocity`` takes
     ``updates="discrete"`` only. Bad input is a ValueError before anything is written; an empty list of
     ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
