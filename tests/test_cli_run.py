@@ -143,13 +143,18 @@ def test_tune_writes_a_file_that_run_accepts(tmp_path, monkeypatch):
             "movement": np.r_[np.zeros(200), np.ones(200)].astype(np.uint8), "sampling_rate": rate})
     monkeypatch.setenv("LIEMEF_REALDATA", str(root))
     res = invoke("tune", "broad", "--out", tmp_path / "t", "--params", "acc_std", "--seconds", "1",
-                 "--maxfev", "2", "--fold-maxfev", "1", "--no-progress")
+                 "--start", "acc_std=0.03,mag_std=0.2", "--maxfev", "2", "--fold-maxfev", "1", "--no-progress")
     assert res.exit_code == 0, res.output
-    assert "held-out" in res.output and (tmp_path / "t" / "tune.json").is_file()
+    assert "held-out" in res.output and "final set, in-sample" in res.output
+    assert (tmp_path / "t" / "tune.json").is_file()
     from liemef.studies import tune
 
     tuned = tune.load(tmp_path / "t" / "tune.json")
-    assert set(tuned["folds"]) == {"01", "02"}
+    assert set(tuned["folds"]) == {"01", "02"} and tuned["cross_validation"] == "nested"
+    # a fold's search of one point is its start; the final set's two points are the start and a step of it
+    assert [f["params"]["acc_std"] for f in tuned["folds"].values()] == pytest.approx([0.03, 0.03])
+    assert min(abs(np.log10(tuned["params"]["acc_std"] / 0.03) - d) for d in (0.0, 0.5)) < 1e-9
+    assert tuned["params"]["mag_std"] == 0.2  # given, not tuned
     res = invoke("run", "--system", "attitude-bias", "--params", tmp_path / "t" / "tune.json", "--log",
                  tmp_path / "none.csv", "--out", tmp_path / "o")
     assert res.exit_code == 2 and "--params" in res.output

@@ -1399,6 +1399,22 @@ def test_tune_refuses_an_empty_list(args, option, tmp_path):
     assert not (tmp_path / "t").exists()
 
 
+@pytest.mark.parametrize(("start", "words"), [
+    ("acc_std", "expected NAME=VALUE entries"), ("acc_std=x", "acc_std: expected a number, got 'x'"),
+    ("acc_std=1,acc_std=2", "acc_std: given twice"), ("nope=1", "--start.nope: unknown parameter of attitude-imu"),
+    ("acc_std=-1", "--start.acc_std: expected a finite number > 0, got -1.0"), ("acc_std=1,", "separated by commas"),
+    ("velocity_std=1", "--start.velocity_std: unknown parameter of attitude-imu")])
+def test_tune_refuses_a_bad_start(start, words, tmp_path):
+    from liemef.studies import runs
+    from liemef.studies.settings import OptionError
+
+    with pytest.raises(OptionError) as err:
+        runs.tune_to(tmp_path / "t", start=start.split(","))
+    assert err.value.option == "--start" and words in str(err.value)
+    _refused(_cli("tune", "broad", "--start", start, "--out", tmp_path / "t"), "'--start'", words)
+    assert not (tmp_path / "t").exists()
+
+
 def test_a_folder_of_csv_logs_is_no_ros_bag(tmp_path, gps_log):
     folder = tmp_path / "logs"
     folder.mkdir()

@@ -240,6 +240,9 @@ TUNE = Command(
         option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's)."),
         option("--seconds", type=float, default=90.0, show_default=True,
                help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`."),
+        option("--start", metavar="A=X,B=Y,...",
+               help="Starting values of every search (default: the model's defaults, which for attitude-velocity "
+                    "were tuned on the shared trials: start elsewhere for an honest held-out error)."),
         option("--maxfev", type=at_least(1), default=40, show_default=True,
                help="Points of the final search (each runs every trial), and of each fold's unless --fold-maxfev."),
         option("--fold-maxfev", type=at_least(1),

@@ -409,10 +409,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     fold_maxfev = maxfev if fold_maxfev is None else _validate.integer("fold_maxfev", fold_maxfev, 1)
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
-    base = {**defaults, **(start or {})}
-    unknown = sorted(set(base) - set(allowed))
-    if unknown:
-        raise ValueError(f"start: expected names from {sorted(allowed)}, got {unknown}")
+    base = {**defaults, **check_params(start or {}, sysname, "start")}
     x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)
