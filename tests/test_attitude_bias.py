@@ -266,7 +266,8 @@ def test_broad_trial_01_first_minute():
     # (BROAD's Madgwick / Mahony baselines over the whole trial: 2.3 / 3.4 deg; this filter over the whole trial:
     # 2.35 deg). Compilation takes most of this test's time.
     trial = datasets.broad(_broad_path("01")).head(60.0)
-    dip = ab.magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
+    k = ab.initial_rest(trial.gyr, trial.acc, trial.rate)  # from the IMU alone
+    dip = ab.magnetic_dip(trial.acc[:k], trial.mag[:k])
     assert math.degrees(dip) == pytest.approx(71.3, abs=0.1)
     log = datasets.broad_to_log(trial)
     flt = MinimumEnergyFilter(attitude_gyro_bias(dip=dip))
@@ -277,4 +278,67 @@ def test_broad_trial_01_first_minute():
     assert total < 4.5
     assert incl < 1.0
     # the z gyro bias seen at rest (0.0082 rad/s) is found
-    assert float(traj.g_hat.factors[1].x[-1, 2]) == pytest.approx(trial.gyr[trial.rest, 2].mean(), abs=0.003)
+    assert float(traj.g_hat.factors[1].x[-1, 2]) == pytest.approx(trial.gyr[:k, 2].mean(), abs=0.003)
+
+
+# --- the initial rest, from the IMU alone ------------------------------------------------------------------------
+def _rest_then_motion(rate=100.0, rest_s=3.0, total_s=6.0, seed=0):
+    """A log at rest (gyro bias 0.01 rad/s and noise, accelerometer noise 0.05 m/s^2) until ``rest_s``, then a
+    rotation at 1 rad/s about x: gyro, accelerometer, magnetometer and the switch's sample."""
+    rng = np.random.default_rng(seed)
+    N, k = int(total_s * rate), int(rest_s * rate)
+    w = np.zeros((N, 3))
+    w[k:, 0] = 1.0
+    R = Rotation.from_rotvec(np.cumsum(w, axis=0) / rate)
+    gyr = w + 0.01 + 0.005 * rng.standard_normal((N, 3))
+    acc = R.inv().apply([0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((N, 3))
+    mag = R.inv().apply([0.0, 16.0, -40.0]) + 0.3 * rng.standard_normal((N, 3))
+    return gyr, acc, mag, k
+
+
+def test_initial_rest_ends_within_a_window_before_the_motion():
+    rate = 100.0
+    gyr, acc, mag, k = _rest_then_motion(rate)
+    for window in (0.3, 0.5, 1.0):
+        found = ab.initial_rest(gyr, acc, rate, window=window)
+        assert k - window * rate <= found <= k, window
+    # an acceleration alone (no turn) ends the rest too: the accelerometer's spread
+    acc2 = np.tile([0.0, 0.0, 9.81], (gyr.shape[0], 1))
+    acc2[k:, 0] = 2.0
+    assert k - 50 <= ab.initial_rest(np.zeros_like(gyr), acc2, rate) <= k
+    c = ab.rest_constants(gyr, acc, mag, rate)
+    assert c["rest_samples"] == ab.initial_rest(gyr, acc, rate) and c["rest_s"] == c["rest_samples"] / rate
+    assert c["gravity"] == pytest.approx(9.81, abs=0.05) and c["field"] == pytest.approx(math.hypot(16, 40), abs=0.3)
+    assert math.degrees(c["dip"]) == pytest.approx(math.degrees(math.atan2(40, 16)), abs=0.5)
+    # missing rows are skipped; a log at rest throughout is all rest, which the caller sees
+    gyr[10:20] = np.nan
+    assert k - 50 <= ab.initial_rest(gyr, acc, rate) <= k
+    assert ab.initial_rest(gyr[: k - 10], acc[: k - 10], rate) == k - 10
+
+
+def test_initial_rest_refuses_a_log_that_does_not_start_at_rest_by_name():
+    rate = 100.0
+    gyr, acc, _, k = _rest_then_motion(rate)
+    with pytest.raises(ValueError, match=r"^gyr, acc: expected a log that starts at rest .* got 1\.0"):
+        ab.initial_rest(gyr[k:], acc[k:], rate)
+    with pytest.raises(ValueError, match=r"^gyr, acc: expected a log of at least one window \(50 samples"):
+        ab.initial_rest(gyr[:10], acc[:10], rate)
+    with pytest.raises(ValueError, match=r"^acc: expected shape \(600, 3\)"):
+        ab.initial_rest(gyr, acc[:-1], rate)
+    for name, kw, words in (("rate", {"rate": 0.0}, "a sample rate > 0 in Hz"),
+                            ("window", {"window": -1.0}, "a duration > 0 in s"),
+                            ("gyro_tol", {"gyro_tol": math.nan}, "a tolerance > 0 in rad/s"),
+                            ("acc_tol", {"acc_tol": True}, "a tolerance > 0 in m/s\\^2")):
+        args = {"rate": rate, **kw}
+        with pytest.raises(ValueError, match=f"^{name}: expected {words}"):
+            ab.initial_rest(gyr, acc, args.pop("rate"), **args)
+
+
+@pytest.mark.parametrize("trial", ["01", "07", "10", "16", "24", "28", "33"])
+def test_initial_rest_of_broad_ends_just_before_its_movement_annotation(trial):
+    """The rest found from the IMU alone ends before BROAD's first annotated movement (the annotation is read here
+    only to check it) and less than one window (0.5 s) before it."""
+    tr = datasets.broad(_broad_path(trial))
+    k = ab.initial_rest(tr.gyr, tr.acc, tr.rate)
+    first_movement = int(np.argmax(tr.movement))
+    assert first_movement - ab.REST_WINDOW * tr.rate <= k <= first_movement

@@ -508,6 +508,81 @@ def magnetic_dip(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> 
     return float(np.median(np.arcsin(np.clip(s, -1.0, 1.0))))
 
 
+REST_WINDOW = 0.5
+"""Default window (s) of :func:`initial_rest`."""
+REST_GYRO_TOL = 0.1
+"""Default gyro tolerance (rad/s) of :func:`initial_rest`: the rms gyro norm over a window at rest stays below it
+(BROAD's seven trials at rest: at most 0.061 rad/s over 0.5 s, bias and noise together)."""
+REST_ACC_TOL = 0.5
+"""Default accelerometer tolerance (m/s^2) of :func:`initial_rest`: the rms spread of the accelerometer vector about
+its window mean stays below it at rest (BROAD at rest: at most 0.30 m/s^2 over 0.5 s)."""
+
+
+def initial_rest(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], rate: float, *,
+                 window: float = REST_WINDOW, gyro_tol: float = REST_GYRO_TOL, acc_tol: float = REST_ACC_TOL) -> int:
+    r"""The length ``k`` (samples) of a log's initial rest, from the IMU samples alone: samples ``[0, k)``.
+
+    A window of ``window`` s (``w = round(window * rate)`` samples, at least 2) is *still* when the rms of the gyro
+    norm over it is below ``gyro_tol`` (rad/s; it includes the gyro's bias, so a bias near it needs a higher
+    tolerance) and the rms distance of the accelerometer vectors from their window mean is below ``acc_tol``
+    (the accelerometer's units, m/s^2: it sees a change of the norm and of the direction alike). The rest ends at
+    the first sample of the first window that is not still: every sample before it lies in a still window, and the
+    motion that ended it lies within the ``window`` s after it, so the detected rest ends up to ``window`` s early,
+    never late. On BROAD's seven trials the defaults end the rest 0.07 to 0.25 s before the dataset's movement
+    annotation (``tests/test_attitude_bias.py``). A row with a NaN counts as absent; a window without two
+    present rows is not still.
+
+    A log whose every window is still is all rest (``k`` = N: the caller sees it). A log that does not start at
+    rest (its first window is not still) or is shorter than one window is a ValueError naming ``gyr`` and
+    ``acc`` with the first window's figures.
+    """
+    gyr = _validate.array("gyr", np.asarray(gyr, dtype=np.float64), (None, 3), missing=True)
+    acc = _validate.array("acc", np.asarray(acc, dtype=np.float64), (gyr.shape[0], 3), missing=True)
+    for name, v, unit in (("rate", rate, "a sample rate > 0 in Hz"), ("window", window, "a duration > 0 in s"),
+                          ("gyro_tol", gyro_tol, "a tolerance > 0 in rad/s"),
+                          ("acc_tol", acc_tol, "a tolerance > 0 in m/s^2")):
+        number = isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
+        if not (number and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: expected {unit}, got {v!r}")
+    N, w = gyr.shape[0], max(2, int(round(window * rate)))
+    if N < w:
+        raise ValueError(f"gyr, acc: expected a log of at least one window ({w} samples, {window} s at {rate} Hz) "
+                         f"to find its initial rest, got {N} samples")
+    ok = np.all(np.isfinite(gyr), axis=1) & np.all(np.isfinite(acc), axis=1)
+    g, a = np.where(ok[:, None], gyr, 0.0), np.where(ok[:, None], acc, 0.0)
+
+    def window_sums(x):
+        c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+        return c[w:] - c[:-w]
+
+    n = window_sums(ok.astype(np.float64))
+    m = np.maximum(n, 1.0)
+    gyro_rms = np.sqrt(window_sums(np.sum(g**2, axis=1)) / m)
+    mean = window_sums(a) / m[:, None]
+    spread = np.sqrt(np.maximum(window_sums(np.sum(a**2, axis=1)) / m - np.sum(mean**2, axis=1), 0.0))
+    still = (n >= 2) & (gyro_rms < gyro_tol) & (spread < acc_tol)
+    if not still[0]:
+        raise ValueError(f"gyr, acc: expected a log that starts at rest (a first window of {window} s with an rms gyro "
+                         f"norm < gyro_tol = {gyro_tol} rad/s and an accelerometer spread < acc_tol = {acc_tol} "
+                         f"m/s^2), got {gyro_rms[0]:.3g} rad/s and {spread[0]:.3g} m/s^2 over {int(n[0])} present "
+                         "samples; measure gravity, field and dip on samples at rest yourself (rest_norms, "
+                         "magnetic_dip)")
+    return N if still.all() else int(np.argmin(still))
+
+
+def rest_constants(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"],
+                   rate: float, **tolerances) -> dict:
+    """The structural constants of :func:`attitude_imu` and :func:`attitude_velocity` measured over a log's initial
+    rest, found from the IMU samples alone (:func:`initial_rest`, with its ``tolerances``): ``dip`` (rad,
+    :func:`magnetic_dip`), ``gravity`` (m/s^2) and ``field`` (uT) (:func:`rest_norms`), and the rest's extent
+    ``rest_samples`` and ``rest_s`` (s), so that a study can say what its filters were given."""
+    k = initial_rest(gyr, acc, rate, **tolerances)
+    acc, mag = np.asarray(acc, dtype=np.float64)[:k], np.asarray(mag, dtype=np.float64)[:k]
+    gravity, field = rest_norms(acc, mag)
+    return {"dip": magnetic_dip(acc, mag), "gravity": gravity, "field": field, "rest_samples": k,
+            "rest_s": k / float(rate)}
+
+
 def triad(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> Float[np.ndarray, "N 3 3"]:
     r"""Rotations body -> ENU from accelerometer and magnetometer vectors (TRIAD, trusting gravity first).
 
