@@ -74,11 +74,12 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--engines", default="c,xla")
     args = ap.parse_args()
-    root = datasets.realdata_dir()
-    if root is None or args.trial not in datasets.BROAD_TRIALS:
+    found = datasets.broad_trials()
+    if args.trial not in found:
         sys.exit(f"BROAD trial {args.trial} not found (set {datasets.ENV_VAR})")
-    trial = datasets.broad(root / datasets.BROAD_TRIALS[args.trial]).head(args.seconds)
-    dip = ab.magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
+    trial = datasets.broad(found[args.trial]).head(args.seconds)
+    k = ab.initial_rest(trial.gyr, trial.acc, trial.rate)  # the initial rest, from the IMU alone
+    dip = ab.magnetic_dip(trial.acc[:k], trial.mag[:k])
     log = datasets.broad_to_log(trial)
     system = ab.attitude_gyro_bias(dip=dip)
     g0 = ab.initial_estimate(trial.acc[:50], trial.mag[:50])

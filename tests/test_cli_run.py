@@ -155,6 +155,8 @@ def test_tune_writes_a_file_that_run_accepts(tmp_path, monkeypatch):
     assert [f["params"]["acc_std"] for f in tuned["folds"].values()] == pytest.approx([0.03, 0.03])
     assert min(abs(np.log10(tuned["params"]["acc_std"] / 0.03) - d) for d in (0.0, 0.5)) < 1e-9
     assert tuned["params"]["mag_std"] == 0.2  # given, not tuned
+    # the dip and the norms were measured over the rest found from the IMU (2 s, then the turn), not the annotation
+    assert all(1.5 <= v <= 2.0 for v in tuned["rest_s"].values()) and set(tuned["rest_s"]) == {"01", "02"}
     res = invoke("run", "--system", "attitude-bias", "--params", tmp_path / "t" / "tune.json", "--log",
                  tmp_path / "none.csv", "--out", tmp_path / "o")
     assert res.exit_code == 2 and "--params" in res.output

@@ -196,6 +196,15 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     for name, r in rows.items():  # 5 s of motion after 26.5 s of rest, from a TRIAD start: a few degrees
         assert r["ok"] and 0.0 < r["inclination"] <= r["total"] < 15.0, (name, r)
     assert meta["trials"]["07"]["published"] is None  # a head of the trial is not the published run
+    # the dip and the norms come from the rest found in the IMU samples (26.4 s), not from BROAD's annotation
+    assert 25.9 < meta["trials"]["07"]["rest_s"] < 26.5 and "detected from the IMU (initial_rest: 07 26.4 s)" \
+        in meta["study"]["measured"]
+    given = meta["study"]["given"]
+    assert given["vqf"] == [] and given["madgwick"] == ["initial attitude (TRIAD at rest)"]
+    assert given["mef-imu"] == ["initial attitude (TRIAD at rest)", "dip", "gravity", "field", "K0"]
+    assert given["iekf"] == ["initial attitude (TRIAD at rest)", "dip", "K0"]
+    md = (out / "broad.md").read_text()
+    assert "vqf: none (its defaults on the raw readings)" in md and "detected from the IMU" in md
     w = meta["winners"]["07"]["total"]
     assert w["value"] == min(r["total"] for r in rows.values())
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--runs", "3", "--out", str(out)])

@@ -95,7 +95,7 @@ def test_broad_loader_and_log():
     np.testing.assert_allclose(np.linalg.norm(trial.quat_true[~missing], axis=1), 1.0, atol=1e-6)
     assert 0.6 < trial.movement.mean() < 0.66 and not trial.movement[0]
     # quaternion convention (README): at rest the accelerometer reads R^T e_up
-    rest = trial.rest
+    rest = np.arange(N) < np.argmax(trial.movement)  # before the first annotated movement
     q = trial.quat_true[rest & ~missing]
     w, x, y, z = q.T
     up_body = np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1)  # R^T e_z

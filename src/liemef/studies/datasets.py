@@ -124,7 +124,8 @@ class BroadTrial:
         mag: (N, 3) magnetometer, uT.
         quat_true: (N, 4) OptiTrack attitude, unit quaternion (w, x, y, z) body -> ENU; NaN rows where the
             optical tracking dropped out.
-        movement: (N,) bool, BROAD's evaluation mask (the authors' metrics use only these samples).
+        movement: (N,) bool, BROAD's evaluation mask (the authors' metrics use only these samples): for scoring
+            only; a filter's rest is found from the IMU (:func:`liemef.systems.attitude_bias.initial_rest`).
         rate: sample rate, Hz.
         name: the file's stem.
     """
@@ -137,12 +138,6 @@ class BroadTrial:
     movement: np.ndarray
     rate: float
     name: str
-
-    @property
-    def rest(self) -> np.ndarray:
-        """(N,) bool: the initial rest phase, the samples before the first movement."""
-        k = int(np.argmax(self.movement)) if self.movement.any() else self.movement.shape[0]
-        return np.arange(self.movement.shape[0]) < k
 
     def head(self, seconds: float) -> BroadTrial:
         """The first ``seconds`` of the trial."""

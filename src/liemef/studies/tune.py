@@ -109,16 +109,21 @@ class Recording:
     quat_true: np.ndarray | None = None
     mask: np.ndarray | None = None
     system: str = SYSTEM
+    rest_s: float | None = None
+    """The initial rest (s) the constants were measured over, found from the IMU samples
+    (:func:`~liemef.systems.attitude_bias.initial_rest`); None when they come from elsewhere."""
 
 
 def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None = None,
                      realdata: str | None = None, *, lead: float = 5.0, gyro: str = "forward",
                      system: str = SYSTEM) -> list[Recording]:
     """The BROAD trials present (:func:`liemef.studies.datasets.broad_trials`) as recordings for
-    :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest.
+    :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest, which is found
+    from the IMU samples alone (:func:`~liemef.systems.attitude_bias.rest_constants`; BROAD's movement annotation
+    only scores, as the mask of the ``"truth"`` objective).
 
     Whole trials (``seconds`` None) start as ``liemef compare broad`` does: TRIAD of the first 50 samples, zero
-    bias and its ``K0``. A window (``seconds``) starts ``lead`` s before the first movement and lasts
+    bias and its ``K0``. A window (``seconds``) starts ``lead`` s before the end of the detected rest and lasts
     ``lead + seconds`` s: TRIAD of its first 50 samples (at rest) and the mean gyro over the rest before it as
     the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
     the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
@@ -130,8 +135,7 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         attitude_velocity_state,
         imu_velocity_log,
         initial_estimate,
-        magnetic_dip,
-        rest_norms,
+        rest_constants,
     )
     from . import datasets
     from .compare._broad import K0, K0_VELOCITY
@@ -151,9 +155,8 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     out = []
     for tid in ids:
         tr = datasets.broad(found[tid])
-        rest = tr.rest
-        gravity, fld = rest_norms(tr.acc[rest], tr.mag[rest])
-        constants = {"dip": magnetic_dip(tr.acc[rest], tr.mag[rest]), "gravity": gravity, "field": fld}
+        rest = rest_constants(tr.gyr, tr.acc, tr.mag, tr.rate)  # from the IMU alone
+        constants = {k: rest[k] for k in ("dip", "gravity", "field")}
         if velocity:
             log = _io.RecordedLog(*imu_velocity_log(tr.gyr, tr.acc, tr.mag, tr.rate, float(tr.ts[0]), gyro=gyro))
         else:
@@ -162,9 +165,9 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
             g0 = initial_estimate(tr.acc[:50], tr.mag[:50])
             out.append(Recording(tid, log.ts, log.us, log.ys, constants,
                                  attitude_velocity_state(g0) if velocity else g0, K0_VELOCITY if velocity else K0,
-                                 tr.quat_true, tr.movement, system))
+                                 tr.quat_true, tr.movement, system, rest["rest_s"]))
             continue
-        k_move = int(rest.sum())
+        k_move = rest["rest_samples"]
         a = max(0, k_move - int(lead * tr.rate))
         b = min(len(tr.ts), k_move + int(seconds * tr.rate))
         bias = tr.gyr[:a].mean(axis=0) if a > 0 else np.zeros(3)
@@ -173,7 +176,7 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         k0 = [0.05**2] * 3 + [0.002**2] * 3 + ([0.1**2] * 3 if velocity else [])
         out.append(Recording(tid, log.ts[w], log.us[w], log.ys[w], constants,
                              attitude_velocity_state(g0) if velocity else g0, np.diag(k0), tr.quat_true[w],
-                             tr.movement[w], system))
+                             tr.movement[w], system, rest["rest_s"]))
     return out
 
 
@@ -449,6 +452,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
             "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
             "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
             "folds": folds, "held_out_mean": float(np.mean(held)),
+            "rest_s": {r.name: float(r.rest_s) for r in recs if r.rest_s is not None},
             "train_mean": float(np.mean([f["train"] for f in folds.values()])),
             "evaluations": len(cache), "elapsed_s": time.perf_counter() - t0}
 
@@ -469,7 +473,7 @@ FILE_KEYS = {"format": "text", "system": "text", "objective": "text", "names": "
              "updates": "text", "cross_validation": "text", "params_from": "text", "params": "params",
              "train": "number", "per_recording": "numbers",
              "folds": "folds", "held_out_mean": "number", "train_mean": "number", "evaluations": "count",
-             "elapsed_s": "number"}
+             "elapsed_s": "number", "rest_s": "numbers"}
 """The keys of a tuning file (every key :func:`tune` writes) and the kind of each value; ``format``, ``system``
 and ``params`` are required, every other key is optional, and a key not listed is refused."""
 FOLD_KEYS = {"params": "params", "train": "number", "held_out": "number"}
@@ -604,7 +608,9 @@ def markdown(result: dict) -> str:
     per = result.get("per_recording") or {}
     names = result["names"]
     lines = [f"# liemef tune: {result['system']}, objective {result['objective']} {unit}", "",
-             f"{result['evaluations']} filter runs, {result['elapsed_s']:.0f} s. {how}", "",
+             f"{result['evaluations']} filter runs, {result['elapsed_s']:.0f} s. {how}"
+             + ("" if not result.get("rest_s") else " Dip, gravity and field measured over the initial rest detected "
+                "from the IMU (" + ", ".join(f"{k} {v:.1f} s" for k, v in result["rest_s"].items()) + ")."), "",
              "| recording | held-out (fold without it) | fold's training (the other recordings) "
              "| final set, in-sample | " + " | ".join(f"fold's {n}" for n in names) + " |",
              "|---|---:|---:|---:|" + "---:|" * len(names)]

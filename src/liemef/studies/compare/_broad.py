@@ -6,13 +6,19 @@ the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filte
 
 - the same log (:func:`liemef.studies.datasets.broad_to_log`), but for the filters of :data:`OWN_TIME`, which
   take gyro sample k over the interval that ends at t_k, as `vqf-broad` does;
-- the same initial estimate, TRIAD from the first 50 samples at rest, with zero bias;
+- the same initial estimate, TRIAD from the first 50 samples of the initial rest, with zero bias;
 - for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
 
+Nothing from the truth reaches a filter: the initial rest is found from the IMU samples alone
+(:func:`~liemef.systems.attitude_bias.initial_rest`), and the magnetic dip, gravity and field are measured over
+it (:func:`~liemef.systems.attitude_bias.rest_constants`); BROAD's ``movement`` annotation and the optical
+attitude only score. Not every filter takes every prior: :func:`given` reads off each filter what it uses
+(VQF none: its defaults on the raw readings, from its own first samples), and the table says so.
+
 The weights are **one set for all trials**: the defaults of :func:`liemef.systems.attitude_gyro_bias`. The
-magnetic dip is measured at rest in each trial. The metrics are the dataset's own: the total, heading and
-inclination rms of the error $q_{est} \otimes q_{ref}^{-1}$ (world frame) over BROAD's movement mask, where
-the optical truth is present (the dataset README's formulas).
+metrics are the dataset's own: the total, heading and inclination rms of the error
+$q_{est} \otimes q_{ref}^{-1}$ (world frame) over BROAD's movement mask, where the optical truth is present
+(the dataset README's formulas).
 
 Filters (:data:`BROAD_FILTERS`):
 
@@ -50,8 +56,7 @@ from ...systems.attitude_bias import (
     attitude_velocity_state,
     imu_velocity_log,
     initial_estimate,
-    magnetic_dip,
-    rest_norms,
+    rest_constants,
 )
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
@@ -145,10 +150,32 @@ PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "ma
 """Total rms (deg) of BROAD's own Madgwick (beta = 0.12) and Mahony (Kp = 0.74, Ki = 0.0012) per trial, one
 parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
 METRICS = ("total", "heading", "inclination")
+INITIAL_SAMPLES = 50
+"""The initial estimate is TRIAD of the mean of the initial rest's first samples, this many (fewer if the rest is
+shorter)."""
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
 K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
 """K0 of the bounded-velocity model: K0's attitude and bias, and (0.1 m/s)^2 on the velocity (at rest)."""
 
+
+
+def given(flt) -> tuple[str, ...]:
+    """What the filter ``flt`` (one of :data:`BROAD_FILTERS`) takes besides the log, read off the filter: the
+    initial estimate (TRIAD at rest) unless it is VQF, which starts from its own first samples; the dip where its
+    system has a magnetometer model it uses (not Madgwick, Mahony or VQF: their docstrings), gravity and field
+    where its system has the ``norm`` sensor (not VQF, which reads the raw norms itself); K0 where it has a
+    covariance."""
+    if isinstance(flt, VQF):
+        return ()
+    out = ["initial attitude (TRIAD at rest)"]
+    if isinstance(flt, Madgwick | Mahony):
+        return tuple(out)
+    out.append("dip")
+    if "norm" in {b.name for b in flt.system.blocks()}:
+        out += ["gravity", "field"]
+    if getattr(flt, "has_covariance", True):
+        out.append("K0")
+    return tuple(out)
 
 
 def trial_ids(what: str, trials, present, folder) -> tuple[str, ...]:
@@ -245,12 +272,13 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
         trial = datasets.broad(paths[tid])
         if st.seconds is not None:
             trial = trial.head(st.seconds)
-        dip = magnetic_dip(trial.acc[trial.rest], trial.mag[trial.rest])
-        gravity, fld = rest_norms(trial.acc[trial.rest], trial.mag[trial.rest])
+        rest = rest_constants(trial.gyr, trial.acc, trial.mag, trial.rate)  # from the IMU alone
+        dip, gravity, fld = rest["dip"], rest["gravity"], rest["field"]
         logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
         logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
                                                             float(trial.ts[0]), gyro="backward"))
-        g0 = initial_estimate(trial.acc[:50], trial.mag[:50])
+        first = min(INITIAL_SAMPLES, rest["rest_samples"])
+        g0 = initial_estimate(trial.acc[:first], trial.mag[:first])
         params = {} if tuned is None else params_for(tuned, tid)
         ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params,
                "tuned_system": None if tuned is None else tuned["system"]}
@@ -272,7 +300,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             ok = bool(int(status.code) == 0)
             # a failed run has no error figures: its states before the failure are not the whole trial's
             errors = broad_errors(q, trial.quat_true, trial.movement) if ok else dict.fromkeys(METRICS)
-            rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": ok,
+            rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": ok, "given": list(given(flt)),
                           "status": status.message(log.ts) if not ok else "ok", **errors,
                           "elapsed_s": time.perf_counter() - t0}
             arrays[f"{tid}/{name}"] = np.array([np.nan if rows[name][m] is None else rows[name][m] for m in METRICS])
@@ -282,6 +310,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                       f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", file=sys.stderr, flush=True)
         per_trial[tid] = {"file": trial.name, "seconds": float(trial.ts[-1] - trial.ts[0]),
                           "dip_deg": math.degrees(dip), "gravity": gravity, "field_uT": fld,
+                          "rest_s": rest["rest_s"],
                           "imu_params": params, "filters": rows,
                           "published": PUBLISHED.get(tid) if st.seconds is None else None}
         winners[tid] = {}
@@ -305,9 +334,13 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
         for n in st.filters:
             v = [(per_trial[t]["filters"][n]["total"], per_trial[t]["filters"]["vqf"]["total"]) for t in st.trials]
             ratio[n] = None if any(a is None or b is None for a, b in v) else float(max(a / b for a, b in v))
-    return {"study": {**dataclasses.asdict(st), "weights": "attitude_gyro_bias() defaults for every trial, dip "
-                      "measured at rest per trial", "K0": "diag(0.05^2 I3, 0.01^2 I3)",
-                      "initial": "TRIAD of the first 50 samples, zero bias",
+    rests = ", ".join(f"{t} {per_trial[t]['rest_s']:.1f} s" for t in st.trials)
+    return {"study": {**dataclasses.asdict(st), "weights": "attitude_gyro_bias() defaults for every trial",
+                      "measured": "dip, gravity and field measured over the initial rest detected from the IMU "
+                                  f"(initial_rest: {rests})",
+                      "given": {n: per_trial[st.trials[0]]["filters"][n]["given"] for n in st.filters},
+                      "K0": "diag(0.05^2 I3, 0.01^2 I3)",
+                      "initial": f"TRIAD of the first {INITIAL_SAMPLES} samples of the initial rest, zero bias",
                       "imu_params": "attitude_imu() defaults" if tuned is None else
                       f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"},
             "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners, "arrays": arrays}
@@ -317,11 +350,16 @@ def markdown(result: dict) -> str:
     """Per trial: every filter's total, heading and inclination rms, the published figures, and the winners."""
     st = result["study"]
     lines = ["# Attitude filters on BROAD (Laidig et al. 2021, CC BY 4.0)", "",
-             f"Weights: {st['weights']}; K0 = {st['K0']}; initial estimate: {st['initial']}. Metrics: BROAD's "
+             f"Weights: {st['weights']}; K0 = {st['K0']}; initial estimate: {st['initial']}; {st['measured']}. "
+             "Metrics: BROAD's "
              "total, heading and inclination rms [deg] over its movement mask where the optical truth is present. "
              "One recording per trial: no Monte Carlo spread; the optical truth is accurate to about "
              f"{REFERENCE_ACCURACY_DEG} deg.", ""]
     names = st["filters"]
+    if "given" in st:
+        lines += ["What each filter is given besides the log (read off the filter): " + "; ".join(
+            f"{n}: {', '.join(g) if g else 'none (its defaults on the raw readings)'}" for n, g in st["given"].items())
+            + ".", ""]
     lines += ["| filter | " + " | ".join(f"{t} total / heading / incl." for t in st["trials"]) + " | mean total |",
               "|---|" + "---:|" * (len(st["trials"]) + 1)]
     for n in names:

@@ -37,7 +37,9 @@ seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (the
 
 **Initial state** at the first sample with both optical attitude and position (within the initial rest phase of
 every trial; the run starts there): the optical attitude and position, zero velocity (at rest), the gyro bias
-the mean gyro over the rest phase up to the first movement (no truth used), zero accelerometer bias;
+the mean gyro over the initial rest found from the IMU samples alone
+(:func:`~liemef.systems.attitude_bias.initial_rest`; BROAD's movement annotation only scores), zero
+accelerometer bias;
 K0 = :data:`K0` = diag((0.01 rad)^2 I3, (0.05 m/s)^2 I3, (0.01 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3).
 
 **Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``):
@@ -257,10 +259,12 @@ def system_of(rate: float, fix_std: float):
 
 def initial_state(data: InsTrial) -> SE23B:
     """The initial estimate (module docstring): the first optical pose, zero velocity, the gyro bias the mean gyro
-    over the rest phase, zero accelerometer bias."""
+    over the initial rest found from the IMU (:func:`~liemef.systems.attitude_bias.initial_rest`), zero
+    accelerometer bias."""
+    from ...systems.attitude_bias import initial_rest
+
     tr = data.trial
-    rest = tr.rest
-    bg = tr.gyr[rest].mean(axis=0) if rest.any() else np.zeros(3)
+    bg = tr.gyr[:initial_rest(tr.gyr, tr.acc, tr.rate)].mean(axis=0)
     q = tr.quat_true[0] / np.linalg.norm(tr.quat_true[0])
     x = SE23.from_rotation_velocity_position(SO3(q), np.zeros(3), data.pos[0])
     return SE23B((x, Rn[6](np.concatenate([bg, np.zeros(3)]))))
@@ -467,8 +471,8 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                       "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
                                  "for all trials", "K0": "diag(0.01^2 I3, 0.05^2 I3, 0.01^2 I3, 0.002^2 I3, 0.1^2 I3)",
-                      "initial": "first optical pose, zero velocity, gyro bias = mean gyro over the rest phase, zero "
-                                 "accelerometer bias",
+                      "initial": "first optical pose, zero velocity, gyro bias = mean gyro over the initial rest "
+                                 "detected from the IMU, zero accelerometer bias",
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
