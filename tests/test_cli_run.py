@@ -236,3 +236,134 @@ def test_a_setting_that_changes_the_state_no_longer_reads_it_off_the_measurement
     same = with_settings(resolve_system("inertial-navigation"), ["gnss_std=0.5,0.5,1.0"])
     assert same.measured is not None and same.settings == {"gnss_std": [0.5, 0.5, 1.0]}
     np.testing.assert_array_equal(same.initial_guess(np.array([1.0, 2.0, 3.0])), [0] * 6 + [1.0, 2.0, 3.0])
+
+
+# --- the IMU models from a BROAD recording: the user's path to compare broad's best model -----------------------
+def broad_mat(path, rest_s=2.0, seconds=4.0, rate=100.0, seed=0):
+    """A BROAD-shaped .mat trial: at rest for ``rest_s`` s (gyro bias 0.01 rad/s), then a turn about z at 0.5 rad/s;
+    a field of 16 uT north and 40 uT down (dip 68.2 deg), gravity 9.81, accelerometer noise 0.05 m/s^2; its
+    movement annotation starts 1 s late, so that a rest taken from it would hold the turn's start."""
+    import scipy.io
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    N, k = int(seconds * rate), int(rest_s * rate)
+    w = np.zeros((N, 3))
+    w[k:, 2] = 0.5
+    R = Rotation.from_rotvec(np.concatenate([np.zeros((1, 3)), np.cumsum(w, axis=0)[:-1] / rate]))
+    scipy.io.savemat(path, {
+        "imu_gyr": w + [0.0, 0.0, 0.01] + 0.001 * rng.standard_normal((N, 3)),
+        "imu_acc": R.inv().apply([0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((N, 3)),
+        "imu_mag": R.inv().apply([0.0, 16.0, -40.0]), "opt_quat": R.as_quat()[:, [3, 0, 1, 2]],
+        "movement": (np.arange(N) >= k + int(rate)).astype(np.uint8), "sampling_rate": rate})
+    return R
+
+
+def test_dataset_broad_writes_the_best_model_and_run_filters_it(tmp_path):
+    """`liemef dataset broad` writes the bounded-velocity model's log by default and prints the command that runs
+    it; `liemef run --system attitude-velocity` runs it as compare broad's mef-vel (discrete updates, exact
+    curvature, left error, its K0), with the dip and the norms measured over the rest found in the log."""
+    from liemef.systems.attitude_bias import K0_VELOCITY
+
+    R = broad_mat(tmp_path / "01_synthetic.mat")
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--out", tmp_path / "log.csv")
+    assert res.exit_code == 0, res.output
+    assert f"Filter it with: liemef run --system attitude-velocity --log {tmp_path / 'log.csv'} --out DIR" \
+        in res.output and "best model" not in res.output
+    header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
+    assert header[:7] == ["t", "gyro_x", "gyro_y", "gyro_z", "force_x", "force_y", "force_z"]
+    res = invoke("run", "--system", "attitude-velocity", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "Measured over the initial rest detected from the IMU (1.5 s): dip 68.1" in res.output  # <= 0.5 s early
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    config = metrics["config"]
+    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
+    np.testing.assert_allclose(config["K0_diag"], np.diag(K0_VELOCITY))
+    rest = config["rest"]
+    assert rest["found"] and 1.5 <= rest["rest_s"] <= 2.0 and rest["measured"] == ["dip", "field", "gravity"]
+    assert rest["dip_deg"] == pytest.approx(68.2, abs=0.2) and rest["gravity"] == pytest.approx(9.81, abs=0.01)
+    assert "dip, field, gravity measured over the initial rest detected from the IMU" in \
+        metrics["system"]["description"]
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    from scipy.spatial.transform import Rotation
+
+    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
+    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
+    assert est[-1, 6] == pytest.approx(0.01, abs=0.005)  # the z gyro bias
+    # what the user sets is kept; the rest is still measured
+    res = invoke("run", "--system", "attitude-velocity", "--log", tmp_path / "log.csv", "--out", tmp_path / "s",
+                 "--set", "dip=1.2", "--updates", "hold", "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    config = json.loads((tmp_path / "s" / "metrics.json").read_text())["config"]
+    assert config["rest"]["measured"] == ["field", "gravity"] and config["system_settings"] == {"dip": 1.2}
+    assert config["updates"] == "hold" and config["curvature"] == "exact"
+    # the other models' logs, and the hint that names the best one
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--norms", "--out", tmp_path / "imu.csv")
+    assert res.exit_code == 0, res.output
+    assert "liemef run --system attitude-imu" in res.output
+    assert "The best model of `liemef compare broad` is attitude-velocity" in res.output
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", "localization", "--out",
+                 tmp_path / "x.csv")
+    assert res.exit_code == 2 and "--system" in res.output and "attitude-velocity" in res.output
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--norms", "--system", "attitude-bias",
+                 "--out", tmp_path / "x.csv")
+    assert res.exit_code == 2 and "--norms" in res.output
+
+
+def test_run_says_when_a_log_has_no_initial_rest(tmp_path):
+    """A log that starts in motion keeps the factory's dip and norms, and the run says so (a warning, and
+    metrics.json's config.rest)."""
+    broad_mat(tmp_path / "01_moving.mat", rest_s=0.0, seconds=2.0)
+    assert invoke("dataset", "broad", tmp_path / "01_moving.mat", "--out", tmp_path / "log.csv").exit_code == 0
+    res = invoke("run", "--system", "attitude-velocity", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "WARNING: no initial rest found in the log (gyr, acc: expected a log that starts at rest" in res.output
+    assert "--set dip=RAD" in res.output
+    rest = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]["rest"]
+    assert rest["found"] is False and rest["measured"] == [] and "starts at rest" in rest["why"]
+
+
+def test_run_takes_an_attitude_velocity_tuning_file(tmp_path):
+    """`--params` takes a tuning file for attitude-velocity with --system attitude-velocity (not another
+    model's); the system is built with its values and the dip and norms measured in the log."""
+    broad_mat(tmp_path / "01_synthetic.mat")
+    assert invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--out", tmp_path / "log.csv").exit_code == 0
+    tuned = {"format": "liemef-tune-1", "system": "attitude-velocity", "params": {"velocity_std": 0.02}}
+    (tmp_path / "tune.json").write_text(json.dumps(tuned))
+    res = invoke("run", "--system", "attitude-velocity", "--params", tmp_path / "tune.json", "--log",
+                 tmp_path / "log.csv", "--out", tmp_path / "o", "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    params = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]["params"]
+    assert params["system"] == "attitude-velocity" and params["from_file"] == ["velocity_std"]
+    assert params["values"]["velocity_std"] == 0.02 and params["values"]["dip"] == pytest.approx(1.190, abs=0.004)
+    assert invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", "attitude-imu", "--out",
+                  tmp_path / "imu.csv").exit_code == 0
+    res = invoke("run", "--system", "attitude-imu", "--params", tmp_path / "tune.json", "--log",
+                 tmp_path / "imu.csv", "--out", tmp_path / "x", "--no-progress")
+    assert res.exit_code == 2 and "tuned for 'attitude-velocity'" in res.output
+
+
+def test_the_printed_command_runs_a_broad_head(tmp_path):
+    """On BROAD trial 07's first 28 s (26.4 s of rest, then the fast rotation starts), the commands `liemef dataset
+    broad` prints run the bounded-velocity model; its attitude error over BROAD's movement mask is small."""
+    from liemef.studies import datasets
+    from liemef.studies.compare._broad import broad_errors
+
+    if "07" not in datasets.broad_trials():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    res = invoke("dataset", "broad", "07", "--seconds", "28", "--out", tmp_path / "log.npz", "--truth",
+                 tmp_path / "truth.csv")
+    assert res.exit_code == 0, res.output
+    command = res.output.split("Filter it with: liemef ")[1].split()
+    assert command[:2] == ["run", "--system"] and command[2] == "attitude-velocity"
+    res = invoke(*command[:-1], tmp_path / "o", "--no-progress")
+    assert res.exit_code in (0, 3), res.output  # 3: the monitor's verdict; the outputs are written
+    assert "Measured over the initial rest detected from the IMU (26.4 s)" in res.output
+    from scipy.spatial.transform import Rotation
+
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    truth = np.loadtxt(tmp_path / "truth.csv", delimiter=",", skiprows=1)
+    q = Rotation.from_rotvec(est[:, 1:4]).as_quat()[:, [3, 0, 1, 2]]
+    assert broad_errors(q, truth[:, 1:5], truth[:, 5] > 0)["total"] < 3.0

@@ -202,17 +202,22 @@ def schema(system_name, system_file, timeout):
 
 
 @_command(cli, "dataset")
-def dataset(kind, path, out, truth, seconds, gps_std, norms):
+def dataset(kind, path, out, truth, seconds, gps_std, system_name, norms):
     from .studies import datasets
 
     try:
         log, system, written = datasets.convert(kind, path, out, truth=truth, seconds=seconds, gps_std=gps_std,
-                                                norms=norms)
+                                                norms=norms, system=system_name)
     except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="'PATH'") from err
+        hint = "'--system'" if str(err).startswith("system:") else "'PATH'"
+        raise click.BadParameter(str(err), param_hint=hint) from err
     click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
                f"{', '.join(str(p) for p in written)}")
     click.echo(f"Filter it with: liemef run --system {system} --log {out} --out DIR")
+    best = registry.DATASET_SYSTEMS[kind][0]
+    if system != best:
+        click.echo(f"The best model of `liemef compare broad` is {best}: liemef dataset {kind} {path} --system {best} "
+                   f"--out LOG, then liemef run --system {best} --log LOG --out DIR")
 
 
 @_command(cli, "tune")

@@ -73,6 +73,52 @@ SCHEMAS = {'attitude': {'blocks': [['y', 0, 6]],
                           'CSV header: '
                           't,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,norm_acc,norm_mag\n'
                           'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
+ 'attitude-velocity': {'blocks': [['acc', 0, 3], ['mag', 3, 6], ['norm', 6, 8], ['velocity', 8, 11]],
+                       'coords_dim': 9,
+                       'description': 'attitude, gyro bias and velocity on SO(3) x R^3 x R^3, the bounded-velocity '
+                                      'model (linear acceleration as a velocity kept near zero, heading-only '
+                                      "magnetometer), compare broad's best: input the gyro (3, rad/s, sample k "
+                                      'over the interval ending at t_k) and the accelerometer (3, m/s^2), the '
+                                      'accelerometer and magnetometer directions, their raw norms and a zero '
+                                      'velocity (pseudo measurement); defaults of '
+                                      'liemef.systems.attitude_velocity, run with samples at their own time',
+                       'inputs': ['gyro_x', 'gyro_y', 'gyro_z', 'force_x', 'force_y', 'force_z'],
+                       'outputs': ['acc_x',
+                                   'acc_y',
+                                   'acc_z',
+                                   'mag_x',
+                                   'mag_y',
+                                   'mag_z',
+                                   'norm_acc',
+                                   'norm_mag',
+                                   'velocity_x',
+                                   'velocity_y',
+                                   'velocity_z'],
+                       'tangent_dim': 9,
+                       'text': 'column      unit   role             noise\n'
+                               't           s      time\n'
+                               'gyro_x      rad/s  input\n'
+                               'gyro_y      rad/s  input\n'
+                               'gyro_z      rad/s  input\n'
+                               'force_x     m/s^2  input\n'
+                               'force_y     m/s^2  input\n'
+                               'force_z     m/s^2  input\n'
+                               'acc_x       1      sensor acc       std 1 1 per sample\n'
+                               'acc_y       1      sensor acc       std 1 1 per sample\n'
+                               'acc_z       1      sensor acc       std 1 1 per sample\n'
+                               'mag_x       1      sensor mag       std 0.022 1 per sample\n'
+                               'mag_y       1      sensor mag       std 0.022 1 per sample\n'
+                               'mag_z       1      sensor mag       std 0.022 1 per sample\n'
+                               'norm_acc    m/s^2  sensor norm      std 0.1 m/s^2 per sample\n'
+                               'norm_mag    uT     sensor norm      std 1 uT per sample\n'
+                               'velocity_x  m/s    sensor velocity  density 0.011 m/s/sqrt(Hz)\n'
+                               'velocity_y  m/s    sensor velocity  density 0.011 m/s/sqrt(Hz)\n'
+                               'velocity_z  m/s    sensor velocity  density 0.011 m/s/sqrt(Hz)\n'
+                               '\n'
+                               'CSV header: '
+                               't,gyro_x,gyro_y,gyro_z,force_x,force_y,force_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,norm_acc,norm_mag,velocity_x,velocity_y,velocity_z\n'
+                               'An empty field (or nan) is a missing sample; a missing input holds the previous '
+                               'one.'},
  'chaplygin': {'blocks': [['y', 0, 6]],
                'coords_dim': 5,
                'description': 'Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS '

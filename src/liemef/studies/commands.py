@@ -91,6 +91,12 @@ ERROR = option("--error", type=choice(_names.ERROR_SIDES), default="auto", show_
                "(Theorem 4.1's) or right. K is written as the left error's covariance either way.")
 
 
+def _run_defaults(key: str) -> str:
+    """The ready systems that run with their own value of the filter option ``key``, as "NAME: VALUE" (read
+    without JAX from :data:`liemef.studies.registry.RUN_OPTIONS`)."""
+    return ", ".join(f"{name}: {options[key]}" for name, options in registry.RUN_OPTIONS.items() if key in options)
+
+
 def system(text: str) -> Param:
     """``--system NAME``, a ready system, with the help ``text``."""
     return option("--system", "system_name", type=choice(SYSTEMS), help=text)
@@ -163,20 +169,24 @@ RUN = Command(
         CONNECTION, ORDER, ALPHA,
         option("--interpolation", type=choice(_names.INTERPOLATIONS), default="hold", show_default=True,
                help="Inputs and dense measurements held over each interval, or linear between samples."),
-        option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
+        option("--updates", type=choice(_names.UPDATES),
                help="Sample sensors: held over the interval after their time stamp (the papers' scheme), or used "
-               "at their own time (the hybrid filter: recommended for sample sensors)."),
-        option("--curvature", type=choice(("safe", "exact")), default="safe", show_default=True,
+               "at their own time (the hybrid filter: recommended for sample sensors). Default: hold, or the "
+               f"ready system's ({_run_defaults('updates')})."),
+        option("--curvature", type=choice(("safe", "exact")),
                help="The outputs' second-order term: safe (kept where it lowers the Gauss-Newton information, never "
-               "below zero; dropped elsewhere) or exact (Theorem 4.1's, the papers' filter)."),
-        ERROR, SUBSTEPS,
+               "below zero; dropped elsewhere) or exact (Theorem 4.1's, the papers' filter). Default: safe, or the "
+               f"ready system's ({_run_defaults('curvature')})."),
+        option("--error", type=choice(_names.ERROR_SIDES), help=ERROR.attrs["help"] + " Default: auto, or the ready "
+               f"system's ({_run_defaults('error')})."), SUBSTEPS,
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),
         option("--chunk", type=at_least(16), default=65536, show_default=True,
                help="Samples per compiled chunk (progress is shown between chunks)."),
         option("--params", "params_file", type=PATH,
-               help="A tuning file of `liemef tune` (JSON) for --system attitude-imu: its final parameter set "
-                    "(recorded in metrics.json with its SHA-256; docs/imu.md)."),
+               help="A tuning file of `liemef tune` (JSON) for --system " + " or ".join(registry.TUNE_SYSTEMS)
+                    + " (the file's system): its final parameter set (recorded in metrics.json with its SHA-256; "
+                      "docs/imu.md)."),
         option("--set", "settings", multiple=True, metavar="KEY=VALUE",
                help="A parameter of the ready system's factory (repeatable), e.g. --set gnss_std=0.5 --set "
                     "biases=true for inertial-navigation; recorded in metrics.json (config.system_settings)."),
@@ -213,8 +223,9 @@ SCHEMA_COMMAND = Command(
 
 DATASET = Command(
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
-    `liemef run`: `broad FILE.mat` (BROAD IMU trial, system attitude-bias: gyro input, accelerometer and
-    magnetometer directions) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
+    `liemef run`, and print the command that filters it: `broad FILE.mat` (BROAD IMU trial; by default the log
+    of the bounded-velocity model attitude-velocity, the best of `liemef compare broad`; --system attitude-imu or
+    attitude-bias for the others) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
     localization). PATH may also be the id of a recording present in the real-data folder (`broad 16`,
     `wifibot 4`; found by reading the files).""", (
         argument("kind", type=choice(registry.DATASETS)), argument("path", type=PATH),
@@ -224,7 +235,11 @@ DATASET = Command(
         option("--seconds", type=float, help="Only the first SECONDS of the recording."),
         option("--gps-std", type=float, default=0.1, show_default=True,
                help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0)."),
-        option("--norms", is_flag=True, help="broad: also the raw norms, a log for the system attitude-imu.")))
+        option("--system", "system_name", type=choice(sorted({s for v in registry.DATASET_SYSTEMS.values()
+                                                               for s in v})),
+               help="The ready system whose log to write: " + "; ".join(
+                   f"{k}: {', '.join(v)} (default {v[0]})" for k, v in registry.DATASET_SYSTEMS.items()) + "."),
+        option("--norms", is_flag=True, help="broad: the log of attitude-imu (the same as --system attitude-imu).")))
 
 TUNE = Command(
     """Fit an IMU model's noise levels (--system) to the BROAD trials present, by a derivative-free

@@ -266,18 +266,30 @@ def wifibot_to_log(run: WifibotRun, gps_rate: float = 1.0, gps_std: float = 0.1,
 
 
 def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: str | os.PathLike | None = None,
-            seconds: float | None = None, gps_std: float = 0.1, norms: bool = False
+            seconds: float | None = None, gps_std: float = 0.1, norms: bool = False, system: str | None = None
             ) -> tuple[io.RecordedLog, str, list[Path]]:
-    """A real recording as a log for ``liemef run``: ``kind`` ``"broad"`` (a BROAD ``.mat`` trial, system
-    ``attitude-bias``, or ``attitude-imu`` with ``norms``: the raw norms too) or ``"wifibot"`` (a Wifibot ``.txt``
-    run with synthetic GPS of ``gps_std`` m, system ``localization``), only its first ``seconds`` if given,
-    written to ``out`` (``.csv`` or ``.npz``) and its ground truth to ``truth`` (CSV). ``path`` may also be the
-    id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`, :func:`wifibot_runs`).
-    Returns the log, the ready system's name and the files written."""
+    """A real recording as a log for ``liemef run``: ``kind`` ``"broad"`` (a BROAD ``.mat`` trial) or
+    ``"wifibot"`` (a Wifibot ``.txt`` run with synthetic GPS of ``gps_std`` m, system ``localization``), only its
+    first ``seconds`` if given, written to ``out`` (``.csv`` or ``.npz``) and its ground truth to ``truth`` (CSV).
+    ``system``: the ready system whose log to write (:data:`liemef.studies.registry.DATASET_SYSTEMS`; default the
+    first: for BROAD ``attitude-velocity``, the bounded-velocity model, whose log holds the gyro as the rate over
+    the interval that ends at each sample, :func:`~liemef.systems.attitude_bias.imu_velocity_log`;
+    ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions). ``path``
+    may also be the id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`,
+    :func:`wifibot_runs`). Returns the log, the ready system's name and the files written."""
+    from ..systems.attitude_bias import imu_velocity_log
+    from . import registry
     from .experiments import get_system
 
     if kind not in ("broad", "wifibot"):
         raise ValueError(f"kind: expected 'broad' or 'wifibot', got {kind!r}")
+    choices = registry.DATASET_SYSTEMS[kind]
+    if norms and system not in (None, "attitude-imu"):
+        raise ValueError(f"system: --norms writes the log of attitude-imu, got --system {system} too")
+    system = "attitude-imu" if norms else choices[0] if system is None else system
+    if system not in choices:
+        raise ValueError(f"system: expected a system whose log a {kind} recording gives, one of {list(choices)}, got "
+                         f"{system!r}")
     if not Path(path).exists():  # an id of a recording present, found by reading the files
         found = (broad_trials if kind == "broad" else wifibot_runs)()
         key = f"{int(str(path)):02d}" if kind == "broad" and str(path).isdigit() else str(path)
@@ -285,7 +297,11 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     if kind == "broad":
         rec = broad(path)
         rec = rec.head(seconds) if seconds else rec
-        log, name = broad_to_log(rec, norms=norms), "attitude-imu" if norms else "attitude-bias"
+        if system == "attitude-velocity":
+            log = io.RecordedLog(*imu_velocity_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
+                                                   gyro="backward"))
+        else:
+            log = broad_to_log(rec, norms=system == "attitude-imu")
         header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]
         columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
     else:
@@ -293,9 +309,9 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
         if seconds:
             k = max(2, int(np.searchsorted(rec.ts, rec.ts[0] + seconds)))
             rec = WifibotRun(rec.ts[:k], rec.v[:k], rec.omega[:k], rec.truth[:k], rec.name)
-        log, name = wifibot_to_log(rec, gps_std=gps_std), "localization"
+        log = wifibot_to_log(rec, gps_std=gps_std)
         header, columns = ["t", "theta", "x", "y"], [rec.ts, *rec.truth.T]
-    written = [io.write_log(out, get_system(name).make(), log.ts, log.us, log.ys)]
+    written = [io.write_log(out, get_system(system).make(), log.ts, log.us, log.ys)]
     if truth is not None:
         written.append(io.write_csv(truth, header, columns))
-    return log, name, written
+    return log, system, written

@@ -65,6 +65,10 @@ class LogSystem:
     settings: dict | None = field(default=None, repr=False)
     """The ready system's parameters set by ``--set KEY=VALUE`` (:func:`with_settings`), as parsed
     (``metrics.json``'s ``config.system_settings``); None without any."""
+    rest: dict | None = field(default=None, repr=False)
+    """What :func:`with_log_constants` measured in the log before the run (``metrics.json``'s
+    ``config.rest``): the constants ``measured`` and the rest's extent, or ``found`` False and ``why`` when the log
+    has no initial rest; None for a system that takes none."""
 
     def initial_guess(self, ys0) -> np.ndarray:
         """The default initial estimate in coordinates from the first present measurement of each component
@@ -81,10 +85,59 @@ class LogSystem:
         return self.spec.initial_guess(ys0)
 
     def default_K0(self) -> np.ndarray:
-        """The system file's ``K0``, else the identity."""
+        """The system file's ``K0``, else the ready system's (:class:`~liemef.studies.experiments.SystemSpec`),
+        else the identity."""
         if self.user is not None and self.user.K0 is not None:
             return np.asarray(self.user.K0, dtype=np.float64)
+        if self.spec is not None and self.spec.K0 is not None and self.measured is not None:
+            return np.asarray(self.spec.K0, dtype=np.float64)
         return np.eye(self.system.group.tangent_dim)
+
+    def run_option(self, key: str, value, default):
+        """The filter option ``key``: ``value`` when given, else the ready system's (``SystemSpec.run_options``),
+        else ``default``."""
+        if value is not None:
+            return value
+        return (self.spec.run_options if self.spec is not None else {}).get(key, default)
+
+
+CONSTANTS = ("dip", "gravity", "field")
+"""The ready IMU systems' parameters measured in the log before the run (:func:`with_log_constants`)."""
+
+
+def with_log_constants(source: LogSystem, log) -> LogSystem:
+    """``source`` rebuilt with the constants its ready system measures in the ``log`` before the run
+    (``SystemSpec.constants``: the IMU systems' dip, gravity and field over the initial rest found from the IMU
+    samples, :func:`liemef.systems.attitude_bias.log_rest_constants`); those given with ``--set`` are kept. A log
+    without an initial rest keeps the factory's defaults, which :attr:`LogSystem.rest` records and
+    :meth:`LogRun.warnings` says. Any other system is returned as it is."""
+    spec = source.spec
+    if spec is None or spec.constants is None or source.rest is not None:
+        return source
+    given = set(source.settings or ()) & set(CONSTANTS)
+    try:
+        found = spec.constants(log.ts, log.us, log.ys)
+    except ValueError as err:
+        return dataclasses.replace(source, rest={"found": False, "why": str(err), "measured": []})
+    constants = {k: float(found[k]) for k in CONSTANTS if k not in given}
+    rest = {"found": True, "rest_s": float(found["rest_s"]), "rest_samples": int(found["rest_samples"]),
+            "measured": sorted(constants), "dip_deg": math.degrees(found["dip"]), "gravity": float(found["gravity"]),
+            "field": float(found["field"])}
+    params = source.params
+    if params is not None:
+        from . import tune
+
+        chosen = {k: params["values"][k] for k in params["from_file"]}
+        system = tune.system_from(chosen, constants, params["system"])
+        params = {**params, "values": tune.parameters(chosen, constants, params["system"])}
+    else:
+        settings = {k: tuple(v) if isinstance(v, list) else v for k, v in (source.settings or {}).items()}
+        system = spec.make(**settings, **constants)
+    said = ", ".join(sorted(constants))
+    return dataclasses.replace(
+        source, system=system, params=params, rest=rest,
+        description=f"{source.description}; {said} measured over the initial rest detected from the IMU "
+                    f"({rest['rest_s']:.1f} s)" if constants else source.description)
 
 
 def resolve_system(name: str | None = None, file: str | os.PathLike | None = None, *,
@@ -492,6 +545,11 @@ class LogRun:
         from .._times import time_said
 
         out = []
+        rest = self.source.rest
+        if rest is not None and not rest["found"]:
+            out.append(f"no initial rest found in the log ({rest['why']}); dip, gravity and field are "
+                       f"{self.source.label}'s defaults: give them with --set dip=RAD --set gravity=M/S2 --set "
+                       "field=UT")
         if self.report["gaps"]:
             out.append(f"{self.report['gaps']} interval(s) longer than the gap threshold {self.gap:.4g} s (longest "
                        f"{self.report['longest_gap']:.4g} s) were predicted through")
@@ -535,8 +593,9 @@ class LogRun:
 
 
 def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
-               alpha: float = 0.0, interpolation: str = "hold", updates: str = "hold", substeps: int | str = "auto",
-               curvature: str = "safe", error: str = "auto", gap: float | None = None, chunk: int = DEFAULT_CHUNK,
+               alpha: float = 0.0, interpolation: str = "hold", updates: str | None = None,
+               substeps: int | str = "auto", curvature: str | None = None, error: str | None = None,
+               gap: float | None = None, chunk: int = DEFAULT_CHUNK,
                progress: bool = False, log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
     log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
@@ -546,8 +605,12 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     :meth:`LogSystem.default_K0`); ``gap``: an interval longer than this is predicted through (default: 10 x the
     median interval); ``log_file``: the file named in the outputs when ``log`` is already read; ``monitor``: run
     the innovation monitor on a good run (:func:`liemef.metrics.innovation_monitor`: ``metrics["innovations"]``,
-    :attr:`LogRun.monitor`); the other options are those of :class:`~liemef.filters.MinimumEnergyFilter`. ValueError
-    for bad input, before any compile. A failure inside the filter is no exception: see :attr:`LogRun.ok`.
+    :attr:`LogRun.monitor`); the other options are those of :class:`~liemef.filters.MinimumEnergyFilter`, where
+    ``updates``, ``curvature`` and ``error`` None are the ready system's (``attitude-velocity``: discrete, exact,
+    left, as ``liemef compare broad``'s ``mef-vel``), else ``"hold"``, ``"safe"`` and ``"auto"``. A ready IMU
+    system is first built with the dip, gravity and field measured over the log's initial rest
+    (:func:`with_log_constants`). ValueError for bad input, before any compile. A failure inside the filter is no
+    exception: see :attr:`LogRun.ok`.
     """
     from ..filters import MinimumEnergyFilter
     from ..metrics import angle_mask, continuous_angles, gain_stats, innovation_monitor, state_labels
@@ -567,6 +630,11 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     log_file = str(log_file)
     if isinstance(log, str | os.PathLike):
         log = io.read_log(log, system)
+    source = with_log_constants(source, log)
+    system = source.system
+    updates = source.run_option("updates", updates, "hold")
+    curvature = source.run_option("curvature", curvature, "safe")
+    error = source.run_option("error", error, "auto")
     q0 = source.initial_guess(first_present(log.ys)) if x0 is None else np.asarray(x0, dtype=np.float64)
     if q0.shape != (c,):
         raise ValueError(f"x0: expected {c} coordinates, got shape {q0.shape}")
@@ -641,7 +709,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
                    "error": flt.error, "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
-                  "system_settings": source.settings},
+                  "system_settings": source.settings, "rest": source.rest},
         "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
@@ -716,6 +784,11 @@ class SavedRun:
         run = self.run
         lines = [(f"Filtered {self.log.ts.shape[0]} samples of {run.log_file} with {run.source.label} "
                   f"({run.filter})", False)]
+        rest = run.source.rest
+        if rest is not None and rest["found"] and rest["measured"]:
+            lines.append((f"Measured over the initial rest detected from the IMU ({rest['rest_s']:.1f} s): dip "
+                          f"{rest['dip_deg']:.2f} deg, gravity {rest['gravity']:.4g} m/s^2, field {rest['field']:.4g} "
+                          f"(the log's unit); used: {', '.join(rest['measured'])}", False))
         if run.rejected():
             lines.append(("Gate rejected samples: " + ", ".join(f"{k} {v}" for k, v in run.rejected().items()),
                           False))
@@ -770,8 +843,9 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     if (system is None) == (system_file is None):
         raise ValueError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
                          f"own), got {'both' if system else 'neither'}")
-    if params is not None and system != "attitude-imu":
-        raise _bad("--params", f"expected --system attitude-imu with a tuning file, got {system!r}")
+    if params is not None and system not in registry.TUNE_SYSTEMS:
+        raise _bad("--params", f"expected --system {' or '.join(registry.TUNE_SYSTEMS)} with a tuning file, got "
+                               f"{system!r}")
     settings = tuple(settings or ())
     if settings and params is not None:
         raise _bad("--set", "expected either a tuning file (--params) or --set KEY=VALUE, got both")

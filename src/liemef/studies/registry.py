@@ -216,6 +216,12 @@ SYSTEMS: dict[str, str] = {
                     "disturbance, heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and "
                     "magnetometer directions and their raw norms (norm_acc m/s^2, norm_mag uT); defaults of "
                     "liemef.systems.attitude_imu",
+    "attitude-velocity": "attitude, gyro bias and velocity on SO(3) x R^3 x R^3, the bounded-velocity model (linear "
+                         "acceleration as a velocity kept near zero, heading-only magnetometer), compare broad's "
+                         "best: input the gyro (3, rad/s, sample k over the interval ending at t_k) and the "
+                         "accelerometer (3, m/s^2), the accelerometer and magnetometer directions, their raw norms "
+                         "and a zero velocity (pseudo measurement); defaults of liemef.systems.attitude_velocity, run "
+                         "with samples at their own time",
     "pose3d": "rigid body on SE(3): input the body twist (omega_x..z rad/s, v_x..z m/s), position fixes "
               "(position_x..z, m) with NaN between fixes; the default noise levels (liemef.systems.pose3d)",
     "inertial-navigation": "inertial navigation on SE_2(3): input the gyro (rad/s) and the accelerometer's specific "
@@ -261,8 +267,21 @@ FILTERS: dict[str, str] = {
 """The filters of the comparisons (``liemef compare --filters``) with their descriptions; each is built by
 :data:`liemef.studies.compare._common.FILTERS`."""
 
+RUN_OPTIONS: dict[str, dict[str, str]] = {
+    "attitude-velocity": {"updates": "discrete", "curvature": "exact", "error": "left"},
+}
+"""The filter options a ready system runs with in ``liemef run`` unless the user gives them: the bounded-velocity
+model as ``liemef compare broad``'s ``mef-vel`` (samples at their own time, Theorem 4.1's curvature, the left
+error); every other system takes the command's defaults."""
+
 DATASETS = ("broad", "wifibot")
 """The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""
+DATASET_SYSTEMS: dict[str, tuple[str, ...]] = {
+    "broad": ("attitude-velocity", "attitude-imu", "attitude-bias"),
+    "wifibot": ("localization",),
+}
+"""The ready systems whose log ``liemef dataset KIND --system NAME`` writes, the default first: for BROAD the
+bounded-velocity model, the best of ``liemef compare broad``'s table."""
 
 TUNE_DATA = ("broad",)
 """The recordings ``liemef tune DATA`` fits noise levels to (:func:`liemef.studies.tune.broad_recordings`)."""

@@ -465,6 +465,20 @@ def imu_velocity_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"],
     return ts, np.concatenate([us, a], axis=1), np.concatenate([ys, np.zeros((ys.shape[0], 3))], axis=1)
 
 
+K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
+"""A K0 for :func:`attitude_velocity` from a TRIAD estimate at rest (:func:`initial_estimate`): (0.05 rad)^2 on
+the attitude, (0.01 rad/s)^2 on an unknown bias and (0.1 m/s)^2 on the velocity (at rest); ``liemef compare
+broad``'s and ``liemef run --system attitude-velocity``'s."""
+
+
+def velocity_measured_state(ys: Float[ArrayLike, "N 11"]) -> Float[np.ndarray, "N 9"]:
+    """State coordinates of :func:`attitude_velocity` read off its log's ``ys`` (:func:`imu_velocity_log`): the
+    TRIAD attitude of :func:`measured_state`; the bias and the velocity are not measured (NaN: the zero velocity
+    in the log is a pseudo measurement)."""
+    ys = np.asarray(ys, dtype=np.float64)
+    return np.concatenate([measured_state(ys[:, :6]), np.full((ys.shape[0], 3), np.nan)], axis=1)
+
+
 def attitude_velocity_state(g: TSO3, v=(0.0, 0.0, 0.0)):
     """The :func:`attitude_velocity` state from an attitude-and-bias estimate (e.g. :func:`initial_estimate`) and a
     velocity (m/s, default at rest)."""
@@ -581,6 +595,26 @@ def rest_constants(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], m
     gravity, field = rest_norms(acc, mag)
     return {"dip": magnetic_dip(acc, mag), "gravity": gravity, "field": field, "rest_samples": k,
             "rest_s": k / float(rate)}
+
+
+def log_rest_constants(ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"], ys: Float[ArrayLike, "N p"],
+                       **tolerances) -> dict:
+    """:func:`rest_constants` of a filter log with the raw norms (:func:`imu_log` with ``norms=True``, for
+    :func:`attitude_imu`, or :func:`imu_velocity_log`): the gyro is ``us[:, :3]``, the accelerometer and the
+    magnetometer are their directions ``ys[:, 0:6]`` times their norms ``ys[:, 6:8]``, the rate is the inverse of
+    the median interval of ``ts``. A ValueError naming ``us``, ``ys`` or ``ts`` for a log without these columns."""
+    ts = _validate.array("ts", np.asarray(ts, dtype=np.float64), (None,))
+    us = _validate.array("us", np.asarray(us, dtype=np.float64), (ts.shape[0], None), missing=True)
+    ys = _validate.array("ys", np.asarray(ys, dtype=np.float64), (ts.shape[0], None), missing=True)
+    if us.shape[1] < 3 or ys.shape[1] < 8:
+        raise ValueError(f"us, ys: expected the gyro in us[:, :3] and the directions and norms in ys[:, :8], got "
+                         f"{us.shape[1]} input and {ys.shape[1]} output columns")
+    dt = np.diff(ts)
+    if ts.shape[0] < 2 or not np.median(dt) > 0:
+        raise ValueError(f"ts: expected increasing times, got {ts.shape[0]} samples with median interval "
+                         f"{float(np.median(dt)) if dt.size else float('nan')}")
+    acc, mag = ys[:, 0:3] * ys[:, 6:7], ys[:, 3:6] * ys[:, 7:8]
+    return rest_constants(us[:, :3], acc, mag, 1.0 / float(np.median(dt)), **tolerances)
 
 
 def triad(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> Float[np.ndarray, "N 3 3"]:

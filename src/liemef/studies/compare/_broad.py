@@ -53,6 +53,7 @@ from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...systems import attitude_gyro_bias
 from ...systems.attitude_bias import (
+    K0_VELOCITY,
     attitude_velocity_state,
     imu_velocity_log,
     initial_estimate,
@@ -154,8 +155,6 @@ INITIAL_SAMPLES = 50
 """The initial estimate is TRIAD of the mean of the initial rest's first samples, this many (fewer if the rest is
 shorter)."""
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
-K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
-"""K0 of the bounded-velocity model: K0's attitude and bias, and (0.1 m/s)^2 on the velocity (at rest)."""
 
 
 

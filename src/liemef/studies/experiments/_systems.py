@@ -13,6 +13,7 @@ from ...systems import (
     PlanarRigidBody,
     attitude_gyro_bias,
     attitude_imu,
+    attitude_velocity,
     inertial_navigation,
     planar_localization,
     pose3d,
@@ -31,13 +32,20 @@ class SystemSpec:
 
     ``make()`` builds the system; ``measured(ys)`` reads the state coordinates off measurements (N, p)
     (NaN where not measured); ``initial_guess(ys0)`` is the default initial estimate in coordinates from the
-    first measurement (unmeasured coordinates 0).
+    first measurement (unmeasured coordinates 0). ``K0``: the default initial gain (None: the identity);
+    ``run_options``: the filter's options this system is run with unless the user gives them (``updates``,
+    ``curvature``, ``error``); ``constants(ts, us, ys)``: the factory's keyword arguments measured from the log
+    before the run (the IMU systems' dip, gravity and field over the rest found in the log,
+    :func:`liemef.systems.attitude_bias.log_rest_constants`), None for a system that takes none.
     """
 
     name: str
     description: str
-    make: Callable[[], AbstractSystem] = field(repr=False)
+    make: Callable[..., AbstractSystem] = field(repr=False)
     measured: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+    K0: np.ndarray | None = field(default=None, repr=False)
+    run_options: dict = field(default_factory=dict)
+    constants: Callable[..., dict] | None = field(default=None, repr=False)
 
     def initial_guess(self, ys0) -> np.ndarray:
         """State coordinates read off the first measurement ``ys0`` (p,), 0 where not measured."""
@@ -87,7 +95,13 @@ SYSTEMS: dict[str, SystemSpec] = {
         "attitude-bias", registry.SYSTEMS["attitude-bias"],
         attitude_gyro_bias, _attitude_bias.measured_state),
     "attitude-imu": SystemSpec(
-        "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state),
+        "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state,
+        constants=_attitude_bias.log_rest_constants),
+    "attitude-velocity": SystemSpec(
+        "attitude-velocity", registry.SYSTEMS["attitude-velocity"], attitude_velocity,
+        _attitude_bias.velocity_measured_state, K0=_attitude_bias.K0_VELOCITY,
+        run_options=registry.RUN_OPTIONS["attitude-velocity"],
+        constants=_attitude_bias.log_rest_constants),
     "pose3d": SystemSpec("pose3d", registry.SYSTEMS["pose3d"], pose3d, _position_fix_state(3)),
     "inertial-navigation": SystemSpec(
         "inertial-navigation", registry.SYSTEMS["inertial-navigation"], inertial_navigation, _position_fix_state(6)),
