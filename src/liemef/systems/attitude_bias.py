@@ -542,7 +542,7 @@ def initial_rest(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], rat
     (the accelerometer's units, m/s^2: it sees a change of the norm and of the direction alike). The rest ends at
     the first sample of the first window that is not still: every sample before it lies in a still window, and the
     motion that ended it lies within the ``window`` s after it, so the detected rest ends up to ``window`` s early,
-    never late. On BROAD's seven trials the defaults end the rest 0.07 to 0.25 s before the dataset's movement
+    never late. On BROAD's seven trials the defaults end the rest 0.08 to 0.26 s before the dataset's movement
     annotation (``tests/test_attitude_bias.py``). A row with a NaN counts as absent; a window without two
     present rows is not still.
 
