@@ -167,6 +167,15 @@ def test_mahony_run_is_ahrs_batch_mode_shifted_by_one_sample(log):
                               k_P=1.5, k_I=0.5, q0=np.asarray(g0.factors[0].wxyz), b0=b0.copy())
     np.testing.assert_allclose(traj.g_hat.factors[0].wxyz, ref.Q, atol=1e-12)
     np.testing.assert_allclose(traj.g_hat.factors[1].x[-1], ref.b, atol=1e-12)   # the integral term is the bias
+    # with broad_indexing, run is ahrs's batch mode itself: state k from sample k (BROAD's indexing)
+    flt = Mahony(SYSTEM, k_P=1.5, k_I=0.5, broad_indexing=True)
+    traj = flt.run(flt.init(g0), ts[:n], us[:n], ys[:n])
+    ref = ahrs.filters.Mahony(gyr=us[:n], acc=ys[:n, :3], mag=ys[:n, 3:], frequency=RATE, k_P=1.5, k_I=0.5,
+                              q0=np.asarray(g0.factors[0].wxyz), b0=b0.copy())
+    np.testing.assert_allclose(traj.g_hat.factors[0].wxyz, ref.Q, atol=1e-12)
+    np.testing.assert_allclose(traj.g_hat.factors[1].x[-1], ref.b, atol=1e-12)
+    with pytest.raises(ValueError, match="^broad_indexing:"):
+        Madgwick(SYSTEM, broad_indexing="yes")
 
 
 # --- tracking on synthetic data -----------------------------------------------------------------------------------

@@ -28,11 +28,15 @@ the state's bias, initialised from ``g0``. Madgwick estimates no bias: the bias 
 fixed and subtracted from every gyro sample, so that the trajectory's bias column is the one it assumed.
 On an SO(3) system the state cannot carry Mahony's integral term: Mahony then needs ``k_I = 0``.
 
-Samples, as in liemef: the log sample $k$ at ``ts[k]`` acts over $[t_k, t_{k+1})$, and the state $k$ is at
-``ts[k]`` (state 0 = the initial state): state $k+1$ is one ahrs update of state $k$ with gyro, acc and mag
-sample $k$ and ``dt = ts[k+1] - ts[k]``; the last sample is not used. ahrs's own batch mode (and BROAD's example
-code) instead applies sample $k$ to reach state $k$ (``Q[t] = update(Q[t-1], gyr[t], ...)``): the same
-updates, indexed one later, so BROAD's estimate at ``ts[k]`` is this trajectory's state $k+1$.
+Samples, as in liemef (the default): the log sample $k$ at ``ts[k]`` acts over $[t_k, t_{k+1})$, and the state
+$k$ is at ``ts[k]`` (state 0 = the initial state): state $k+1$ is one ahrs update of state $k$ with gyro, acc and
+mag sample $k$ and ``dt = ts[k+1] - ts[k]``; the last sample is not used, and state $k$ has seen samples up to
+$k - 1$ only. ahrs's own batch mode (and BROAD's example code) instead applies sample $k$ to reach state $k$
+(``Q[t] = update(Q[t-1], gyr[t], ...)``, the gyro sample measuring the interval that ends at $t_k$): with
+``broad_indexing=True`` :meth:`~_AhrsFilter.run` does so, state $k$ is one update of state $k - 1$ with sample
+$k$ and ``dt = ts[k] - ts[k-1]`` (state 0 = the initial state; sample 0 is not used), so state $k$ has seen
+sample $k$, as BROAD's estimate at ``ts[k]`` (``liemef compare broad`` runs every baseline so).
+:meth:`~_AhrsFilter.step` applies the sample it is given in either case.
 
 Missing samples (NaN, any component of a block): acc missing -> gyro-only propagation with $u - b$ (ahrs has no
 magnetometer-only update; ahrs's Mahony itself would integrate the raw gyro without its bias); only mag missing
@@ -49,8 +53,8 @@ Madgwick's that BROAD's example code runs (up to the 90 deg frame and float32), 
 2.15 deg on trials 01, 07, 24 against 3.4, 5.2, 2.1). ahrs's Madgwick follows Madgwick's report (eq. (29): the
 predicted field is $R^\top (b_x, 0, b_z)$ with $b_x = |h_{xy}|$) where the C code stores $|h_{xy}|$ in a variable
 named ``_2bx`` and uses it as $2 b_x$, which halves the predicted field: the magnetometer weighs twice as much in
-ahrs's gradient, and the numbers differ (3.26, 4.51, 2.00 against 2.3, 5.0, 1.8 deg). In liemef's indexing the
-fast trial 07 loses a further 0.7 deg (one sample at up to 24 rad/s).
+ahrs's gradient, and the numbers differ (3.26, 4.51, 2.00 against 2.3, 5.0, 1.8 deg). In liemef's indexing (one sample
+late) the fast trial 07 loses a further 0.7 deg (one sample at up to 24 rad/s).
 
 Speed: ahrs is pure numpy, 150-200 us per sample on an idle core: a 3-minute BROAD trial at 286 Hz takes
 10-15 s.
@@ -153,6 +157,7 @@ class _AhrsFilter(eqx.Module):
     system: eqx.AbstractVar[AbstractSystem]
     acc: eqx.AbstractVar[tuple[int, int]]  # the output slices of the sensors (_attitude_sensors)
     mag: eqx.AbstractVar[tuple[int, int]]
+    broad_indexing: eqx.AbstractVar[bool]  # run: state k has seen sample k (module docstring)
     has_covariance: ClassVar[bool] = False
     name: ClassVar[str]
     _frame: ClassVar[np.ndarray]  # q_c with q_liemef = q_c (x) q_ahrs
@@ -236,7 +241,9 @@ class _AhrsFilter(eqx.Module):
         """Filter a whole log: ``ts`` (N,) strictly increasing, ``us`` (N, 3) finite gyro samples, ``ys`` (N, p)
         with NaN = missing. Returns the state at every ``ts[k]`` (every ``keep_every``-th, as
         :meth:`~liemef.filters.MinimumEnergyFilter.run`), the first being ``state``; after a failure the states
-        are NaN and ``final`` is the last good state (module docstring)."""
+        are NaN and ``final`` is the last good state (module docstring). State k + 1 has seen samples up to k;
+        with ``broad_indexing`` it has seen sample k + 1 (the update of the interval ``[ts[k], ts[k+1]]`` takes
+        the sample at its end)."""
         self._check_state(state)
         self._check_element("state.g_hat", state.g_hat)
         ts, us, ys, _ = check_log(self, ts, us, ys, gap=math.inf, keep_every=keep_every, missing_inputs=False)
@@ -251,16 +258,18 @@ class _AhrsFilter(eqx.Module):
         engine, update = self._engine(), type(self)._update
         A, M = ys[:, slice(*self.acc)], ys[:, slice(*self.mag)]
         a_ok, m_ok = np.isfinite(A).all(axis=1), np.isfinite(M).all(axis=1)
+        ahead = int(self.broad_indexing)  # the sample that drives the interval [t_k, t_k+1]: k, or k + 1
         for k in range(N - 1):
             if failed:
                 break
-            q, b, ok = _interval(update, engine, q, b, us[k], A[k] if a_ok[k] else None, M[k] if m_ok[k] else None,
+            j = k + ahead
+            q, b, ok = _interval(update, engine, q, b, us[j], A[j] if a_ok[j] else None, M[j] if m_ok[j] else None,
                                  dts[k])
             done += 1
             if not ok:
                 failed, k_fail = True, k
                 break
-            Q[k + 1], B[k + 1], u_last = q, b, us[k]
+            Q[k + 1], B[k + 1], u_last = q, b, us[j]
         steps = int(st.steps) + done
         if k_fail >= 0:
             code, index, time = CAUSES.NONFINITE.code, int(st.steps) + k_fail, float(ts[k_fail])
@@ -307,6 +316,12 @@ def _positive(name: str, value, *, zero: bool = False) -> float:
     return float(value)
 
 
+def _flag(name: str, value) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}: expected True or False, got {value!r}")
+    return value
+
+
 def _gyro(w):
     # ahrs skips the whole update on an exactly-zero gyro sample (module docstring)
     return w if np.any(w != 0) else np.array([_TINY_GYRO, 0.0, 0.0])
@@ -320,6 +335,8 @@ class Madgwick(_AhrsFilter):
         system: an attitude system on SO3 or TSO3 with gyro input and ``acc`` and ``mag`` sensors.
         gain: $\beta > 0$; ahrs's default with a magnetometer is 0.041 (0.033 without); BROAD's best common
             value is 0.12.
+        broad_indexing: :meth:`run` makes state k from sample k, as ahrs's batch mode and BROAD do, instead of
+            liemef's state k + 1 (module docstring: samples).
     """
 
     name: ClassVar[str] = "madgwick"
@@ -328,14 +345,16 @@ class Madgwick(_AhrsFilter):
     acc: tuple[int, int] = eqx.field(static=True)
     mag: tuple[int, int] = eqx.field(static=True)
     gain: float = eqx.field(static=True)
+    broad_indexing: bool = eqx.field(static=True)
 
-    def __init__(self, system: AbstractSystem, gain: float = MADGWICK_GAIN):
+    def __init__(self, system: AbstractSystem, gain: float = MADGWICK_GAIN, *, broad_indexing: bool = False):
         self.acc, self.mag = _attitude_sensors(system)
         self.system = system
         self.gain = _positive("gain", gain)
+        self.broad_indexing = _flag("broad_indexing", broad_indexing)
 
     def __repr__(self) -> str:
-        return f"Madgwick({type(self.system).__name__}, gain={self.gain})"
+        return f"Madgwick({type(self.system).__name__}, gain={self.gain}, broad_indexing={self.broad_indexing})"
 
     def _engine(self):
         return ahrs.filters.Madgwick(gain=self.gain)
@@ -360,6 +379,8 @@ class Mahony(_AhrsFilter):
         k_P: proportional gain > 0 (rad/s); ahrs's default 1.0, BROAD's best common value 0.74.
         k_I: integral gain >= 0 (rad/s^2); ahrs's default 0.3, BROAD's 0.0012. 0 on an SO3 system (no bias in
             its state to carry the integral term).
+        broad_indexing: :meth:`run` makes state k from sample k, as ahrs's batch mode and BROAD do, instead of
+            liemef's state k + 1 (module docstring: samples).
     """
 
     name: ClassVar[str] = "mahony"
@@ -369,18 +390,22 @@ class Mahony(_AhrsFilter):
     mag: tuple[int, int] = eqx.field(static=True)
     k_P: float = eqx.field(static=True)
     k_I: float = eqx.field(static=True)
+    broad_indexing: bool = eqx.field(static=True)
 
-    def __init__(self, system: AbstractSystem, k_P: float = MAHONY_K_P, k_I: float = MAHONY_K_I):
+    def __init__(self, system: AbstractSystem, k_P: float = MAHONY_K_P, k_I: float = MAHONY_K_I, *,
+                 broad_indexing: bool = False):
         self.acc, self.mag = _attitude_sensors(system)
         self.system = system
         self.k_P = _positive("k_P", k_P)
         self.k_I = _positive("k_I", k_I, zero=True)
+        self.broad_indexing = _flag("broad_indexing", broad_indexing)
         if system.group is SO3 and self.k_I != 0:
             raise ValueError(f"k_I: expected 0 on an SO3 system (its state has no gyro bias to carry the integral "
                              f"term; use a TSO3 system such as attitude_gyro_bias()), got {k_I!r}")
 
     def __repr__(self) -> str:
-        return f"Mahony({type(self.system).__name__}, k_P={self.k_P}, k_I={self.k_I})"
+        return (f"Mahony({type(self.system).__name__}, k_P={self.k_P}, k_I={self.k_I}, "
+                f"broad_indexing={self.broad_indexing})")
 
     def _engine(self):
         engine = ahrs.filters.Mahony(k_P=self.k_P, k_I=1.0)
