@@ -193,6 +193,9 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     assert list(rows) == ["iekf", "madgwick", "mahony-broad", "mef-imu", "vqf", "vqf-broad"]
     assert meta["trials"]["07"]["imu_params"] == {"acc_std": 0.04, "mag_adapt": 2.0}   # the fold without 07
     assert meta["ratio_to_vqf"]["vqf"] == 1.0
+    assert meta["lags"]["vqf"] == meta["lags"]["madgwick"] == {"gyro": 0, "acc": 0, "mag": 0}  # sample k at t_k
+    assert meta["lags"]["iekf"] == {"gyro": 1, "acc": 1, "mag": 1}
+    assert "| iekf | 1 / 1 / 1 |" in (out / "broad.md").read_text()
     for name, r in rows.items():  # 5 s of motion after 26.5 s of rest, from a TRIAD start: a few degrees
         assert r["ok"] and 0.0 < r["inclination"] <= r["total"] < 15.0, (name, r)
     assert meta["trials"]["07"]["published"] is None  # a head of the trial is not the published run

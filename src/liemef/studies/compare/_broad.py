@@ -4,9 +4,10 @@ BROAD (Berlin Robust Orientation Estimation Assessment Dataset) records an IMU (
 magnetometer at 285.7 Hz) with optical motion-capture attitude as the truth. The trials are the ones present in
 the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filter gets:
 
-- the same log (:func:`liemef.studies.datasets.broad_to_log`), but for the filters of :data:`OWN_TIME`, which
-  take gyro sample k over the interval that ends at t_k, as `vqf-broad` does;
-- the same initial estimate, TRIAD from the first 50 samples of the initial rest, with zero bias;
+- the same log (:func:`trial_logs`, :func:`liemef.studies.datasets.broad_to_log`), but for the filters of
+  :data:`OWN_TIME`, which take gyro sample k over the interval that ends at t_k, as VQF and BROAD do;
+- the same initial estimate, TRIAD from the first 50 samples of the initial rest, with zero bias (VQF and Fusion
+  start themselves from their first samples);
 - for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
 
 Nothing from the truth reaches a filter: the initial rest is found from the IMU samples alone
@@ -14,6 +15,14 @@ Nothing from the truth reaches a filter: the initial rest is found from the IMU 
 it (:func:`~liemef.systems.attitude_bias.rest_constants`); BROAD's ``movement`` annotation and the optical
 attitude only score. Not every filter takes every prior: :func:`given` reads off each filter what it uses
 (VQF none: its defaults on the raw readings, from its own first samples), and the table says so.
+
+:func:`setup` builds each filter, its state and its log. **Alignment**: every baseline (VQF, Madgwick, Mahony,
+Fusion) runs in BROAD's indexing (``broad_indexing=True``): its estimate at t_k has seen gyro, accelerometer and
+magnetometer sample k, as BROAD's evaluation and the published figures index them. The minimum-energy, Kalman
+and UKF filters record their state at t_k before the sample at t_k acts: one sample late on the accelerometer
+and the magnetometer, and on the gyro too but for :data:`OWN_TIME`. The study records every filter's lag per
+sensor (:func:`lags`, the ``lags`` of ``broad.json`` and a column of the table); ``tests/test_broad.py`` checks
+each by perturbing the samples after the ones it says the estimate has seen. ``vqf-offline`` is acausal.
 
 The weights are **one set for all trials**: the defaults of :func:`liemef.systems.attitude_gyro_bias`. The
 metrics are the dataset's own: the total, heading and inclination rms of the error
@@ -28,7 +37,10 @@ Filters (:data:`BROAD_FILTERS`):
 - the invariant EKF and the left UKF-M. On SO(3) x R^3 the local EKF is the invariant one (a multiplicative
   rotation error, an additive bias), so it is not run twice;
 - ahrs's Madgwick and Mahony (:mod:`liemef.filters.baselines`), with ahrs's default gains and with the gains published
-  with the dataset (Madgwick beta = 0.12; Mahony Kp = 0.74, Ki = 0.0012).
+  with the dataset (Madgwick beta = 0.12; Mahony Kp = 0.74, Ki = 0.0012);
+- VQF (Laidig and Seel 2023), online (``vqf``; ``vqf-broad`` is the same filter, its former name) and offline;
+- x-io's Fusion AHRS (the ``imufusion`` package), with its defaults (``fusion``) and with the settings of its
+  example ``advanced_example.py`` (``fusion-example``).
 
 Beside them are the published per-trial figures of BROAD's own Madgwick and Mahony. A recording is one trial:
 there is no Monte Carlo spread. The reference itself is accurate to about 0.35 deg (the dataset README: at
@@ -48,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from ...filters import MinimumEnergyFilter
-from ...filters.baselines import VQF, Madgwick, Mahony, invariant_ekf, ukf_m
+from ...filters.baselines import VQF, Fusion, Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...systems import attitude_gyro_bias
@@ -106,7 +118,7 @@ BROAD_FILTERS = {
     "mef-imu-first": ("first-order minimum-energy filter, IMU noise model",
                       lambda c: MinimumEnergyFilter(_imu(c), order="first", error="left")),
     "mef-imu-d": ("minimum-energy filter, IMU noise model, samples at their own time (updates='discrete', gyro "
-                  "sample k over the interval ending at t_k as in vqf-broad)",
+                  "sample k over the interval ending at t_k as in VQF)",
                   lambda c: MinimumEnergyFilter(_imu(c), updates="discrete", curvature="exact", error="left")),
     "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
                         lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete", error="left")),
@@ -123,27 +135,44 @@ BROAD_FILTERS = {
     "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
     "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
     "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
-    "vqf": ("VQF (Laidig and Seel 2023), online, its defaults", lambda c: VQF(_imu(c))),
-    "vqf-offline": ("VQF, offline (acausal), its defaults", lambda c: VQF(_imu(c), offline=True)),
-    "vqf-broad": ("VQF, online, in BROAD's indexing (one sample ahead of the other filters)",
+    "vqf": ("VQF (Laidig and Seel 2023), online, its defaults; starts from its own first samples",
+            lambda c: VQF(_imu(c), broad_indexing=True)),
+    "vqf-offline": ("VQF, offline (acausal: estimate k has seen the whole trial), its defaults",
+                    lambda c: VQF(_imu(c), offline=True, broad_indexing=True)),
+    "vqf-broad": ("VQF, online: the same filter as vqf (its name from when it alone ran in BROAD's indexing)",
                   lambda c: VQF(_imu(c), broad_indexing=True)),
-    "madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041", lambda c: Madgwick(_plain(c))),
-    "madgwick-broad": ("ahrs Madgwick, BROAD's beta = 0.12", lambda c: Madgwick(_plain(c), gain=0.12)),
-    "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3", lambda c: Mahony(_plain(c))),
+    "madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041",
+                 lambda c: Madgwick(_plain(c), broad_indexing=True)),
+    "madgwick-broad": ("ahrs Madgwick, BROAD's beta = 0.12",
+                       lambda c: Madgwick(_plain(c), gain=0.12, broad_indexing=True)),
+    "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3", lambda c: Mahony(_plain(c), broad_indexing=True)),
     "mahony-broad": ("ahrs Mahony, BROAD's Kp = 0.74, Ki = 0.0012",
-                     lambda c: Mahony(_plain(c), k_P=0.74, k_I=0.0012)),
+                     lambda c: Mahony(_plain(c), k_P=0.74, k_I=0.0012, broad_indexing=True)),
+    "fusion": ("x-io Fusion (imufusion), its defaults (gain 0.5, no rejection) at the trial's rate; starts from the "
+               "identity with its own 3 s start-up (gain ramped from 10)",
+               lambda c: Fusion(_imu(c), broad_indexing=True)),
+    "fusion-example": ("x-io Fusion, the settings of its advanced_example.py (gain 0.5, gyroscope range 2000 deg/s, "
+                       "acceleration and magnetic rejection 10 deg, rejection timeout 5 s, its gyro offset "
+                       "estimator); starts as fusion",
+                       lambda c: Fusion(_imu(c), gyroscope_range=2000.0, acceleration_rejection=10.0,
+                                        magnetic_rejection=10.0, rejection_timeout=5.0, bias=True,
+                                        broad_indexing=True)),
 }
 """The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
 gravity and field at rest, and the IMU model's parameters)."""
-OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-first", "iekf-vel"})
-"""The filters that take every sample at its own time, as ``vqf-broad`` does: the hybrid update
-(``updates="discrete"``: state k has seen y_k) and gyro sample k as the rate over the interval that ends at t_k
-(``broad_to_log(..., gyro="backward")``), so state k has seen gyro, accelerometer and magnetometer sample k."""
+OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-safe", "mef-vel-first", "iekf-vel"})
+"""The filters that take gyro sample k as the rate over the interval that ends at t_k
+(``broad_to_log(..., gyro="backward")``), so that state k has seen gyro sample k, with the hybrid update
+(``updates="discrete"``: the accelerometer and magnetometer sample k updates the estimate at t_k, after the state
+recorded at t_k: :func:`lags`)."""
+SENSORS = ("gyro", "acc", "mag")
+"""The raw sensors whose lag :func:`lags` gives."""
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d",
                    "mef-vel", "mef-vel-first", "iekf-vel", "iekf",
-                   "ukf-left", "vqf", "vqf-offline", "vqf-broad", "madgwick", "madgwick-broad", "mahony",
-                   "mahony-broad")
-"""The filters run by default (every one but ``iekf-imu`` and ``mef-imu-d-first``)."""
+                   "ukf-left", "vqf", "vqf-offline", "madgwick", "madgwick-broad", "mahony",
+                   "mahony-broad", "fusion", "fusion-example")
+"""The filters run by default (every one but ``mef-imu-d-first``, ``mef-vel-safe``, ``iekf-imu`` and
+``vqf-broad``, the same filter as ``vqf``)."""
 PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
              "24": {"madgwick": 1.8, "mahony": 2.1}, "10": {"madgwick": 3.6, "mahony": 2.8},
              "16": {"madgwick": 4.8, "mahony": 20.3}, "28": {"madgwick": 8.3, "mahony": 6.3},
@@ -223,6 +252,79 @@ class BroadComparison:
         object.__setattr__(self, "realdata", str(folder))
 
 
+def trial_context(trial: datasets.BroadTrial, params: dict | None = None, tuned_system: str | None = None) -> dict:
+    """What every filter of a trial starts from (the factories' ``ctx``), from the IMU samples alone: the magnetic
+    dip and the norms of gravity and of the field measured over the initial rest found in them
+    (:func:`~liemef.systems.attitude_bias.rest_constants`; its length ``rest_s``), the initial estimate ``g0``
+    (TRIAD of the rest's first :data:`INITIAL_SAMPLES` samples, zero bias), and the IMU model's tuned ``params``
+    (for ``tuned_system``; default none)."""
+    rest = rest_constants(trial.gyr, trial.acc, trial.mag, trial.rate)
+    first = min(INITIAL_SAMPLES, rest["rest_samples"])
+    return {"dip": rest["dip"], "gravity": rest["gravity"], "field": rest["field"], "rest_s": rest["rest_s"],
+            "params": {} if params is None else params, "tuned_system": tuned_system,
+            "g0": initial_estimate(trial.acc[:first], trial.mag[:first])}
+
+
+def trial_logs(trial: datasets.BroadTrial) -> dict[str, io.RecordedLog]:
+    """A trial's logs by the gyro's convention (:func:`liemef.studies.datasets.broad_to_log`, with the raw norms):
+    ``"forward"`` (gyro sample k over the interval that starts at t_k), ``"backward"`` (the interval that ends at
+    t_k) and ``"velocity"`` (the bounded-velocity model's, backward)."""
+    logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
+    logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
+                                                        float(trial.ts[0]), gyro="backward"))
+    return logs
+
+
+def log_kind(name: str, flt) -> str:
+    """Which of :func:`trial_logs` the filter ``name`` runs on: the bounded-velocity model's, the backward one
+    for :data:`OWN_TIME`, else the forward one (the baselines index it themselves: ``broad_indexing``)."""
+    if flt.system.group.tangent_dim == 9:
+        return "velocity"
+    return "backward" if name in OWN_TIME else "forward"
+
+
+def lags(name: str, flt) -> dict[str, int | None]:
+    """By how many samples the estimate at t_k trails the newest gyro, accelerometer and magnetometer sample that
+    reaches it, for the filter ``name`` built by :func:`setup` (``flt``); None for an acausal filter (its estimate
+    k has seen the samples after k). The baselines with ``broad_indexing`` make estimate k from sample k (0); in
+    liemef's indexing, as the minimum-energy and Kalman filters record it, the state at t_k comes before the sample
+    at t_k acts (1: held over the interval after t_k, or a discrete update at t_k that the state at t_k+1 has
+    seen), but for the inputs of the backward logs (the gyro, and on the bounded-velocity model the accelerometer
+    too), which measure the interval that ends at t_k (0). ``tests/test_broad.py`` checks every filter's lags by
+    perturbing the samples."""
+    if getattr(flt, "offline", False):
+        return dict.fromkeys(SENSORS)
+    if hasattr(flt, "broad_indexing"):
+        lag = 0 if flt.broad_indexing else 1
+        return dict.fromkeys(SENSORS, lag)
+    kind = log_kind(name, flt)
+    return {"gyro": 0 if kind in ("backward", "velocity") else 1, "acc": 0 if kind == "velocity" else 1, "mag": 1}
+
+
+def lag_text(lag: dict[str, int | None]) -> str:
+    """A filter's :func:`lags` as a table cell: "acausal", or the gyro, accelerometer and magnetometer lags."""
+    if any(v is None for v in lag.values()):
+        return "acausal"
+    return " / ".join(str(lag[s]) for s in SENSORS)
+
+
+def setup(name: str, ctx: dict, logs: dict[str, io.RecordedLog]):
+    """The filter ``name`` of :data:`BROAD_FILTERS` for a trial, its initial state and its log (the trial's
+    ``ctx`` from :func:`trial_context`, ``logs`` from :func:`trial_logs`): ``(filter, state, log)``, the log's
+    ``ys`` cut to the filter's sensors. The one place that builds what a filter runs on (the study and the
+    alignment test use it)."""
+    flt = BROAD_FILTERS[name][1](ctx)
+    kind = log_kind(name, flt)
+    g0 = ctx["g0"]
+    if kind == "velocity":
+        state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
+    else:
+        state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
+    log = logs[kind]
+    p = flt.system.output_dim
+    return flt, state, io.RecordedLog(log.ts, log.us, log.ys if p == log.ys.shape[1] else log.ys[:, :p])
+
+
 def broad_errors(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> dict[str, float]:
     """BROAD's total, heading and inclination rms (deg) of the error ``q_est * q_ref^-1`` (world frame) over
     ``mask`` where the reference is present; quaternions (w, x, y, z), body -> world (the dataset README). None
@@ -266,33 +368,20 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
 
     paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
     tuned = None if st.params is None else load(st.params)
-    per_trial, winners, arrays = {}, {}, {}
+    per_trial, winners, arrays, lag = {}, {}, {}, {}
     for tid in st.trials:
         trial = datasets.broad(paths[tid])
         if st.seconds is not None:
             trial = trial.head(st.seconds)
-        rest = rest_constants(trial.gyr, trial.acc, trial.mag, trial.rate)  # from the IMU alone
-        dip, gravity, fld = rest["dip"], rest["gravity"], rest["field"]
-        logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
-        logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
-                                                            float(trial.ts[0]), gyro="backward"))
-        first = min(INITIAL_SAMPLES, rest["rest_samples"])
-        g0 = initial_estimate(trial.acc[:first], trial.mag[:first])
         params = {} if tuned is None else params_for(tuned, tid)
-        ctx = {"dip": dip, "gravity": gravity, "field": fld, "params": params,
-               "tuned_system": None if tuned is None else tuned["system"]}
+        ctx = trial_context(trial, params, None if tuned is None else tuned["system"])
+        logs = trial_logs(trial)
         rows = {}
         for name in st.filters:
             t0 = time.perf_counter()
-            flt = BROAD_FILTERS[name][1](ctx)
-            velocity = flt.system.group.tangent_dim == 9
-            if velocity:
-                state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
-            else:
-                state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
-            log = logs["velocity" if velocity else "backward" if name in OWN_TIME else "forward"]
-            ys = log.ys if flt.system.output_dim == log.ys.shape[1] else log.ys[:, :flt.system.output_dim]
-            traj = flt.run(state, log.ts, log.us, ys)
+            flt, state, log = setup(name, ctx, logs)
+            lag[name] = lags(name, flt)
+            traj = flt.run(state, log.ts, log.us, log.ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
             status = traj.status
             arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
@@ -308,8 +397,8 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                 print(f"  trial {tid} {name:15s} total {fmt(r['total'])}, heading {fmt(r['heading'])}, inclination "
                       f"{fmt(r['inclination'])} deg; {r['elapsed_s']:.1f} s", file=sys.stderr, flush=True)
         per_trial[tid] = {"file": trial.name, "seconds": float(trial.ts[-1] - trial.ts[0]),
-                          "dip_deg": math.degrees(dip), "gravity": gravity, "field_uT": fld,
-                          "rest_s": rest["rest_s"],
+                          "dip_deg": math.degrees(ctx["dip"]), "gravity": ctx["gravity"],
+                          "field_uT": ctx["field"], "rest_s": ctx["rest_s"],
                           "imu_params": params, "filters": rows,
                           "published": PUBLISHED.get(tid) if st.seconds is None else None}
         winners[tid] = {}
@@ -342,7 +431,8 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                       "initial": f"TRIAD of the first {INITIAL_SAMPLES} samples of the initial rest, zero bias",
                       "imu_params": "attitude_imu() defaults" if tuned is None else
                       f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"},
-            "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners, "arrays": arrays}
+            "lags": lag, "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners,
+            "arrays": arrays}
 
 
 def markdown(result: dict) -> str:
@@ -353,21 +443,25 @@ def markdown(result: dict) -> str:
              "Metrics: BROAD's "
              "total, heading and inclination rms [deg] over its movement mask where the optical truth is present. "
              "One recording per trial: no Monte Carlo spread; the optical truth is accurate to about "
-             f"{REFERENCE_ACCURACY_DEG} deg.", ""]
+             f"{REFERENCE_ACCURACY_DEG} deg. Lag: by how many samples the estimate at t_k trails the newest gyro / "
+             "accelerometer / magnetometer sample that reaches it (0: sample k; acausal: it has seen the samples "
+             "after k).", ""]
     names = st["filters"]
+    lag = result.get("lags", {})
     if "given" in st:
         lines += ["What each filter is given besides the log (read off the filter): " + "; ".join(
             f"{n}: {', '.join(g) if g else 'none (its defaults on the raw readings)'}" for n, g in st["given"].items())
             + ".", ""]
-    lines += ["| filter | " + " | ".join(f"{t} total / heading / incl." for t in st["trials"]) + " | mean total |",
-              "|---|" + "---:|" * (len(st["trials"]) + 1)]
+    lines += ["| filter | lag [samples] | " + " | ".join(f"{t} total / heading / incl." for t in st["trials"])
+              + " | mean total |", "|---|---|" + "---:|" * (len(st["trials"]) + 1)]
     for n in names:
         cells = []
         for t in st["trials"]:
             r = result["trials"][t]["filters"][n]
             cells.append(f"{fmt(r['total'])} / {fmt(r['heading'])} / {fmt(r['inclination'])}"
                          + ("" if r["ok"] else f" ({r['status']})"))
-        lines.append(f"| {n} | " + " | ".join(cells) + f" | {fmt(result['means'][n]['total'])} |")
+        lines.append(f"| {n} | {lag_text(lag[n]) if n in lag else '-'} | " + " | ".join(cells)
+                     + f" | {fmt(result['means'][n]['total'])} |")
     lines += ["", "## Total rms per trial [deg], and against VQF", "",
               "| filter | " + " | ".join(st["trials"]) + " | mean | worst ratio to vqf |",
               "|---|" + "---:|" * (len(st["trials"]) + 2)]
