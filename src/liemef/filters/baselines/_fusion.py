@@ -45,8 +45,9 @@ class Fusion(_WholeLogFilter):
             raw norms, a ``norm`` sensor: :func:`liemef.systems.attitude_imu`).
         gain: the feedback gain > 0; Fusion's default 0.5.
         gyroscope_range: deg/s, the gyro's range (a soft restart above 98 % of it); 0 (Fusion's default) = none.
-        acceleration_rejection, magnetic_rejection: deg, the error beyond which the sensor is ignored; 0
-            (Fusion's default) = never ignored.
+        acceleration_rejection: deg, the accelerometer's error beyond which it is ignored; 0 (Fusion's
+            default) = never ignored.
+        magnetic_rejection: deg, the same for the magnetometer.
         rejection_timeout: s, the longest a sensor stays ignored; 0 (Fusion's default) disables the rejection.
         bias: run Fusion's gyro offset estimator (``imufusion.Bias``, its defaults) on the gyro first.
         broad_indexing: state k is Fusion after sample k (BROAD's indexing), instead of liemef's state k + 1.
