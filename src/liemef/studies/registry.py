@@ -164,15 +164,16 @@ for _name, _title, _settings, _help in (
      "the convergence basin in the initial attitude error (0-179 deg about random axes) on the inertial-navigation "
      "scenario; writes inertial_basin.md, inertial_basin.csv, inertial_basin.json, arrays.npz and "
      "fig_basin_inertial_navigation.png."),
-    ("broad", "the BROAD attitude recordings: the MEF and its IMU models, the EKF, the UKF-M, VQF, Madgwick and "
-     "Mahony",
+    ("broad", "the BROAD attitude recordings: the MEF and its IMU models, the EKF, the UKF-M, VQF, Madgwick, "
+     "Mahony and Fusion",
      ("trials", "seconds", "realdata", "params"),
      "the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer with "
      "optical truth), with the MEF (attitude + gyro bias, the IMU noise model mef-imu and the bounded-velocity "
-     "model mef-vel, samples at their own time), the invariant EKF, the UKF-M, VQF (online, offline and in "
-     "BROAD's indexing) and ahrs's Madgwick and Mahony (default and published gains), one weight set for all "
-     "trials (--set params=tune.json: a `liemef tune` file, each trial run with the fold tuned without it); "
-     "writes broad.md, broad.csv, broad.json and arrays.npz."),
+     "model mef-vel, samples at their own time), the invariant EKF, the UKF-M, VQF (online and offline), "
+     "ahrs's Madgwick and Mahony (default and published gains) and x-io's Fusion (defaults and its example's "
+     "settings), every baseline's estimate at t_k made from sample k as BROAD's, and every filter's lag per "
+     "sensor stated; one weight set for all trials (--set params=tune.json: a `liemef tune` file, each trial "
+     "run with the fold tuned without it); writes broad.md, broad.csv, broad.json and arrays.npz."),
     ("broad-ins", "inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes at 10 Hz",
      ("trials", "seconds", "attitude_filters", "variants", "fix_rate", "noise_std", "realdata", "ukf_trials",
       "ukf_variants"),
