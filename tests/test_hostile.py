@@ -1029,7 +1029,8 @@ def _tuning_file(**changes) -> dict:
 
     params = {n: 0.5 for n in tune.SYSTEMS["attitude-imu"]}
     data = {"format": tune.FORMAT, "system": "attitude-imu", "objective": "nll", "names": ["acc_std"],
-            "order": "second", "updates": "hold", "params": params, "train": 1.5,
+            "order": "second", "updates": "hold", "cross_validation": tune.CROSS_VALIDATION,
+            "params_from": tune.PARAMS_FROM, "params": params, "train": 1.5,
             "per_recording": {"07": 1.4, "10": 1.6},
             "folds": {"07": {"params": dict(params), "train": 1.6, "held_out": 1.4},
                       "10": {"params": dict(params), "train": 1.4, "held_out": 1.6}},
