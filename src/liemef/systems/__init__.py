@@ -10,6 +10,7 @@ from ._right import RightErrorSystem, invariant_sides, natural_error, right_erro
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
 from .attitude_bias import attitude_gyro_bias, attitude_imu, attitude_velocity
+from .attitude_field import attitude_field
 from .attitude_so3 import ukfm_attitude
 from .chaplygin import ChaplyginSleigh
 from .inertial import inertial_navigation
@@ -19,7 +20,7 @@ from .rigid_body_3d import pose3d
 from .unit_circle import UnitCircleBias
 
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "planar_localization",
-           "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "pose3d", "inertial_navigation",
+           "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "attitude_field", "pose3d", "inertial_navigation",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state", "direction_residual", "rotation_residual", "ukfm_attitude", "right_error", "RightErrorSystem",
            "invariant_sides", "natural_error"]
