@@ -63,7 +63,7 @@ from ...filters import MinimumEnergyFilter
 from ...filters.baselines import VQF, Fusion, Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
-from ...systems import attitude_gyro_bias
+from ...systems import attitude_field, attitude_gyro_bias
 from ...systems.attitude_bias import (
     K0_VELOCITY,
     attitude_velocity_state,
@@ -71,6 +71,7 @@ from ...systems.attitude_bias import (
     initial_estimate,
     rest_constants,
 )
+from ...systems.attitude_field import FieldSystem, attitude_field_state, imu_field_log
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
 
@@ -97,6 +98,10 @@ def _imu(ctx):
 
 def _velocity(ctx):
     return _tuned(ctx, "attitude-velocity")
+
+
+def _field(ctx):
+    return attitude_field(dip=ctx["dip"], gravity=ctx["gravity"], field=ctx["field"])
 
 
 BROAD_FILTERS = {
@@ -132,6 +137,12 @@ BROAD_FILTERS = {
                       lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete", error="left")),
     "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
                  lambda c: invariant_ekf(_velocity(c))),
+    "mef-field": ("minimum-energy filter, lasting magnetic disturbances as states (attitude_field: the bounded "
+                  "velocity and a world and a body disturbance field), samples at their own time",
+                  lambda c: MinimumEnergyFilter(_field(c), updates="discrete", curvature="exact", error="left")),
+    "mef-field-first": ("first-order minimum-energy filter, lasting magnetic disturbances as states",
+                        lambda c: MinimumEnergyFilter(_field(c), order="first", updates="discrete", error="left")),
+    "iekf-field": ("invariant EKF, lasting magnetic disturbances as states", lambda c: invariant_ekf(_field(c))),
     "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
     "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
     "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
@@ -160,7 +171,8 @@ BROAD_FILTERS = {
 }
 """The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
 gravity and field at rest, and the IMU model's parameters)."""
-OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-safe", "mef-vel-first", "iekf-vel"})
+OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-safe", "mef-vel-first", "iekf-vel",
+                      "mef-field", "mef-field-first", "iekf-field"})
 """The filters that take gyro sample k as the rate over the interval that ends at t_k
 (``broad_to_log(..., gyro="backward")``), so that state k has seen gyro sample k, with the hybrid update
 (``updates="discrete"``: the accelerometer and magnetometer sample k updates the estimate at t_k, after the state
@@ -168,7 +180,7 @@ recorded at t_k: :func:`lags`)."""
 SENSORS = ("gyro", "acc", "mag")
 """The raw sensors whose lag :func:`lags` gives."""
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d",
-                   "mef-vel", "mef-vel-first", "iekf-vel", "iekf",
+                   "mef-vel", "mef-vel-first", "iekf-vel", "mef-field", "mef-field-first", "iekf-field", "iekf",
                    "ukf-left", "vqf", "vqf-offline", "madgwick", "madgwick-broad", "mahony",
                    "mahony-broad", "fusion", "fusion-example")
 """The filters run by default (every one but ``mef-imu-d-first``, ``mef-vel-safe``, ``iekf-imu`` and
@@ -184,6 +196,9 @@ INITIAL_SAMPLES = 50
 """The initial estimate is TRIAD of the mean of the initial rest's first samples, this many (fewer if the rest is
 shorter)."""
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
+K0_FIELD = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
+"""K0 of :func:`~liemef.systems.attitude_field`: the bounded-velocity model's blocks and (0.1 uT)^2 on each
+disturbance (the reference is the field measured over the initial rest, where the run starts)."""
 
 
 
@@ -199,7 +214,7 @@ def given(flt) -> tuple[str, ...]:
     if isinstance(flt, Madgwick | Mahony):
         return tuple(out)
     out.append("dip")
-    if "norm" in {b.name for b in flt.system.blocks()}:
+    if "norm" in {b.name for b in flt.system.blocks()} or isinstance(flt.system, FieldSystem):
         out += ["gravity", "field"]
     if getattr(flt, "has_covariance", True):
         out.append("K0")
@@ -268,10 +283,13 @@ def trial_context(trial: datasets.BroadTrial, params: dict | None = None, tuned_
 def trial_logs(trial: datasets.BroadTrial) -> dict[str, io.RecordedLog]:
     """A trial's logs by the gyro's convention (:func:`liemef.studies.datasets.broad_to_log`, with the raw norms):
     ``"forward"`` (gyro sample k over the interval that starts at t_k), ``"backward"`` (the interval that ends at
-    t_k) and ``"velocity"`` (the bounded-velocity model's, backward)."""
+    t_k), ``"velocity"`` (the bounded-velocity model's, backward) and ``"field"`` (:func:`attitude_field`'s,
+    backward)."""
     logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
     logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
                                                         float(trial.ts[0]), gyro="backward"))
+    logs["field"] = io.RecordedLog(*imu_field_log(trial.gyr, trial.acc, trial.mag, trial.rate, float(trial.ts[0]),
+                                                  gyro="backward"))
     return logs
 
 
@@ -280,6 +298,8 @@ def log_kind(name: str, flt) -> str:
     for :data:`OWN_TIME`, else the forward one (the baselines index it themselves: ``broad_indexing``)."""
     if flt.system.group.tangent_dim == 9:
         return "velocity"
+    if isinstance(flt.system, FieldSystem):
+        return "field"
     return "backward" if name in OWN_TIME else "forward"
 
 
@@ -298,7 +318,8 @@ def lags(name: str, flt) -> dict[str, int | None]:
         lag = 0 if flt.broad_indexing else 1
         return dict.fromkeys(SENSORS, lag)
     kind = log_kind(name, flt)
-    return {"gyro": 0 if kind in ("backward", "velocity") else 1, "acc": 0 if kind == "velocity" else 1, "mag": 1}
+    inputs = ("velocity", "field")  # the logs whose accelerometer is an input
+    return {"gyro": 0 if kind in ("backward", *inputs) else 1, "acc": 0 if kind in inputs else 1, "mag": 1}
 
 
 def lag_text(lag: dict[str, int | None]) -> str:
@@ -318,6 +339,8 @@ def setup(name: str, ctx: dict, logs: dict[str, io.RecordedLog]):
     g0 = ctx["g0"]
     if kind == "velocity":
         state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
+    elif kind == "field":
+        state = flt.init(attitude_field_state(g0), K0_FIELD)
     else:
         state = flt.init(g0, K0) if getattr(flt, "has_covariance", True) else flt.init(g0)
     log = logs[kind]
