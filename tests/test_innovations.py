@@ -463,3 +463,40 @@ def test_a_short_log_whose_every_window_is_out_is_inconsistent():
     assert short.sustain == pytest.approx(7.5) and not short.sustained
     given = _verdict("s", 2, ts, fault, 50, 0.999, 7.5)  # a sustain given is the user's rule, kept
     assert given.sustain == 7.5 and not given.sustained
+
+
+def test_a_covariate_sensor_is_not_judged():
+    """attitude_velocity's `acc` and `norm` are covariates (outputs that do not depend on the state): their samples
+    are the magnetometer noise model's inputs, not measurements, so the monitor judges `mag` and `velocity` only
+    (before, their meaningless "innovations" made `liemef run --system attitude-velocity` exit with status 3)."""
+    from scipy.spatial.transform import Rotation
+
+    from liemef.groups import R3, SO3, TSO3
+    from liemef.metrics import innovation_monitor
+    from liemef.systems import attitude_bias as ab
+    from liemef.systems import attitude_velocity
+
+    rate, N = 100.0, 1500
+    rng = np.random.default_rng(0)
+    ts = np.arange(N) / rate
+    w = np.stack([0.5 * np.sin(0.4 * ts), 0.4 * np.cos(0.3 * ts), 0.3 * np.ones(N)], axis=1)
+    R = [Rotation.from_rotvec([0.1, -0.2, 0.3])]
+    for k in range(N - 1):
+        R.append(R[-1] * Rotation.from_rotvec(w[k] / rate))
+    R = np.stack([r.as_matrix() for r in R])
+    field = 43.0 * np.array(ab.magnetic_reference(ab.DIP))
+    acc = np.einsum("nji,j->ni", R, [0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((N, 3))
+    mag = np.einsum("nji,j->ni", R, field) + 0.3 * rng.standard_normal((N, 3))
+    gyr = w + 0.005 * rng.standard_normal((N, 3))
+    _, us, ys = ab.imu_velocity_log(gyr, acc, mag, rate)
+    system = attitude_velocity(0.005, rate, gravity=9.81, field=43.0)
+    assert [s.name for s in system.sensors if s.covariate] == ["acc", "norm"]
+    flt = MinimumEnergyFilter(system, updates="discrete", order="first")
+    g0 = ab.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))))
+    traj = flt.run(flt.init(g0, np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)), ts, us, ys)
+    report = innovation_monitor(flt, traj, ts, us, ys)
+    judged = {s.name: s.windows for s in report.sensors}
+    assert judged["acc"] == 0 and judged["norm"] == 0 and judged["mag"] > 0 and judged["velocity"] > 0, judged
+    # (on this log K overstates the errors of both measurements: the model's noise levels are BROAD's, the
+    # simulation's are smaller and its IMU does not translate; that verdict is the measurements')
+    assert all(s.samples == 0 for s in report.sensors if s.name in ("acc", "norm"))

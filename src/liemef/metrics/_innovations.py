@@ -442,9 +442,10 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     output's curvature over K's spread can make K understate the errors along directions that sensor does not
     observe, which no innovation shows (``leak=math.inf`` turns this off). Else "consistent". "not applicable" where
     K is not a covariance (:func:`gain_is_covariance`) or no sensor has a full window. States that are NaN
-    after a failure are skipped (the run's status speaks for them). Works on a run of either engine, with
-    ``keep_every`` (only the samples with a state kept are judged), for every filter of the library.
-    ValueError naming the argument for bad input."""
+    after a failure are skipped (the run's status speaks for them), and so are the sensors whose output does not
+    depend on the state (:attr:`~liemef.systems.Sensor.covariate`: another sensor's covariates, no innovation).
+    Works on a run of either engine, with ``keep_every`` (only the samples with a state kept are judged), for
+    every filter of the library. ValueError naming the argument for bad input."""
     if window is not None and not (isinstance(window, int | np.integer) and not isinstance(window, bool)
                                    and window >= 1):
         raise ValueError(f"window: expected a number of samples >= 1 (or None: the default rule), got {window!r}")
@@ -467,6 +468,13 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
                                 "levels in the sensors' units, or the filter keeps no covariance", **rules)
     measured = math.isfinite(leak)
     nis, dof, ell = _per_sample(flt, traj, ts, us, ys, leak=measured)
+    # a covariate (an output that does not depend on the state) carries no innovation: not judged
+    covariates = {s.name for s in getattr(flt.system, "sensors", ()) if s.covariate}
+    for i, b in enumerate(flt.blocks):
+        if b.name in covariates:
+            nis[:, i] = np.nan
+            if measured:
+                ell[:, i] = np.nan
     t = np.asarray(ts, dtype=np.float64)
     sensors = tuple(_verdict(b.name, d, t, nis[:, i], rules["window"], rules["prob"], rules["sustain"],
                              ell[:, i] if measured else None, leak)

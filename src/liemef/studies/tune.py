@@ -292,9 +292,7 @@ def _nll_one(system, g, K, y):
 
 def _constant(system, name: str) -> bool:
     """Whether the sensor ``name``'s output does not depend on the state (a covariate, not a measurement)."""
-    from ..systems.attitude_bias import ConstantOutput
-
-    return any(s.name == name and isinstance(s.fn, ConstantOutput) for s in system.sensors)
+    return any(s.name == name and s.covariate for s in system.sensors)
 
 
 def _nll_terms_impl(system, g, K, ys):

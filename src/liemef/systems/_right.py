@@ -78,7 +78,8 @@ def _inverted_sensor(s: Sensor) -> Sensor:
     out = object.__new__(Sensor)
     for f in dataclasses.fields(Sensor):
         object.__setattr__(out, f.name, getattr(s, f.name))
-    object.__setattr__(out, "fn", _AtInverse(s.fn))
+    if not s.covariate:  # a constant output is the same at the inverted state
+        object.__setattr__(out, "fn", _AtInverse(s.fn))
     return out
 
 

@@ -21,6 +21,7 @@ components and per sample for sample components; with the process noise ``g^-1 g
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Literal
@@ -89,6 +90,18 @@ class Noise(eqx.Module):
             raise ValueError(f"{what}: a sample std held as an input needs its rate; expected "
                              "Noise.sample(std, rate=HZ), got rate=None")
         return self.std / math.sqrt(self.rate)
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstantOutput:
+    r"""$h(g) = c$: an output that does not depend on the state. Such a sensor is a *covariate*: its samples
+    ride in the log for another sensor's noise model (``scale``), add nothing to the residual or to E, and carry
+    no innovation (:attr:`Sensor.covariate`); e.g. the norms of :func:`~liemef.systems.attitude_imu`."""
+
+    c: tuple[float, ...]
+
+    def __call__(self, g, t):
+        return jnp.asarray(self.c)
 
 
 class Sensor(eqx.Module):
@@ -191,6 +204,12 @@ class Sensor(eqx.Module):
     def dim(self) -> int:
         """Number of components."""
         return len(self.components)
+
+    @property
+    def covariate(self) -> bool:
+        """Whether the output does not depend on the state (:class:`ConstantOutput`): the samples are another
+        sensor's covariates, not measurements; the innovation monitor does not judge them."""
+        return isinstance(self.fn, ConstantOutput)
 
     @property
     def columns(self) -> tuple[str, ...]:

@@ -68,7 +68,7 @@ from jaxtyping import ArrayLike, Float
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, TSO3, Product
-from ._sensors import Noise, Sensor, SensorSystem
+from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
 
 IMU_RATE = 285.714
 """Default IMU rate (Hz), BROAD's ``sampling_rate`` (2000/7)."""
@@ -195,16 +195,6 @@ local field's dip varies by degrees indoors."""
 NORM_STD = (0.1, 1.0)
 """Std of one sample of the norms (accelerometer m/s^2, magnetometer uT): their noise at rest, a few times
 BROAD's (0.03 m/s^2, 0.3 uT). They do not depend on the attitude, so they move neither the estimate nor K."""
-
-
-@dataclass(frozen=True)
-class ConstantOutput:
-    r"""$h(g) = c$: a measurement that does not depend on the state (the norms of :func:`attitude_imu`)."""
-
-    c: tuple[float, ...]
-
-    def __call__(self, g, t):
-        return jnp.asarray(self.c)
 
 
 @dataclass(frozen=True)

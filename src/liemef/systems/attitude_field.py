@@ -69,7 +69,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, Product
-from ._sensors import Noise, Sensor, SensorSystem
+from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
 from .attitude_bias import (
     ACC_DENSITY,
     DIP,
@@ -80,7 +80,6 @@ from .attitude_bias import (
     IMU_RATE,
     VELOCITY_GYRO_STD,
     VELOCITY_STD,
-    ConstantOutput,
     imu_log,
     magnetic_reference,
 )
