@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from imu_motion import turning
 from liemef.filters import MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
 from liemef.systems import attitude_bias as ab
@@ -26,12 +27,7 @@ def simulate(kind: str, seed: int = 0, duration: float = 180.0):
     ``"body"``, a magnet attached to the IMU. Returns ts, gyro, acc, mag and the true rotations."""
     rng = np.random.default_rng(seed)
     N = int(duration * RATE) + 1
-    ts = np.arange(N) / RATE
-    w = np.stack([0.8 * np.sin(0.5 * ts), 0.6 * np.cos(0.3 * ts + 1.0), 0.7 * np.sin(0.2 * ts + 2.0)], axis=1)
-    R = np.empty((N, 3, 3))
-    R[0] = Rotation.from_rotvec([0.2, -0.1, 0.5]).as_matrix()
-    for k in range(N - 1):
-        R[k + 1] = R[k] @ Rotation.from_rotvec(w[k] / RATE).as_matrix()
+    ts, w, R = turning(RATE, N)
     gyr = w + np.array([0.01, -0.008, 0.012]) + 0.005 * rng.standard_normal((N, 3))
     ramp = np.clip(np.minimum(ts - ON[0], ON[1] - ts) / 2.0, 0.0, 1.0)[:, None]
     d, c = np.zeros((N, 3)), np.zeros((N, 3))

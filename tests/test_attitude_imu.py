@@ -7,8 +7,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
+from imu_motion import turning
 from liemef.filters import MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
 from liemef.systems import attitude_bias as ab
@@ -26,12 +26,7 @@ def simulate(seed=0, duration=40.0, bursts=True, magnet=True):
     disturbance (0.4 B, fixed in the world, 20-30 s). Returns ts, us, ys (with norms), R (truth), the bias."""
     rng = np.random.default_rng(seed)
     N = int(duration * RATE) + 1
-    ts = np.arange(N) / RATE
-    w = np.stack([0.8 * np.sin(0.5 * ts), 0.6 * np.cos(0.3 * ts + 1.0), 0.7 * np.sin(0.2 * ts + 2.0)], axis=1)
-    R = np.empty((N, 3, 3))
-    R[0] = Rotation.from_rotvec([0.2, -0.1, 0.5]).as_matrix()
-    for k in range(N - 1):
-        R[k + 1] = R[k] @ Rotation.from_rotvec(w[k] / RATE).as_matrix()
+    ts, w, R = turning(RATE, N)
     bias = np.array([0.01, -0.008, 0.012])
     us = w + bias + ab.GYRO_STD * rng.standard_normal((N, 3))
     a_lin = np.zeros((N, 3))
@@ -143,12 +138,7 @@ def simulate_translation(seed=0, duration=30.0, amp=0.25):
     Returns the raw columns, the truth and the true world velocity."""
     rng = np.random.default_rng(seed)
     N = int(duration * RATE) + 1
-    ts = np.arange(N) / RATE
-    w = np.stack([0.8 * np.sin(0.5 * ts), 0.6 * np.cos(0.3 * ts + 1.0), 0.7 * np.sin(0.2 * ts + 2.0)], axis=1)
-    R = np.empty((N, 3, 3))
-    R[0] = Rotation.from_rotvec([0.2, -0.1, 0.5]).as_matrix()
-    for k in range(N - 1):
-        R[k + 1] = R[k] @ Rotation.from_rotvec(w[k] / RATE).as_matrix()
+    ts, w, R = turning(RATE, N)
     gyr = w + np.array([0.01, -0.008, 0.012]) + ab.GYRO_STD * rng.standard_normal((N, 3))
     om, ph, axes = np.array([3.0, 4.0, 5.0]), np.array([0.0, 1.0, 2.0]), np.array([1.0, 1.0, 0.3])
     a_lin = -amp * om**2 * np.sin(om * ts[:, None] + ph) * axes
