@@ -1,6 +1,8 @@
 """liemef tune (liemef.studies.tune): the likelihood fit recovers known noise levels on simulated data within
 the Monte Carlo spread, leave-one-out bookkeeping, the tuned set as a file, and its checks."""
 
+import math
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -85,15 +87,16 @@ TARGETS = {"r0": (-1.5, -1.0), "r1": (-1.2, -1.4), "r2": (-1.8, -1.1), "r3": (-1
 """Per recording, the log10 (acc_std, mag_std) where the fake loss of :func:`_nested` is least."""
 
 
-def _nested(monkeypatch, targets):
+def _nested(monkeypatch, targets, fails=lambda name, x: False):
     """tune on four recordings whose loss is a cheap quadratic in log10 (acc_std, mag_std) around ``targets``
-    (``evaluate`` replaced), with every filter run and every search's start and end logged in order."""
+    (``evaluate`` replaced; a run where ``fails(name, x)`` fails: inf), with every filter run and every search's
+    start and end logged in order."""
     log = []
 
     def evaluate(rec, params, objective="truth", **kw):
         x = np.log10([params["acc_std"], params["mag_std"]])
         log.append(("run", rec.name, tuple(np.round(x, 9))))
-        return float(np.sum((x - np.array(targets[rec.name])) ** 2))
+        return math.inf if fails(rec.name, x) else float(np.sum((x - np.array(targets[rec.name])) ** 2))
 
     def search(loss_of, train, x0, maxfev, step):
         log.append(("search", tuple(train)))
@@ -141,6 +144,22 @@ def test_no_fold_s_search_sees_its_held_out_recording(monkeypatch):
     text = T.markdown(res)
     assert "held-out (fold without it)" in text and "final set, in-sample" in text
     assert f"| mean | {res['held_out_mean']:.3f} | {res['train_mean']:.3f} | {res['train']:.3f} |" in text
+
+
+def test_a_failed_held_out_run_is_kept_as_a_failure(monkeypatch, tmp_path):
+    """A run that fails scores inf, which JSON cannot hold: the file keeps it as null, reads back, and the report
+    says "failed" (before, the tune's last step, the save, raised and its hours of work were not written)."""
+    # r0 fails wherever acc_std < 10^-1.3: its fold's point (the others' optimum) is there, its training never is
+    res, _ = _nested(monkeypatch, TARGETS, fails=lambda name, x: name == "r0" and x[0] < -1.3)
+    assert res["folds"]["r0"]["held_out"] is None and res["held_out_mean"] is None
+    assert all(f["held_out"] is not None for n, f in res["folds"].items() if n != "r0")
+    path = T.save(res, tmp_path / "tune.json")
+    back = T.load(path)
+    assert back["folds"]["r0"]["held_out"] is None and back["held_out_mean"] is None
+    text = T.markdown(back)
+    assert "| r0 | failed |" in text and "| mean | failed |" in text
+    with pytest.raises(ValueError, match=r"folds\.r0\.held_out: expected a finite number, or null"):
+        T.read(_write(tmp_path / "bad.json", path.read_text().replace('"held_out": null', '"held_out": "x"', 1)))
 
 
 def _write(path, text):

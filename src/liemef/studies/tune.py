@@ -438,21 +438,31 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
         bar.set_postfix_str(f"fold without {rec.name}")
         x_i = _search(losses, train, x0, fold_maxfev, step)  # recording i is not asked for until x_i is fixed
         folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)},
-                           "train": float(np.mean([loss(x_i, j) for j in np.flatnonzero(train)])),
-                           "held_out": loss(x_i, i)}
+                           "train": _mean([loss(x_i, j) for j in np.flatnonzero(train)]),
+                           "held_out": _loss(loss(x_i, i))}
     bar.set_postfix_str("final set (all recordings)")
     x_all = _search(losses, everyone, x0, maxfev, step)
     final = [loss(x_all, i) for i in range(R)]
     bar.close()
-    held = [f["held_out"] for f in folds.values()]
     return {"format": FORMAT, "system": sysname, "objective": objective, "names": list(names), "order": order,
             "updates": updates, "cross_validation": CROSS_VALIDATION, "params_from": PARAMS_FROM,
-            "params": {**fixed, **_to_params(names, x_all)}, "train": float(np.mean(final)),
-            "per_recording": {r.name: float(v) for r, v in zip(recs, final, strict=True)},
-            "folds": folds, "held_out_mean": float(np.mean(held)),
+            "params": {**fixed, **_to_params(names, x_all)}, "train": _mean(final),
+            "per_recording": {r.name: _loss(v) for r, v in zip(recs, final, strict=True)},
+            "folds": folds, "held_out_mean": _mean([f["held_out"] for f in folds.values()]),
             "rest_s": {r.name: float(r.rest_s) for r in recs if r.rest_s is not None},
-            "train_mean": float(np.mean([f["train"] for f in folds.values()])),
+            "train_mean": _mean([f["train"] for f in folds.values()]),
             "evaluations": len(cache), "elapsed_s": time.perf_counter() - t0}
+
+
+def _loss(v) -> float | None:
+    """A loss as the file keeps it: None for a failed run (an infinite loss), which JSON cannot hold."""
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _mean(values) -> float | None:
+    """The mean of losses, None (failed) if one of them is."""
+    values = [_loss(v) for v in values]
+    return None if any(v is None for v in values) else float(np.mean(values))
 
 
 def _progress(total: int, enabled: bool):
@@ -469,12 +479,12 @@ def save(result: dict, path: str | Path) -> Path:
 
 FILE_KEYS = {"format": "text", "system": "text", "objective": "text", "names": "names", "order": "text",
              "updates": "text", "cross_validation": "text", "params_from": "text", "params": "params",
-             "train": "number", "per_recording": "numbers",
-             "folds": "folds", "held_out_mean": "number", "train_mean": "number", "evaluations": "count",
+             "train": "loss", "per_recording": "losses",
+             "folds": "folds", "held_out_mean": "loss", "train_mean": "loss", "evaluations": "count",
              "elapsed_s": "number", "rest_s": "numbers"}
 """The keys of a tuning file (every key :func:`tune` writes) and the kind of each value; ``format``, ``system``
 and ``params`` are required, every other key is optional, and a key not listed is refused."""
-FOLD_KEYS = {"params": "params", "train": "number", "held_out": "number"}
+FOLD_KEYS = {"params": "params", "train": "loss", "held_out": "loss"}
 """The keys of one fold of a tuning file's ``folds`` (``params`` required)."""
 TEXT_CHOICES = {"format": (FORMAT,), "system": tuple(SYSTEMS), "objective": OBJECTIVES, "order": _names.ORDERS,
                 "updates": _names.UPDATES, "cross_validation": (CROSS_VALIDATION,), "params_from": (PARAMS_FROM,)}
@@ -564,9 +574,14 @@ def _check_entry(where: str, path: str, value, keys: dict, system: str) -> None:
         expected = f"a list of names from {sorted(SYSTEMS[system])}"
     elif kind == "number":
         ok, expected = _number(value), "a finite number"
+    elif kind == "loss":
+        ok, expected = value is None or _number(value), "a finite number, or null for a failed run"
     elif kind == "count":
         ok = isinstance(value, int) and not isinstance(value, bool) and value >= 0
         expected = "an integer >= 0"
+    elif kind == "losses":
+        ok = isinstance(value, dict) and all(v is None or _number(v) for v in value.values())
+        expected = "a mapping from recording names to finite numbers, or null for a failed run"
     else:  # numbers
         ok = isinstance(value, dict) and all(_number(v) for v in value.values())
         expected = "a mapping from recording names to finite numbers"
@@ -593,6 +608,10 @@ def params_for(tuned: dict, recording: str | None = None) -> dict:
     return dict(tuned["params"])
 
 
+def _cell(loss: float | None) -> str:
+    return "failed" if loss is None else f"{loss:.3f}"
+
+
 def markdown(result: dict) -> str:
     """The tuning report: per recording, side by side, the held-out error (the fold tuned without it), the
     fold's training error (its mean over the other recordings) and the final set's error on it (in-sample), their
@@ -613,11 +632,12 @@ def markdown(result: dict) -> str:
              "| final set, in-sample | " + " | ".join(f"fold's {n}" for n in names) + " |",
              "|---|---:|---:|---:|" + "---:|" * len(names)]
     for name, f in result["folds"].items():
-        final = f"{per[name]:.3f}" if name in per else "-"
-        lines.append(f"| {name} | {f['held_out']:.3f} | {f['train']:.3f} | {final} | "
+        final = _cell(per[name]) if name in per else "-"
+        lines.append(f"| {name} | {_cell(f['held_out'])} | {_cell(f['train'])} | {final} | "
                      + " | ".join(f"{f['params'][n]:.4g}" for n in names) + " |")
-    final = f"{result['train']:.3f}" if "train" in result else "-"
-    lines.append(f"| mean | {result['held_out_mean']:.3f} | {result['train_mean']:.3f} | {final} |" + " |" * len(names))
+    final = _cell(result["train"]) if "train" in result else "-"
+    lines.append(f"| mean | {_cell(result['held_out_mean'])} | {_cell(result['train_mean'])} | {final} |"
+                 + " |" * len(names))
     lines += ["", "Final set (a search on all recordings; its column above is a training error, the held-out mean "
               "estimates its error on an unseen recording): "
               + ", ".join(f"{k} = {v:.4g}" for k, v in result["params"].items()), ""]
