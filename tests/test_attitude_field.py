@@ -14,11 +14,10 @@ from imu_motion import turning
 from liemef.filters import MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
 from liemef.systems import attitude_bias as ab
-from liemef.systems.attitude_field import attitude_field, attitude_field_state, imu_field_log
+from liemef.systems.attitude_field import K0_FIELD, attitude_field, attitude_field_state, imu_field_log
 
 RATE, G, B = 50.0, 9.81, 43.0
 ON = (30.0, 150.0)  # the disturbance: two minutes
-K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
 
 
 def simulate(kind: str, seed: int = 0, duration: float = 180.0):
@@ -51,7 +50,7 @@ def run_field(kind, **levels):
     flt = MinimumEnergyFilter(attitude_field(0.005, RATE, gravity=G, field=B, **levels), order="first",
                               updates="discrete", error="left")
     g0 = TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3))))
-    traj = flt.run(flt.init(attitude_field_state(g0), K0), ts, us, ys)
+    traj = flt.run(flt.init(attitude_field_state(g0), K0_FIELD), ts, us, ys)
     assert traj.status.ok, traj.status.message(ts)
     h = heading_deg(R, np.asarray(traj.g_hat.factors[0].as_matrix()))
     return {name: float(np.sqrt(np.mean(h[(ts >= a) & (ts < b)] ** 2)))

@@ -80,7 +80,7 @@ from .attitude_bias import (
     IMU_RATE,
     VELOCITY_GYRO_STD,
     VELOCITY_STD,
-    imu_log,
+    imu_velocity_log,
     magnetic_reference,
 )
 
@@ -215,22 +215,10 @@ class FieldSystem(SensorSystem):
     def with_gains(self, world=None, body=None, disturbance=None) -> FieldSystem:
         """A copy with new $k_w$, $k_c$ (1/sqrt(s), >= 0) or $e_0$ (uT, > 0); None keeps one. Same structure: a
         filter of the copy reuses the compiled code."""
-        s = [self.gains[0] if world is None else _nonnegative("world", world),
-             self.gains[1] if body is None else _nonnegative("body", body),
-             self.gains[2] if disturbance is None else _positive("disturbance", disturbance)]
+        s = [self.gains[0] if world is None else _validate.nonnegative("world", world),
+             self.gains[1] if body is None else _validate.nonnegative("body", body),
+             self.gains[2] if disturbance is None else _validate.positive("disturbance", disturbance)]
         return eqx.tree_at(lambda m: m.gains, self, jnp.asarray(s, dtype=float))
-
-
-def _nonnegative(name: str, v) -> float:
-    if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v >= 0):
-        raise ValueError(f"{name}: expected a finite value >= 0, got {v!r}")
-    return float(v)
-
-
-def _positive(name: str, v) -> float:
-    if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v > 0):
-        raise ValueError(f"{name}: expected a finite value > 0, got {v!r}")
-    return float(v)
 
 
 def attitude_field(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK,
@@ -266,9 +254,9 @@ def attitude_field(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE
     if not (isinstance(dip, int | float) and math.isfinite(dip) and abs(dip) <= math.pi / 2):
         raise ValueError(f"dip: expected a magnetic dip in radians within [-pi/2, pi/2], got {dip!r}")
     for name, v in (("gravity", gravity), ("field", field), ("world_tau", world_tau), ("body_tau", body_tau)):
-        _positive(name, v)
-    gains = [_nonnegative("world_gain", world_gain), _nonnegative("body_gain", body_gain),
-             _positive("disturbance", disturbance)]
+        _validate.positive(name, v)
+    gains = [_validate.nonnegative("world_gain", world_gain), _validate.nonnegative("body_gain", body_gain),
+             _validate.positive("disturbance", disturbance)]
     gyro = Noise.density(gyro_std) if imu_rate is None else Noise.sample(gyro_std, imu_rate)
     parts = {"bias_walk": Noise.density(bias_walk), "acc_density": Noise.density(acc_density),
              "world_density": Noise.density(world_density), "body_density": Noise.density(body_density)}
@@ -281,8 +269,7 @@ def attitude_field(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE
     xyz = ("x", "y", "z")
     B = tuple(float(field) * x for x in magnetic_reference(float(dip)))
     for name, v in (("dip_std", dip_std), ("norm_std", norm_std)):
-        if not (isinstance(v, int | float | np.floating) and math.isfinite(v) and v >= 0):
-            raise ValueError(f"{name}: expected a std >= 0 in uT, got {v!r}")
+        _validate.nonnegative(name, v)
     acc = Sensor("acc", ConstantOutput(E_UP), Noise.sample(1.0), xyz, ("1",) * 3)
     mag = Sensor("mag", DisturbedField(B), Noise.sample(field_std), xyz, ("uT",) * 3, scale=FieldNoise(0, 3),
                  scale_params=[float(dip_std), float(norm_std)])
@@ -301,13 +288,16 @@ def imu_field_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], ma
     """The log of :func:`attitude_field` from raw IMU columns: ``us`` = (gyro, accelerometer) (N, 6) in the
     sample convention ``gyro`` (:func:`~liemef.systems.attitude_bias.imu_log`), ``ys`` = (accelerometer direction,
     magnetometer (uT), zero velocity) (N, 9); a NaN or zero row is a missing sample."""
-    ts, us, ys = imu_log(gyr, acc, mag, rate, t0, gyro=gyro)
-    a = _validate.array("acc", np.asarray(acc, dtype=np.float64), (us.shape[0], 3), missing=True)
+    ts, us, ys = imu_velocity_log(gyr, acc, mag, rate, t0, gyro=gyro)
     m = _validate.array("mag", np.asarray(mag, dtype=np.float64), (us.shape[0], 3), missing=True)
-    if gyro == "backward":
-        a = np.concatenate([a[1:], a[-1:]], axis=0)
-    m = np.where(np.isfinite(ys[:, 3:4]), m, np.nan)
-    return ts, np.concatenate([us, a], axis=1), np.concatenate([ys[:, :3], m, np.zeros((m.shape[0], 3))], axis=1)
+    m = np.where(np.isfinite(ys[:, 3:4]), m, np.nan)  # the rows imu_log calls missing
+    return ts, us, np.concatenate([ys[:, :3], m, ys[:, 8:]], axis=1)
+
+
+K0_FIELD = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
+"""A K0 for :func:`attitude_field` from a TRIAD estimate at rest: :data:`~liemef.systems.attitude_bias.K0_VELOCITY`'s
+blocks and (0.1 uT)^2 on each disturbance (the reference is the field measured over the initial rest, where the
+run starts); ``liemef compare broad``'s."""
 
 
 def attitude_field_state(g, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0), c=(0.0, 0.0, 0.0)):

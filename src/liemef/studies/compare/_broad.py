@@ -71,7 +71,7 @@ from ...systems.attitude_bias import (
     initial_estimate,
     rest_constants,
 )
-from ...systems.attitude_field import FieldSystem, attitude_field_state, imu_field_log
+from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_state, imu_field_log
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
 
@@ -196,9 +196,6 @@ INITIAL_SAMPLES = 50
 """The initial estimate is TRIAD of the mean of the initial rest's first samples, this many (fewer if the rest is
 shorter)."""
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
-K0_FIELD = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
-"""K0 of :func:`~liemef.systems.attitude_field`: the bounded-velocity model's blocks and (0.1 uT)^2 on each
-disturbance (the reference is the field measured over the initial rest, where the run starts)."""
 
 
 
