@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from types import SimpleNamespace
@@ -44,7 +45,7 @@ def _synthetic(seconds: float = 4.0) -> B.InsTrial:
     tr = datasets.BroadTrial(ts=ts, gyr=gyr, acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
                              mag=np.tile([0.0, 20.0, -40.0], (n, 1)), quat_true=quat, movement=movement, rate=RATE,
                              name="synthetic")
-    return B.InsTrial(tr, pos, 0)
+    return B.InsTrial(tr, pos)
 
 
 def _perfect_run(data: B.InsTrial, offset=(0.0, 0.0, 0.0)):
@@ -114,17 +115,29 @@ def test_the_truth_scores_zero_and_an_offset_scores_itself():
     assert ev["ape_rotation"]["rmse"] == pytest.approx(0.0, abs=1e-5)
 
 
-def test_the_initial_state_is_the_first_optical_pose_at_rest():
+def test_the_initial_state_comes_from_the_imu_alone():
+    """TRIAD of the accelerometer and magnetometer at rest, the origin, zero velocity, the rest's mean gyro as the
+    bias: the optical attitude and position (here a turned attitude and a far position) are not read."""
+    from liemef.systems.attitude_bias import initial_estimate
+
     data = _synthetic()
-    g0 = B.initial_state(data)
-    x, b = g0.factors
-    np.testing.assert_allclose(np.asarray(x.position()), data.pos[0])
-    np.testing.assert_allclose(np.asarray(x.velocity()), 0.0)
-    # the mean gyro over the rest found from the IMU (it ends within a window, 0.5 s, of the turn at 0.5 s)
-    np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02, 0.0, 0.0, 0.0], atol=1e-12)
+    turned = np.tile([0.0, 1.0, 0.0, 0.0], (data.trial.ts.shape[0], 1))
+    far = B.InsTrial(dataclasses.replace(data.trial, quat_true=turned), data.pos + 100.0)
+    for d in (data, far):
+        x, b = B.initial_state(d).factors
+        np.testing.assert_allclose(np.asarray(x.position()), 0.0)
+        np.testing.assert_allclose(np.asarray(x.velocity()), 0.0)
+        R = np.asarray(x.rotation().as_matrix())
+        R_triad = np.asarray(initial_estimate(d.trial.acc[:50], d.trial.mag[:50]).factors[0].as_matrix())
+        np.testing.assert_allclose(R, R_triad, atol=1e-12)
+        # the mean gyro over the rest found from the IMU (it ends within a window, 0.5 s, of the turn at 0.5 s)
+        np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02, 0.0, 0.0, 0.0], atol=1e-12)
+    # the field (0, 20, -40) in the body at rest with gravity up: TRIAD's heading is the identity's
+    np.testing.assert_allclose(R_triad, np.eye(3), atol=1e-12)
     sysm = B.system_of(RATE, 0.01)
     assert sysm.group is SE23B and sysm.output_dim == 3
     np.testing.assert_allclose(np.linalg.eigvalsh(B.K0), np.sort(np.diag(B.K0)))
+    assert B.K0[6, 6] == 2.0**2  # the position unknown within a room: the first fixes place it
 
 
 def test_compare_inertial_navigation_reports_evo_errors_of_an_offset():
@@ -150,11 +163,12 @@ def _broad_present(tid: str = "16"):
     return datasets.broad_trials()[tid]
 
 
-def test_a_broad_trial_starts_at_its_first_optical_pose_near_the_imu():
+def test_a_broad_trial_starts_at_the_file_s_first_sample():
     path = _broad_present("16")
     data = B.load_trial(path, seconds=60.0)
-    assert data.start == 1662  # trial 16's optical attitude is missing before
-    assert np.isfinite(data.trial.quat_true[0]).all() and np.isfinite(data.pos[0]).all()
+    whole = datasets.broad(path)
+    np.testing.assert_array_equal(data.trial.gyr, whole.gyr[:data.trial.ts.shape[0]])
+    assert not np.isfinite(data.trial.quat_true[0]).all()  # trial 16's optical attitude is missing at first
     assert data.trial.ts.shape[0] == data.pos.shape[0] == round(60.0 * data.trial.rate)
     r, before, after = B.lever_arm(data)
     assert np.linalg.norm(r) < 0.02 and after <= before  # the optical point is the IMU's to about a centimetre

@@ -35,12 +35,17 @@ seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (the
   $\sqrt{0.01^2 + \sigma^2}$ with the added noise $\sigma$;
 * gravity 9.81 m/s^2 (Berlin's is 9.813; the accelerometer bias absorbs the rest).
 
-**Initial state** at the first sample with both optical attitude and position (within the initial rest phase of
-every trial; the run starts there): the optical attitude and position, zero velocity (at rest), the gyro bias
-the mean gyro over the initial rest found from the IMU samples alone
-(:func:`~liemef.systems.attitude_bias.initial_rest`; BROAD's movement annotation only scores), zero
-accelerometer bias;
-K0 = :data:`K0` = diag((0.01 rad)^2 I3, (0.05 m/s)^2 I3, (0.01 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3).
+**Initial state, from the IMU alone, the same for every filter** (:func:`initial_state`): the run starts at the
+file's first sample, as ``compare broad``'s. The attitude is TRIAD of the accelerometer and magnetometer over the
+first samples of the initial rest found from the IMU (:func:`~liemef.systems.attitude_bias.initial_rest`), as
+``compare broad``'s filters start; the velocity is zero (at rest); the gyro bias is the mean gyro over that rest,
+the accelerometer bias zero; the position is the origin, with a prior wide enough for a laboratory's optical
+volume, so the first fixes place it. Nothing of the optical attitude or position enters before the fixes do.
+K0 = :data:`K0` = diag((0.05 rad)^2 I3, (0.01 m/s)^2 I3, (2 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3):
+the attitude's as ``compare broad``'s (a magnetometer's heading indoors and the accelerometer's tilt at rest), a
+velocity at rest, the position unknown within a room. Each filter reads K0 in its own error coordinates; with
+these isotropic blocks the attitude and position priors are the same in the left and the right error to the
+first order.
 
 **Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``):
 
@@ -99,8 +104,9 @@ GRAVITY = 9.81
 """Gravity (m/s^2)."""
 VELOCITY_HALF_WINDOW = 0.05
 """Half the window (s) of the central difference that gives the true velocity."""
-K0 = np.diag([0.01**2] * 3 + [0.05**2] * 3 + [0.01**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3)
-"""K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2)."""
+K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [2.0**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3)
+"""K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2): the IMU-only
+start's (module docstring)."""
 VARIANTS = ("recorded", "noisy")
 """The fixes: the optical positions as recorded, and with added white noise."""
 RPE_DELTA = 10
@@ -127,8 +133,8 @@ NEES_KEYS = ("nees_attitude", "nees_velocity", "nees_position", "nees_pose")
 
 @dataclass(frozen=True)
 class BroadInsComparison:
-    """The study's settings: ``trials`` (ids present; default every one), ``seconds`` (the head of each trial
-    from its first optical pose; default whole trials), ``filters`` (of :data:`INS_FILTERS`),
+    """The study's settings: ``trials`` (ids present; default every one), ``seconds`` (the head of each trial;
+    default whole trials), ``filters`` (of :data:`INS_FILTERS`),
     ``attitude_filters`` (of ``compare broad``'s filters, or ``"none"``), ``variants`` (of :data:`VARIANTS`),
     ``fix_rate`` (Hz), ``noise_std`` (m, the ``noisy`` variant's added noise), ``seed`` (of that noise),
     ``realdata`` (the folder; default :func:`liemef.studies.datasets.realdata_dir`), and ``ukf_trials`` and
@@ -178,18 +184,17 @@ class BroadInsComparison:
 # --- the data ---------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class InsTrial:
-    """A BROAD trial from its first sample with both optical attitude and position (``start``, in samples of the
-    file): the :class:`~liemef.studies.datasets.BroadTrial` from there and the optical positions ``pos`` (N, 3)
-    in m (NaN rows where the tracking dropped out)."""
+    """A BROAD trial (:class:`~liemef.studies.datasets.BroadTrial`) and its optical positions ``pos`` (N, 3) in m
+    (NaN rows where the tracking dropped out; the fixes and the scoring read them)."""
 
     trial: datasets.BroadTrial
     pos: np.ndarray
-    start: int
 
 
 def load_trial(path, seconds: float | None = None) -> InsTrial:
-    """:class:`InsTrial` of the BROAD file ``path`` (its first ``seconds`` from the start if given). ValueError
-    naming ``path`` if the file has no ``opt_pos`` of the right shape or no sample with a full optical pose."""
+    """:class:`InsTrial` of the BROAD file ``path`` (its first ``seconds`` if given), from the file's first sample:
+    the start needs no optical data. ValueError naming ``path`` if the file has no ``opt_pos`` of the right
+    shape."""
     import scipy.io
 
     tr = datasets.broad(path)
@@ -198,14 +203,8 @@ def load_trial(path, seconds: float | None = None) -> InsTrial:
     N = tr.ts.shape[0]
     if pos.shape != (N, 3):
         raise ValueError(f"path: {str(path)!r}: expected opt_pos of shape ({N}, 3), got {pos.shape}")
-    ok = np.isfinite(tr.quat_true).all(axis=1) & np.isfinite(pos).all(axis=1)
-    if not ok.any():
-        raise ValueError(f"path: {str(path)!r}: expected a sample with both optical attitude and position, got none")
-    k0 = int(np.argmax(ok))
-    k1 = N if seconds is None else min(N, k0 + max(2, int(round(seconds * tr.rate))))
-    cut = datasets.BroadTrial(tr.ts[k0:k1], tr.gyr[k0:k1], tr.acc[k0:k1], tr.mag[k0:k1], tr.quat_true[k0:k1],
-                              tr.movement[k0:k1], tr.rate, tr.name)
-    return InsTrial(cut, pos[k0:k1], k0)
+    cut = tr if seconds is None else tr.head(seconds)
+    return InsTrial(cut, pos[:cut.ts.shape[0]])
 
 
 def truth_velocity(pos: np.ndarray, rate: float, half_window: float = VELOCITY_HALF_WINDOW) -> np.ndarray:
@@ -258,15 +257,18 @@ def system_of(rate: float, fix_std: float):
 
 
 def initial_state(data: InsTrial) -> SE23B:
-    """The initial estimate (module docstring): the first optical pose, zero velocity, the gyro bias the mean gyro
-    over the initial rest found from the IMU (:func:`~liemef.systems.attitude_bias.initial_rest`), zero
-    accelerometer bias."""
-    from ...systems.attitude_bias import initial_rest
+    """The initial estimate from the IMU alone (module docstring): TRIAD of the initial rest's first samples (as
+    ``compare broad``'s :func:`~liemef.studies.compare._broad.trial_context`), zero velocity, the origin, the
+    mean gyro over the rest as the gyro bias, zero accelerometer bias."""
+    from ...systems.attitude_bias import initial_estimate, initial_rest
+    from ._broad import INITIAL_SAMPLES
 
     tr = data.trial
-    bg = tr.gyr[:initial_rest(tr.gyr, tr.acc, tr.rate)].mean(axis=0)
-    q = tr.quat_true[0] / np.linalg.norm(tr.quat_true[0])
-    x = SE23.from_rotation_velocity_position(SO3(q), np.zeros(3), data.pos[0])
+    rest = initial_rest(tr.gyr, tr.acc, tr.rate)
+    first = min(INITIAL_SAMPLES, rest)
+    R = initial_estimate(tr.acc[:first], tr.mag[:first]).factors[0]
+    bg = tr.gyr[:rest].mean(axis=0)
+    x = SE23.from_rotation_velocity_position(R, np.zeros(3), np.zeros(3))
     return SE23B((x, Rn[6](np.concatenate([bg, np.zeros(3)]))))
 
 
@@ -430,7 +432,7 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
     for tid in st.trials:
         data = load_trial(paths[tid], st.seconds)
         r, before, after = lever_arm(data)
-        entry = {"file": data.trial.name, "start_sample": data.start,
+        entry = {"file": data.trial.name,
                  "seconds": float(data.trial.ts[-1] - data.trial.ts[0]),
                  "lever_arm_m": [float(c) for c in r], "lever_arm_residual": [before, after],
                  "fixes": int(fix_indices(data.trial.ts, st.fix_rate).size), "variants": {}}
@@ -470,9 +472,10 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
     return {"study": {**dataclasses.asdict(st), "system": "inertial_navigation(biases=True)",
                       "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
-                                 "for all trials", "K0": "diag(0.01^2 I3, 0.05^2 I3, 0.01^2 I3, 0.002^2 I3, 0.1^2 I3)",
-                      "initial": "first optical pose, zero velocity, gyro bias = mean gyro over the initial rest "
-                                 "detected from the IMU, zero accelerometer bias",
+                                 "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3)",
+                      "initial": "from the IMU alone at the file's first sample: TRIAD over the initial rest "
+                                 "detected from the IMU, zero velocity, the origin, gyro bias = mean gyro over that "
+                                 "rest, zero accelerometer bias",
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
@@ -480,20 +483,14 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
 
 def _attitude_only(st: BroadInsComparison, progress: bool) -> dict:
     """``compare broad``'s attitude-only filters on the same trials: their total, heading and inclination rms over
-    the same samples (the movement mask lies after every trial's first optical pose; with ``seconds``, the
-    run covers the same span from the file's start)."""
+    the same samples (both start at the file's first sample and cover the same ``seconds``)."""
     if not st.attitude_filters:
         return {}
     from ._broad import BroadComparison, compare_broad
 
-    paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
     out = {}
     for tid in st.trials:
-        seconds = None
-        if st.seconds is not None:
-            data = load_trial(paths[tid], st.seconds)
-            seconds = (data.start + data.trial.ts.shape[0]) / data.trial.rate
-        res = compare_broad(BroadComparison(trials=(tid,), seconds=seconds, filters=st.attitude_filters,
+        res = compare_broad(BroadComparison(trials=(tid,), seconds=st.seconds, filters=st.attitude_filters,
                                             realdata=st.realdata), progress=progress)
         out[tid] = {n: {k: r[k] for k in ("ok", "total", "heading", "inclination")}
                     for n, r in res["trials"][tid]["filters"].items()}
