@@ -5,6 +5,13 @@ State $g = (R, v, p) \in SE_2(3)$ (:class:`~liemef.groups.SE23`): $R$ the attitu
 the world velocity (m/s) and position (m), in a local level frame with z up (ENU); algebra order
 $(\omega; \nu_v; \nu_p)$. With ``biases=True`` the state is $SE_2(3) \times \mathbb R^6$, $(R, v, p; b_g, b_a)$, the
 gyro bias (rad/s) and the accelerometer bias (m/s^2) in the body frame, algebra $(\omega; \nu_v; \nu_p; b_g; b_a)$.
+With ``lever_arm=True`` the vector factor goes on with the lever arm $r$ (m, body frame) of the position fixes'
+point from the IMU, a constant of the mount; with ``gyro_scale=True``, with the gyro's scale-factor errors $s$
+(unitless, per axis), constants of the sensor: $\tilde\omega = (1 + s) \odot \omega + b_g + n_g$. Neither has
+process noise; both are estimated as the body turns ($SE_2(3) \times \mathbb R^{6 + 3 + 3}$ with all three). A
+scale factor is what makes a MEMS gyro's error grow with the angle turned (1-3 % of it before calibration) rather
+than with time; without its state the white gyro noise cannot account for it, and a filter whose heading no sensor
+observes turns overconfident on every revolution.
 
 Inputs $u = (\tilde\omega, \tilde a)$: the gyro (rad/s) and the accelerometer's specific force (m/s^2), body frame,
 modelled as $\tilde\omega = \omega + b_g + n_g$, $\tilde a = R^\top(\dot v - g) + b_a + n_a$ with gravity
@@ -20,7 +27,10 @@ the integral of the velocity), and the bias random walks on the bias blocks, all
 
 Sensors (any subset; ``gnss_std=None`` turns the position fixes off):
 
-* ``gnss``: $h = p$, the world position (m), one sample per fix (GNSS-like; a motion-capture position too).
+* ``gnss``: $h = p$, the world position (m), one sample per fix (GNSS-like; a motion-capture position too); with
+  ``lever_arm=True``, $h = p + R r$, the position of a point rigidly mounted at $r$ from the IMU (a GNSS antenna,
+  a motion-capture marker set's origin). Unmodelled, a lever arm of 1 cm turning at a few rad/s makes fixes whose
+  error is neither white nor small beside a motion-capture fix, and ties the attitude to it.
 * ``landmarks`` (given ``landmarks``, L known world points $\ell_i$): $h_i = R^\top(\ell_i - p)$, each landmark's
   position in the body frame (m), 3L components in landmark order (ukfm's inertial-navigation benchmark).
 * ``mag`` (``mag_std`` given): $h = R^\top m_{ref}$, the normalized magnetometer (unitless), $m_{ref} =
@@ -91,6 +101,10 @@ STATE_NAMES = ("rx", "ry", "rz", "vx", "vy", "vz", "x", "y", "z")
 STATE_UNITS = ("rad",) * 3 + ("m/s",) * 3 + ("m",) * 3
 BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
 BIAS_UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
+LEVER_NAMES = ("rx_arm", "ry_arm", "rz_arm")
+LEVER_UNITS = ("m",) * 3
+SCALE_NAMES = ("sgx", "sgy", "sgz")
+SCALE_UNITS = ("1",) * 3
 
 
 def _pose(g) -> SE23:
@@ -100,28 +114,47 @@ def _pose(g) -> SE23:
 
 @dataclass(frozen=True)
 class ImuDynamics:
-    r"""$\lambda(g, u) = (\tilde\omega - b_g,\ \tilde a - b_a + R^\top g,\ R^\top v\ (;\ 0))$ for gravity
-    ``(0, 0, -gravity)``; the biases are zero without the bias factor."""
+    r"""$\lambda(g, u) = ((\tilde\omega - b_g) \oslash (1 + s),\ \tilde a - b_a + R^\top g,\ R^\top v\ (;\ 0))$ for
+    gravity ``(0, 0, -gravity)``. The vector factor holds the biases at its start when ``biases`` (else they are
+    zero) and the gyro's scale-factor errors $s$ from ``scale`` on when it is given (else zero); every component
+    of it (biases, lever arm, scale factors) is constant."""
 
     gravity: float
+    biases: bool = True
+    scale: int | None = None
 
     def __call__(self, g, u, t):
         x = _pose(g)
         Rt = jnp.swapaxes(x.rotation().as_matrix(), -1, -2)
+        w, a = u[0:3], u[3:6]
         if isinstance(g, Product):
-            b = g.factors[1].x
-            w, a = u[0:3] - b[0:3], u[3:6] - b[3:6]
-        else:
-            w, a = u[0:3], u[3:6]
+            z = g.factors[1].x
+            if self.biases:
+                w, a = w - z[0:3], a - z[3:6]
+            if self.scale is not None:
+                w = w / (1.0 + z[self.scale:self.scale + 3])
         lam = [w, a + mv(Rt, jnp.array([0.0, 0.0, -self.gravity])), mv(Rt, x.velocity())]
         if isinstance(g, Product):
-            lam.append(jnp.zeros(6))
+            lam.append(jnp.zeros(g.factors[1].x.shape[-1]))
         return jnp.concatenate(lam)
 
 
 def gnss_position(g, t):
     """The world position ``p`` (m)."""
     return _pose(g).position()
+
+
+@dataclass(frozen=True)
+class MountedPosition:
+    r"""$h = p + R r$: the world position (m) of the point at the lever arm $r$ (body frame), the vector factor's
+    components ``start`` to ``start + 3``."""
+
+    start: int
+
+    def __call__(self, g, t):
+        x = _pose(g)
+        r = g.factors[1].x[self.start:self.start + 3]
+        return x.position() + mv(x.rotation().as_matrix(), r)
 
 
 def barometric_altitude(g, t):
@@ -165,8 +198,10 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
                         biases: bool = False, gyro_bias_walk=GYRO_BIAS_WALK, acc_bias_walk=ACC_BIAS_WALK,
                         gnss_std=GNSS_STD, landmarks=None, landmark_std=LANDMARK_STD, mag_std=None,
                         dip: float = DIP, baro_std=None, gravity: float = GRAVITY,
-                        gate: float | None = None, robust: str | None = None) -> SensorSystem:
-    """The inertial-navigation system on SE_2(3) (or SE_2(3) x R^6 with ``biases``), module docstring.
+                        gate: float | None = None, robust: str | None = None,
+                        lever_arm: bool = False, gyro_scale: bool = False) -> SensorSystem:
+    """The inertial-navigation system on SE_2(3) (SE_2(3) x R^k with ``biases``, 6, ``lever_arm``, 3 more, and
+    ``gyro_scale``, 3 more), module docstring.
 
     Args:
         gyro_std: gyro noise std per sample at ``imu_rate`` (rad/s; one value or 3), or a density
@@ -185,6 +220,11 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         gravity: gravity magnitude (m/s^2); the world z axis points up.
         gate: every sensor's chi-square gate probability (:class:`~liemef.systems.Sensor`).
         robust: ``"huber"`` or ``"cauchy"`` down-weighting of outliers on every sensor.
+        lever_arm: estimate the lever arm r (m, body frame) of the fixes' point from the IMU: ``gnss`` is then
+            p + R r, and r the 3 components of the state after the biases (constant, no process noise). Needs
+            ``gnss_std``.
+        gyro_scale: estimate the gyro's scale-factor errors s (unitless, per axis; the gyro reads (1 + s) omega
+            + b_g), the state's last 3 components (constant, no process noise).
 
     ``B = noise_map diag(densities)`` with ``R = I``; ``D = diag(sensor stds)`` with ``Q = I``.
     """
@@ -192,8 +232,16 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         raise ValueError(f"gravity: expected a gravity magnitude >= 0 in m/s^2, got {gravity!r}")
     if not (isinstance(dip, int | float) and math.isfinite(dip) and abs(dip) <= math.pi / 2):
         raise ValueError(f"dip: expected a magnetic dip in radians within [-pi/2, pi/2], got {dip!r}")
+    for key, flag in (("biases", biases), ("lever_arm", lever_arm), ("gyro_scale", gyro_scale)):
+        if not isinstance(flag, bool):
+            raise ValueError(f"{key}: expected True or False, got {flag!r}")
+    if lever_arm and gnss_std is None:
+        raise ValueError("lever_arm: expected position fixes (gnss_std) for a lever arm to act on, got gnss_std=None")
     density = [_imu_noise("gyro_std", gyro_std, imu_rate), _imu_noise("acc_std", acc_std, imu_rate)]
-    n, d = (15, 12) if biases else (9, 6)
+    arm = 6 if biases else 0  # where the lever arm starts in the vector factor, then the scale factors
+    scale = arm + (3 if lever_arm else 0)
+    k = scale + (3 if gyro_scale else 0)
+    n, d = 9 + k, (12 if biases else 6)
     noise_map = np.zeros((n, d))
     noise_map[0:3, 0:3] = np.eye(3)  # gyro noise on omega
     noise_map[3:6, 3:6] = np.eye(3)  # accelerometer noise on nu_v
@@ -204,8 +252,8 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
     xyz = ("x", "y", "z")
     sensors = []
     if gnss_std is not None:
-        sensors.append(Sensor("gnss", gnss_position, Noise.sample(gnss_std), xyz, ("m",) * 3, gate=gate,
-                              robust=robust))
+        sensors.append(Sensor("gnss", MountedPosition(arm) if lever_arm else gnss_position,
+                              Noise.sample(gnss_std), xyz, ("m",) * 3, gate=gate, robust=robust))
     if landmarks is not None:
         pts = _validate.array("landmarks", np.asarray(landmarks, dtype=np.float64), (None, 3))
         if pts.shape[0] == 0:
@@ -222,9 +270,11 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
                               robust=robust))
     if not sensors:
         raise ValueError("gnss_std, landmarks, mag_std, baro_std: expected at least one sensor, got none")
-    group = SE23B if biases else SE23
-    names = STATE_NAMES + (BIAS_NAMES if biases else ())
-    units = STATE_UNITS + (BIAS_UNITS if biases else ())
-    return SensorSystem(group, ImuDynamics(float(gravity)), sensors, Noise.density(jnp.concatenate(density)),
-                        noise_map=noise_map, inputs=INPUT_NAMES, input_units=INPUT_UNITS, state_names=names,
-                        state_units=units)
+    group = SE23 if k == 0 else Product[SE23, Rn[k]]
+    names = (STATE_NAMES + (BIAS_NAMES if biases else ()) + (LEVER_NAMES if lever_arm else ())
+             + (SCALE_NAMES if gyro_scale else ()))
+    units = (STATE_UNITS + (BIAS_UNITS if biases else ()) + (LEVER_UNITS if lever_arm else ())
+             + (SCALE_UNITS if gyro_scale else ()))
+    dynamics = ImuDynamics(float(gravity), biases, scale if gyro_scale else None)
+    return SensorSystem(group, dynamics, sensors, Noise.density(jnp.concatenate(density)), noise_map=noise_map,
+                        inputs=INPUT_NAMES, input_units=INPUT_UNITS, state_names=names, state_units=units)
