@@ -25,7 +25,6 @@ from liemef import cli
 from liemef.groups import SE23, SO3, Rn
 from liemef.studies import datasets
 from liemef.studies.compare import _broad_ins as B
-from liemef.systems.inertial import SE23B
 
 RATE = 285.714
 
@@ -55,8 +54,8 @@ def _perfect_run(data: B.InsTrial, offset=(0.0, 0.0, 0.0)):
     v = np.nan_to_num(B.truth_velocity(data.pos, tr.rate))
     x = SE23.from_rotation_velocity_position(SO3(q), v, data.pos + np.asarray(offset))
     n = tr.ts.shape[0]
-    g = SE23B((x, Rn[6](jnp.zeros((n, 6)))))
-    return SimpleNamespace(g_hat=g, K=np.broadcast_to(np.eye(15), (n, 15, 15)))
+    g = B.INS_GROUP((x, Rn[12](jnp.zeros((n, 12)))))
+    return SimpleNamespace(g_hat=g, K=np.broadcast_to(np.eye(21), (n, 21, 21)))
 
 
 def test_the_true_velocity_is_the_central_difference():
@@ -131,13 +130,32 @@ def test_the_initial_state_comes_from_the_imu_alone():
         R_triad = np.asarray(initial_estimate(d.trial.acc[:50], d.trial.mag[:50]).factors[0].as_matrix())
         np.testing.assert_allclose(R, R_triad, atol=1e-12)
         # the mean gyro over the rest found from the IMU (it ends within a window, 0.5 s, of the turn at 0.5 s)
-        np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02, 0.0, 0.0, 0.0], atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02] + [0.0] * 9, atol=1e-12)
     # the field (0, 20, -40) in the body at rest with gravity up: TRIAD's heading is the identity's
     np.testing.assert_allclose(R_triad, np.eye(3), atol=1e-12)
     sysm = B.system_of(RATE, 0.01)
-    assert sysm.group is SE23B and sysm.output_dim == 3
+    assert sysm.group is B.INS_GROUP and sysm.output_dim == 3 and sysm.group.tangent_dim == 21
     np.testing.assert_allclose(np.linalg.eigvalsh(B.K0), np.sort(np.diag(B.K0)))
     assert B.K0[6, 6] == 2.0**2  # the position unknown within a room: the first fixes place it
+    assert B.K0.shape == (21, 21) and B.K0[15, 15] == B.LEVER_ARM_STD**2 and B.K0[20, 20] == B.GYRO_SCALE_STD**2
+
+
+def test_the_truth_is_carried_to_the_imu_by_the_lever_arm():
+    """p + R r and v + R (w x r), w the gyro less its mean over the initial rest; no arm (or a failed fit) is the
+    optical point itself, and a run that sits on the carried truth scores zero."""
+    data = _synthetic()
+    arm = np.array([0.1, 0.0, 0.02])
+    p, v = B.truth_at_imu(data, arm)
+    p0, v0 = B.truth_at_imu(data, None)
+    np.testing.assert_array_equal(p0, data.pos)
+    np.testing.assert_array_equal(v0, B.truth_velocity(data.pos, data.trial.rate))
+    np.testing.assert_array_equal(B.truth_at_imu(data, np.full(3, np.nan))[0], data.pos)
+    k = 600  # turning at 0.5 rad/s about z, the gyro's rest mean 0.02 rad/s
+    th = 0.5 * data.trial.ts[k]
+    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(p[k], data.pos[k] + R @ arm, atol=1e-12)
+    np.testing.assert_allclose(v[k], v0[k] + R @ np.cross([0.0, 0.0, 0.48], arm), atol=1e-12)
+    assert np.isnan(p[data.trial.ts.shape[0] // 2]).all()  # the optical attitude's dropout
 
 
 def test_compare_inertial_navigation_reports_evo_errors_of_an_offset():
@@ -215,3 +233,13 @@ def test_the_report_names_the_translation_trials_that_were_run():
     assert B._translation_sentence(result, ["07", "10", "16"]) == " Trials 10 and 16 are translation trials."
     assert B._translation_sentence(result, ["07", "16"]) == " Trial 16 is a translation trial."
     assert B._translation_sentence(result, ["07"]) == ""
+
+
+def test_the_band_fraction_is_095_for_consistent_nees_and_falls_for_overconfidence():
+    rng = np.random.default_rng(0)
+    n = 200_000
+    values = np.stack([rng.chisquare(3, n) / 3, rng.chisquare(3, n) / 3, rng.chisquare(3, n) / 3,
+                       rng.chisquare(9, n) / 9], axis=1)
+    np.testing.assert_allclose(B.in_band(values), 0.95, atol=0.003)
+    assert np.all(B.in_band(4.0 * values) < 0.6)  # errors twice the stated spread
+    assert np.all(B.in_band(0.1 * values) < 0.6)  # an underconfident filter leaves the band too

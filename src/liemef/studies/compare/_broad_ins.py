@@ -3,18 +3,24 @@ r"""``liemef compare broad-ins``: inertial navigation on SE_2(3) with the real I
 BROAD (Laidig et al. 2021, CC BY 4.0) records an IMU at 285.7 Hz with optical motion capture: the attitude
 ``opt_quat`` and the position ``opt_pos`` (m, ENU world), both aligned to the IMU frame by the authors (the
 dataset README). Here the real gyro and accelerometer drive :func:`~liemef.systems.inertial_navigation` with gyro
-and accelerometer biases ($SE_2(3) \times \mathbb R^6$), and the optical positions, taken at 10 Hz, are its
-position fixes, in two variants:
+and accelerometer biases, the fixes' lever arm and the gyro's scale-factor errors ($SE_2(3) \times \mathbb
+R^{12}$), and the optical positions, taken at 10 Hz, are its position fixes, in two variants:
 
 * ``recorded``: the optical positions as recorded;
 * ``noisy``: the same plus white noise of ``noise_std`` m per axis (default :data:`ADDED_NOISE_STD` = 0.1 m),
   drawn by ``numpy.random.default_rng([seed, trial])``.
 
-**Lever arm.** The position is taken as the IMU's. A least-squares fit of the lever arm $r$ in
-$R\tilde a - g = \ddot p + R([\dot\omega]_\times + [\omega]_\times^2) r$ (the world specific force against the
-second difference of the smoothed optical position) gives $|r|$ = 0.7-1.1 cm on every trial, nearly all along the
-body z axis: about the 1 cm the recorded fixes are weighted with, so none is modelled (:func:`lever_arm`,
-reported per trial).
+**Lever arm and gyro scale, as states.** The optical position is of a point about 1 cm from the IMU: a
+least-squares fit of the lever arm $r$ in $R\tilde a - g = \ddot p + R([\dot\omega]_\times + [\omega]_\times^2)
+r$ (the world specific force against the second difference of the smoothed optical position; :func:`lever_arm`,
+reported per trial) gives $|r|$ = 0.7-1.1 cm on every trial, nearly all along the body z axis. That is the
+weight of a recorded fix, but not white: it turns with the body, and a filter that takes the fixes as the IMU's
+position ties its attitude to it. So every filter estimates it (``lever_arm=True``, the fixes' point at $r$ from
+the IMU, prior :data:`LEVER_ARM_STD` = 5 cm per axis), and with it the gyro's scale-factor errors
+(``gyro_scale=True``, prior :data:`GYRO_SCALE_STD` = 2 %): without a magnetometer the heading of a turning body is
+observed only through horizontal acceleration, and a gyro's scale error grows with the angle turned, which its
+white noise cannot account for. The filters' final lever arm (of the fixes' point from the IMU, so about minus the
+fit's) and scale factors are reported beside the fit.
 
 **Timing.** Every sample acts at its own time, as ``compare broad``'s ``mef-vel`` and ``vqf-broad``: IMU sample
 k is the rate and specific force over the interval that ends at $t_k$ (``us[k]`` = sample k + 1, BROAD's
@@ -31,7 +37,8 @@ seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (the
   white noise plus its scale and misalignment errors in motion; 0.34 m/s^2 per sample at 285.7 Hz);
 * bias random walks: :func:`~liemef.systems.inertial_navigation`'s defaults (1e-4 rad/s/sqrt(s), 1e-3
   m/s^2/sqrt(s));
-* a fix: :data:`RECORDED_FIX_STD` = 1 cm per axis as recorded (motion capture plus the unmodelled lever arm),
+* a fix: :data:`RECORDED_FIX_STD` = 1 cm per axis as recorded (motion capture, the synchronisation of two
+  systems and what the lever arm's state has not yet learned),
   $\sqrt{0.01^2 + \sigma^2}$ with the added noise $\sigma$;
 * gravity 9.81 m/s^2 (Berlin's is 9.813; the accelerometer bias absorbs the rest).
 
@@ -41,13 +48,16 @@ first samples of the initial rest found from the IMU (:func:`~liemef.systems.att
 ``compare broad``'s filters start; the velocity is zero (at rest); the gyro bias is the mean gyro over that rest,
 the accelerometer bias zero; the position is the origin, with a prior wide enough for a laboratory's optical
 volume, so the first fixes place it. Nothing of the optical attitude or position enters before the fixes do.
-K0 = :data:`K0` = diag((0.05 rad)^2 I3, (0.01 m/s)^2 I3, (2 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3):
-the attitude's as ``compare broad``'s (a magnetometer's heading indoors and the accelerometer's tilt at rest), a
-velocity at rest, the position unknown within a room. Each filter reads K0 in its own error coordinates; with
-these isotropic blocks the attitude and position priors are the same in the left and the right error to the
-first order.
+K0 = :data:`K0` = diag((0.05 rad)^2 I3, (0.01 m/s)^2 I3, (2 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3,
+(0.05 m)^2 I3, 0.02^2 I3): the attitude's as ``compare broad``'s (a magnetometer's heading indoors and the
+accelerometer's tilt at rest), a velocity at rest, the position unknown within a room, the biases at rest, a
+mount within a few centimetres and a MEMS gyro's scale before calibration. Each filter reads K0 in its own error
+coordinates; with these isotropic blocks the attitude and position priors are the same in the left and the right
+error to the first order.
 
-**Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``):
+**Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``). The
+filters' state is the IMU's, so the optical position and velocity are carried to the IMU by the fitted lever arm
+(:func:`truth_at_imu`; the scoring's only use of it):
 
 * attitude: BROAD's total, heading and inclination rms of $q_{est} \otimes q_{ref}^{-1}$
   (:func:`~liemef.studies.compare._broad.broad_errors`), the same definition as the attitude-only filters';
@@ -60,7 +70,10 @@ first order.
 * position: rms of $|\hat p - p|$;
 * NEES of the left error $\xi = \log(\hat x^{-1} x)$ on $SE_2(3)$ under K's $9 \times 9$ pose block: attitude,
   velocity and position blocks each divided by 3, and the whole divided by 9 (1 for a consistent filter; the
-  differenced truth velocity adds its own noise, a few mm/s);
+  differenced truth velocity adds its own noise, a few mm/s), and the fraction of the scored samples whose NEES
+  lies in its 95 % band, $\chi^2_d(0.025) \le \epsilon \le \chi^2_d(0.975)$ (0.95 for a consistent filter);
+* the innovation monitor's verdict (:func:`liemef.metrics.innovation_monitor`, no truth) and the fixes' mean
+  NIS per degree of freedom (1 when the fixes are as the filter predicts them; below 1, it expected worse);
 * APE and RPE by evo (:func:`liemef.metrics.ape_rpe`, when evo is installed) on the 10 Hz subsample of the
   scored samples: APE translation (m) and rotation (deg); RPE over 10 pairs (1 s where no dropout intervenes).
 
@@ -84,10 +97,9 @@ from pathlib import Path
 import numpy as np
 
 from ...filters import MinimumEnergyFilter
-from ...groups import SE23, SO3, Rn
+from ...groups import SE23, Product, Rn
 from ...reports import io
 from ...systems import inertial_navigation
-from ...systems.inertial import SE23B
 from .. import datasets
 from ._broad import trial_ids
 from ._common import FILTERS, fmt, parse_names, realdata_present
@@ -108,9 +120,16 @@ GRAVITY = 9.81
 """Gravity (m/s^2)."""
 VELOCITY_HALF_WINDOW = 0.01
 """Half the window (s) of the central difference that gives the true velocity (module docstring)."""
-K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [2.0**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3)
-"""K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2): the IMU-only
-start's (module docstring)."""
+INS_GROUP = Product[SE23, Rn[12]]
+"""The state: extended pose, gyro and accelerometer biases, the fixes' lever arm, the gyro's scale factors."""
+LEVER_ARM_STD = 0.05
+"""Prior std (m, per axis) of the lever arm of the fixes' point from the IMU: a mount within a few cm."""
+GYRO_SCALE_STD = 0.02
+"""Prior std (unitless, per axis) of the gyro's scale-factor errors: a MEMS gyro's 1-3 % before calibration."""
+K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [2.0**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3 + [LEVER_ARM_STD**2] * 3
+             + [GYRO_SCALE_STD**2] * 3)
+"""K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2), lever arm (m),
+gyro scale factors: the IMU-only start's (module docstring)."""
 VARIANTS = ("recorded", "noisy")
 """The fixes: the optical positions as recorded, and with added white noise."""
 RPE_DELTA = 10
@@ -133,6 +152,11 @@ METRICS = (("total", "attitude total", "deg"), ("heading", "attitude heading", "
            ("inclination", "attitude inclination", "deg"), ("velocity", "velocity", "m/s"),
            ("position", "position", "m"))
 NEES_KEYS = ("nees_attitude", "nees_velocity", "nees_position", "nees_pose")
+BAND_KEYS = ("band_attitude", "band_velocity", "band_position", "band_pose")
+"""The fraction of the scored samples whose NEES (attitude, velocity, position: 3 dof; pose: 9) lies in its
+two-sided 95 % chi-square band."""
+CALIBRATION_KEYS = ("lever_arm_m", "gyro_scale")
+MONITOR_KEYS = ("monitor", "fix_nis")
 
 
 @dataclass(frozen=True)
@@ -253,17 +277,17 @@ def ins_log(data: InsTrial, ys: np.ndarray) -> io.RecordedLog:
 
 
 def system_of(rate: float, fix_std: float):
-    """:func:`~liemef.systems.inertial_navigation` with biases, the study's priors (module docstring) and
-    position fixes of ``fix_std`` m per axis. The accelerometer's prior is a density, given as its std per sample
-    at ``rate`` beside the gyro's."""
+    """:func:`~liemef.systems.inertial_navigation` with biases, the fixes' lever arm and the gyro's scale factors,
+    the study's priors (module docstring) and position fixes of ``fix_std`` m per axis. The accelerometer's prior
+    is a density, given as its std per sample at ``rate`` beside the gyro's."""
     return inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_DENSITY * math.sqrt(rate), imu_rate=rate,
-                               biases=True, gnss_std=fix_std, gravity=GRAVITY)
+                               biases=True, gnss_std=fix_std, gravity=GRAVITY, lever_arm=True, gyro_scale=True)
 
 
-def initial_state(data: InsTrial) -> SE23B:
+def initial_state(data: InsTrial) -> INS_GROUP:
     """The initial estimate from the IMU alone (module docstring): TRIAD of the initial rest's first samples (as
     ``compare broad``'s :func:`~liemef.studies.compare._broad.trial_context`), zero velocity, the origin, the
-    mean gyro over the rest as the gyro bias, zero accelerometer bias."""
+    mean gyro over the rest as the gyro bias, zero accelerometer bias, lever arm and gyro scale-factor errors."""
     from ...systems.attitude_bias import initial_estimate, initial_rest
     from ._broad import INITIAL_SAMPLES
 
@@ -273,7 +297,7 @@ def initial_state(data: InsTrial) -> SE23B:
     R = initial_estimate(tr.acc[:first], tr.mag[:first]).factors[0]
     bg = tr.gyr[:rest].mean(axis=0)
     x = SE23.from_rotation_velocity_position(R, np.zeros(3), np.zeros(3))
-    return SE23B((x, Rn[6](np.concatenate([bg, np.zeros(3)]))))
+    return INS_GROUP((x, Rn[12](np.concatenate([bg, np.zeros(9)]))))
 
 
 def lever_arm(data: InsTrial, smooth: float = 0.05) -> tuple[np.ndarray, float, float]:
@@ -325,10 +349,33 @@ def scored(data: InsTrial) -> np.ndarray:
     return tr.movement & np.isfinite(tr.quat_true).all(axis=1) & np.isfinite(data.pos).all(axis=1)
 
 
-def errors(data: InsTrial, traj) -> tuple[dict, np.ndarray]:
-    """One run's figures against the optical truth (module docstring) and its attitude error per second (for the
-    figure): ``total``, ``heading``, ``inclination`` (deg), ``velocity`` (m/s), ``position`` (m) rms, the NEES
-    (:data:`NEES_KEYS`) and ``samples``, the samples scored."""
+def truth_at_imu(data: InsTrial, arm=None) -> tuple[np.ndarray, np.ndarray]:
+    r"""The true position and velocity (N, 3) of the IMU, the filters' state, from the optical point's:
+    $p + R r$ and $v + R(\omega \times r)$ with the optical attitude $R$, the lever arm ``arm`` $r$ of the IMU
+    from the optical point (m, body frame; :func:`lever_arm`, fitted to the optical data, for the scoring only;
+    None or NaN: the optical point's own) and $\omega$ the gyro less its mean over the initial rest; $v$ is
+    :func:`truth_velocity`. NaN where the optical pose is missing."""
+    from scipy.spatial.transform import Rotation
+
+    from ...systems.attitude_bias import initial_rest
+
+    tr = data.trial
+    v = truth_velocity(data.pos, tr.rate)
+    if arm is None or not np.all(np.isfinite(arm)):
+        return data.pos, v
+    r = np.asarray(arm, dtype=np.float64)
+    ok = np.isfinite(tr.quat_true).all(axis=1)
+    R = Rotation.from_quat(np.where(ok[:, None], tr.quat_true, [1.0, 0, 0, 0])[:, [1, 2, 3, 0]]).as_matrix()
+    R[~ok] = np.nan
+    w = tr.gyr - tr.gyr[:initial_rest(tr.gyr, tr.acc, tr.rate)].mean(axis=0)
+    return data.pos + R @ r, v + np.einsum("nij,nj->ni", R, np.cross(w, r))
+
+
+def errors(data: InsTrial, traj, arm=None) -> tuple[dict, np.ndarray]:
+    """One run's figures against the optical truth (module docstring) carried to the IMU by the lever arm ``arm``
+    (:func:`truth_at_imu`), and its attitude error per second (for the figure): ``total``, ``heading``,
+    ``inclination`` (deg), ``velocity`` (m/s), ``position`` (m) rms, the NEES (:data:`NEES_KEYS`) and
+    ``samples``, the samples scored."""
     from ._broad import broad_errors, error_per_second
 
     tr = data.trial
@@ -336,22 +383,36 @@ def errors(data: InsTrial, traj) -> tuple[dict, np.ndarray]:
     q = np.asarray(x.wxyz_p[:, :4])
     v_hat, p_hat = np.asarray(x.velocity()), np.asarray(x.position())
     mask = scored(data)
-    v_true = truth_velocity(data.pos, tr.rate)
+    p_true, v_true = truth_at_imu(data, arm)
     vmask = mask & np.isfinite(v_true).all(axis=1)
     out = broad_errors(q, tr.quat_true, tr.movement)  # as compare broad: movement mask, optical attitude present
     rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if e.size else None  # noqa: E731
     out["velocity"] = rms(v_hat[vmask] - v_true[vmask])
-    out["position"] = rms(p_hat[mask] - data.pos[mask])
+    out["position"] = rms(p_hat[mask] - p_true[mask])
     out["samples"] = int(mask.sum())
     if vmask.any():
         i = np.flatnonzero(vmask)
         q_true = tr.quat_true[i] / np.linalg.norm(tr.quat_true[i], axis=1, keepdims=True)
-        true = np.concatenate([q_true, v_true[i], data.pos[i]], axis=1)
+        true = np.concatenate([q_true, v_true[i], p_true[i]], axis=1)
         values = _nees_blocks(true, np.asarray(x.wxyz_p)[i], np.asarray(traj.K)[i][:, :9, :9])
         out.update({key: float(v) for key, v in zip(NEES_KEYS, values.mean(axis=0), strict=True)})
+        out.update({key: float(f) for key, f in zip(BAND_KEYS, in_band(values), strict=True)})
     else:
-        out.update(dict.fromkeys(NEES_KEYS))
+        out.update(dict.fromkeys(NEES_KEYS + BAND_KEYS))
     return out, error_per_second(tr.ts, q, tr.quat_true, tr.movement)
+
+
+def in_band(values: np.ndarray, prob: float = 0.95) -> np.ndarray:
+    """(4,): of the rows of :func:`_nees_blocks` (the NEES per degree of freedom of the attitude, velocity,
+    position and pose), the fraction inside the two-sided ``prob`` chi-square band of each block's 3, 3, 3 and 9
+    degrees of freedom."""
+    from scipy.stats import chi2
+
+    out = []
+    for j, d in enumerate((3, 3, 3, 9)):
+        lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], d) / d
+        out.append(float(np.mean((values[:, j] >= lo) & (values[:, j] <= hi))))
+    return np.asarray(out)
 
 
 _CHUNK = 4096
@@ -387,8 +448,10 @@ def _nees_blocks(true: np.ndarray, est: np.ndarray, K: np.ndarray) -> np.ndarray
     return np.concatenate(out)
 
 
-def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int = RPE_DELTA) -> dict | None:
-    """APE and RPE by evo (:func:`liemef.metrics.ape_rpe`) of a run against the optical poses, on the samples of
+def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int = RPE_DELTA,
+                      arm=None) -> dict | None:
+    """APE and RPE by evo (:func:`liemef.metrics.ape_rpe`) of a run against the optical poses carried to the IMU
+    by the lever arm ``arm`` (:func:`truth_at_imu`), on the samples of
     :func:`fix_indices` at ``rate`` that are scored (:func:`scored`); RPE over ``delta`` pairs. None when evo is
     not installed or fewer than ``delta + 1`` samples qualify."""
     try:
@@ -409,7 +472,8 @@ def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int =
     q_true = tr.quat_true[i] / np.linalg.norm(tr.quat_true[i], axis=1, keepdims=True)
     p_est = np.asarray(x.position())[i]
     xyzw = lambda q: np.concatenate([q[:, 1:], q[:, :1]], axis=1)  # noqa: E731
-    return ape_rpe(tr.ts[i], (p_est, xyzw(wxyz)), tr.ts[i], (data.pos[i], xyzw(q_true)), max_diff=1e-6,
+    p_true = truth_at_imu(data, arm)[0][i]
+    return ape_rpe(tr.ts[i], (p_est, xyzw(wxyz)), tr.ts[i], (p_true, xyzw(q_true)), max_diff=1e-6,
                    delta=delta)
 
 
@@ -426,6 +490,24 @@ def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float):
     """The inertial filter ``name`` (:data:`INS_FILTERS`) on ``log`` from :func:`initial_state` and :data:`K0`."""
     flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std))
     return flt.run(flt.init(initial_state(data), K0), log.ts, log.us, log.ys)
+
+
+def _calibration(traj) -> dict:
+    """The run's final lever arm (m; of the fixes' point from the IMU, so about minus :func:`lever_arm`'s) and
+    gyro scale-factor errors."""
+    z = np.asarray(traj.g_hat.factors[1].x)[-1]
+    return {"lever_arm_m": [float(c) for c in z[6:9]], "gyro_scale": [float(c) for c in z[9:12]]}
+
+
+def _monitor(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, traj) -> dict:
+    """The innovation monitor's verdict on the run (:func:`liemef.metrics.innovation_monitor`, no truth) and the
+    fixes' mean NIS per degree of freedom (1 for a consistent filter)."""
+    from ...metrics import innovation_monitor
+
+    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std))
+    report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
+    gnss = next(v for v in report.sensors if v.name == "gnss")
+    return {"monitor": report.status, "fix_nis": None if gnss.mean_nis is None else gnss.mean_nis / gnss.dof}
 
 
 def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool = True) -> dict:
@@ -453,11 +535,13 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                 ok = bool(int(traj.status.code) == 0)
                 run_s = time.perf_counter() - t0
                 if ok:
-                    figs, per_s = errors(data, traj)
-                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate))
+                    figs, per_s = errors(data, traj, r)
+                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, arm=r))
+                    figs.update(_calibration(traj))
+                    figs.update(_monitor(name, data, log, fix_std, traj))
                 else:
                     figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
-                    figs.update(dict.fromkeys(NEES_KEYS))
+                    figs.update(dict.fromkeys(NEES_KEYS + BAND_KEYS + CALIBRATION_KEYS + MONITOR_KEYS))
                 rows[name] = {"filter": INS_FILTERS[name][0], "ok": ok,
                               "status": "ok" if ok else traj.status.message(log.ts), **figs, "evo": evo_res,
                               "run_s": run_s, "elapsed_s": time.perf_counter() - t0}
@@ -467,19 +551,21 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                     f = rows[name]
                     print(f"  trial {tid} {variant:8s} {name:10s} attitude {fmt(f['total'])} (incl. "
                           f"{fmt(f['inclination'])}) deg, velocity {fmt(f['velocity'])} m/s, position "
-                          f"{fmt(f['position'])} m, NEES {fmt(f['nees_pose'], 3)}; run {f['run_s']:.1f} s, "
-                          f"with the scoring {f['elapsed_s']:.1f} s",
+                          f"{fmt(f['position'])} m, NEES {fmt(f['nees_pose'], 3)}, {f.get('monitor')}; run "
+                          f"{f['run_s']:.1f} s, with the scoring {f['elapsed_s']:.1f} s",
                           file=sys.stderr, flush=True)
             entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": rows}
         per_trial[tid] = entry
     attitude_only = _attitude_only(st, progress)
-    return {"study": {**dataclasses.asdict(st), "system": "inertial_navigation(biases=True)",
+    system = "inertial_navigation(biases=True, lever_arm=True, gyro_scale=True)"
+    return {"study": {**dataclasses.asdict(st), "system": system,
                       "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
-                                 "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3)",
+                                 "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
+                                                   f"{LEVER_ARM_STD}^2 I3, {GYRO_SCALE_STD}^2 I3)",
                       "initial": "from the IMU alone at the file's first sample: TRIAD over the initial rest "
                                  "detected from the IMU, zero velocity, the origin, gyro bias = mean gyro over that "
-                                 "rest, zero accelerometer bias",
+                                 "rest, zero accelerometer bias, lever arm and gyro scale errors",
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
@@ -504,7 +590,7 @@ def _attitude_only(st: BroadInsComparison, progress: bool) -> dict:
 def _means(st: BroadInsComparison, per_trial: dict) -> dict:
     """Per variant and filter, the mean over the trials of each figure (None if a trial is missing or failed),
     and the trials it covers."""
-    keys = [k for k, _, _ in METRICS] + list(NEES_KEYS)
+    keys = [k for k, _, _ in METRICS] + list(NEES_KEYS) + list(BAND_KEYS) + ["fix_nis"]
     evo_keys = ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse", "rpe_rotation_rmse")
     out = {}
     for variant in st.variants:
@@ -519,6 +605,8 @@ def _means(st: BroadInsComparison, per_trial: dict) -> dict:
             for k in evo_keys:
                 v = [None if r["evo"] is None else r["evo"][k] for r in rows]
                 m[k] = None if not v or any(x is None for x in v) else float(np.mean(v))
+            m["monitor"] = {status: sum(r.get("monitor") == status for r in rows)
+                            for status in sorted({r.get("monitor") for r in rows if r.get("monitor")})}
             out[variant][name] = m
     return out
 
@@ -561,18 +649,8 @@ def markdown(result: dict) -> str:
             lines.append(f"| {name} | {m['trials']} | " + " | ".join(cells) + " |")
         lines += ["", f"Per trial (fixes {variant}): attitude total / inclination [deg], velocity [m/s], position "
                   "[m].", "", "| filter | " + " | ".join(trials) + " |", "|---|" + "---:|" * len(trials)]
-        for name in st["filters"]:
-            cells = []
-            for t in trials:
-                r = result["per_trial"][t]["variants"][variant]["filters"].get(name)
-                if r is None:
-                    cells.append("not run")
-                elif not r["ok"]:
-                    cells.append(f"failed: {r['status']}")
-                else:
-                    cells.append(f"{fmt(r['total'])} / {fmt(r['inclination'])}, {fmt(r['velocity'])}, "
-                                 f"{fmt(r['position'])}")
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines += _trial_rows(result, variant, trials, lambda r: f"{fmt(r['total'])} / {fmt(r['inclination'])}, "
+                                                             f"{fmt(r['velocity'])}, {fmt(r['position'])}")
         lines.append("")
     att = result.get("attitude_only") or {}
     if att:
@@ -596,28 +674,75 @@ def markdown(result: dict) -> str:
                 cells.append("-" if not r["ok"] else f"{fmt(r['total'])} / {fmt(r['inclination'])}")
             lines.append(f"| {t} | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["## Lever arm (diagnostic)", "", "Least-squares lever arm of the IMU from the optical position's point "
-              "(body frame, cm) and the rms of the specific-force residual before / after it [m/s^2].", "",
-              "| trial | r [cm] | residual |", "|---|---|---|"]
+    lines += _consistency_lines(result, trials)
+    variant = "recorded" if "recorded" in st["variants"] else st["variants"][0]
+    vec = lambda v, k: "-" if v is None else "(" + ", ".join(f"{k * c:.2f}" for c in v) + ")"  # noqa: E731
+    lines += ["## Lever arm and gyro scale", "", "The least-squares lever arm of the IMU from the optical position's "
+              "point fitted to the optical data (body frame, cm; the scoring's, not the filters') and the rms of the "
+              "specific-force residual before / after it [m/s^2]; then each filter's final estimate (fixes "
+              f"{variant}) of the lever arm of the fixes' point from the IMU (about minus the fit) [cm] and of the "
+              "gyro's scale-factor errors [%].", "",
+              "| trial | fitted r [cm] | residual | " + " | ".join(f"{n} r [cm] | {n} s [%]" for n in st["filters"])
+              + " |", "|---|---|---|" + "---|---|" * len(st["filters"])]
     for t in trials:
         e = result["per_trial"][t]
-        r = ", ".join(f"{100 * c:.2f}" for c in e["lever_arm_m"])
-        lines.append(f"| {t} | ({r}) | {fmt(e['lever_arm_residual'][0])} / {fmt(e['lever_arm_residual'][1])} |")
+        cells = []
+        for n in st["filters"]:
+            r = e["variants"][variant]["filters"].get(n) or {}
+            cells += [vec(r.get("lever_arm_m"), 100), vec(r.get("gyro_scale"), 100)]
+        lines.append(f"| {t} | {vec(e['lever_arm_m'], 100)} | {fmt(e['lever_arm_residual'][0])} / "
+                     f"{fmt(e['lever_arm_residual'][1])} | " + " | ".join(cells) + " |")
     return "\n".join(lines + [""])
+
+
+def _trial_rows(result: dict, variant: str, trials, cell) -> list[str]:
+    """One table row per filter of the study, one cell per trial: ``cell(row)`` of a run that worked, else "not
+    run" or "failed: " and its status."""
+    lines = []
+    for name in result["study"]["filters"]:
+        cells = []
+        for t in trials:
+            r = result["per_trial"][t]["variants"][variant]["filters"].get(name)
+            cells.append("not run" if r is None else f"failed: {r['status']}" if not r["ok"] else cell(r))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _consistency_cell(r: dict) -> str:
+    """NEES per block with its fraction in band, the fixes' NIS and the monitor's verdict."""
+    blocks = " / ".join(f"{fmt(r[k], 3)} ({fmt(r[b], 2)})" for k, b in zip(NEES_KEYS[:3], BAND_KEYS[:3], strict=True))
+    return f"{blocks}; NIS {fmt(r['fix_nis'], 2)}, {r['monitor']}"
+
+
+def _consistency_lines(result: dict, trials) -> list[str]:
+    """Per variant, each filter's NEES per block with the fraction of samples in its 95 % band, the fixes' NIS and
+    the innovation monitor's verdict, per trial."""
+    st = result["study"]
+    lines = []
+    for variant in st["variants"]:
+        lines += [f"## Consistency, fixes {variant}", "", "Per trial: the NEES per degree of freedom of the "
+                  "attitude / velocity / position (1 when consistent) with, in brackets, the fraction of the scored "
+                  "samples whose NEES lies in its 95 % band (0.95 when consistent); then the fixes' mean NIS per "
+                  "degree of freedom and the innovation monitor's verdict (no truth).", "",
+                  "| filter | " + " | ".join(trials) + " |", "|---|" + "---|" * len(trials)]
+        lines += _trial_rows(result, variant, trials, _consistency_cell)
+        lines.append("")
+    return lines
 
 
 def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     """One row per trial, variant and filter (inertial), then one per trial and attitude-only filter."""
     evo_keys = ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse", "rpe_rotation_rmse")
-    header = (["trial", "variant", "filter", "ok"] + [k for k, _, _ in METRICS] + list(NEES_KEYS) + list(evo_keys)
-              + ["elapsed_s"])
+    header = (["trial", "variant", "filter", "ok"] + [k for k, _, _ in METRICS] + list(NEES_KEYS) + list(BAND_KEYS)
+              + ["fix_nis", "monitor"] + list(evo_keys) + ["elapsed_s"])
     rows = []
     for t, e in result["per_trial"].items():
         for v, ve in e["variants"].items():
             for n, r in ve["filters"].items():
                 ev = r["evo"] or {}
                 rows.append([t, v, n, r["ok"], *(r[k] for k, _, _ in METRICS), *(r[k] for k in NEES_KEYS),
-                             *(ev.get(k) for k in evo_keys), r["elapsed_s"]])
+                             *(r[k] for k in BAND_KEYS), r["fix_nis"], r["monitor"], *(ev.get(k) for k in evo_keys),
+                             r["elapsed_s"]])
     for t, per in (result.get("attitude_only") or {}).items():
         for n, r in per.items():
             rows.append([t, "attitude-only", n, r["ok"], r["total"], r["heading"], r["inclination"]]
