@@ -54,8 +54,8 @@ def _perfect_run(data: B.InsTrial, offset=(0.0, 0.0, 0.0)):
     v = np.nan_to_num(B.truth_velocity(data.pos, tr.rate))
     x = SE23.from_rotation_velocity_position(SO3(q), v, data.pos + np.asarray(offset))
     n = tr.ts.shape[0]
-    g = B.INS_GROUP((x, Rn[12](jnp.zeros((n, 12)))))
-    return SimpleNamespace(g_hat=g, K=np.broadcast_to(np.eye(21), (n, 21, 21)))
+    g = B.INS_GROUP((x, Rn[18](jnp.zeros((n, 18)))))
+    return SimpleNamespace(g_hat=g, K=np.broadcast_to(np.eye(27), (n, 27, 27)))
 
 
 def test_the_true_velocity_is_the_central_difference():
@@ -130,14 +130,15 @@ def test_the_initial_state_comes_from_the_imu_alone():
         R_triad = np.asarray(initial_estimate(d.trial.acc[:50], d.trial.mag[:50]).factors[0].as_matrix())
         np.testing.assert_allclose(R, R_triad, atol=1e-12)
         # the mean gyro over the rest found from the IMU (it ends within a window, 0.5 s, of the turn at 0.5 s)
-        np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02] + [0.0] * 9, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(b.x), [0.0, 0.0, 0.02] + [0.0] * 15, atol=1e-12)
     # the field (0, 20, -40) in the body at rest with gravity up: TRIAD's heading is the identity's
     np.testing.assert_allclose(R_triad, np.eye(3), atol=1e-12)
     sysm = B.system_of(RATE, 0.01)
-    assert sysm.group is B.INS_GROUP and sysm.output_dim == 3 and sysm.group.tangent_dim == 21
+    assert sysm.group is B.INS_GROUP and sysm.output_dim == 3 and sysm.group.tangent_dim == 27
     np.testing.assert_allclose(np.linalg.eigvalsh(B.K0), np.sort(np.diag(B.K0)))
     assert B.K0[6, 6] == 2.0**2  # the position unknown within a room: the first fixes place it
-    assert B.K0.shape == (21, 21) and B.K0[15, 15] == B.LEVER_ARM_STD**2 and B.K0[20, 20] == B.GYRO_SCALE_STD**2
+    assert B.K0.shape == (27, 27) and B.K0[15, 15] == B.LEVER_ARM_STD**2
+    assert B.K0[18, 18] == B.K0[22, 22] == B.K0[26, 26] == B.GYRO_SCALE_STD**2 and B.K0[19, 19] == B.GYRO_CROSS_STD**2
 
 
 def test_the_truth_is_carried_to_the_imu_by_the_lever_arm():

@@ -1,10 +1,11 @@
 """The inertial-navigation system's mount and sensor calibration states (liemef.systems.inertial): the lever arm
-of the position fixes' point from the IMU and the gyro's scale-factor errors.
+of the position fixes' point from the IMU and the gyro's calibration errors M (the gyro reads (I + M) w + b_g).
 
-* The outputs and the dynamics are the model's formulas: ``gnss`` is p + R r, the gyro is divided by 1 + s.
-* On a simulated flight whose gyro has known scale-factor errors and whose fixes are taken at a known lever arm,
-  the minimum-energy filter recovers both, within 3 of its own standard deviations and within a millimetre and
-  0.1 %.
+* The outputs and the dynamics are the model's formulas: ``gnss`` is p + R r, the gyro is (I + M)^-1 (w - b_g)
+  with M diagonal ("scale") or full ("matrix").
+* On a simulated flight whose gyro has known scale-factor and cross-axis errors and whose fixes are taken at a
+  known lever arm, the minimum-energy filter recovers them, within 3 of its own standard deviations and within a
+  millimetre and 0.1 %.
 """
 
 from __future__ import annotations
@@ -20,15 +21,16 @@ from liemef.groups import SE23, SO3, Product, Rn
 from liemef.systems import inertial_navigation
 
 G = Product[SE23, Rn[12]]
+GM = Product[SE23, Rn[18]]
 
 
-def _state(R, v, p, z):
-    return G((SE23.from_rotation_velocity_position(SO3.from_matrix(jnp.asarray(R)), jnp.asarray(v),
-                                                   jnp.asarray(p)), Rn[12](jnp.asarray(z))))
+def _state(R, v, p, z, group=G):
+    return group((SE23.from_rotation_velocity_position(SO3.from_matrix(jnp.asarray(R)), jnp.asarray(v),
+                                                   jnp.asarray(p)), Rn[len(z)](jnp.asarray(z))))
 
 
 def test_the_fix_is_the_mounted_point_and_the_gyro_is_scaled():
-    s = inertial_navigation(biases=True, lever_arm=True, gyro_scale=True, gnss_std=0.01)
+    s = inertial_navigation(biases=True, lever_arm=True, gyro_calibration="scale", gnss_std=0.01)
     assert s.group is G and s.group.tangent_dim == 21
     assert s.state_names[-6:] == ("rx_arm", "ry_arm", "rz_arm", "sgx", "sgy", "sgz")
     R = np.asarray(SO3.exp(jnp.array([0.3, -0.2, 0.5])).as_matrix())
@@ -39,17 +41,24 @@ def test_the_fix_is_the_mounted_point_and_the_gyro_is_scaled():
     lam = np.asarray(s.dynamics(g, u, 0.0))
     np.testing.assert_allclose(lam[:3], (np.asarray(u[:3]) - bg) / (1.0 + scale), atol=1e-14)
     assert np.all(lam[9:] == 0.0)  # biases, lever arm and scale factors are constants
+    M = np.array([[0.01, 0.004, -0.003], [-0.002, -0.02, 0.005], [0.006, -0.001, 0.005]])
+    sm = inertial_navigation(biases=True, lever_arm=True, gyro_calibration="matrix", gnss_std=0.01)
+    assert sm.group is GM and sm.state_names[-9:-6] == ("mgxx", "mgxy", "mgxz")
+    gm = _state(R, [1.0, 2.0, 3.0], [4.0, 5.0, 6.0], np.concatenate([bg, np.zeros(3), r, M.reshape(-1)]), GM)
+    lam = np.asarray(sm.dynamics(gm, u, 0.0))
+    np.testing.assert_allclose((np.eye(3) + M) @ lam[:3], np.asarray(u[:3]) - bg, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(sm.output(gm, 0.0)), [4.0, 5.0, 6.0] + R @ r, atol=1e-14)
     plain = inertial_navigation(biases=True, gnss_std=0.01)
     assert plain.group.tangent_dim == 15  # unchanged without the new states
     with pytest.raises(ValueError, match="lever_arm"):
         inertial_navigation(lever_arm=True, gnss_std=None, mag_std=0.05)
-    with pytest.raises(ValueError, match="gyro_scale"):
-        inertial_navigation(gyro_scale=1)
+    with pytest.raises(ValueError, match="gyro_calibration"):
+        inertial_navigation(gyro_calibration="full")
 
 
-def _flight(seconds=60.0, rate=200.0, fix_rate=10.0, r=(0.02, -0.01, 0.03), scale=(0.01, -0.015, 0.02),
-            bg=(0.002, -0.001, 0.003), ba=(0.05, -0.03, 0.02), gravity=9.81):
-    """A body that turns about every axis and moves on a smooth loop; the gyro reads (1 + s) omega + b_g, the
+def _flight(M, seconds=40.0, rate=100.0, fix_rate=10.0, r=(0.02, -0.01, 0.03), bg=(0.002, -0.001, 0.003),
+            ba=(0.05, -0.03, 0.02), gravity=9.81):
+    """A body that turns about every axis and moves on a smooth loop; the gyro reads (I + M) omega + b_g, the
     accelerometer R^T (a - g) + b_a (noise-free: the test is of the model's states, not of the noise), the fixes
     p + R r at ``fix_rate``. Returns ts, us (filter convention: us[k] over [t_k, t_k+1]), ys, the truth."""
     n = int(seconds * rate)
@@ -68,7 +77,7 @@ def _flight(seconds=60.0, rate=200.0, fix_rate=10.0, r=(0.02, -0.01, 0.03), scal
                               -0.8 * w2**2 * np.sin(2 * w2 * t)], axis=1)
     Rm = np.concatenate([Rs[:-1] @ np.asarray(SO3.exp(jnp.asarray(omega[:-1] * dt / 2)).as_matrix()), Rs[-1:]])
     f = np.einsum("nji,nj->ni", Rm, acc(tm) - [0.0, 0.0, -gravity])
-    us = np.concatenate([(1.0 + np.asarray(scale)) * omega + bg, f + ba], axis=1)
+    us = np.concatenate([omega @ (np.eye(3) + M).T + bg, f + ba], axis=1)
     ys = np.full((n, 3), np.nan)
     every = int(round(rate / fix_rate))
     ys[::every] = pos(ts[::every]) + np.einsum("nij,j->ni", Rs[::every], r)
@@ -76,23 +85,29 @@ def _flight(seconds=60.0, rate=200.0, fix_rate=10.0, r=(0.02, -0.01, 0.03), scal
     return ts, us, ys, Rs, pos(ts), v0
 
 
-def test_the_filter_recovers_a_known_lever_arm_and_gyro_scale():
-    r, scale = np.array([0.02, -0.01, 0.03]), np.array([0.01, -0.015, 0.02])
-    ts, us, ys, Rs, pos, v0 = _flight(r=r, scale=scale)
-    s = inertial_navigation(gyro_std=1e-3, acc_std=1e-2, imu_rate=200.0, biases=True, gnss_std=0.002,
-                            lever_arm=True, gyro_scale=True)
+@pytest.mark.parametrize("kind", ["scale", "matrix"])
+def test_the_filter_recovers_a_known_lever_arm_and_gyro_calibration(kind):
+    r = np.array([0.02, -0.01, 0.03])
+    M = np.diag([0.01, -0.015, 0.02])
+    if kind == "matrix":
+        M = M + np.array([[0.0, 0.004, -0.003], [-0.002, 0.0, 0.005], [0.006, -0.004, 0.0]])
+    ts, us, ys, Rs, pos, v0 = _flight(M, r=r)
+    s = inertial_navigation(gyro_std=1e-3, acc_std=1e-2, imu_rate=100.0, biases=True, gnss_std=0.002,
+                            lever_arm=True, gyro_calibration=kind)
     flt = MinimumEnergyFilter(s, order="first", updates="discrete", error="left")
-    g0 = _state(np.eye(3), v0, pos[0], np.zeros(12))
+    m = 3 if kind == "scale" else 9
+    g0 = _state(np.eye(3), v0, pos[0], np.zeros(9 + m), Product[SE23, Rn[9 + m]])
     K0 = np.diag([0.02**2] * 3 + [0.05**2] * 3 + [0.01**2] * 3 + [0.005**2] * 3 + [0.1**2] * 3 + [0.05**2] * 3
-                 + [0.02**2] * 3)
+                 + [0.02**2] * m)
     traj = flt.run(flt.init(g0, K0), ts, us, ys)
     assert int(traj.status.code) == 0
     z = np.asarray(traj.g_hat.factors[1].x)[-1]
     sd = np.sqrt(np.diag(np.asarray(traj.K)[-1]))
-    err_r, err_s = z[6:9] - r, z[9:12] - scale
-    assert np.all(np.abs(err_r) < 3 * sd[15:18]) and np.all(np.abs(err_s) < 3 * sd[18:21]), (err_r, err_s, sd[15:])
-    assert np.max(np.abs(err_r)) < 1e-3 and np.max(np.abs(err_s)) < 1e-3, (err_r, err_s)
-    # and the prior's spread has shrunk: the flight observes both
-    assert np.all(sd[15:18] < 0.05 / 10) and np.all(sd[18:21] < 0.02 / 10)
+    truth = np.diag(M) if kind == "scale" else M.reshape(-1)
+    err_r, err_m = z[6:9] - r, z[9:] - truth
+    assert np.all(np.abs(err_r) < 3 * sd[15:18]) and np.all(np.abs(err_m) < 3 * sd[18:]), (err_r, err_m, sd[15:])
+    assert np.max(np.abs(err_r)) < 1e-3 and np.max(np.abs(err_m)) < 1e-3, (err_r, err_m)
+    # and the prior's spread has shrunk: the flight observes them
+    assert np.all(sd[15:18] < 0.05 / 10) and np.all(sd[18:] < 0.02 / 10)
     R_end = np.asarray(traj.g_hat.factors[0].rotation().as_matrix())[-1]
     assert math.degrees(np.linalg.norm(np.asarray(SO3.from_matrix(jnp.asarray(R_end.T @ Rs[-1])).log()))) < 0.1

@@ -6,10 +6,12 @@ the world velocity (m/s) and position (m), in a local level frame with z up (ENU
 $(\omega; \nu_v; \nu_p)$. With ``biases=True`` the state is $SE_2(3) \times \mathbb R^6$, $(R, v, p; b_g, b_a)$, the
 gyro bias (rad/s) and the accelerometer bias (m/s^2) in the body frame, algebra $(\omega; \nu_v; \nu_p; b_g; b_a)$.
 With ``lever_arm=True`` the vector factor goes on with the lever arm $r$ (m, body frame) of the position fixes'
-point from the IMU, a constant of the mount; with ``gyro_scale=True``, with the gyro's scale-factor errors $s$
-(unitless, per axis), constants of the sensor: $\tilde\omega = (1 + s) \odot \omega + b_g + n_g$. Neither has
-process noise; both are estimated as the body turns ($SE_2(3) \times \mathbb R^{6 + 3 + 3}$ with all three). A
-scale factor is what makes a MEMS gyro's error grow with the angle turned (1-3 % of it before calibration) rather
+point from the IMU, a constant of the mount. With ``gyro_calibration``, it ends with the gyro's calibration
+errors $M$, constants of the sensor: $\tilde\omega = (I + M)\omega + b_g + n_g$, with $M = \operatorname{diag}(s)$
+for ``"scale"`` (3 scale-factor errors) or a full $3 \times 3$ matrix, row by row, for ``"matrix"`` (scale
+factors on its diagonal, cross-axis sensitivities and misalignments off it: 9). None has process noise; all are
+estimated as the body turns ($SE_2(3) \times \mathbb R^{6 + 3 + 9}$ with every option). A scale or cross-axis
+error is what makes a MEMS gyro's error grow with the angle turned (0.5-3 % of it before calibration) rather
 than with time; without its state the white gyro noise cannot account for it, and a filter whose heading no sensor
 observes turns overconfident on every revolution.
 
@@ -103,8 +105,9 @@ BIAS_NAMES = ("bgx", "bgy", "bgz", "bax", "bay", "baz")
 BIAS_UNITS = ("rad/s",) * 3 + ("m/s^2",) * 3
 LEVER_NAMES = ("rx_arm", "ry_arm", "rz_arm")
 LEVER_UNITS = ("m",) * 3
-SCALE_NAMES = ("sgx", "sgy", "sgz")
-SCALE_UNITS = ("1",) * 3
+GYRO_CALIBRATION = {"scale": ("sgx", "sgy", "sgz"),
+                    "matrix": tuple(f"mg{a}{b}" for a in "xyz" for b in "xyz")}
+"""The gyro's calibration errors a state can hold, by ``gyro_calibration``: their names (unitless)."""
 
 
 def _pose(g) -> SE23:
@@ -114,14 +117,16 @@ def _pose(g) -> SE23:
 
 @dataclass(frozen=True)
 class ImuDynamics:
-    r"""$\lambda(g, u) = ((\tilde\omega - b_g) \oslash (1 + s),\ \tilde a - b_a + R^\top g,\ R^\top v\ (;\ 0))$ for
+    r"""$\lambda(g, u) = ((I + M)^{-1}(\tilde\omega - b_g),\ \tilde a - b_a + R^\top g,\ R^\top v\ (;\ 0))$ for
     gravity ``(0, 0, -gravity)``. The vector factor holds the biases at its start when ``biases`` (else they are
-    zero) and the gyro's scale-factor errors $s$ from ``scale`` on when it is given (else zero); every component
-    of it (biases, lever arm, scale factors) is constant."""
+    zero) and the gyro's calibration errors $M$ from ``gyro_at`` on, of the kind ``gyro`` (``"scale"``: the
+    diagonal; ``"matrix"``: the whole matrix row by row; None: $M = 0$); every component of it (biases, lever arm,
+    calibration) is constant."""
 
     gravity: float
     biases: bool = True
-    scale: int | None = None
+    gyro: str | None = None
+    gyro_at: int = 0
 
     def __call__(self, g, u, t):
         x = _pose(g)
@@ -131,8 +136,10 @@ class ImuDynamics:
             z = g.factors[1].x
             if self.biases:
                 w, a = w - z[0:3], a - z[3:6]
-            if self.scale is not None:
-                w = w / (1.0 + z[self.scale:self.scale + 3])
+            if self.gyro == "scale":
+                w = w / (1.0 + z[self.gyro_at:self.gyro_at + 3])
+            elif self.gyro == "matrix":
+                w = jnp.linalg.solve(jnp.eye(3) + z[self.gyro_at:self.gyro_at + 9].reshape(3, 3), w)
         lam = [w, a + mv(Rt, jnp.array([0.0, 0.0, -self.gravity])), mv(Rt, x.velocity())]
         if isinstance(g, Product):
             lam.append(jnp.zeros(g.factors[1].x.shape[-1]))
@@ -199,9 +206,9 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
                         gnss_std=GNSS_STD, landmarks=None, landmark_std=LANDMARK_STD, mag_std=None,
                         dip: float = DIP, baro_std=None, gravity: float = GRAVITY,
                         gate: float | None = None, robust: str | None = None,
-                        lever_arm: bool = False, gyro_scale: bool = False) -> SensorSystem:
+                        lever_arm: bool = False, gyro_calibration: str | None = None) -> SensorSystem:
     """The inertial-navigation system on SE_2(3) (SE_2(3) x R^k with ``biases``, 6, ``lever_arm``, 3 more, and
-    ``gyro_scale``, 3 more), module docstring.
+    ``gyro_calibration``, 3 or 9 more), module docstring.
 
     Args:
         gyro_std: gyro noise std per sample at ``imu_rate`` (rad/s; one value or 3), or a density
@@ -223,8 +230,9 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         lever_arm: estimate the lever arm r (m, body frame) of the fixes' point from the IMU: ``gnss`` is then
             p + R r, and r the 3 components of the state after the biases (constant, no process noise). Needs
             ``gnss_std``.
-        gyro_scale: estimate the gyro's scale-factor errors s (unitless, per axis; the gyro reads (1 + s) omega
-            + b_g), the state's last 3 components (constant, no process noise).
+        gyro_calibration: estimate the gyro's calibration errors M (unitless; the gyro reads (I + M) omega
+            + b_g): ``"scale"``, its scale-factor errors (M diagonal, 3), or ``"matrix"``, scale factors and
+            cross-axis errors (9, row by row); the state's last components (constant, no process noise).
 
     ``B = noise_map diag(densities)`` with ``R = I``; ``D = diag(sensor stds)`` with ``Q = I``.
     """
@@ -232,15 +240,19 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         raise ValueError(f"gravity: expected a gravity magnitude >= 0 in m/s^2, got {gravity!r}")
     if not (isinstance(dip, int | float) and math.isfinite(dip) and abs(dip) <= math.pi / 2):
         raise ValueError(f"dip: expected a magnetic dip in radians within [-pi/2, pi/2], got {dip!r}")
-    for key, flag in (("biases", biases), ("lever_arm", lever_arm), ("gyro_scale", gyro_scale)):
+    for key, flag in (("biases", biases), ("lever_arm", lever_arm)):
         if not isinstance(flag, bool):
             raise ValueError(f"{key}: expected True or False, got {flag!r}")
+    if gyro_calibration is not None and gyro_calibration not in GYRO_CALIBRATION:
+        raise ValueError(f"gyro_calibration: expected None or one of {sorted(GYRO_CALIBRATION)}, got "
+                         f"{gyro_calibration!r}")
+    calibration = GYRO_CALIBRATION.get(gyro_calibration, ())
     if lever_arm and gnss_std is None:
         raise ValueError("lever_arm: expected position fixes (gnss_std) for a lever arm to act on, got gnss_std=None")
     density = [_imu_noise("gyro_std", gyro_std, imu_rate), _imu_noise("acc_std", acc_std, imu_rate)]
-    arm = 6 if biases else 0  # where the lever arm starts in the vector factor, then the scale factors
-    scale = arm + (3 if lever_arm else 0)
-    k = scale + (3 if gyro_scale else 0)
+    arm = 6 if biases else 0  # where the lever arm starts in the vector factor, then the gyro's calibration
+    gyro_at = arm + (3 if lever_arm else 0)
+    k = gyro_at + len(calibration)
     n, d = 9 + k, (12 if biases else 6)
     noise_map = np.zeros((n, d))
     noise_map[0:3, 0:3] = np.eye(3)  # gyro noise on omega
@@ -272,9 +284,9 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         raise ValueError("gnss_std, landmarks, mag_std, baro_std: expected at least one sensor, got none")
     group = SE23 if k == 0 else Product[SE23, Rn[k]]
     names = (STATE_NAMES + (BIAS_NAMES if biases else ()) + (LEVER_NAMES if lever_arm else ())
-             + (SCALE_NAMES if gyro_scale else ()))
+             + calibration)
     units = (STATE_UNITS + (BIAS_UNITS if biases else ()) + (LEVER_UNITS if lever_arm else ())
-             + (SCALE_UNITS if gyro_scale else ()))
-    dynamics = ImuDynamics(float(gravity), biases, scale if gyro_scale else None)
+             + ("1",) * len(calibration))
+    dynamics = ImuDynamics(float(gravity), biases, gyro_calibration, gyro_at)
     return SensorSystem(group, dynamics, sensors, Noise.density(jnp.concatenate(density)), noise_map=noise_map,
                         inputs=INPUT_NAMES, input_units=INPUT_UNITS, state_names=names, state_units=units)

@@ -3,24 +3,25 @@ r"""``liemef compare broad-ins``: inertial navigation on SE_2(3) with the real I
 BROAD (Laidig et al. 2021, CC BY 4.0) records an IMU at 285.7 Hz with optical motion capture: the attitude
 ``opt_quat`` and the position ``opt_pos`` (m, ENU world), both aligned to the IMU frame by the authors (the
 dataset README). Here the real gyro and accelerometer drive :func:`~liemef.systems.inertial_navigation` with gyro
-and accelerometer biases, the fixes' lever arm and the gyro's scale-factor errors ($SE_2(3) \times \mathbb
-R^{12}$), and the optical positions, taken at 10 Hz, are its position fixes, in two variants:
+and accelerometer biases, the fixes' lever arm and the gyro's calibration errors ($SE_2(3) \times \mathbb
+R^{18}$), and the optical positions, taken at 10 Hz, are its position fixes, in two variants:
 
 * ``recorded``: the optical positions as recorded;
 * ``noisy``: the same plus white noise of ``noise_std`` m per axis (default :data:`ADDED_NOISE_STD` = 0.1 m),
   drawn by ``numpy.random.default_rng([seed, trial])``.
 
-**Lever arm and gyro scale, as states.** The optical position is of a point about 1 cm from the IMU: a
+**Lever arm and gyro calibration, as states.** The optical position is of a point about 1 cm from the IMU: a
 least-squares fit of the lever arm $r$ in $R\tilde a - g = \ddot p + R([\dot\omega]_\times + [\omega]_\times^2)
 r$ (the world specific force against the second difference of the smoothed optical position; :func:`lever_arm`,
 reported per trial) gives $|r|$ = 0.7-1.1 cm on every trial, nearly all along the body z axis. That is the
 weight of a recorded fix, but not white: it turns with the body, and a filter that takes the fixes as the IMU's
 position ties its attitude to it. So every filter estimates it (``lever_arm=True``, the fixes' point at $r$ from
-the IMU, prior :data:`LEVER_ARM_STD` = 5 cm per axis), and with it the gyro's scale-factor errors
-(``gyro_scale=True``, prior :data:`GYRO_SCALE_STD` = 2 %): without a magnetometer the heading of a turning body is
-observed only through horizontal acceleration, and a gyro's scale error grows with the angle turned, which its
+the IMU, prior :data:`LEVER_ARM_STD` = 5 cm per axis), and with it the gyro's calibration errors, scale factors
+and cross-axis terms (``gyro_calibration="matrix"``, priors :data:`GYRO_SCALE_STD` = 2 % on the diagonal and
+:data:`GYRO_CROSS_STD` = 1 % off it): without a magnetometer the heading of a turning body is observed only
+through horizontal acceleration, and a gyro's scale and cross-axis errors grow with the angle turned, which its
 white noise cannot account for. The filters' final lever arm (of the fixes' point from the IMU, so about minus the
-fit's) and scale factors are reported beside the fit.
+fit's) and gyro calibration are reported beside the fit.
 
 **Timing.** Every sample acts at its own time, as ``compare broad``'s ``mef-vel`` and ``vqf-broad``: IMU sample
 k is the rate and specific force over the interval that ends at $t_k$ (``us[k]`` = sample k + 1, BROAD's
@@ -49,11 +50,11 @@ first samples of the initial rest found from the IMU (:func:`~liemef.systems.att
 the accelerometer bias zero; the position is the origin, with a prior wide enough for a laboratory's optical
 volume, so the first fixes place it. Nothing of the optical attitude or position enters before the fixes do.
 K0 = :data:`K0` = diag((0.05 rad)^2 I3, (0.01 m/s)^2 I3, (2 m)^2 I3, (0.002 rad/s)^2 I3, (0.1 m/s^2)^2 I3,
-(0.05 m)^2 I3, 0.02^2 I3): the attitude's as ``compare broad``'s (a magnetometer's heading indoors and the
-accelerometer's tilt at rest), a velocity at rest, the position unknown within a room, the biases at rest, a
-mount within a few centimetres and a MEMS gyro's scale before calibration. Each filter reads K0 in its own error
-coordinates; with these isotropic blocks the attitude and position priors are the same in the left and the right
-error to the first order.
+(0.05 m)^2 I3, the gyro calibration's 0.02^2 on its diagonal and 0.01^2 off it): the attitude's as ``compare
+broad``'s (a magnetometer's heading indoors and the accelerometer's tilt at rest), a velocity at rest, the position
+unknown within a room, the biases at rest, a mount within a few centimetres and a MEMS gyro's scale and cross-axis
+errors before calibration. Each filter reads K0 in its own error coordinates; with these isotropic blocks the
+attitude and position priors are the same in the left and the right error to the first order.
 
 **Truth and errors**, over BROAD's movement mask where the optical truth is present (as ``compare broad``). The
 filters' state is the IMU's, so the optical position and velocity are carried to the IMU by the fitted lever arm
@@ -120,16 +121,19 @@ GRAVITY = 9.81
 """Gravity (m/s^2)."""
 VELOCITY_HALF_WINDOW = 0.01
 """Half the window (s) of the central difference that gives the true velocity (module docstring)."""
-INS_GROUP = Product[SE23, Rn[12]]
-"""The state: extended pose, gyro and accelerometer biases, the fixes' lever arm, the gyro's scale factors."""
+INS_GROUP = Product[SE23, Rn[18]]
+"""The state: extended pose, gyro and accelerometer biases, the fixes' lever arm, the gyro's calibration matrix."""
 LEVER_ARM_STD = 0.05
 """Prior std (m, per axis) of the lever arm of the fixes' point from the IMU: a mount within a few cm."""
 GYRO_SCALE_STD = 0.02
 """Prior std (unitless, per axis) of the gyro's scale-factor errors: a MEMS gyro's 1-3 % before calibration."""
+GYRO_CROSS_STD = 0.01
+"""Prior std (unitless) of each of the gyro's cross-axis errors (misalignment and cross-axis sensitivity: about
+1 % on a MEMS datasheet)."""
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [2.0**2] * 3 + [0.002**2] * 3 + [0.1**2] * 3 + [LEVER_ARM_STD**2] * 3
-             + [GYRO_SCALE_STD**2] * 3)
+             + [(GYRO_SCALE_STD if i == j else GYRO_CROSS_STD) ** 2 for i in range(3) for j in range(3)])
 """K0: attitude (rad), velocity (m/s), position (m), gyro bias (rad/s), accelerometer bias (m/s^2), lever arm (m),
-gyro scale factors: the IMU-only start's (module docstring)."""
+the gyro's calibration matrix row by row: the IMU-only start's (module docstring)."""
 VARIANTS = ("recorded", "noisy")
 """The fixes: the optical positions as recorded, and with added white noise."""
 RPE_DELTA = 10
@@ -155,7 +159,7 @@ NEES_KEYS = ("nees_attitude", "nees_velocity", "nees_position", "nees_pose")
 BAND_KEYS = ("band_attitude", "band_velocity", "band_position", "band_pose")
 """The fraction of the scored samples whose NEES (attitude, velocity, position: 3 dof; pose: 9) lies in its
 two-sided 95 % chi-square band."""
-CALIBRATION_KEYS = ("lever_arm_m", "gyro_scale")
+CALIBRATION_KEYS = ("lever_arm_m", "gyro_calibration")
 MONITOR_KEYS = ("monitor", "fix_nis")
 
 
@@ -277,17 +281,18 @@ def ins_log(data: InsTrial, ys: np.ndarray) -> io.RecordedLog:
 
 
 def system_of(rate: float, fix_std: float):
-    """:func:`~liemef.systems.inertial_navigation` with biases, the fixes' lever arm and the gyro's scale factors,
+    """:func:`~liemef.systems.inertial_navigation` with biases, the fixes' lever arm and the gyro's calibration,
     the study's priors (module docstring) and position fixes of ``fix_std`` m per axis. The accelerometer's prior
     is a density, given as its std per sample at ``rate`` beside the gyro's."""
     return inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_DENSITY * math.sqrt(rate), imu_rate=rate,
-                               biases=True, gnss_std=fix_std, gravity=GRAVITY, lever_arm=True, gyro_scale=True)
+                               biases=True, gnss_std=fix_std, gravity=GRAVITY, lever_arm=True,
+                               gyro_calibration="matrix")
 
 
 def initial_state(data: InsTrial) -> INS_GROUP:
     """The initial estimate from the IMU alone (module docstring): TRIAD of the initial rest's first samples (as
     ``compare broad``'s :func:`~liemef.studies.compare._broad.trial_context`), zero velocity, the origin, the
-    mean gyro over the rest as the gyro bias, zero accelerometer bias, lever arm and gyro scale-factor errors."""
+    mean gyro over the rest as the gyro bias, zero accelerometer bias, lever arm and gyro calibration errors."""
     from ...systems.attitude_bias import initial_estimate, initial_rest
     from ._broad import INITIAL_SAMPLES
 
@@ -297,7 +302,7 @@ def initial_state(data: InsTrial) -> INS_GROUP:
     R = initial_estimate(tr.acc[:first], tr.mag[:first]).factors[0]
     bg = tr.gyr[:rest].mean(axis=0)
     x = SE23.from_rotation_velocity_position(R, np.zeros(3), np.zeros(3))
-    return INS_GROUP((x, Rn[12](np.concatenate([bg, np.zeros(9)]))))
+    return INS_GROUP((x, Rn[18](np.concatenate([bg, np.zeros(15)]))))
 
 
 def lever_arm(data: InsTrial, smooth: float = 0.05) -> tuple[np.ndarray, float, float]:
@@ -494,9 +499,9 @@ def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float):
 
 def _calibration(traj) -> dict:
     """The run's final lever arm (m; of the fixes' point from the IMU, so about minus :func:`lever_arm`'s) and
-    gyro scale-factor errors."""
+    gyro calibration errors (row by row, unitless)."""
     z = np.asarray(traj.g_hat.factors[1].x)[-1]
-    return {"lever_arm_m": [float(c) for c in z[6:9]], "gyro_scale": [float(c) for c in z[9:12]]}
+    return {"lever_arm_m": [float(c) for c in z[6:9]], "gyro_calibration": [float(c) for c in z[9:18]]}
 
 
 def _monitor(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, traj) -> dict:
@@ -557,15 +562,16 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
             entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": rows}
         per_trial[tid] = entry
     attitude_only = _attitude_only(st, progress)
-    system = "inertial_navigation(biases=True, lever_arm=True, gyro_scale=True)"
+    system = "inertial_navigation(biases=True, lever_arm=True, gyro_calibration='matrix')"
     return {"study": {**dataclasses.asdict(st), "system": system,
                       "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
                                  "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
-                                                   f"{LEVER_ARM_STD}^2 I3, {GYRO_SCALE_STD}^2 I3)",
+                                                   f"{LEVER_ARM_STD}^2 I3, gyro calibration {GYRO_SCALE_STD}^2 on the "
+                                                   f"diagonal and {GYRO_CROSS_STD}^2 off it)",
                       "initial": "from the IMU alone at the file's first sample: TRIAD over the initial rest "
                                  "detected from the IMU, zero velocity, the origin, gyro bias = mean gyro over that "
-                                 "rest, zero accelerometer bias, lever arm and gyro scale errors",
+                                 "rest, zero accelerometer bias, lever arm and gyro calibration errors",
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
@@ -677,19 +683,24 @@ def markdown(result: dict) -> str:
     lines += _consistency_lines(result, trials)
     variant = "recorded" if "recorded" in st["variants"] else st["variants"][0]
     vec = lambda v, k: "-" if v is None else "(" + ", ".join(f"{k * c:.2f}" for c in v) + ")"  # noqa: E731
-    lines += ["## Lever arm and gyro scale", "", "The least-squares lever arm of the IMU from the optical position's "
-              "point fitted to the optical data (body frame, cm; the scoring's, not the filters') and the rms of the "
-              "specific-force residual before / after it [m/s^2]; then each filter's final estimate (fixes "
-              f"{variant}) of the lever arm of the fixes' point from the IMU (about minus the fit) [cm] and of the "
-              "gyro's scale-factor errors [%].", "",
-              "| trial | fitted r [cm] | residual | " + " | ".join(f"{n} r [cm] | {n} s [%]" for n in st["filters"])
-              + " |", "|---|---|---|" + "---|---|" * len(st["filters"])]
+    lines += ["## Lever arm and gyro calibration", "", "The least-squares lever arm of the IMU from the optical "
+              "position's point fitted to the optical data (body frame, cm; the scoring's, not the filters') and the "
+              "rms of the specific-force residual before / after it [m/s^2]; then each filter's final estimate (fixes "
+              f"{variant}) of the lever arm of the fixes' point from the IMU (about minus the fit) [cm], of the "
+              "gyro's scale-factor errors (its calibration matrix's diagonal) [%] and the largest of its cross-axis "
+              "errors [%].", "",
+              "| trial | fitted r [cm] | residual | " + " | ".join(f"{n} r [cm] | {n} scale [%] | {n} cross [%]"
+                                                              for n in st["filters"]) + " |",
+              "|---|---|---|" + "---|---|---:|" * len(st["filters"])]
     for t in trials:
         e = result["per_trial"][t]
         cells = []
         for n in st["filters"]:
             r = e["variants"][variant]["filters"].get(n) or {}
-            cells += [vec(r.get("lever_arm_m"), 100), vec(r.get("gyro_scale"), 100)]
+            m = r.get("gyro_calibration")
+            m = None if m is None else np.reshape(m, (3, 3))
+            cross = None if m is None else float(100 * np.max(np.abs(m - np.diag(np.diag(m)))))
+            cells += [vec(r.get("lever_arm_m"), 100), vec(None if m is None else np.diag(m), 100), fmt(cross, 2)]
         lines.append(f"| {t} | {vec(e['lever_arm_m'], 100)} | {fmt(e['lever_arm_residual'][0])} / "
                      f"{fmt(e['lever_arm_residual'][1])} | " + " | ".join(cells) + " |")
     return "\n".join(lines + [""])
