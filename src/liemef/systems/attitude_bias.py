@@ -330,23 +330,23 @@ def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk
 
 
 # --- linear acceleration as a state: the velocity of a hand-held IMU is bounded ---------------------------------
-VELOCITY_STD = 0.011
+VELOCITY_STD = 0.010
 r"""Default std of the zero-velocity pseudo-measurement of :func:`attitude_velocity`, as a density
-(m/s sqrt(s)): the geometric mean over the folds of the leave-one-out tune on the 7 shared BROAD trials
-(docs/imu.md; 0.0117 in six folds, 0.010, the search's bound, in one). It is far stiffer than a hand's velocity
-statistics suggest: a velocity that stays within $\sigma_v$ and decorrelates in $\tau$ has the low-frequency
-density $\sigma_v\sqrt{2\tau}$, 0.2-0.5 for a hand-held IMU. What the data fit is the rate at which the
-accelerometer corrects the tilt against the gyro's errors in motion, not a velocity statistic; the velocity
-state is then a short low-pass of the specific force in the world frame. Use 0.2-0.5 where the motion is known
-to be a hand's and the gyro better than BROAD's."""
-VELOCITY_GYRO_STD = 0.012
-"""Default gyro std per sample at ``IMU_RATE`` of :func:`attitude_velocity` (rad/s): about twice the gyro's
-white noise (:data:`GYRO_STD`), because in motion a MEMS gyro's scale-factor and cross-axis errors (0.5-1 % each
-on a datasheet) add 0.01-0.02 rad/s at 1-2 rad/s. The value is the geometric mean over the folds of the
-leave-one-out tune on BROAD (0.0122 in six folds, 0.0101 in one)."""
-VELOCITY_MAG_STD = 0.022
-"""Default magnetometer std of :func:`attitude_velocity` (unitless; the fold mean of the same tune: 0.021 in
-six folds, 0.031 in one)."""
+(m/s sqrt(s)): the final set of the nested leave-one-out tune on the 7 shared BROAD trials, started from 0.5
+(docs/imu.md, "How the defaults are made"). It sits at the search's lower bound, 0.01, in the final set and in six
+of the seven folds. It is far stiffer than a hand's velocity statistics suggest: a velocity that stays within
+$\sigma_v$ and decorrelates in $\tau$ has the low-frequency density $\sigma_v\sqrt{2\tau}$, 0.2-0.5 for a
+hand-held IMU. What the data fit is the rate at which the accelerometer corrects the tilt against the gyro's
+errors in motion, not a velocity statistic; the velocity state is then a short low-pass of the specific force in
+the world frame. Use 0.2-0.5 where the motion is known to be a hand's and the gyro better than BROAD's."""
+VELOCITY_GYRO_STD = 0.0103
+"""Default gyro std per sample at ``IMU_RATE`` of :func:`attitude_velocity` (rad/s): the final set of the same
+tune, started from the gyro's white noise (0.005). About twice that noise (:data:`GYRO_STD`), because in motion
+a MEMS gyro's scale-factor and cross-axis errors (0.5-1 % each on a datasheet) add 0.01-0.02 rad/s at 1-2 rad/s
+(folds: 0.0078-0.0122)."""
+VELOCITY_MAG_STD = 0.0132
+"""Default magnetometer std of :func:`attitude_velocity` (unitless): the final set of the same tune, started from
+0.05 (folds: 0.011-0.017)."""
 ACC_DENSITY = 0.02
 """Default accelerometer noise density of :func:`attitude_velocity` (m/s^2/sqrt(Hz)): a MEMS accelerometer's
 white noise (BROAD at rest: 0.05 m/s^2 per sample at 286 Hz, 0.003 m/s^2/sqrt(Hz)) plus its scale and

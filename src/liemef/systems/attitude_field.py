@@ -92,7 +92,7 @@ INPUT_NAMES = ("gyro_x", "gyro_y", "gyro_z", "force_x", "force_y", "force_z")
 
 FIELD_STD = 1.0
 """Default std of one magnetometer sample (uT): a few times a MEMS magnetometer's noise (BROAD at rest: 0.1-0.3
-uT), for its calibration errors in motion; :func:`attitude_velocity`'s direction std (0.022) times 43 uT."""
+uT), for its calibration errors in motion."""
 WORLD_DENSITY = (0.002, 0.5, 0.5)
 r"""Default $q_w$ (uT/sqrt(s)), east, north and up (the undisturbed field points north): the east component is
 the one a heading error imitates (1 deg is 0.27 uT of it at Berlin's 15.6 uT horizontal field), stiff, so
