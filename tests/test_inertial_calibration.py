@@ -111,3 +111,15 @@ def test_the_filter_recovers_a_known_lever_arm_and_gyro_calibration(kind):
     assert np.all(sd[15:18] < 0.05 / 10) and np.all(sd[18:] < 0.02 / 10)
     R_end = np.asarray(traj.g_hat.factors[0].rotation().as_matrix())[-1]
     assert math.degrees(np.linalg.norm(np.asarray(SO3.from_matrix(jnp.asarray(R_end.T @ Rs[-1])).log()))) < 0.1
+
+
+def test_the_3x3_solve_of_the_calibration_is_numpy_s():
+    """The gyro calibration's (I + M)^-1 w is a closed-form 3x3 solve (Cramer's rule, which every engine compiles,
+    batched): equal to LAPACK's to roundoff."""
+    from liemef._linalg import solve3
+
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((50, 3, 3)) + 3.0 * np.eye(3)
+    b = rng.standard_normal((50, 3))
+    np.testing.assert_allclose(np.asarray(solve3(jnp.asarray(A), jnp.asarray(b))),
+                               np.linalg.solve(A, b[..., None])[..., 0], rtol=0, atol=1e-13)

@@ -68,7 +68,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
-from .._linalg import mv
+from .._linalg import mv, solve3
 from ..groups import SE23, Product, Rn
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude_bias import DIP, magnetic_reference
@@ -139,7 +139,7 @@ class ImuDynamics:
             if self.gyro == "scale":
                 w = w / (1.0 + z[self.gyro_at:self.gyro_at + 3])
             elif self.gyro == "matrix":
-                w = jnp.linalg.solve(jnp.eye(3) + z[self.gyro_at:self.gyro_at + 9].reshape(3, 3), w)
+                w = solve3(jnp.eye(3) + z[self.gyro_at:self.gyro_at + 9].reshape(3, 3), w)
         lam = [w, a + mv(Rt, jnp.array([0.0, 0.0, -self.gravity])), mv(Rt, x.velocity())]
         if isinstance(g, Product):
             lam.append(jnp.zeros(g.factors[1].x.shape[-1]))
