@@ -376,11 +376,11 @@ def truth_at_imu(data: InsTrial, arm=None) -> tuple[np.ndarray, np.ndarray]:
     return data.pos + R @ r, v + np.einsum("nij,nj->ni", R, np.cross(w, r))
 
 
-def errors(data: InsTrial, traj, arm=None) -> tuple[dict, np.ndarray]:
+def errors(data: InsTrial, traj, arm=None, truth=None) -> tuple[dict, np.ndarray]:
     """One run's figures against the optical truth (module docstring) carried to the IMU by the lever arm ``arm``
     (:func:`truth_at_imu`), and its attitude error per second (for the figure): ``total``, ``heading``,
     ``inclination`` (deg), ``velocity`` (m/s), ``position`` (m) rms, the NEES (:data:`NEES_KEYS`) and
-    ``samples``, the samples scored."""
+    ``samples``, the samples scored. ``truth``: :func:`truth_at_imu`'s result, when the caller already has it."""
     from ._broad import broad_errors, error_per_second
 
     tr = data.trial
@@ -388,7 +388,7 @@ def errors(data: InsTrial, traj, arm=None) -> tuple[dict, np.ndarray]:
     q = np.asarray(x.wxyz_p[:, :4])
     v_hat, p_hat = np.asarray(x.velocity()), np.asarray(x.position())
     mask = scored(data)
-    p_true, v_true = truth_at_imu(data, arm)
+    p_true, v_true = truth_at_imu(data, arm) if truth is None else truth
     vmask = mask & np.isfinite(v_true).all(axis=1)
     out = broad_errors(q, tr.quat_true, tr.movement)  # as compare broad: movement mask, optical attitude present
     rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if e.size else None  # noqa: E731
@@ -454,11 +454,11 @@ def _nees_blocks(true: np.ndarray, est: np.ndarray, K: np.ndarray) -> np.ndarray
 
 
 def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int = RPE_DELTA,
-                      arm=None) -> dict | None:
+                      arm=None, truth=None) -> dict | None:
     """APE and RPE by evo (:func:`liemef.metrics.ape_rpe`) of a run against the optical poses carried to the IMU
     by the lever arm ``arm`` (:func:`truth_at_imu`), on the samples of
     :func:`fix_indices` at ``rate`` that are scored (:func:`scored`); RPE over ``delta`` pairs. None when evo is
-    not installed or fewer than ``delta + 1`` samples qualify."""
+    not installed or fewer than ``delta + 1`` samples qualify. ``truth`` as :func:`errors`'."""
     try:
         import evo  # noqa: F401
     except ImportError:
@@ -477,7 +477,7 @@ def trajectory_errors(data: InsTrial, traj, rate: float = FIX_RATE, delta: int =
     q_true = tr.quat_true[i] / np.linalg.norm(tr.quat_true[i], axis=1, keepdims=True)
     p_est = np.asarray(x.position())[i]
     xyzw = lambda q: np.concatenate([q[:, 1:], q[:, :1]], axis=1)  # noqa: E731
-    p_true = truth_at_imu(data, arm)[0][i]
+    p_true = (truth_at_imu(data, arm) if truth is None else truth)[0][i]
     return ape_rpe(tr.ts[i], (p_est, xyzw(wxyz)), tr.ts[i], (p_true, xyzw(q_true)), max_diff=1e-6,
                    delta=delta)
 
@@ -523,6 +523,7 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
     for tid in st.trials:
         data = load_trial(paths[tid], st.seconds)
         r, before, after = lever_arm(data)
+        truth = truth_at_imu(data, r)  # once per trial: every run is scored against it
         entry = {"file": data.trial.name,
                  "seconds": float(data.trial.ts[-1] - data.trial.ts[0]),
                  "lever_arm_m": [float(c) for c in r], "lever_arm_residual": [before, after],
@@ -540,8 +541,8 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                 ok = bool(int(traj.status.code) == 0)
                 run_s = time.perf_counter() - t0
                 if ok:
-                    figs, per_s = errors(data, traj, r)
-                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, arm=r))
+                    figs, per_s = errors(data, traj, truth=truth)
+                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, truth=truth))
                     figs.update(_calibration(traj))
                     figs.update(_monitor(name, data, log, fix_std, traj))
                 else:
