@@ -87,7 +87,7 @@ TARGETS = {"r0": (-1.5, -1.0), "r1": (-1.2, -1.4), "r2": (-1.8, -1.1), "r3": (-1
 """Per recording, the log10 (acc_std, mag_std) where the fake loss of :func:`_nested` is least."""
 
 
-def _nested(monkeypatch, targets, fails=lambda name, x: False):
+def _nested(monkeypatch, targets, fails=lambda name, x: False, workers=None):
     """tune on four recordings whose loss is a cheap quadratic in log10 (acc_std, mag_std) around ``targets``
     (``evaluate`` replaced; a run where ``fails(name, x)`` fails: inf), with every filter run and every search's
     start and end logged in order."""
@@ -109,7 +109,7 @@ def _nested(monkeypatch, targets, fails=lambda name, x: False):
     monkeypatch.setattr(T, "_search", search)
     recs = [T.Recording(n, np.zeros(1), np.zeros((1, 3)), np.zeros((1, 6)), {}, None, np.eye(6)) for n in targets]
     res = T.tune(recs, names=("acc_std", "mag_std"), start={"acc_std": 0.02, "mag_std": 0.05}, maxfev=40,
-                 progress=False)
+                 progress=False, workers=workers)
     return res, log
 
 
@@ -144,6 +144,25 @@ def test_no_fold_s_search_sees_its_held_out_recording(monkeypatch):
     text = T.markdown(res)
     assert "held-out (fold without it)" in text and "final set, in-sample" in text
     assert f"| mean | {res['held_out_mean']:.3f} | {res['train_mean']:.3f} | {res['train']:.3f} |" in text
+
+
+def test_threads_change_no_result(monkeypatch, short):
+    """A point's recordings run side by side in threads: the tune's result is the same with one thread or four,
+    and every (point, recording) still runs once."""
+    one, log1 = _nested(monkeypatch, TARGETS, workers=1)
+    four, log4 = _nested(monkeypatch, TARGETS, workers=4)
+    for res in (one, four):
+        res.pop("elapsed_s")
+    assert one == four
+    assert sorted(e for e in log1 if e[0] == "run") == sorted(e for e in log4 if e[0] == "run")
+    monkeypatch.undo()  # the real filter, run by two threads at once
+    kw = dict(names=("acc_std",), objective="nll", start={**FIXED, "mag_std": MAG}, maxfev=3, fold_maxfev=2,
+              progress=False)
+    a, b = T.tune(short, workers=1, **kw), T.tune(short, workers=2, **kw)
+    assert a["evaluations"] == b["evaluations"] > 2
+    assert {k: v for k, v in a.items() if k != "elapsed_s"} == {k: v for k, v in b.items() if k != "elapsed_s"}
+    with pytest.raises(ValueError, match="^workers: expected an integer >= 1 and <= .*, got 0"):
+        T.tune(short, workers=0, **kw)
 
 
 def test_a_failed_held_out_run_is_kept_as_a_failure(monkeypatch, tmp_path):

@@ -270,6 +270,8 @@ TUNE = Command(
                help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                     "ending at t_k), as compare broad's mef-imu-d."),
         option("--realdata", type=PATH, help="The real-data folder (default: found)."),
+        option("--workers", type=at_least(1),
+               help="Threads that run a point's trials side by side (default: the CPUs this process may use)."),
         FORCE, progress("A progress bar on stderr.")))
 
 COMPARE = Command(

@@ -37,8 +37,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -363,7 +365,7 @@ def _search(loss_of: Callable[[np.ndarray, np.ndarray], np.ndarray], train: np.n
 
 def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, objective: str = "truth", *,
          start: dict | None = None, maxfev: int = 40, fold_maxfev: int | None = None, step: float = 0.5,
-         order: str = "second", updates: str = "hold", progress: bool = True) -> dict:
+         order: str = "second", updates: str = "hold", progress: bool = True, workers: int | None = None) -> dict:
     """Tune ``names`` on ``recordings`` with nested leave-one-recording-out cross-validation (module docstring).
 
     Args:
@@ -380,6 +382,9 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
         updates: the filter's sample updates (``"discrete"``: samples at their own time; give it recordings with
             ``gyro="backward"``).
         progress: a tqdm progress bar (on stderr), counting the searches' points.
+        workers: threads that run a point's recordings side by side (default: the CPUs this process may use).
+            The compiled filter runs outside Python's lock (ctypes), so on 2 cores a point costs about half; each
+            loss is one recording's own run at one point, the same value whichever thread computes it.
 
     Returns ``{"format", "system", "objective", "names", "order", "updates", "cross_validation", "params_from",
     "params", "train", "per_recording", "folds": {name: {"params", "train", "held_out"}}, "held_out_mean",
@@ -407,6 +412,9 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     maxfev = _validate.integer("maxfev", maxfev, 1)
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    workers = _validate.integer("workers", workers, 1)
     fold_maxfev = maxfev if fold_maxfev is None else _validate.integer("fold_maxfev", fold_maxfev, 1)
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
@@ -418,31 +426,42 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     t0 = time.perf_counter()
     bar = _progress(maxfev + R * fold_maxfev, progress)
 
+    def key(x, i):
+        return tuple(np.round(x, 12)), i
+
+    def run(x, i):
+        return evaluate(recs[i], {**fixed, **_to_params(names, x)}, objective, order=order, updates=updates)
+
     def loss(x, i):
-        key = (tuple(np.round(x, 12)), i)
-        if key not in cache:
-            cache[key] = evaluate(recs[i], {**fixed, **_to_params(names, x)}, objective, order=order,
-                                  updates=updates)
-        return cache[key]
+        if key(x, i) not in cache:
+            cache[key(x, i)] = run(x, i)
+        return cache[key(x, i)]
 
     def losses(x, which):
-        """The losses of the recordings ``which`` (a bool mask) at x, and of no other."""
+        """The losses of the recordings ``which`` (a bool mask) at x, and of no other: those not yet cached run
+        side by side (the first run of all alone, so that the filter is compiled once)."""
         bar.update(1)
+        todo = [i for i in np.flatnonzero(which) if key(x, i) not in cache]
+        if todo and not cache:
+            loss(x, todo.pop(0))
+        for i, v in zip(todo, pool.map(lambda i: run(x, i), todo), strict=True):
+            cache[key(x, i)] = v
         return np.array([loss(x, i) for i in np.flatnonzero(which)])
 
     everyone = np.ones(R, bool)
     folds = {}
-    for i, rec in enumerate(recs):
-        train = everyone.copy()
-        train[i] = False
-        bar.set_postfix_str(f"fold without {rec.name}")
-        x_i = _search(losses, train, x0, fold_maxfev, step)  # recording i is not asked for until x_i is fixed
-        folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)},
-                           "train": _mean([loss(x_i, j) for j in np.flatnonzero(train)]),
-                           "held_out": _loss(loss(x_i, i))}
-    bar.set_postfix_str("final set (all recordings)")
-    x_all = _search(losses, everyone, x0, maxfev, step)
-    final = [loss(x_all, i) for i in range(R)]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for i, rec in enumerate(recs):
+            train = everyone.copy()
+            train[i] = False
+            bar.set_postfix_str(f"fold without {rec.name}")
+            x_i = _search(losses, train, x0, fold_maxfev, step)  # recording i is not asked for until x_i is fixed
+            folds[rec.name] = {"params": {**fixed, **_to_params(names, x_i)},
+                               "train": _mean([loss(x_i, j) for j in np.flatnonzero(train)]),
+                               "held_out": _loss(loss(x_i, i))}
+        bar.set_postfix_str("final set (all recordings)")
+        x_all = _search(losses, everyone, x0, maxfev, step)
+        final = [loss(x_all, i) for i in range(R)]
     bar.close()
     return {"format": FORMAT, "system": sysname, "objective": objective, "names": list(names), "order": order,
             "updates": updates, "cross_validation": CROSS_VALIDATION, "params_from": PARAMS_FROM,
