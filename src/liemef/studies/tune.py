@@ -63,7 +63,7 @@ PARAMETERS = {
     "bias_walk": (1e-7, 1e-2),
     "gyro_std": (1e-4, 0.1),
     "acc_density": (1e-4, 1.0),
-    "velocity_std": (1e-3, 10.0),
+    "velocity_std": (1e-2, 10.0),
 }
 """The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
 ZERO_ALLOWED = ("acc_adapt", "mag_adapt", "dip_std")
@@ -82,8 +82,7 @@ SYSTEMS = {
 :func:`liemef.systems.attitude_velocity`) and the parameters each takes; the same names, in the same order, as
 :data:`liemef.studies.registry.TUNE_SYSTEMS` (the command line's choices)."""
 DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
-                 "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std",
-                                       "acc_density")}
+                 "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
 """The parameters :func:`tune` fits by default, per system."""
 FORMAT = "liemef-tune-1"
 CROSS_VALIDATION = "nested"
