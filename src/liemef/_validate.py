@@ -4,6 +4,7 @@ and what came, before any compiled code runs."""
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -102,6 +103,12 @@ def integer(name: str, value, low: int = 0, high: int = INT_MAX) -> int:
     if not low <= v <= high:
         raise ValueError(f"{name}: expected {want}, got {v}")
     return v
+
+
+def cpus() -> int:
+    """The CPUs this process may use (its affinity where the OS tells it, else the machine's count): the default
+    number of threads of the C engine's batches and of ``liemef tune``."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def element(name: str, g, G) -> None:

@@ -929,7 +929,7 @@ class Kernel:
         codes = np.zeros(B, np.int32)
         stride = self.n_theta if theta.ndim == 2 else 0
         if threads is None:
-            threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+            threads = _validate.cpus()
         threads = max(1, min(B, threads))
         cp = codes.ctypes.data_as(ctypes.POINTER(ctypes.c_int))
         rp = _ptr(rows) if rows is not None else None

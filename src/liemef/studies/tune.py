@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -412,9 +411,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     maxfev = _validate.integer("maxfev", maxfev, 1)
-    if workers is None:
-        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    workers = _validate.integer("workers", workers, 1)
+    workers = _validate.integer("workers", _validate.cpus() if workers is None else workers, 1)
     fold_maxfev = maxfev if fold_maxfev is None else _validate.integer("fold_maxfev", fold_maxfev, 1)
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
