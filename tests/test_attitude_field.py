@@ -78,11 +78,12 @@ def test_the_process_noise_grows_with_the_unexplained_disturbance_in_closed_form
                        body_gain=4.0, disturbance=2.0)
     nominal = jnp.diag(jnp.asarray(s.process_noise.std) ** 2)
     R = SO3.exp(jnp.asarray([0.3, -0.2, 1.1]))
+    u, t = jnp.asarray([1.0, -2.0, 0.5, 0.1, 0.2, 9.8]), jnp.asarray(0.0)  # the noise does not depend on them
     ref = B * np.array(ab.magnetic_reference(1.2))
     # a heading-like world disturbance (the reference turned about up): no unexplained part, the nominal noise
     turned = Rotation.from_rotvec([0.0, 0.0, 0.4]).apply(ref) - ref
     g = attitude_field_state(TSO3((R, R3(jnp.zeros(3)))), w=turned)
-    np.testing.assert_allclose(s.process_noise_at(g, nominal), nominal, atol=1e-12)
+    np.testing.assert_allclose(s.process_noise_at(g, nominal, u, t), nominal, atol=1e-12)
     # a world w and a body c: e^2 = (|f| - B)^2 + (f_up - ref_up)^2 with f = ref + w + R c
     w, c = np.array([1.0, -2.0, 3.0]), np.array([0.5, 0.25, -1.5])
     f = ref + w + np.asarray(R.as_matrix()) @ c
@@ -91,7 +92,7 @@ def test_the_process_noise_grows_with_the_unexplained_disturbance_in_closed_form
     e2 = e2 * x / (1 + x)  # the growth's onset about e0 = 2 uT
     g = attitude_field_state(TSO3((R, R3(jnp.zeros(3)))), w=w, c=c)
     expect = np.asarray(nominal) + np.diag([0.0] * 9 + [9.0 * e2] * 3 + [16.0 * e2] * 3)
-    np.testing.assert_allclose(s.process_noise_at(g, nominal), expect, rtol=1e-12)
+    np.testing.assert_allclose(s.process_noise_at(g, nominal, u, t), expect, rtol=1e-12)
 
 
 def test_the_gains_are_leaves_and_checked():

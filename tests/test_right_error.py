@@ -69,7 +69,7 @@ def test_the_dynamics_and_noise_are_the_inverted_flows(case):
 
         Bp = jax.jacfwd(lambda d: jax.jacfwd(flow)(0.0, d))(d0)
         return (jax.jacfwd(flow)(0.0, d0), right.dynamics(h, u, t), Bp @ jnp.linalg.solve(base.R, Bp.T),
-                right.process_noise_at(h, BRB), right.output(h, t), base.output(g, t))
+                right.process_noise_at(h, BRB, u, t), right.output(h, t), base.output(g, t))
 
     rng = np.random.default_rng(3)
     for seed in range(3):

@@ -97,7 +97,7 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
         A = Dlam - G.ad(lam) - conn.torsion_matrix(lam)
         p, n = weights.Wy.shape[0], lam.shape[0]
         return Terms(r=jnp.zeros(n), A=A, E=jnp.zeros((n, n)), W=jnp.zeros((n, n)),
-                     BRB=system.process_noise_at(g, weights.BRB), lam=lam,
+                     BRB=system.process_noise_at(g, weights.BRB, u, t), lam=lam,
                      y_tilde=jnp.zeros(p), Dh=jnp.zeros((p, n)), Dlam=Dlam)
     h0, Dh = left_jacobian(lambda gg: system.output_seen_from(y, gg, t), g)
     y_tilde = mv(weights.Wy, y - h0)
@@ -119,8 +119,8 @@ def terms(system: AbstractSystem, weights: Weights, conn: Connection, second_ord
         E = E + C
     else:
         W = jnp.zeros_like(A)
-    return Terms(r=r, A=A, E=E, W=W, BRB=system.process_noise_at(g, weights.BRB), lam=lam, y_tilde=y_tilde, Dh=Dh,
-                 Dlam=Dlam, modified=modified)
+    return Terms(r=r, A=A, E=E, W=W, BRB=system.process_noise_at(g, weights.BRB, u, t), lam=lam, y_tilde=y_tilde,
+                 Dh=Dh, Dlam=Dlam, modified=modified)
 
 
 def riccati_rhs(tm: Terms, K, alpha) -> Float[Array, "n n"]:

@@ -124,18 +124,20 @@ class AbstractSystem(eqx.Module):
         its derivatives are the residual's. :meth:`output` itself where every residual is ``y - h``."""
         return self.output(g, t) if not self.manifold_residuals else y - self.residual(y, self.output(g, t), t)
 
-    def process_noise_at(self, g: LieGroup, BRB: Float[Array, "n n"]) -> Float[Array, "n n"]:
-        r"""The process-noise density on the algebra at the state ``g``, given the nominal $B R^{-1} B^\top$: the
-        nominal itself (a constant B). A system whose noise map depends on the state (the inverted state of
-        :func:`~liemef.systems.right_error`) returns it at ``g``; the filters evaluate it at their estimate,
-        which Theorem 4.1's terms allow: B enters the Hamiltonian through $\mu^\top B R^{-1} B^\top \mu$, whose
-        derivatives in g vanish with the costate $\mu$ at the estimate."""
+    def process_noise_at(self, g: LieGroup, BRB: Float[Array, "n n"], u: Float[Array, " m"],
+                         t: Float[Array, ""]) -> Float[Array, "n n"]:
+        r"""The process-noise density on the algebra at the state ``g``, input ``u`` and time ``t``, given the
+        nominal $B R^{-1} B^\top$: the nominal itself (a constant B). A system whose noise map depends on the state
+        (the inverted state of :func:`~liemef.systems.right_error`) or on the input (a gyro whose error grows with
+        the rate it measures) returns it there; the filters evaluate it at their estimate and the interval's input,
+        which Theorem 4.1's terms allow: B enters the Hamiltonian only through $\mu^\top B R^{-1} B^\top \mu$, whose
+        derivatives in g vanish with the costate $\mu$ at the estimate, and u(t) is a known function of time."""
         return BRB
 
     @property
     def constant_process_noise(self) -> bool:
-        """Whether :meth:`process_noise_at` is the nominal B R^-1 B^T at every state (batch solvers and the
-        simulator need it)."""
+        """Whether :meth:`process_noise_at` is the nominal B R^-1 B^T at every state, input and time (batch solvers
+        and the simulator need it)."""
         return type(self).process_noise_at is AbstractSystem.process_noise_at
 
     def information(self) -> Float[Array, "p p"]:

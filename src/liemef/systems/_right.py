@@ -104,9 +104,10 @@ class RightErrorSystem(SensorSystem):
         """The right error of ``base.with_scale_params(**params)``."""
         return RightErrorSystem(self.base.with_scale_params(**params))
 
-    def process_noise_at(self, g: LieGroup, BRB):
-        """$\\mathrm{Ad}_{h^{-1}} B R^{-1} B^\\top \\mathrm{Ad}_{h^{-1}}^\\top$ at the inverted state ``g`` = h."""
-        return _inverted_noise(g, BRB)
+    def process_noise_at(self, g: LieGroup, BRB, u, t):
+        """$\\mathrm{Ad}_{h^{-1}} B R^{-1} B^\\top \\mathrm{Ad}_{h^{-1}}^\\top$ at the inverted state ``g`` = h, with
+        ``base``'s own noise at $h^{-1}$ as $B R^{-1} B^\\top$ (its nominal where it is constant)."""
+        return _inverted_noise(g, self.base.process_noise_at(g.inverse(), BRB, u, t))
 
     def state_of(self, g0: LieGroup, K0):
         r"""The inverted state of the estimate ``g0`` with left-error covariance ``K0``: $(g_0^{-1},
@@ -148,9 +149,10 @@ class RightErrorAbout(eqx.Module):
         """``base``'s output, as seen from ``y``, at $g = T h^{-1}$."""
         return self.base.output_seen_from(y, self._g(h), t)
 
-    def process_noise_at(self, h, BRB):
-        r"""$\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$."""
-        return _inverted_noise(h, BRB)
+    def process_noise_at(self, h, BRB, u, t):
+        r"""$\mathrm{Ad}_{h^{-1}} B R^{-1} B^\top \mathrm{Ad}_{h^{-1}}^\top$, with ``base``'s own noise at
+        $g = T h^{-1}$ as $B R^{-1} B^\top$."""
+        return _inverted_noise(h, self.base.process_noise_at(self._g(h), BRB, u, t))
 
     def estimates_of(self, h_hat, K):
         r"""The system's estimate and left-error covariance: $(T\hat h^{-1}, \mathrm{Ad}_{\hat h} K

@@ -198,7 +198,7 @@ class FieldSystem(SensorSystem):
         self.gains = jnp.asarray(gains, dtype=float)
         self.reference = tuple(float(x) for x in reference)
 
-    def process_noise_at(self, g, BRB):
+    def process_noise_at(self, g, BRB, u, t):
         r"""$B R^{-1} B^\top$ with the world block's variance plus $k_w^2 e^2 x/(1 + x)$ and the body block's plus
         $k_c^2 e^2 x/(1 + x)$, $x = (e/e_0)^4$: $e$ the disturbance's heading-invariant size, the norm and the
         vertical part of the estimated field's departure from the reference (module docstring)."""

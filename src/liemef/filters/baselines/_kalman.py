@@ -251,7 +251,7 @@ class ExtendedKalmanFilter(AbstractKalmanFilter):
         plus, minus = retraction(self.error)
         zero = jnp.zeros(self.n)
         h = dt / self.substeps
-        Qd = self.system.process_noise_at(g, self.weights.BRB) * h
+        Qd = self.system.process_noise_at(g, self.weights.BRB, u, t) * h
         for j in range(self.substeps):
             tj = t + j * h
             g1 = self._euler(g, u, tj, h, zero)
@@ -327,7 +327,7 @@ class UnscentedKalmanFilter(AbstractKalmanFilter):
         s, _, _, _ = self._weights()
         zero = jnp.zeros(self.n)
         h = dt / self.substeps
-        noise = s * _sqrt_psd(self.system.process_noise_at(g, self.weights.BRB) * h).T
+        noise = s * _sqrt_psd(self.system.process_noise_at(g, self.weights.BRB, u, t) * h).T
         noise = jnp.concatenate([noise, -noise])
         for j in range(self.substeps):
             tj = t + j * h
