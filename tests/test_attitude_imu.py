@@ -173,3 +173,118 @@ def test_the_velocity_model_beats_the_direction_model_under_translation():
     assert np.sqrt(np.mean((v_hat[200:] - v[200:]) ** 2)) < 0.25 * np.sqrt(np.mean(v[200:] ** 2))
     with pytest.raises(ValueError, match="velocity_std"):
         attitude_velocity(velocity_std=[1.0, 2.0])
+
+
+# --- the gyro's scale-factor and cross-axis errors as a noise that grows with the rate --------------------------
+U = jnp.asarray([1.0, -2.0, 0.5, 0.3, -0.2, 9.7])  # a gyro sample (rad/s) and a specific force (m/s^2)
+
+
+def _nominal(s):
+    return s.B @ jnp.linalg.solve(s.R, s.B.T)
+
+
+def _plain_copy(s):
+    """The same system without the rate-dependent noise: the SensorSystem the factory wraps."""
+    from liemef.systems import SensorSystem
+
+    return SensorSystem(s.group, s.dynamics_fn, s.sensors, s.process_noise, s.noise_map, inputs=s.inputs,
+                        input_units=s.input_units, state_names=s.coord_names, state_units=s.coord_units)
+
+
+def test_the_gyro_scale_noise_in_closed_form_and_as_a_leaf():
+    from liemef.systems import attitude_velocity, right_error
+
+    s = attitude_velocity(imu_rate=RATE, gyro_scale_std=0.02, gravity=G, field=B)
+    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
+                                   (0.2, -0.1, 0.0))
+    BRB, t = _nominal(s), jnp.asarray(0.0)
+    # the gyro's block grows by s^2 |u_omega|^2 / f on its diagonal, isotropic; nothing else moves
+    add = 0.02**2 * float(U[:3] @ U[:3]) / RATE
+    np.testing.assert_allclose(s.process_noise_at(g, BRB, U, t), BRB + np.diag([add] * 3 + [0.0] * 6),
+                               rtol=1e-14, atol=0)
+    zero = s.with_gyro_scale(0.0)
+    np.testing.assert_array_equal(zero.process_noise_at(g, BRB, U, t), BRB)
+    assert zero.constant_process_noise and not s.constant_process_noise
+    # a leaf: every value has the default's structure, so a filter of it reuses the compiled code
+    import jax
+
+    assert jax.tree_util.tree_structure(s) == jax.tree_util.tree_structure(attitude_velocity(imu_rate=RATE, gravity=G,
+                                                                                          field=B))
+    # the right error sees it too: Ad_{h^-1} (B R^-1 B^T)(g) Ad_{h^-1}^T at h = g^-1
+    h = g.inverse()
+    np.testing.assert_allclose(right_error(s).process_noise_at(h, BRB, U, t),
+                               g.Ad() @ s.process_noise_at(g, BRB, U, t) @ g.Ad().T, rtol=1e-12, atol=1e-18)
+    for bad in (-0.01, math.nan, [0.01, 0.02], True):
+        with pytest.raises(ValueError, match="^gyro_scale_std:"):
+            attitude_velocity(gyro_scale_std=bad)
+
+
+def test_a_random_calibration_matrix_makes_the_isotropic_noise():
+    """Monte Carlo: a gyro error M omega with M's nine entries independent of std s has the covariance
+    s^2 |omega|^2 I, whatever the axis of omega (the model's justification, liemef.systems._gyro_scale)."""
+    rng = np.random.default_rng(0)
+    s, n = 0.01, 40000
+    for w in (np.array([2.0, 0.0, 0.0]), np.array([0.3, -1.2, 0.8])):
+        e = np.einsum("kij,j->ki", s * rng.standard_normal((n, 3, 3)), w)
+        C = e.T @ e / n / (s**2 * (w @ w))
+        np.testing.assert_allclose(C, np.eye(3), atol=0.03)  # 4 standard errors of a variance of 40000 draws
+
+
+def test_the_filters_see_the_rate_dependent_noise():
+    """The K rate of the minimum-energy filter grows by exactly the closed form at the input; the invariant EKF's
+    prediction by it times dt, to the first order in dt."""
+    from liemef.filters.baselines import invariant_ekf
+    from liemef.systems import attitude_velocity
+
+    s = attitude_velocity(imu_rate=RATE, gyro_scale_std=0.03, gravity=G, field=B)
+    s0 = s.with_gyro_scale(0.0)
+    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.zeros(3)))))
+    K = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
+    add = np.diag([0.03**2 * float(U[:3] @ U[:3]) / RATE] * 3 + [0.0] * 6)
+    dK = [np.asarray(MinimumEnergyFilter(x, error="left").vector_field(g, K, U, s.output(g, 0.0), 0.0)[1])
+          for x in (s, s0)]
+    np.testing.assert_allclose(dK[0] - dK[1], add, atol=1e-12 * np.abs(dK[1]).max())
+    dt = 1e-4
+    P = [np.asarray(invariant_ekf(x).predict(invariant_ekf(x).init(g, K), 0.0, U, dt, engine="xla").K)
+         for x in (s, s0)]
+    np.testing.assert_allclose((P[0] - P[1]) / dt, add, rtol=1e-3, atol=1e-6 * add.max())
+
+
+def test_a_zero_gyro_scale_changes_no_bit_of_the_terms():
+    """The default (0) gives the unwrapped model's Riccati terms, every bit, in both orders (the filters' only
+    use of the process noise; compare broad's runs on real data were checked equal bit for bit)."""
+    from liemef.connections import connection
+    from liemef.filters import Weights, terms
+    from liemef.systems import attitude_velocity
+
+    s = attitude_velocity(imu_rate=RATE, gravity=G, field=B)
+    plain = _plain_copy(s)
+    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
+                                   (0.2, -0.1, 0.0))
+    K = jnp.asarray(np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3))
+    y = s.output(g, 0.0) + 0.01
+    conn, t = connection("zero", s.group), jnp.asarray(0.0)
+    for second in (True, False):
+        a, b = (terms(x, Weights.of(x), conn, second, g, K, U, y, t) for x in (s, plain))
+        for name in ("r", "A", "E", "W", "BRB"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+@pytest.mark.slow
+def test_a_zero_gyro_scale_changes_no_bit_of_a_run():
+    """The default (0) runs the unwrapped model's numbers, every bit: the MEF with samples at their own time (as
+    compare broad's mef-vel) and the invariant EKF."""
+    from liemef.filters.baselines import invariant_ekf
+    from liemef.systems import attitude_velocity
+
+    ts, gyr, acc, mag, R, v = simulate_translation(duration=0.5)
+    _, us, ys = ab.imu_velocity_log(gyr, acc, mag, RATE, gyro="backward")
+    s = attitude_velocity(imu_rate=RATE, gravity=G, field=B)
+    g0 = ab.attitude_velocity_state(_g0(R), v[0])
+    K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
+    for make in (lambda x: MinimumEnergyFilter(x, updates="discrete", curvature="exact", error="left"),
+                 invariant_ekf):
+        a, b = make(s), make(_plain_copy(s))
+        ta, tb = (f.run(f.init(g0, K0), ts, us, ys) for f in (a, b))
+        np.testing.assert_array_equal(ta.g_hat.factors[0].as_matrix(), tb.g_hat.factors[0].as_matrix())
+        np.testing.assert_array_equal(ta.K, tb.K)

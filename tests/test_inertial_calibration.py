@@ -123,3 +123,23 @@ def test_the_3x3_solve_of_the_calibration_is_numpy_s():
     b = rng.standard_normal((50, 3))
     np.testing.assert_allclose(np.asarray(solve3(jnp.asarray(A), jnp.asarray(b))),
                                np.linalg.solve(A, b[..., None])[..., 0], rtol=0, atol=1e-13)
+
+
+def test_the_gyro_scale_as_noise_grows_with_the_rate():
+    """``gyro_scale_std`` s: the gyro's block of the process noise grows by s^2 |u_omega|^2 / f on its diagonal
+    (liemef.systems._gyro_scale), with the calibration states or without; None builds the plain system."""
+    from liemef.systems import SensorSystem
+
+    plain = inertial_navigation(biases=True, lever_arm=True, gyro_calibration="matrix", imu_rate=200.0)
+    assert type(plain) is SensorSystem and plain.constant_process_noise
+    s = inertial_navigation(biases=True, lever_arm=True, gyro_calibration="matrix", imu_rate=200.0,
+                            gyro_scale_std=0.01)
+    g = _state(np.eye(3), [1.0, 0.0, 0.0], [0.0, 2.0, 0.0], np.zeros(18), GM)
+    u, t = jnp.asarray([0.5, -1.0, 2.0, 0.1, 0.0, 9.8]), jnp.asarray(0.0)
+    BRB = s.B @ jnp.linalg.solve(s.R, s.B.T)
+    add = np.zeros(27)
+    add[:3] = 0.01**2 * 5.25 / 200.0
+    np.testing.assert_allclose(s.process_noise_at(g, BRB, u, t), BRB + np.diag(add), rtol=1e-14, atol=0)
+    np.testing.assert_array_equal(s.with_gyro_scale(0.0).process_noise_at(g, BRB, u, t), BRB)
+    assert not s.constant_process_noise and s.with_gyro_scale(0.0).constant_process_noise
+    np.testing.assert_array_equal(s.B, plain.B)

@@ -68,6 +68,7 @@ from jaxtyping import ArrayLike, Float
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, TSO3, Product
+from ._gyro_scale import GyroScaleSystem
 from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
 
 IMU_RATE = 285.714
@@ -377,7 +378,7 @@ def _velocity(g, t):
 def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk=IMU_BIAS_WALK,
                       mag_std=VELOCITY_MAG_STD, dip: float = DIP, *, gravity: float = GRAVITY, field: float = FIELD,
                       acc_density=ACC_DENSITY, velocity_std=VELOCITY_STD, mag_adapt: float = MAG_ADAPT,
-                      dip_std: float = DIP_STD, norm_std=NORM_STD) -> SensorSystem:
+                      dip_std: float = DIP_STD, norm_std=NORM_STD, gyro_scale_std=0.0) -> GyroScaleSystem:
     r"""Attitude, gyro bias and velocity: linear acceleration in the minimum-energy framework, VQF's idea
     (low-pass the accelerometer in an almost inertial frame) written as a model.
 
@@ -412,6 +413,9 @@ def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_R
         mag_adapt: $c_m \ge 0$ of :class:`MagneticNoise`, as :func:`attitude_imu`'s.
         dip_std: $\sigma_{dip} \ge 0$ (rad) of :class:`MagneticNoise`.
         norm_std: the norms' per-sample stds (2 values; they move nothing).
+        gyro_scale_std: the gyro's scale-factor and cross-axis errors $s$ (unitless, >= 0): the gyro's noise
+            grows with the rate it measures, $(\sigma_g^2 + s^2|u_\omega|^2)$ per sample at ``imu_rate``
+            (:class:`~liemef.systems._gyro_scale.GyroScaleSystem`, an array leaf); 0 (default) turns it off.
 
     K0 guidance: the velocity block in (m/s)^2, e.g. (0.1 m/s)^2 at rest.
     """
@@ -436,10 +440,11 @@ def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_R
     norm = Sensor("norm", ConstantOutput((float(gravity), float(field))), Noise.sample(norm_std), ("acc", "mag"),
                   ("m/s^2", "uT"))
     vel = Sensor("velocity", _velocity, Noise.density(jnp.broadcast_to(vel_noise.std, (3,))), xyz, ("m/s",) * 3)
-    return SensorSystem(Product[SO3, R3, R3], VelocityDynamics(float(gravity)), (acc, mag, norm, vel),
-                        Noise.density(density), inputs=VELOCITY_INPUT_NAMES,
-                        input_units=("rad/s",) * 3 + ("m/s^2",) * 3, state_names=VELOCITY_STATE_NAMES,
-                        state_units=VELOCITY_STATE_UNITS)
+    system = SensorSystem(Product[SO3, R3, R3], VelocityDynamics(float(gravity)), (acc, mag, norm, vel),
+                          Noise.density(density), inputs=VELOCITY_INPUT_NAMES,
+                          input_units=("rad/s",) * 3 + ("m/s^2",) * 3, state_names=VELOCITY_STATE_NAMES,
+                          state_units=VELOCITY_STATE_UNITS)
+    return GyroScaleSystem(system, gyro_scale_std, imu_rate)
 
 
 def imu_velocity_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"],

@@ -70,6 +70,7 @@ import numpy as np
 from .. import _validate
 from .._linalg import mv, solve3
 from ..groups import SE23, Product, Rn
+from ._gyro_scale import GyroScaleSystem
 from ._sensors import Noise, Sensor, SensorSystem
 from .attitude_bias import DIP, magnetic_reference
 
@@ -206,7 +207,8 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
                         gnss_std=GNSS_STD, landmarks=None, landmark_std=LANDMARK_STD, mag_std=None,
                         dip: float = DIP, baro_std=None, gravity: float = GRAVITY,
                         gate: float | None = None, robust: str | None = None,
-                        lever_arm: bool = False, gyro_calibration: str | None = None) -> SensorSystem:
+                        lever_arm: bool = False, gyro_calibration: str | None = None,
+                        gyro_scale_std=None) -> SensorSystem:
     """The inertial-navigation system on SE_2(3) (SE_2(3) x R^k with ``biases``, 6, ``lever_arm``, 3 more, and
     ``gyro_calibration``, 3 or 9 more), module docstring.
 
@@ -233,6 +235,10 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
         gyro_calibration: estimate the gyro's calibration errors M (unitless; the gyro reads (I + M) omega
             + b_g): ``"scale"``, its scale-factor errors (M diagonal, 3), or ``"matrix"``, scale factors and
             cross-axis errors (9, row by row); the state's last components (constant, no process noise).
+        gyro_scale_std: the gyro's scale-factor and cross-axis errors s as noise (unitless, >= 0): the gyro's
+            noise grows with the rate it measures, (gyro_std^2 + s^2 |u_omega|^2) per sample at ``imu_rate``
+            (:class:`~liemef.systems._gyro_scale.GyroScaleSystem`, s an array leaf); None (default) builds the
+            plain system.
 
     ``B = noise_map diag(densities)`` with ``R = I``; ``D = diag(sensor stds)`` with ``Q = I``.
     """
@@ -288,5 +294,6 @@ def inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_STD, imu_rate: float | No
     units = (STATE_UNITS + (BIAS_UNITS if biases else ()) + (LEVER_UNITS if lever_arm else ())
              + ("1",) * len(calibration))
     dynamics = ImuDynamics(float(gravity), biases, gyro_calibration, gyro_at)
-    return SensorSystem(group, dynamics, sensors, Noise.density(jnp.concatenate(density)), noise_map=noise_map,
-                        inputs=INPUT_NAMES, input_units=INPUT_UNITS, state_names=names, state_units=units)
+    system = SensorSystem(group, dynamics, sensors, Noise.density(jnp.concatenate(density)), noise_map=noise_map,
+                          inputs=INPUT_NAMES, input_units=INPUT_UNITS, state_names=names, state_units=units)
+    return system if gyro_scale_std is None else GyroScaleSystem(system, gyro_scale_std, imu_rate)
