@@ -197,6 +197,9 @@ def test_a_broad_trial_starts_at_the_file_s_first_sample():
         B.BroadInsComparison(trials="16", variants="noisier")
     with pytest.raises(ValueError, match="noise_std"):
         B.BroadInsComparison(trials="16", noise_std=0.0)
+    with pytest.raises(ValueError, match="^gyro_scale_std: expected a number >= 0"):
+        B.BroadInsComparison(trials="16", gyro_scale_std=-0.01)
+    assert B.system_of(RATE, 0.01, 0.02).gyro_scale == 0.02  # every inertial filter's system
     st = B.BroadInsComparison(trials=16, ukf_trials="16", attitude_filters="none")
     assert st.trials == ("16",) and st.attitude_filters == () and st.ukf_variants == B.VARIANTS
 

@@ -224,3 +224,16 @@ def test_the_velocity_model_tunes_and_its_file_names_it(tmp_path):
     assert system.group.tangent_dim == 9
     with pytest.raises(ValueError, match="^system:"):
         T.system_from({}, {}, "attitude-gps")
+
+
+def test_the_gyro_scale_is_a_velocity_parameter_that_starts_above_zero():
+    recs = [T.Recording(f"v{i}", np.arange(3) / 100.0, np.zeros((3, 6)), np.zeros((3, 11)), {}, None, np.eye(9),
+                        system="attitude-velocity") for i in range(2)]
+    with pytest.raises(ValueError, match=r"^start: expected a value > 0 .* \['gyro_scale_std'\]"):
+        T.tune(recs, names=("gyro_scale_std",), progress=False)  # its default 0 has no logarithm
+    assert T.check_params({"gyro_scale_std": 0.0}, "attitude-velocity") == {"gyro_scale_std": 0.0}
+    system = T.system_from({"gyro_scale_std": 0.01}, {"dip": ab.DIP, "gravity": 9.81, "field": 43.0},
+                           "attitude-velocity")
+    assert float(system.gyro_scale) == 0.01
+    with pytest.raises(ValueError, match="^params.gyro_scale_std: unknown parameter of attitude-imu"):
+        T.check_params({"gyro_scale_std": 0.01})

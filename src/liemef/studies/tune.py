@@ -63,9 +63,10 @@ PARAMETERS = {
     "gyro_std": (1e-4, 0.1),
     "acc_density": (1e-4, 1.0),
     "velocity_std": (1e-2, 10.0),
+    "gyro_scale_std": (1e-4, 0.3),
 }
 """The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
-ZERO_ALLOWED = ("acc_adapt", "mag_adapt", "dip_std")
+ZERO_ALLOWED = ("acc_adapt", "mag_adapt", "dip_std", "gyro_scale_std")
 """The parameters that may be 0 in a tuning file (0 turns a noise model's term off); the others, standard
 deviations and ``acc_norm_tol``, must be > 0."""
 DEFAULT_PARAMETERS = ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")
@@ -75,7 +76,7 @@ SYSTEMS = {
     "attitude-imu": ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk",
                      "gyro_std"),
     "attitude-velocity": ("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density",
-                          "velocity_std"),
+                          "velocity_std", "gyro_scale_std"),
 }
 """The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
 :func:`liemef.systems.attitude_velocity`) and the parameters each takes; the same names, in the same order, as
@@ -416,6 +417,10 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
     base = {**defaults, **check_params(start or {}, sysname, "start")}
+    zero = [n for n in names if not float(np.atleast_1d(base[n])[0]) > 0]
+    if zero:  # the search is in log space
+        raise ValueError(f"start: expected a value > 0 to start the search in log space for {zero} (their default "
+                         f"0 turns the term off), got {[float(np.atleast_1d(base[n])[0]) for n in zero]}")
     x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)

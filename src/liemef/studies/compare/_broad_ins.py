@@ -171,7 +171,9 @@ class BroadInsComparison:
     ``fix_rate`` (Hz), ``noise_std`` (m, the ``noisy`` variant's added noise), ``seed`` (of that noise),
     ``realdata`` (the folder; default :func:`liemef.studies.datasets.realdata_dir`), and ``ukf_trials`` and
     ``ukf_variants``: the trials and variants the UKF-M filters run on (default all; the UKF-M costs about ten
-    times the EKF here, so a slow machine may limit it, e.g. to ``10,16`` and ``recorded``)."""
+    times the EKF here, so a slow machine may limit it, e.g. to ``10,16`` and ``recorded``), and ``gyro_scale_std``
+    (unitless, default 0: off): the gyro's noise grows with the rate it measures, every inertial filter alike
+    (:func:`system_of`)."""
 
     trials: tuple[str, ...] | str | None = None
     seconds: float | None = None
@@ -184,6 +186,7 @@ class BroadInsComparison:
     realdata: str | None = None
     ukf_trials: tuple[str, ...] | str | None = None
     ukf_variants: tuple[str, ...] | str | None = None
+    gyro_scale_std: float = 0.0
 
     def __post_init__(self):
         from ._broad import BROAD_FILTERS
@@ -201,6 +204,9 @@ class BroadInsComparison:
             v = getattr(self, key)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a number > 0, got {v!r}")
+        g = self.gyro_scale_std
+        if isinstance(g, bool) or not (isinstance(g, int | float) and math.isfinite(g) and g >= 0):
+            raise ValueError(f"gyro_scale_std: expected a number >= 0 (unitless), got {g!r}")
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
@@ -209,7 +215,7 @@ class BroadInsComparison:
         for key, v in (("trials", trials), ("ukf_trials", ukf), ("ukf_variants", ukf_variants), ("filters", names),
                        ("attitude_filters", att),
                        ("variants", variants), ("realdata", str(folder)), ("fix_rate", float(self.fix_rate)),
-                       ("noise_std", float(self.noise_std))):
+                       ("noise_std", float(self.noise_std)), ("gyro_scale_std", float(g))):
             object.__setattr__(self, key, v)
 
 
@@ -280,13 +286,14 @@ def ins_log(data: InsTrial, ys: np.ndarray) -> io.RecordedLog:
     return io.RecordedLog(ts=tr.ts.copy(), us=us, ys=ys)
 
 
-def system_of(rate: float, fix_std: float):
+def system_of(rate: float, fix_std: float, gyro_scale_std: float = 0.0):
     """:func:`~liemef.systems.inertial_navigation` with biases, the fixes' lever arm and the gyro's calibration,
     the study's priors (module docstring) and position fixes of ``fix_std`` m per axis. The accelerometer's prior
-    is a density, given as its std per sample at ``rate`` beside the gyro's."""
+    is a density, given as its std per sample at ``rate`` beside the gyro's. ``gyro_scale_std`` (unitless, an
+    array leaf) makes the gyro's noise grow with the rate it measures (0: off, the study's default)."""
     return inertial_navigation(gyro_std=GYRO_STD, acc_std=ACC_DENSITY * math.sqrt(rate), imu_rate=rate,
                                biases=True, gnss_std=fix_std, gravity=GRAVITY, lever_arm=True,
-                               gyro_calibration="matrix")
+                               gyro_calibration="matrix", gyro_scale_std=gyro_scale_std)
 
 
 def initial_state(data: InsTrial) -> INS_GROUP:
@@ -491,9 +498,9 @@ def _evo_summary(res: dict | None) -> dict | None:
 
 
 # --- the study --------------------------------------------------------------------------------------------------
-def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float):
+def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, gyro_scale_std: float = 0.0):
     """The inertial filter ``name`` (:data:`INS_FILTERS`) on ``log`` from :func:`initial_state` and :data:`K0`."""
-    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std))
+    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std, gyro_scale_std))
     return flt.run(flt.init(initial_state(data), K0), log.ts, log.us, log.ys)
 
 
@@ -504,12 +511,12 @@ def _calibration(traj) -> dict:
     return {"lever_arm_m": [float(c) for c in z[6:9]], "gyro_calibration": [float(c) for c in z[9:18]]}
 
 
-def _monitor(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, traj) -> dict:
+def _monitor(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, traj, gyro_scale_std: float) -> dict:
     """The innovation monitor's verdict on the run (:func:`liemef.metrics.innovation_monitor`, no truth) and the
     fixes' mean NIS per degree of freedom (1 for a consistent filter)."""
     from ...metrics import innovation_monitor
 
-    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std))
+    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std, gyro_scale_std))
     report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
     gnss = next(v for v in report.sensors if v.name == "gnss")
     return {"monitor": report.status, "fix_nis": None if gnss.mean_nis is None else gnss.mean_nis / gnss.dof}
@@ -537,14 +544,14 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                 if name.startswith("ukf") and (tid not in st.ukf_trials or variant not in st.ukf_variants):
                     continue
                 t0 = time.perf_counter()
-                traj = run_ins(name, data, log, fix_std)
+                traj = run_ins(name, data, log, fix_std, st.gyro_scale_std)
                 ok = bool(int(traj.status.code) == 0)
                 run_s = time.perf_counter() - t0
                 if ok:
                     figs, per_s = errors(data, traj, truth=truth)
                     evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, truth=truth))
                     figs.update(_calibration(traj))
-                    figs.update(_monitor(name, data, log, fix_std, traj))
+                    figs.update(_monitor(name, data, log, fix_std, traj, st.gyro_scale_std))
                 else:
                     figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
                     figs.update(dict.fromkeys(NEES_KEYS + BAND_KEYS + CALIBRATION_KEYS + MONITOR_KEYS))
@@ -565,7 +572,10 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
     attitude_only = _attitude_only(st, progress)
     system = "inertial_navigation(biases=True, lever_arm=True, gyro_calibration='matrix')"
     return {"study": {**dataclasses.asdict(st), "system": system,
-                      "weights": f"gyro {GYRO_STD} rad/s per sample, accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
+                      "weights": f"gyro {GYRO_STD} rad/s per sample"
+                                 + (f" plus {st.gyro_scale_std:g} times the rate it measures" if st.gyro_scale_std
+                                    else "")
+                                 + f", accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
                                  "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
                                                    f"{LEVER_ARM_STD}^2 I3, gyro calibration {GYRO_SCALE_STD}^2 on the "
