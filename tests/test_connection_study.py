@@ -18,15 +18,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from fast_compile import FAST_COMPILE
 from liemef import MinimumEnergyFilter
 from liemef.groups import SE2, TSE2
 from liemef.studies.experiments.localization import LocalizationConfig, jax_draws, setup, trial
 from liemef.systems import PlanarRigidBody, planar_localization
 from tolerances import ROUNDOFF
 
-# Compiled once and run once: skip XLA's expensive optimisations (as in test_connections.py).
-_FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
-                 "xla_cpu_use_fusion_emitters": False, "xla_cpu_parallel_codegen_split_count": 1}
 CONNECTIONS = [("minus", 0.0), ("zero", 0.5), ("plus", 1.0)]
 DIFFERENT = 1e-2
 """The smallest relative difference counted as 'different' (the differences checked are 4 % or more)."""
@@ -113,7 +111,7 @@ def _run(connection: str, duration: float = 10.0):
     config = LocalizationConfig(duration=duration, connection=connection, steady=duration / 2)
     s = setup(config)
     draws = jax_draws(config, jax.random.key(3))._replace(theta0=jnp.asarray(THETA0))
-    run = jax.jit(lambda d: trial(s, d)).lower(draws).compile(compiler_options=_FAST_COMPILE)
+    run = jax.jit(lambda d: trial(s, d)).lower(draws).compile(compiler_options=FAST_COMPILE)
     truth, log, traj = run(draws)
     assert bool(traj.ok)
     return config, truth, log, traj
@@ -206,7 +204,7 @@ def _compiled(filters, g, K, u, y):
         return exact_rates(flt.system, flt.weights, g, X0, u, y, 0.0), theorem
 
     X0 = jnp.asarray(np.linalg.inv(K))
-    fn = jax.jit(both).lower(g, X0, jnp.asarray(u), jnp.asarray(y)).compile(compiler_options=_FAST_COMPILE)
+    fn = jax.jit(both).lower(g, X0, jnp.asarray(u), jnp.asarray(y)).compile(compiler_options=FAST_COMPILE)
     return lambda y: jax.tree_util.tree_map(np.asarray, fn(g, X0, jnp.asarray(u), jnp.asarray(y)))
 
 

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from fast_compile import FAST_COMPILE
 from liemef.connections import CARTAN_SCHOUTEN, Connection, connection
 from liemef.groups import R1, R2, R3, SE2, SE2R2, SO2, SO2R1, SO3, TSE2, TSO3, Product
 from tolerances import ROUNDOFF, SECOND_FINITE_DIFF
@@ -178,9 +179,6 @@ def test_hessian_correction(G, name, c, rng):
 # --- the connection Hessian of docs/theorem.md against finite differences on the group ----------------------
 
 FD_STEP_2 = 1e-4
-# Compiled once and run once: skip XLA's expensive optimisations (as in test_groups.py; no fast-math).
-_FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
-                 "xla_cpu_use_fusion_emitters": False, "xla_cpu_parallel_codegen_split_count": 1}
 
 
 def _nonlinear_output(G, rng):
@@ -218,7 +216,7 @@ def test_connection_hessian_formula_matches_finite_differences(G, rng):
         mixed = (vf(ej, ei, d, d) - vf(ej, ei, d, -d) - vf(ej, ei, -d, d) + vf(ej, ei, -d, -d)) / (4 * d * d)
         return jax.grad(F)(zero), jax.hessian(F)(zero), mixed.reshape(n, n)
 
-    compiled = jax.jit(derivatives).lower(g).compile(compiler_options=_FAST_COMPILE)
+    compiled = jax.jit(derivatives).lower(g).compile(compiler_options=FAST_COMPILE)
     Dh, hess, mixed = (np.asarray(a) for a in compiled(g))
     ad_term = np.einsum("m,mji->ji", Dh, basis_brackets(G))  # [j, i] = Dh . [e_j, e_i] = Dh . ad_{e_j} e_i
     assert np.abs(ad_term).max() > 1e-2, "the test function must see the non-commutativity"

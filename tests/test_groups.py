@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from fast_compile import fast_jit
 from liemef.groups import (
     R1,
     R2,
@@ -147,27 +148,6 @@ def assert_close(actual, desired, tol, err_msg=""):
 
 def vee(G, X):
     return np.asarray(G.vee(jnp.asarray(X)))
-
-
-# The test's compiled functions are small and run once: skip XLA's expensive optimisations and fusion emitters
-# (compile time is most of this file's run time: this option set compiles ~3x faster; no fast-math either
-# way, the tolerances hold unchanged).
-_FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
-                 "xla_cpu_use_fusion_emitters": False, "xla_cpu_parallel_codegen_split_count": 1}
-
-
-def fast_jit(f):
-    """``jax.jit(f)``, compiled (once per argument shape) with :data:`_FAST_COMPILE`."""
-    jitted, compiled = jax.jit(f), {}
-
-    def call(*args):
-        leaves, tree = jax.tree_util.tree_flatten(args)
-        key = (tree, tuple((np.shape(x), str(np.asarray(x).dtype)) for x in leaves))
-        if key not in compiled:
-            compiled[key] = jitted.lower(*args).compile(compiler_options=_FAST_COMPILE)
-        return compiled[key](*args)
-
-    return call
 
 
 @pytest.fixture
