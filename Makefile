@@ -24,7 +24,9 @@ demo: $(STAMP)
 # next run; kept in the checkout, so that the tests leave the user's ~/.cache/liemef alone.
 JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(CURDIR)/.cache/liemef
 
-# Where `make test`'s time goes (cold caches): compiling, not computing. Besides the filters' own programs, each
+# Where `make test`'s time goes (cold caches): compiling, not computing (tools/suite_profile.py times every
+# XLA compile and C compiler call by test file; a cold run under load, December 2026: XLA compiles 43 % of the
+# tests' time, 9055 programs, 8057 of them under 0.2 s each). Besides the filters' own programs, each
 # eager jnp operation on a new shape is a small XLA compile of its own, about 40 ms of CPU each on an AMD Zen 4:
 # test_cli, test_montecarlo and test_campaign (run alone) make 559 XLA compiles, at least 318 of them such
 # single operations (metrics/_stats.py, the key indexing of studies/experiments/_montecarlo.py, the groups);
