@@ -25,28 +25,23 @@ B(u(t)) is a known function of time, so the filters use $B(u) R^{-1} B(u)^\top$ 
 
 from __future__ import annotations
 
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
+from .. import _validate
 from ._sensors import SensorSystem
 
 
 def gyro_scale_value(name: str, value):
-    """``value`` as the float64 leaf of a scale std: a finite number >= 0 (a traced value passes unchecked)."""
+    """``value`` as the float64 leaf of a scale std: one finite number >= 0 (``liemef._validate.nonnegative``),
+    not a bool; a traced value passes unchecked."""
     if isinstance(value, jax.core.Tracer):
         return jnp.asarray(value, dtype=jnp.float64)
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating | np.ndarray
-                                                 | jax.Array):
+    if isinstance(value, bool):
         raise ValueError(f"{name}: expected a number >= 0 (unitless), got {value!r}")
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != () or not (math.isfinite(float(a)) and float(a) >= 0):
-        raise ValueError(f"{name}: expected one finite number >= 0 (unitless), got {value!r}")
-    return jnp.asarray(a)
+    return jnp.asarray(_validate.nonnegative(name, value))
 
 
 class GyroScaleSystem(SensorSystem):

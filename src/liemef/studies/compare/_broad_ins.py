@@ -101,6 +101,7 @@ from ...filters import MinimumEnergyFilter
 from ...groups import SE23, Product, Rn
 from ...reports import io
 from ...systems import inertial_navigation
+from ...systems._gyro_scale import gyro_scale_value
 from .. import datasets
 from ._broad import trial_ids
 from ._common import FILTERS, fmt, parse_names, realdata_present
@@ -204,9 +205,7 @@ class BroadInsComparison:
             v = getattr(self, key)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a number > 0, got {v!r}")
-        g = self.gyro_scale_std
-        if isinstance(g, bool) or not (isinstance(g, int | float) and math.isfinite(g) and g >= 0):
-            raise ValueError(f"gyro_scale_std: expected a number >= 0 (unitless), got {g!r}")
+        g = float(gyro_scale_value("gyro_scale_std", self.gyro_scale_std))
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
