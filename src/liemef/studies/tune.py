@@ -417,11 +417,12 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
     defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
     base = {**defaults, **check_params(start or {}, sysname, "start")}
-    zero = [n for n in names if not float(np.atleast_1d(base[n])[0]) > 0]
+    first = {n: float(np.atleast_1d(base[n])[0]) for n in names}
+    zero = [n for n in names if not first[n] > 0]
     if zero:  # the search is in log space
         raise ValueError(f"start: expected a value > 0 to start the search in log space for {zero} (their default "
-                         f"0 turns the term off), got {[float(np.atleast_1d(base[n])[0]) for n in zero]}")
-    x0 = np.array([math.log10(float(np.atleast_1d(base[n])[0])) for n in names])
+                         f"0 turns the term off), got {[first[n] for n in zero]}")
+    x0 = np.array([math.log10(first[n]) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)
     cache: dict[tuple, float] = {}  # (point, recording index) -> loss: a value, never a search's history
