@@ -15,8 +15,8 @@ What it counts:
 - C: the time C compiler subprocesses (cc, gcc, clang) took to answer, from any thread. The kernels' -O2
   builds run in a background thread beside the tests, so a file's C time can exceed its own run time.
 
-It wraps a private function of JAX (``jax._src.compiler.backend_compile_and_load``, present in JAX 0.4.30 to
-0.10): where that is missing the plugin says so and times the C compilers only.
+It wraps a private function of JAX (``jax._src.compiler.backend_compile_and_load``, as in the JAX this project
+installs): where another JAX lacks it, the plugin says so and times the C compilers only.
 """
 
 from __future__ import annotations
