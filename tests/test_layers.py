@@ -1,6 +1,6 @@
 """The layering contract: liemef's packages import one way, and no packages import each other in a cycle.
 
-The layers, from the top: cli > studies > reports > metrics > engines > codegen > filters > simulation >
+The layers, from the top: cli > studies > reports > metrics > smoothers > engines > codegen > filters > simulation >
 systems > integrators, connections > groups > the private helpers (``[tool.importlinter]`` in
 pyproject.toml, checked by import-linter). A lower layer never imports a higher one, not even inside a
 function. Beside it, the import graph collapsed to packages, at every depth, has no cycle, and the only

@@ -17,7 +17,7 @@ import sys
 from typing import TYPE_CHECKING
 
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
-           "SensorLog", "Truth", "groups", "systems", "connections", "simulation", "metrics"]
+           "SensorLog", "Truth", "smooth", "Smoothed", "groups", "systems", "connections", "simulation", "metrics"]
 __version__ = "0.1.0"
 
 # Public names and the submodule each comes from (None: the name is itself a submodule).
@@ -25,10 +25,11 @@ _ATTRS = {
     "MinimumEnergyFilter": "filters", "FilterState": "filters", "Trajectory": "filters", "Terms": "filters",
     "Connection": "connections", "connection": "connections",
     "simulate": "simulation", "SensorLog": "simulation", "Truth": "simulation",
+    "smooth": "smoothers", "Smoothed": "smoothers",
 }
 # Submodules reachable as attributes of the package without an explicit import.
 _SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "simulation", "filters", "codegen",
-                         "engines", "metrics", "studies", "reports"})
+                         "engines", "smoothers", "metrics", "studies", "reports"})
 # Modules (dotted below the package) that load without JAX: importing them does not run _config.
 _JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "_validate", "studies", "studies.registry",
                         "studies.commands", "studies.logs", "studies.runs", "studies.settings", "studies._schemas",
@@ -45,12 +46,14 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
         metrics,
         reports,
         simulation,
+        smoothers,
         studies,
         systems,
     )
     from .connections import Connection, connection
     from .filters import FilterState, MinimumEnergyFilter, Terms, Trajectory
     from .simulation import SensorLog, Truth, simulate
+    from .smoothers import Smoothed, smooth
 
 
 def _enable_float64() -> None:

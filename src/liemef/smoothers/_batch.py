@@ -1,0 +1,549 @@
+r"""The batch minimum-energy smoother: the minimizer of the discretized cost over a whole log, and the marginal
+covariance of every state (docs/smoothing.md).
+
+On the sample grid $t_0 < \dots < t_K$ with $\Delta_k = t_{k+1} - t_k$, the states $x_0..x_K \in G$ minimize
+
+$$
+J = \tfrac12\|x_0 \ominus g_0\|^2_{P_0^{-1}}
+  + \tfrac12\sum_{k<K}\|x_{k+1} \ominus \phi_{\Delta_k}(x_k, u_k, t_k)\|^2_{Q_k^{-1}}
+  + \tfrac12\sum_{k \le K}\sum_{b}\rho_b\bigl(|e_{k,b}|^2_{W_{k,b}}\bigr),
+\qquad e_k = y_k \ominus h(x_k, t_k),
+$$
+
+with $a \ominus b = \log(b^{-1}a)$ (liemef's left error), $\phi_\Delta$ one step of the integrator with the input
+held, $Q_k$ the process noise over the interval ($B R^{-1} B^\top \Delta_k$, or the system's
+:meth:`~liemef.systems.AbstractSystem.process_noise_at`), $W_k$ the information in force times $\Delta_k$
+(:func:`~liemef.filters.information_in_force`: a sample sensor's information once per sample, a density sensor's
+over its interval, none for a missing component) and $\rho_b$ each sensor's loss: $\rho(s) = s$, or Huber's /
+Cauchy's with the filter's scale, truncated at a gate's threshold. A sample sensor's sample $y_K$ at the log's last
+time measures $x_K$; a density sensor's last sample has no interval and does not enter.
+
+The minimizer is found by Levenberg-Marquardt on the whole trajectory (perturbations $x_k\exp\delta_k$,
+derivatives by autodiff). A robust sensor enters with the gradient $\rho' J^\top W e$ and the Hessian of its
+robust term where that is positive semidefinite (:func:`_measurement`). A trial step is kept only if the cost
+does not rise beyond its round-off (:data:`ROUNDOFF`). The normal equations are block-tridiagonal; one forward
+elimination and one backward substitution solve them
+(a Kalman smoother in information form), so each iteration is linear in the log's length. The marginal
+covariances are the diagonal blocks of the inverse Gauss-Newton Hessian at the minimizer, by the backward
+recursion $\Sigma_K = S_K^{-1}$, $\Sigma_k = S_k^{-1} + G_k\Sigma_{k+1}G_k^\top$, $G_k = S_k^{-1}C_k$ ($S_k$ the
+forward pass's information, $C_k$ the coupling of $x_k$ and $x_{k+1}$): the Rauch-Tung-Striebel covariances.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .. import _validate
+from ..engines import bucket
+from ..filters import FilterState, Weights, information_in_force
+from ..filters._base import AbstractFilter, check_log
+from ..groups import LieGroup
+from ..integrators import AbstractIntegrator
+from ..integrators import integrator as make_integrator
+from ..systems import AbstractSystem
+
+FLOOR_STD = 1e-6
+"""The smallest std of the prior and of the process noise per interval (coordinates' units): their eigenvalues
+are raised to ``FLOOR_STD**2``, so that a coordinate known exactly (a singular P0, a zero column of B) is a
+stiff prior rather than an infinite weight."""
+
+STATUSES = {
+    "converged": "the last accepted step was below the tolerance",
+    "max-iterations": "max_iterations steps were taken and the last accepted one was not below the tolerance",
+    "stalled": "no step lowered the cost, even with the largest damping (the estimate is the last accepted one)",
+    "failed": "the cost or the covariances are not finite (the estimates are NaN)",
+}
+"""A smoother run's status and what it means: only ``"converged"`` is ok."""
+
+ROUNDOFF = 64 * float(np.finfo(np.float64).eps)
+"""The cost's round-off, relative: a trial step is kept if it raises the cost by less than this times 1 + |J|
+(at the minimizer a step at the tolerance cannot lower a sum of thousands of terms in float64)."""
+_MAX_DAMPING = 1e12
+_CONVERGED_DAMPING = 1.0  # a step counts towards convergence only if its damping was below this
+
+
+class Smoothed(eqx.Module):
+    """A smoothed log: ``g[k]`` (batch (N,)) the estimate of the state at ``ts[k]`` from every sample of the log
+    and ``P[k]`` its marginal covariance (the left error $\\log(\\hat g^{-1} g)$, as a filter's K).
+
+    ``cost`` is the cost at the estimate and ``cost_init`` at the starting trajectory (``cost <= cost_init``),
+    ``gradient_norm`` the largest component of its gradient, ``iterations`` the Levenberg-Marquardt steps taken.
+    ``status`` (:data:`STATUSES`) says whether it converged; ``message`` says what happened in words.
+    """
+
+    ts: Float[Array, " N"]
+    g: LieGroup
+    P: Float[Array, "N n n"]
+    cost: Float[Array, ""]
+    cost_init: Float[Array, ""]
+    gradient_norm: Float[Array, ""]
+    iterations: int = eqx.field(static=True)
+    status: str = eqx.field(static=True)
+    message: str = eqx.field(static=True)
+
+    @property
+    def ok(self) -> bool:
+        """True if the smoother converged (:data:`STATUSES`)."""
+        return self.status == "converged"
+
+    def coords(self) -> Float[Array, "N c"]:
+        """The estimates in the group's coordinates."""
+        return self.g.coords()
+
+
+class Problem(eqx.Module):
+    """The cost's data, padded to a length bucket (every array a leaf, so a new log of the same bucket or a new
+    weight set reuses the compiled solver): the prior, the times, the held inputs, the samples (zeros where
+    missing), the present components, the intervals, the process information per interval and the measurement
+    information per state."""
+
+    g0: LieGroup
+    P0inv: Float[Array, "n n"]
+    ts: Float[Array, " M"]
+    us: Float[Array, "M m"]
+    ys: Float[Array, "M p"]
+    present: Any
+    dts: Float[Array, " K"]
+    Qinv: Float[Array, "K n n"]
+    W: Float[Array, "M p p"]
+
+
+# --- the cost -------------------------------------------------------------------------------------------------
+def _flow(system, integ, x, u, t, dt):
+    """``phi_dt(x, u, t)``: one integrator step with the input held."""
+    return integ.step(lambda g, v, s: (system.dynamics(g, u, s), ()), x, (), t, dt)[0]
+
+
+def _rho(s, screen):
+    """A sensor's loss ``rho(s)`` of the squared Mahalanobis distance ``s``, its derivative ``rho'(s)`` (the
+    weight) and ``D = 1 + 2 s rho''(s) / rho'(s)``, the curvature along the residual relative to the weight's:
+    Huber's or Cauchy's with scale c (the filter's weights ``min(1, c/d)`` and ``1/(1 + d^2/c^2)``),
+    truncated at a gate's threshold (weight 0 beyond it)."""
+    _, _, gate, robust, c = screen
+
+    def loss(s):
+        if robust == "huber":
+            root = jnp.sqrt(jnp.maximum(s, 1e-300))
+            inlier = s <= c * c
+            return (jnp.where(inlier, s, 2.0 * c * root - c * c), jnp.minimum(1.0, c / root),
+                    jnp.where(inlier, 1.0, 0.0))
+        if robust == "cauchy":
+            q = s / (c * c)
+            return c * c * jnp.log1p(q), 1.0 / (1.0 + q), (1.0 - q) / (1.0 + q)
+        return s, jnp.ones_like(s), jnp.ones_like(s)
+
+    r, w, D = loss(s)
+    if gate is not None:
+        out = s > gate
+        r = jnp.where(out, loss(jnp.asarray(gate, s.dtype))[0], r)
+        w = jnp.where(out, 0.0, w)
+    return r, w, D
+
+
+def _measurement(screens, W, rm):
+    """Half the measurement cost, the information of its gradient (each screened sensor's weighted by
+    ``rho'``) and of its Hessian. The Hessian's is the robust cost's own,
+    ``rho' W + 2 rho'' (W r)(W r)^T`` per sensor, where that is positive semidefinite (``D >= 0``: Huber's
+    loss, Cauchy's within its scale), so that Newton's convergence is quadratic where iteratively reweighted
+    least squares would be linear; where it is not (Cauchy's beyond its scale), its curvature along the
+    residual is dropped (``D`` raised to 0), as Newton's method with a modified Hessian does."""
+    quad = jnp.einsum("ki,kij,kj->k", rm, W, rm)
+    total = jnp.sum(quad)
+    scale = jnp.ones(rm.shape)
+    extra = jnp.zeros(W.shape)
+    for screen in screens:
+        a, b = screen[0], screen[1]
+        Wb = W[:, a:b, a:b]
+        Wr = jnp.einsum("kij,kj->ki", Wb, rm[:, a:b])
+        s = jnp.einsum("ki,ki->k", rm[:, a:b], Wr)
+        r, w, D = _rho(s, screen)
+        total = total + jnp.sum(r - s)
+        scale = scale.at[:, a:b].set(jnp.broadcast_to(w[:, None], (w.shape[0], b - a)))
+        coef = jnp.where(s > 0.0, w * (jnp.maximum(D, 0.0) - 1.0) / jnp.where(s > 0.0, s, 1.0), 0.0)
+        extra = extra.at[:, a:b, a:b].set(coef[:, None, None] * Wr[:, :, None] * Wr[:, None, :])
+    root = jnp.sqrt(scale)
+    Wg = W * root[:, :, None] * root[:, None, :]
+    return 0.5 * total, Wg, Wg + extra
+
+
+def _quad(r, M):
+    return jnp.einsum("...i,...ij,...j->...", r, M, r)
+
+
+def _cost(system, integ, screens, prob, xs):
+    """The cost J at the trajectory ``xs``."""
+    r0 = xs[0].rminus(prob.g0)
+    rp = jax.vmap(lambda x, y, u, t, dt: y.rminus(_flow(system, integ, x, u, t, dt)))(
+        xs[:-1], xs[1:], prob.us[:-1], prob.ts[:-1], prob.dts)
+    rm = jax.vmap(lambda x, y, t: system.output_seen_from(y, x, t) - y)(xs, prob.ys, prob.ts)
+    rm = jnp.where(prob.present, rm, 0.0)
+    return 0.5 * (_quad(r0, prob.P0inv) + jnp.sum(_quad(rp, prob.Qinv))) + _measurement(screens, prob.W, rm)[0]
+
+
+def _linearize(system, integ, screens, prob, xs):
+    """The Gauss-Newton normal equations at ``xs``: diagonal blocks D (M, n, n), couplings C (M-1, n, n) of
+    ``x_k`` and ``x_{k+1}``, the gradient (M, n) and the cost."""
+    n = type(prob.g0).tangent_dim
+    z = jnp.zeros(n)
+
+    def prior(x):
+        f = lambda d: x.rplus(d).rminus(prob.g0)  # noqa: E731
+        return f(z), jax.jacfwd(f)(z)
+
+    def proc(x, y, u, t, dt):
+        def f(da, db):
+            return y.rplus(db).rminus(_flow(system, integ, x.rplus(da), u, t, dt))
+        Ja, Jb = jax.jacfwd(f, argnums=(0, 1))(z, z)
+        return f(z, z), Ja, Jb
+
+    def meas(x, y, t, present):
+        f = lambda d: jnp.where(present, system.output_seen_from(y, x.rplus(d), t) - y, 0.0)  # noqa: E731
+        return f(z), jax.jacfwd(f)(z)
+
+    r0, J0 = prior(xs[0])
+    rp, Ja, Jb = jax.vmap(proc)(xs[:-1], xs[1:], prob.us[:-1], prob.ts[:-1], prob.dts)
+    rm, Jm = jax.vmap(meas)(xs, prob.ys, prob.ts, prob.present)
+    fm, Wg, Wh = _measurement(screens, prob.W, rm)
+    T = lambda A: jnp.swapaxes(A, -1, -2)  # noqa: E731
+    QJa, QJb, WJm = prob.Qinv @ Ja, prob.Qinv @ Jb, Wg @ Jm
+    D = T(Jm) @ Wh @ Jm
+    D = D.at[0].add(J0.T @ prob.P0inv @ J0)
+    D = D.at[:-1].add(T(Ja) @ QJa)
+    D = D.at[1:].add(T(Jb) @ QJb)
+    C = T(Ja) @ QJb
+    gr = jnp.einsum("kji,kj->ki", WJm, rm)
+    gr = gr.at[0].add(J0.T @ (prob.P0inv @ r0))
+    gr = gr.at[:-1].add(jnp.einsum("kji,kj->ki", QJa, rp))
+    gr = gr.at[1:].add(jnp.einsum("kji,kj->ki", QJb, rp))
+    cost = 0.5 * (_quad(r0, prob.P0inv) + jnp.sum(_quad(rp, prob.Qinv))) + fm
+    return D, C, gr, cost
+
+
+def _forward(D, C, rhs):
+    """Block elimination of the symmetric block-tridiagonal ``H`` (diagonal ``D``, upper blocks ``C``): the
+    information ``S_k`` of each state given the terms up to it, and the eliminated right-hand side."""
+
+    def fwd(carry, x):
+        S, zeta = carry
+        Dk, Ck, bk = x  # C_{k-1} couples k-1 and k
+        L = jnp.linalg.solve(S, Ck).T  # C^T S^{-1}
+        S1 = Dk - L @ Ck
+        z1 = bk - L @ zeta
+        return (S1, z1), (S1, z1)
+
+    _, (Ss, zs) = jax.lax.scan(fwd, (D[0], rhs[0]), (D[1:], C, rhs[1:]))
+    return jnp.concatenate([D[:1], Ss]), jnp.concatenate([rhs[:1], zs])
+
+
+def solve_tridiagonal(D, C, rhs):
+    """Solve the symmetric block-tridiagonal ``H x = rhs`` by forward elimination and backward substitution
+    (linear in the number of blocks)."""
+    Ss, zs = _forward(D, C, rhs)
+    xK = jnp.linalg.solve(Ss[-1], zs[-1])
+
+    def bwd(x_next, x):
+        Sk, zk, Ck = x
+        xk = jnp.linalg.solve(Sk, zk - Ck @ x_next)
+        return xk, xk
+
+    _, xs = jax.lax.scan(bwd, xK, (Ss[:-1], zs[:-1], C), reverse=True)
+    return jnp.concatenate([xs, xK[None]])
+
+
+def marginal_covariances(D, C):
+    """The diagonal blocks of ``H^{-1}`` for the symmetric positive definite block-tridiagonal ``H`` (diagonal
+    ``D``, upper blocks ``C``): ``Sigma_K = S_K^{-1}``, ``Sigma_k = S_k^{-1} + G_k Sigma_{k+1} G_k^T`` with
+    ``G_k = S_k^{-1} C_k`` (module docstring). NaN where ``H`` is not positive definite."""
+    n = D.shape[-1]
+    Ss, _ = _forward(D, C, jnp.zeros(D.shape[:-1]))
+    chol = jnp.linalg.cholesky(Ss)  # NaN where a pivot block is not positive definite
+    eye = jnp.eye(n)
+    Sinv = jax.vmap(lambda L: jax.scipy.linalg.cho_solve((L, True), eye))(chol)
+
+    def bwd(Sigma_next, x):
+        Si, Ck = x
+        G = Si @ Ck
+        Sigma = Si + G @ Sigma_next @ G.T
+        Sigma = 0.5 * (Sigma + Sigma.T)
+        return Sigma, Sigma
+
+    _, Sig = jax.lax.scan(bwd, Sinv[-1], (Sinv[:-1], C), reverse=True)
+    return jnp.concatenate([Sig, Sinv[-1:]])
+
+
+@eqx.filter_jit
+def _lm_step(system, integ, screens, prob, xs, mu):
+    """One damped Gauss-Newton step from ``xs``: the candidate, its cost, the cost at ``xs``, the largest
+    gradient component and the step's largest component."""
+    n = type(prob.g0).tangent_dim
+    D, C, gr, f = _linearize(system, integ, screens, prob, xs)
+    Dd = D + mu * jnp.einsum("kii->ki", D)[..., None] * jnp.eye(n)  # Marquardt's damping
+    delta = solve_tridiagonal(Dd, C, -gr)
+    cand = xs.rplus(delta)
+    return cand, _cost(system, integ, screens, prob, cand), f, jnp.max(jnp.abs(gr)), jnp.max(jnp.abs(delta))
+
+
+@eqx.filter_jit
+def _at_minimum(system, integ, screens, prob, xs):
+    """The marginal covariances, the cost and the largest gradient component at ``xs``."""
+    D, C, gr, f = _linearize(system, integ, screens, prob, xs)
+    return marginal_covariances(D, C), f, jnp.max(jnp.abs(gr))
+
+
+@eqx.filter_jit
+def dead_reckoning(system, integ, x0, ts, us):
+    def body(g, x):
+        t, u, dt = x
+        nxt = _flow(system, integ, g, u, t, dt)
+        return nxt, nxt
+
+    _, gs = jax.lax.scan(body, x0, (ts[:-1], us[:-1], jnp.diff(ts)))
+    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), x0, gs)
+
+
+@eqx.filter_jit
+def _process_noise(system, BRB, xs, us, ts):
+    return jax.vmap(lambda x, u, t: system.process_noise_at(x, BRB, u, t))(xs, us, ts)
+
+
+def floor(P, std: float) -> np.ndarray:
+    """``P`` (symmetric, optional leading batch axes) with its eigenvalues raised to ``std**2``."""
+    P = np.asarray(P, dtype=np.float64)
+    lam, V = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
+    return (V * np.maximum(lam, std**2)[..., None, :]) @ np.swapaxes(V, -1, -2)
+
+
+# --- the problem's data ---------------------------------------------------------------------------------------
+def _held(us: np.ndarray, u0: np.ndarray) -> np.ndarray:
+    """The inputs with a missing (NaN) component holding the last present one (``u0`` before the first)."""
+    out = us.copy()
+    last = u0.copy()
+    for k in range(out.shape[0]):
+        bad = ~np.isfinite(out[k])
+        out[k, bad] = last[bad]
+        last = out[k]
+    return out
+
+
+def _screens(system: AbstractSystem) -> tuple:
+    """The sensors with a gate or a robust loss, as static tuples ``(start, stop, gate, robust, scale)``. A
+    sensor system's noise is block-diagonal by sensor, so each such sensor's distance is of its own block."""
+    return tuple((b.start, b.stop, None if b.gate_threshold is None else float(b.gate_threshold), b.robust,
+                  float(b.robust_scale)) for b in system.blocks()
+                 if b.gate_threshold is not None or b.robust is not None)
+
+
+def _sample_components(system: AbstractSystem) -> np.ndarray:
+    """Per output component, whether its sensor has sample meaning (else density)."""
+    sample = np.zeros(system.output_dim, bool)
+    for b in system.blocks():
+        sample[b.start:b.stop] = b.sample
+    return sample
+
+
+def sample_information(system: AbstractSystem, weights: Weights, diagonal: bool, ts: np.ndarray, ys: np.ndarray, *,
+                       gap: float = math.inf, last_sample: bool = True) -> tuple[np.ndarray, np.ndarray, Array]:
+    """Per state k of a log: which components of ``ys[k]`` enter (present, and a density sample only where it
+    has an interval that is not a gap), the samples with zeros elsewhere, and W_k, the information in force
+    over the interval after t_k times its length (at the last state, which has no interval, a sample sensor's
+    per-sample information), with the sensors' time-varying weights and sample-dependent noise (``adaptive``)
+    applied as the filters apply them. ``last_sample=False``: the last row does not enter (the filter's
+    information set at ``ts[-1]``)."""
+    N = ts.shape[0]
+    dts = np.diff(ts)
+    sample = _sample_components(system)
+    present = np.isfinite(ys)
+    present[:-1] &= ~((dts > gap)[:, None] & ~sample[None, :])  # density samples are not held across a gap
+    present[N - 1] &= sample if last_sample else False  # a density sample at the last time has no interval
+    yz = np.where(present, np.nan_to_num(ys, nan=0.0), 0.0)
+    dt_ext = jnp.asarray(np.concatenate([dts, [1.0]]))
+    W = jax.vmap(lambda m, dt: information_in_force(jnp.asarray(weights.Wy), jnp.asarray(sample), m, dt,
+                                                    diagonal=diagonal) * dt)(jnp.asarray(present), dt_ext)
+    blocks = system.blocks()
+    if any(b.adaptive for b in blocks):
+        T = jax.vmap(system.sample_transform)(jnp.asarray(yz))
+        W = jnp.swapaxes(T, -1, -2) @ W @ T
+    factor = jnp.ones((N, system.output_dim))
+    for b in blocks:
+        if b.weight_fn is not None:
+            w = jax.vmap(lambda t, fn=b.weight_fn: jnp.asarray(fn(t), jnp.float64))(jnp.asarray(ts))
+            factor = factor.at[:, b.start:b.stop].set(jnp.broadcast_to(w[:, None], (N, b.dim)))
+    root = jnp.sqrt(factor)
+    return present, yz, W * root[:, :, None] * root[:, None, :]
+
+
+def problem(system: AbstractSystem, weights: Weights, diagonal: bool, ts, us, ys, g0: LieGroup, P0, *,
+            init: LieGroup, integ: AbstractIntegrator, gap: float = math.inf, last_sample: bool = True,
+            floor_std: float = FLOOR_STD) -> tuple[Problem, LieGroup]:
+    """The cost's data for a checked log (``us`` with missing inputs already held), padded to a length bucket,
+    and ``init`` extended over the padding by dead reckoning. The padded states carry no sample: they are free
+    extrapolations whose terms vanish at the minimum and leave the log's states and their marginals unchanged.
+    ``last_sample``: :func:`sample_information`. The process noise is evaluated on ``init``."""
+    N = ts.shape[0]
+    pad = bucket(N - 1) + 1 - N
+    dt_last = ts[-1] - ts[-2]
+    tsp = np.concatenate([ts, ts[-1] + dt_last * np.arange(1, pad + 1)])
+    usp = np.concatenate([us, np.repeat(us[-1:], pad, axis=0)])
+    ysp = np.concatenate([ys, np.full((pad, ys.shape[1]), np.nan)])
+    if not last_sample:
+        ysp[N - 1] = np.nan
+    present, yz, W = sample_information(system, weights, diagonal, tsp, ysp, gap=gap)
+    if last_sample:  # a density sample at the log's last time has no interval, even where padding gives it one
+        present[N - 1] &= _sample_components(system)
+        yz[N - 1] = np.where(present[N - 1], yz[N - 1], 0.0)
+        W = W.at[N - 1].multiply(jnp.outer(present[N - 1], present[N - 1]))
+    dts = np.diff(tsp)
+    tsj, usj = jnp.asarray(tsp), jnp.asarray(usp)
+    if pad:
+        tail = dead_reckoning(system, integ, init[-1], tsj[N - 1:], usj[N - 1:])
+        init = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[1:]]), init, tail)
+    BRB = jnp.asarray(weights.BRB)
+    if system.constant_process_noise:
+        Qd = np.asarray(BRB)[None] * dts[:, None, None]
+    else:
+        Qd = np.asarray(_process_noise(system, BRB, init[:-1], usj[:-1], tsj[:-1])) * dts[:, None, None]
+    Qinv = np.linalg.inv(floor(Qd, floor_std))
+    prob = Problem(g0=g0, P0inv=jnp.asarray(np.linalg.inv(floor(P0, floor_std))), ts=tsj, us=usj,
+                   ys=jnp.asarray(yz), present=jnp.asarray(present), dts=jnp.asarray(dts), Qinv=jnp.asarray(Qinv),
+                   W=W)
+    return prob, init
+
+
+def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, prob: Problem, xs: LieGroup, N: int,
+             *, max_iterations: int, tol: float) -> tuple[LieGroup, Array, Array, Array, Array, int, str, str]:
+    """Levenberg-Marquardt from ``xs`` (module docstring). Returns the trajectory and the marginal covariances
+    of the first ``N`` states, the cost there and at ``xs``, the largest gradient component, the iterations,
+    the status and its message."""
+    mu, it, status = 0.0, 0, "max-iterations"
+    cost_init = None
+    while it < max_iterations:
+        cand, fc, f, _, step = _lm_step(system, integ, screens, prob, xs, jnp.asarray(mu))
+        it += 1
+        if cost_init is None:
+            cost_init = f
+            if not bool(jnp.isfinite(f)):
+                status = "failed"
+                break
+        if bool(jnp.isfinite(fc)) and float(fc) <= float(f) + ROUNDOFF * (1.0 + abs(float(f))):
+            used, xs, mu = mu, cand, mu / 10.0
+            if float(step) < tol and used < _CONVERGED_DAMPING:
+                status = "converged"
+                break
+        else:
+            mu = max(10.0 * mu, 1e-8)
+            if mu > _MAX_DAMPING:
+                status = "stalled"
+                break
+    P, f, gn = _at_minimum(system, integ, screens, prob, xs)
+    g, P = xs[:N], P[:N]
+    finite = bool(jnp.isfinite(f)) and bool(jnp.all(jnp.isfinite(P)))
+    if status == "failed" or not finite:
+        status = "failed"
+        g = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan), g)
+        P = jnp.full_like(P, jnp.nan)
+        why = ("the cost is not finite at the starting trajectory" if cost_init is not None
+               and not bool(jnp.isfinite(cost_init)) else
+               "the cost or the Hessian at the estimate is not finite, or the Hessian is not positive definite")
+        message = f"failed after {it} iteration(s): {why}"
+    else:
+        message = {"converged": f"converged in {it} iteration(s): the last step was below {tol:g}",
+                   "max-iterations": f"not converged: {it} iteration(s) taken, the last accepted step was not "
+                                     f"below {tol:g}",
+                   "stalled": f"stalled after {it} iteration(s): no step lowered the cost"}[status]
+    return g, P, f, cost_init, gn, it, status, message
+
+
+def _filled(system, integ, g: LieGroup, ts, us) -> LieGroup:
+    """``g`` with any states from the first non-finite one on replaced by dead reckoning from the state before
+    it (a filter's trajectory is NaN after a failure)."""
+    bad = np.zeros(ts.shape[0], bool)
+    for leaf in jax.tree_util.tree_leaves(g):
+        a = np.asarray(leaf)
+        bad |= ~np.all(np.isfinite(a.reshape(a.shape[0], -1)), axis=1)
+    if not bad.any():
+        return g
+    k = int(np.argmax(bad))
+    k = max(k, 1)
+    tail = dead_reckoning(system, integ, g[k - 1], jnp.asarray(ts[k - 1:]), jnp.asarray(us[k - 1:]))
+    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[:k - 1], b]), g, tail)
+
+
+def _check_options(max_iterations, tol, floor_std):
+    if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
+        raise ValueError(f"max_iterations: expected an integer >= 1, got {max_iterations!r}")
+    tol = _validate.nonnegative("tol", tol)
+    if not (isinstance(floor_std, int | float) and not isinstance(floor_std, bool) and math.isfinite(floor_std)
+            and floor_std > 0):
+        raise ValueError(f"floor_std: expected a std > 0, got {floor_std!r}")
+    return tol
+
+
+def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"] | None,
+           ys: Float[ArrayLike, "N p"], *, gap: float | None = None, init: LieGroup | None = None,
+           integrator: str | AbstractIntegrator | None = None, max_iterations: int = 200, tol: float = 1e-9,
+           floor_std: float = FLOOR_STD) -> Smoothed:
+    r"""Smooth a whole log: the minimizer of the cost of the model ``flt`` runs (module docstring) over every
+    state, with the marginal covariance of each.
+
+    The log has the filter's layout and conventions (:meth:`~liemef.MinimumEnergyFilter.run`): ``ts`` (N,),
+    ``us`` (N, m), ``ys`` (N, p); NaN in ``ys`` is a missing sample, NaN in ``us`` holds the last input; each
+    sensor at its own rate, with its residual (angles wrap, directions and rotations on their manifolds), its
+    gate or robust loss and its time-varying weight. The prior is the filter's initial state: ``state.g_hat``
+    and the covariance ``state.K`` (singular allowed: floored at ``floor_std``). The weights are the filter's
+    (``flt.weights``), so a tuned filter is smoothed with its own weights.
+
+    Args:
+        flt: the filter whose model is smoothed (:class:`~liemef.MinimumEnergyFilter` or a baseline).
+        state: its initial state (:meth:`~liemef.MinimumEnergyFilter.init`), the prior.
+        ts: (N,) strictly increasing sample times.
+        us: (N, m) inputs (NaN: hold the last), or None for a system without inputs.
+        ys: (N, p) samples (NaN: missing).
+        gap: an interval longer than this holds no density sample, as in the filter (default: 10 times the
+            median interval).
+        init: the starting trajectory (batch (N,)); default: the filter's own run over the log (where that run
+            failed, dead reckoning from its last good state).
+        integrator: the process model's one step per interval (default: the filter's integrator, else RKMK4).
+        max_iterations: the most Levenberg-Marquardt steps, accepted or not. Gauss-Newton converges
+            quadratically where the residuals at the minimizer are small, and only linearly where they are large
+            (samples that the model cannot fit): then it takes tens of steps.
+        tol: converged when an accepted step's largest component is below it.
+        floor_std: the floor of the prior's and the process noise's stds (:data:`FLOOR_STD`).
+
+    Returns:
+        :class:`Smoothed`. A run that does not converge says so in ``status`` and ``message``; one whose cost
+        or covariances are not finite has status ``"failed"`` and NaN estimates: failures are values.
+    """
+    if not isinstance(flt, AbstractFilter):
+        raise ValueError(f"flt: expected a liemef filter (MinimumEnergyFilter or a baseline), got {type(flt).__name__}")
+    flt._check_state(state)
+    flt._check_element("state.g_hat", state.g_hat)
+    system = flt.system
+    n = system.group.tangent_dim
+    P0 = _validate.symmetric_psd("state.K", state.K, n, definite=False)
+    tol = _check_options(max_iterations, tol, floor_std)
+    ts, us, ys, gap = check_log(flt, ts, us, ys, (), gap)
+    N = ts.shape[0]
+    if init is not None and (not isinstance(init, system.group) or init.batch_shape != (N,)):
+        raise ValueError(f"init: expected a {system.group.__name__} of batch shape ({N},), got "
+                         f"{type(init).__name__} {getattr(init, 'batch_shape', None)}")
+    if integrator is None:
+        integrator = getattr(flt, "integrator", None) or "rkmk4"
+    integ = make_integrator(integrator)
+    screens = _screens(system)
+    held = _held(us, np.asarray(state.u_last, dtype=np.float64))
+    if init is None:
+        init = flt.run(state, ts, us, ys, gap=gap).g_hat
+    init = _filled(system, integ, init, ts, held)
+    prob, xs = problem(system, flt.weights, bool(flt.diagonal), ts, held, ys, state.g_hat, P0, init=init,
+                       integ=integ, gap=gap, floor_std=floor_std)
+    g, P, f, f0, gn, it, status, message = minimize(system, integ, screens, prob, xs, N,
+                                                    max_iterations=max_iterations, tol=tol)
+    return Smoothed(ts=jnp.asarray(ts), g=g, P=P, cost=f, cost_init=f0, gradient_norm=gn, iterations=it,
+                    status=status, message=message)
