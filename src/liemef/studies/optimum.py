@@ -67,13 +67,14 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .. import _validate
-from ..engines import bucket
+from ..filters import Weights
 from ..groups import R3, SE2, SO3, TSO3, LieGroup
+from ..integrators import LieEuler
+from ..smoothers import _batch as _smoothers
 from ..systems import AbstractSystem
 
-FLOOR_STD = 1e-6
-"""The smallest std of the prior and of the process noise per interval (coordinates' units): the eigenvalues of
-P0 and Q_k are raised to ``FLOOR_STD**2``, so that a singular one (a coordinate known exactly) is a stiff prior."""
+FLOOR_STD = _smoothers.FLOOR_STD
+"""The smallest std of the prior and of the process noise per interval (:data:`liemef.smoothers.FLOOR_STD`)."""
 SOLVERS = ("isam2", "isam2-dogleg", "jax")
 """The solvers of :func:`map_estimates`: iSAM2 with Gauss-Newton or Powell's dogleg steps, or :func:`batch_map`
 on every prefix."""
@@ -110,43 +111,20 @@ def _check_log(system: AbstractSystem, ts, us, ys, g0, P0, floor_std):
     return ts, us, ys, P0
 
 
-def _floor(P, std: float) -> np.ndarray:
-    """``P`` (symmetric, optional leading batch axes) with its eigenvalues raised to ``std**2`` (NumPy: no
-    compilation)."""
-    P = np.asarray(P, dtype=np.float64)
-    lam, V = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
-    return (V * np.maximum(lam, std**2)[..., None, :]) @ np.swapaxes(V, -1, -2)
-
-
 def _weights(system: AbstractSystem, ts, ys, floor_std):
-    """Per interval k < K: dt_k, Q_k (process noise over dt_k, floored) and the measurement information W_k.
-
-    W_k is :func:`~liemef.filters.information_in_force` times dt_k (the information of the present components'
-    marginal; per sample for sample sensors, times dt_k for density ones), in NumPy on each distinct mask."""
+    """Per interval k < K: dt_k, Q_k (the process noise over dt_k, floored) and the measurement information W_k
+    (the smoother's, :func:`liemef.smoothers._batch.sample_information`, with the last row left out)."""
+    weights = Weights.of(system)
+    Wy = np.asarray(weights.Wy)
+    ys = np.array(ys, dtype=np.float64)
+    ys[-1] = np.nan
+    _, _, W = _smoothers.sample_information(system, weights, bool(np.array_equal(Wy, np.diag(np.diag(Wy)))), ts, ys)
     dts = np.diff(ts)
-    B, R = np.asarray(system.B), np.asarray(system.R)
-    BRB = B @ np.linalg.solve(R, B.T)
-    Qd = _floor(BRB[None] * dts[:, None, None], floor_std)
-    p = system.output_dim
-    scale_sample = np.zeros(p, bool)
-    for b in system.blocks():
-        scale_sample[b.start:b.stop] = b.sample
-    Sigma = np.linalg.inv(np.asarray(system.information()))
-    masks = np.isfinite(ys[:-1])
-    W = np.zeros((dts.size, p, p))
-    for mask in np.unique(masks, axis=0):
-        S = np.flatnonzero(mask)
-        if S.size == 0:
-            continue
-        Wm = np.zeros((p, p))
-        Wm[np.ix_(S, S)] = np.linalg.inv(Sigma[np.ix_(S, S)])
-        rows = np.all(masks == mask, axis=1)
-        c = np.where(scale_sample[None, :], 1.0, dts[rows, None])  # (k, p): 1 per sample, dt for a density
-        W[rows] = Wm[None] * np.sqrt(c[:, :, None] * c[:, None, :])
-    return jnp.asarray(dts), jnp.asarray(Qd), jnp.asarray(W)
+    Qd = _smoothers.floor(np.asarray(weights.BRB)[None] * dts[:, None, None], floor_std)
+    return dts, Qd, np.asarray(W[:-1])
 
 
-# --- the generic batch solver (JAX) ---------------------------------------------------------------------------
+# --- the generic batch solver (the smoother's, on the filter's information set) -------------------------------
 class BatchMAP(eqx.Module):
     r"""The minimizer of the discretized cost (module docstring) over $[t_0, t_K]$.
 
@@ -171,137 +149,19 @@ class BatchMAP(eqx.Module):
         return self.g[-1]
 
 
-@eqx.filter_jit
-def _dead_reckoning(system, g0, ts, us):
-    dts = jnp.diff(ts)
-
-    def body(g, x):
-        t, u, dt = x
-        nxt = g.rplus(system.dynamics(g, u, t) * dt)
-        return nxt, nxt
-
-    _, gs = jax.lax.scan(body, g0, (ts[:-1], us[:-1], dts))
-    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), g0, gs)
-
-
-def _residuals(system, g0, ts, us, yz, dts, xs):
-    """Prior, process (K) and measurement (K) residuals at the trajectory ``xs``."""
-    r0 = xs[0].rminus(g0)
-    a, b = xs[:-1], xs[1:]
-
-    def proc(x, y, u, t, dt):
-        return y.rminus(x.rplus(system.dynamics(x, u, t) * dt))
-
-    def meas(x, y, t):
-        return system.output_seen_from(y, x, t) - y
-
-    rp = jax.vmap(proc)(a, b, us[:-1], ts[:-1], dts)
-    rm = jax.vmap(meas)(a, yz[:-1], ts[:-1])
-    return r0, rp, rm
-
-
-def _cost(r0, rp, rm, P0inv, Qinv, W):
-    q = lambda r, M: jnp.einsum("...i,...ij,...j->...", r, M, r)  # noqa: E731
-    return 0.5 * (q(r0, P0inv) + jnp.sum(q(rp, Qinv)) + jnp.sum(q(rm, W)))
-
-
-def _linearize(system, g0, ts, us, yz, dts, xs, P0inv, Qinv, W):
-    """Block-tridiagonal normal equations: diagonal D (K+1, n, n), upper C (K, n, n), gradient g (K+1, n)."""
-    n = type(g0).tangent_dim
-    z = jnp.zeros(n)
-
-    def prior(x):
-        f = lambda d: x.rplus(d).rminus(g0)  # noqa: E731
-        return f(z), jax.jacfwd(f)(z)
-
-    def proc(x, y, u, t, dt):
-        def f(da, db):
-            xa = x.rplus(da)
-            return y.rplus(db).rminus(xa.rplus(system.dynamics(xa, u, t) * dt))
-        Ja, Jb = jax.jacfwd(f, argnums=(0, 1))(z, z)
-        return f(z, z), Ja, Jb
-
-    def meas(x, y, t):
-        f = lambda d: system.output_seen_from(y, x.rplus(d), t) - y  # noqa: E731
-        return f(z), jax.jacfwd(f)(z)
-
-    r0, J0 = prior(xs[0])
-    rp, Ja, Jb = jax.vmap(proc)(xs[:-1], xs[1:], us[:-1], ts[:-1], dts)
-    rm, Jm = jax.vmap(meas)(xs[:-1], yz[:-1], ts[:-1])
-    T = lambda A: jnp.swapaxes(A, -1, -2)  # noqa: E731
-    QJa, QJb, WJm = Qinv @ Ja, Qinv @ Jb, W @ Jm
-    D = jnp.zeros((xs.batch_shape[0], n, n))
-    D = D.at[0].add(J0.T @ P0inv @ J0)
-    D = D.at[:-1].add(T(Ja) @ QJa + T(Jm) @ WJm)
-    D = D.at[1:].add(T(Jb) @ QJb)
-    C = T(Ja) @ QJb
-    gr = jnp.zeros((xs.batch_shape[0], n))
-    gr = gr.at[0].add(J0.T @ (P0inv @ r0))
-    gr = gr.at[:-1].add(jnp.einsum("kji,kj->ki", QJa, rp) + jnp.einsum("kji,kj->ki", WJm, rm))
-    gr = gr.at[1:].add(jnp.einsum("kji,kj->ki", QJb, rp))
-    # D_a[k]: the part of D[k] from the process term k -> k+1 (removed for a marginal of x_k)
-    return D, C, gr, _cost(r0, rp, rm, P0inv, Qinv, W), T(Ja) @ QJa
-
-
-def _solve_tridiagonal(D, C, rhs):
-    """Solve the symmetric block-tridiagonal ``H x = rhs`` (diagonal ``D``, upper blocks ``C``) by block
-    elimination forward and substitution backward (the information form of a Kalman smoother). Also returns
-    the forward pass's information matrices ``S_k``: ``S_k^{-1}`` is the covariance of state k given the terms
-    up to k (the filter's covariance)."""
-
-    def fwd(carry, x):
-        S, zeta = carry
-        Dk, Ck, bk = x  # C_{k-1} couples k-1 and k
-        L = jnp.linalg.solve(S, Ck).T  # C^T S^{-1}
-        S1 = Dk - L @ Ck
-        z1 = bk - L @ zeta
-        return (S1, z1), (S1, z1)
-
-    S0, z0 = D[0], rhs[0]
-    _, (Ss, zs) = jax.lax.scan(fwd, (S0, z0), (D[1:], C, rhs[1:]))
-    Ss = jnp.concatenate([S0[None], Ss])
-    zs = jnp.concatenate([z0[None], zs])
-    xK = jnp.linalg.solve(Ss[-1], zs[-1])
-
-    def bwd(x_next, x):
-        Sk, zk, Ck = x
-        xk = jnp.linalg.solve(Sk, zk - Ck @ x_next)
-        return xk, xk
-
-    _, xs = jax.lax.scan(bwd, xK, (Ss[:-1], zs[:-1], C), reverse=True)
-    return jnp.concatenate([xs, xK[None]]), Ss
-
-
-@eqx.filter_jit
-def _lm_step(system, g0, ts, us, yz, dts, P0inv, Qinv, W, xs, mu, last):
-    """One damped Gauss-Newton step from ``xs``: the candidate, its cost, the cost and gradient at ``xs``, the
-    step's largest component and the Laplace covariance of state ``last`` (undamped when ``mu = 0``)."""
-    n = type(g0).tangent_dim
-    D, C, gr, f, Da = _linearize(system, g0, ts, us, yz, dts, xs, P0inv, Qinv, W)
-    # Marquardt's damping on the diagonal of the Gauss-Newton Hessian
-    Dd = D + mu * jnp.einsum("kii->ki", D)[..., None] * jnp.eye(n)
-    delta, Ss = _solve_tridiagonal(Dd, C, -gr)
-    cand = xs.rplus(delta)
-    fc = _cost(*_residuals(system, g0, ts, us, yz, dts, cand), P0inv, Qinv, W)
-    # The forward pass's S_last is the information of x_last given the terms up to it and the process term to
-    # x_{last+1}; without the latter (no data after it) it is the marginal's.
-    K = C.shape[0]
-    S = Ss[last] - jnp.where(last < K, Da[jnp.minimum(last, K - 1)], 0.0)
-    return cand, fc, f, jnp.max(jnp.abs(gr)), jnp.max(jnp.abs(delta)), jnp.linalg.inv(S)
-
-
 def batch_map(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"] | None,
               ys: Float[ArrayLike, "N p"], g0: LieGroup, P0: Float[ArrayLike, "n n"], *,
               init: LieGroup | None = None, max_iterations: int = 100, tol: float = 1e-10,
               floor_std: float = FLOOR_STD) -> BatchMAP:
     r"""The minimizer of the discretized cost (module docstring) over the whole log, for any liemef system.
 
-    Levenberg-Marquardt-damped Gauss-Newton on the trajectory $x_0..x_K$ (perturbations $x_k\exp\delta_k$,
-    derivatives by autodiff); each step's normal equations are block-tridiagonal and solved by one forward
-    elimination and one backward substitution (a Kalman smoother in information form), linear in K.
+    The smoother's solver (:mod:`liemef.smoothers`: Levenberg-Marquardt on the trajectory $x_0..x_K$, each
+    step's block-tridiagonal normal equations solved by a Kalman smoother in information form, linear in K) on
+    this module's cost: the system's nominal weights, one Lie-Euler step per interval, the Gaussian loss, and
+    the last row's samples left out, so that ``g[-1]`` has the filter's information set.
 
     Args:
-        system: any liemef system (:class:`~liemef.systems.AbstractSystem`).
+        system: any liemef system (:class:`~liemef.systems.AbstractSystem`) whose process noise is constant.
         ts: (N,) strictly increasing sample times.
         us: (N, m) inputs (finite), each held over its interval; row N-1 does not enter.
         ys: (N, p) outputs with NaN for missing samples; row N-1 does not enter.
@@ -325,37 +185,17 @@ def batch_map(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[Arra
     if init is not None and (not isinstance(init, system.group) or init.batch_shape != (N,)):
         raise ValueError(f"init: expected a {system.group.__name__} of batch shape ({N},), got "
                          f"{type(init).__name__} {getattr(init, 'batch_shape', None)}")
-    # Padded to a length bucket (one compilation per bucket): the padded states carry no data, so they are
-    # free extrapolations whose terms vanish at the minimum and leave x_0..x_{N-1} unchanged.
-    pad = bucket(N - 1) + 1 - N
-    dt_last = ts[-1] - ts[-2]
-    tsp = np.concatenate([ts, ts[-1] + dt_last * np.arange(1, pad + 1)])
-    usp = np.concatenate([us, np.repeat(us[-1:], pad, axis=0)])
-    ysp = np.concatenate([ys, np.full((pad, ys.shape[1]), np.nan)])
-    ysp[N - 1] = np.nan  # the last sample does not enter (module docstring)
-    dts, Qd, W = _weights(system, tsp, ysp, floor_std)
-    P0inv = jnp.asarray(np.linalg.inv(_floor(P0, floor_std)))
-    Qinv = jnp.asarray(np.linalg.inv(np.asarray(Qd)))
-    tsj, usj, yz = jnp.asarray(tsp), jnp.asarray(usp), jnp.asarray(np.nan_to_num(ysp, nan=0.0))
-    xs = _dead_reckoning(system, g0, tsj, usj)
-    if init is not None:
-        xs = jax.tree_util.tree_map(lambda a, b: a.at[:N].set(b), xs, init)
-    args = (system, g0, tsj, usj, yz, dts, P0inv, Qinv, W)
-    last = jnp.asarray(N - 1)
-    mu, converged, it = 0.0, False, 0
-    while it < max_iterations and not converged:
-        cand, fc, f, _, step, _ = _lm_step(*args, xs, jnp.asarray(mu), last)
-        it += 1
-        if bool(jnp.isfinite(fc)) and float(fc) <= float(f):
-            xs, mu = cand, mu / 10.0
-            converged = float(step) < tol
-        else:
-            mu = max(10.0 * mu, 1e-8)
-            if mu > 1e12:
-                break
-    _, _, f, gn, _, P_last = _lm_step(*args, xs, jnp.asarray(0.0), last)
-    return BatchMAP(ts=jnp.asarray(ts), g=xs[:N], P_last=P_last, cost=f, gradient_norm=gn,
-                    iterations=jnp.asarray(it), converged=jnp.asarray(converged))
+    integ = LieEuler()
+    if init is None:
+        init = _smoothers.dead_reckoning(system, integ, g0, jnp.asarray(ts), jnp.asarray(us))
+    weights = Weights.of(system)
+    Wy = np.asarray(weights.Wy)
+    prob, xs = _smoothers.problem(system, weights, bool(np.array_equal(Wy, np.diag(np.diag(Wy)))), ts, us, ys, g0,
+                                  P0, init=init, integ=integ, last_sample=False, floor_std=floor_std)
+    g, P, f, _, gn, it, status, _ = _smoothers.minimize(system, integ, (), prob, xs, N,
+                                                        max_iterations=max_iterations, tol=tol)
+    return BatchMAP(ts=jnp.asarray(ts), g=g, P_last=P[-1], cost=f, gradient_norm=gn, iterations=jnp.asarray(it),
+                    converged=jnp.asarray(status == "converged"))
 
 
 # --- per-step MAP with GTSAM's iSAM2 --------------------------------------------------------------------------
@@ -660,7 +500,7 @@ def map_estimates(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[
         import gtsam
 
         _, Qd, W = _weights(system, ts, ys, floor_std)
-        P0f, Qd, W = _floor(P0, floor_std), np.asarray(Qd), np.asarray(W)
+        P0f = _smoothers.floor(P0, floor_std)
         run = _localization if kind == "localization" else _attitude
         g, smoothed, updates = run(gtsam, system, ts, us, ys, g0, P0f, Qd, W, solver, thr, max_updates, every,
                                    progress)
