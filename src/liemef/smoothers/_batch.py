@@ -73,7 +73,7 @@ class Smoothed(eqx.Module):
     """A smoothed log: ``g[k]`` (batch (N,)) the estimate of the state at ``ts[k]`` from every sample of the log
     and ``P[k]`` its marginal covariance (the left error $\\log(\\hat g^{-1} g)$, as a filter's K).
 
-    ``cost`` is the cost at the estimate and ``cost_init`` at the starting trajectory (``cost <= cost_init``),
+    ``cost`` is the cost at the estimate and ``cost_init`` at the starting trajectory (no lower, to round-off),
     ``gradient_norm`` the largest component of its gradient, ``iterations`` the Levenberg-Marquardt steps taken.
     ``status`` (:data:`STATUSES`) says whether it converged; ``message`` says what happened in words.
     """
