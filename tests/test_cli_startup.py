@@ -24,7 +24,7 @@ from liemef.studies.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
 
 HEAVY = ("jax", "jaxlib", "numpy", "matplotlib", "equinox", "liemef.studies.experiments", "liemef.reports.plots",
          "liemef._config")
-COMMANDS = ("reproduce", "montecarlo", "run", "export-c")
+COMMANDS = ("reproduce", "montecarlo", "run", "smooth", "export-c")
 HELP_ARGS = (["--help"], ["-h"], ["--version"], ["reproduce", "--help"], ["run", "--help"],
              ["montecarlo", "--help"], ["export-c", "--help"])
 
@@ -147,8 +147,8 @@ def test_the_choices_of_the_cli_are_the_registry():
 
 def test_the_lazy_package_keeps_its_public_surface():
     assert liemef.__all__ == ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection",
-                              "connection", "simulate", "SensorLog", "Truth", "groups", "systems", "connections",
-                              "simulation", "metrics"]
+                              "connection", "simulate", "SensorLog", "Truth", "smooth", "Smoothed", "groups",
+                              "systems", "connections", "simulation", "metrics"]
     assert liemef.__version__ == "0.1.0"
     namespace: dict = {}
     exec("from liemef import *", namespace)  # noqa: S102

@@ -29,6 +29,7 @@ from .reports import outputs
 from .studies import commands, registry
 
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INCONSISTENT, EXIT_NONLINEAR, EXIT_INTERRUPTED = 1, 2, 3, 4, 130
+EXIT_NOT_CONVERGED = 5
 
 
 class _Commands(click.Group):
@@ -169,6 +170,28 @@ def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k
                                chunk=chunk, progress=progress, monitor=monitor)
     _echo(saved)
     if saved.run.inconsistent:  # the outputs are written: an exit status of its own, for scripts
+        click.get_current_context().exit(EXIT_INCONSISTENT)
+    if saved.run.nonlinear:
+        click.get_current_context().exit(EXIT_NONLINEAR)
+
+
+@_command(cli, "smooth")
+def smooth_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
+               alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings, monitor,
+               max_iterations, tol, force, progress):
+    from .studies import logs
+
+    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
+                               topics=topics, params=params_file, settings=settings, x0=_floats(x0, "'--x0'"),
+                               K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
+                               force=force, connection=connection, order=order, alpha=alpha,
+                               interpolation=interpolation, updates=updates, curvature=curvature, error=error,
+                               substeps=_substeps(substeps), gap=gap, chunk=chunk, progress=progress,
+                               monitor=monitor, smooth={"max_iterations": max_iterations, "tol": tol})
+    _echo(saved)
+    if saved.run.not_converged:
+        click.get_current_context().exit(EXIT_NOT_CONVERGED)
+    if saved.run.inconsistent:
         click.get_current_context().exit(EXIT_INCONSISTENT)
     if saved.run.nonlinear:
         click.get_current_context().exit(EXIT_NONLINEAR)

@@ -196,6 +196,21 @@ RUN = Command(
                "nonlinear)."),
         FORCE, progress("Samples filtered, on stderr, between chunks.")))
 
+SMOOTH = Command(
+    """Smooth a recorded log: filter it as `liemef run` does (the same options), then estimate every state from
+    all the samples, before and after it, by minimizing the filter's own cost over the whole log (liemef.smooth,
+    docs/smoothing.md). Writes the same files as `liemef run`, with the smoother's estimates, the diagonal of
+    their marginal covariances and the residuals at them; metrics.json's "smoother" says how it converged, and
+    "innovations" keeps the filter's innovation monitor. A failed filter or smoother writes only failure.json and
+    exits with status 1; a smoother that does not converge writes its outputs, says so and exits with status 5;
+    statuses 3 and 4 are the filter's innovation monitor's, as in `liemef run`.""",
+    RUN.params[:-2] + (
+        option("--max-iterations", type=at_least(1), default=200, show_default=True,
+               help="The most Levenberg-Marquardt steps of the smoother."),
+        option("--tol", type=float, default=1e-9, show_default=True,
+               help="The smoother has converged when an accepted step's largest component is below this."),
+    ) + RUN.params[-2:-1] + (progress("Samples filtered, on stderr, between chunks (the filter's pass)."),))
+
 EXPORT_C = Command(
     """Write the filter of a ready system (--system) or of your own (--system-file) as standalone C99: NAME.h
     and NAME.c in --out, with NAME_init, NAME_step (one sample interval, exactly as the filter's step), NAME_run
@@ -324,7 +339,8 @@ CAMPAIGN_STATUS = Command(
     and whether its results are complete. Runs nothing.""", (CAMPAIGN_FILE, CAMPAIGN_OUT))
 
 COMMANDS: dict[str, Command] = {
-    "liemef": CLI, "reproduce": REPRODUCE, "montecarlo": MONTECARLO, "run": RUN, "export-c": EXPORT_C,
+    "liemef": CLI, "reproduce": REPRODUCE, "montecarlo": MONTECARLO, "run": RUN, "smooth": SMOOTH,
+    "export-c": EXPORT_C,
     "schema": SCHEMA_COMMAND, "dataset": DATASET, "tune": TUNE, "compare": COMPARE, "campaign": CAMPAIGN,
     "campaign run": CAMPAIGN_RUN, "campaign status": CAMPAIGN_STATUS}
 """Every command of ``liemef`` by its name (a subcommand as ``"campaign run"``)."""

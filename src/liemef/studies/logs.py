@@ -521,6 +521,13 @@ class LogRun:
     arrays: dict = field(default_factory=dict, repr=False)
     innovation_text: str = field(default="", repr=False)
     monitor: Any = field(default=None, repr=False)
+    smoothed: dict | None = None
+
+    @property
+    def not_converged(self) -> bool:
+        """The run was smoothed and the smoother did not converge (``liemef smooth`` writes its outputs and exits
+        with status 5)."""
+        return self.smoothed is not None and self.smoothed["status"] != "converged"
 
     @property
     def inconsistent(self) -> bool:
@@ -596,7 +603,8 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
                alpha: float = 0.0, interpolation: str = "hold", updates: str | None = None,
                substeps: int | str = "auto", curvature: str | None = None, error: str | None = None,
                gap: float | None = None, chunk: int = DEFAULT_CHUNK,
-               progress: bool = False, log_file: str | os.PathLike | None = None, monitor: bool = True) -> LogRun:
+               progress: bool = False, log_file: str | os.PathLike | None = None, monitor: bool = True,
+               smooth: dict | None = None) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
     log) with the minimum-energy filter of ``source`` (a :class:`LogSystem` or a ready system's name).
 
@@ -607,7 +615,10 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     the innovation monitor on a good run (:func:`liemef.metrics.innovation_monitor`: ``metrics["innovations"]``,
     :attr:`LogRun.monitor`); the other options are those of :class:`~liemef.filters.MinimumEnergyFilter`, where
     ``updates``, ``curvature`` and ``error`` None are the ready system's (``attitude-velocity``: discrete, exact,
-    left, as ``liemef compare broad``'s ``mef-vel``), else ``"hold"``, ``"safe"`` and ``"auto"``. A ready IMU
+    left, as ``liemef compare broad``'s ``mef-vel``), else ``"hold"``, ``"safe"`` and ``"auto"``. ``smooth``: the
+    options of :func:`liemef.smooth` (:func:`smoother_options`) to smooth the log after a good filter run
+    (``liemef smooth``): the estimates, covariances and residuals written are then the smoother's, the
+    innovation monitor stays the filter's, and a smoother that fails makes the run a failure. A ready IMU
     system is first built with the dip, gravity and field measured over the log's initial rest
     (:func:`with_log_constants`). ValueError for bad input, before any compile. A failure inside the filter is no
     exception: see :attr:`LogRun.ok`.
@@ -670,16 +681,58 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
                    "interval": context, "log": log_file, "filter": repr(flt), "command": "run",
                    "liemef_version": __version__}
         return LogRun(**common, failure=failure)
+    extra, report = {}, None
+    if monitor:
+        report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
+        extra["innovations"] = report.as_dict()
+    smoothed = None
+    if smooth is not None:
+        traj, smoothed = _smoothed(flt, state, log, traj, gap, smooth)
+        if smoothed["status"] == "failed":
+            common["message"] = f"smoother {smoothed['message']}"
+            failure = {"schema": FAILURE_SCHEMA, "status": report_failed(common["report"], "smoother"),
+                       "message": common["message"], "smoother": smoothed, "log": log_file, "filter": repr(flt),
+                       "command": "smooth", "liemef_version": __version__}
+            return LogRun(**common, failure=failure, smoothed=smoothed)
+        common["trajectory"] = traj
+        extra["smoother"] = smoothed
     run = _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
-                    updates, substeps, angle_mask, continuous_angles, gain_stats)
-    if not monitor:
-        return run
-    report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
-    return dataclasses.replace(run, metrics={**run.metrics, "innovations": report.as_dict()}, monitor=report)
+                    updates, substeps, angle_mask, continuous_angles, gain_stats, smoothed=smoothed is not None)
+    return dataclasses.replace(run, metrics={**run.metrics, **extra}, monitor=report, smoothed=smoothed)
+
+
+def smoother_options(max_iterations: int = 200, tol: float = 1e-9) -> dict:
+    """``liemef smooth``'s options of :func:`liemef.smooth`, checked before JAX loads (ValueError naming
+    ``--max-iterations`` or ``--tol``)."""
+    if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
+        raise _bad("--max-iterations", f"expected an integer >= 1, got {max_iterations!r}")
+    try:
+        tol = _validate.nonnegative("--tol", tol)
+    except ValueError as err:
+        raise _bad("--tol", str(err).removeprefix("--tol: ")) from err
+    return {"max_iterations": max_iterations, "tol": tol}
+
+
+def report_failed(report: dict, cause: str) -> dict:
+    """A run's status dict with ``cause`` in place of ok (the filter ran; what came after it failed)."""
+    return {**report, "ok": False, "cause": cause}
+
+
+def _smoothed(flt, state, log, traj, gap: float, options: dict):
+    """The smoother over the log from the filter's trajectory (:func:`liemef.smooth`), as a trajectory with its
+    estimates and covariances, and what it did (status, message, iterations, costs)."""
+    from ..filters import Trajectory
+    from ..smoothers import smooth
+
+    sm = smooth(flt, state, log.ts, log.us, log.ys, gap=gap, init=traj.g_hat, **options)
+    said = {"status": sm.status, "message": sm.message, "iterations": sm.iterations, "cost": float(sm.cost),
+            "cost_init": float(sm.cost_init), "gradient_norm": float(sm.gradient_norm),
+            "options": {k: v for k, v in options.items()}}
+    return Trajectory(ts=traj.ts, g_hat=sm.g, K=sm.P, status=traj.status, final=traj.final), said
 
 
 def _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
-              updates, substeps, angle_mask, continuous_angles, gain_stats) -> LogRun:
+              updates, substeps, angle_mask, continuous_angles, gain_stats, smoothed: bool = False) -> LogRun:
     import jax
 
     from ..metrics import gain_is_covariance
@@ -692,13 +745,18 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
         log.ys, traj.g_hat, log.ts))
     onames, ounits = system.output_names, system.output_units
     text, table = innovation_table(innov, onames, ounits)
-    outliers = innovation_outliers(flt, log, traj, innov)
+    # the outlier test is of innovations against K; a smoother's residuals have another covariance (the filter's
+    # innovations stay judged by the monitor)
+    outliers = {} if smoothed else innovation_outliers(flt, log, traj, innov)
     label, measured = source.label, source.measured
     bands = state_bands(system, traj.g_hat, K, None if measured is None else measured(log.ys))
     bands["covariance"] = np.bool_(gain_is_covariance(flt))  # the figure draws K's sigma band only then
+    if smoothed:
+        bands["covariance"] = np.bool_(True)  # the smoother's P is the marginal covariance of its estimates
     figures = [{"file": "estimate.png", "kind": "run", "components": [str(v) for v in bands["names"]],
-                "title": f"{label}: " + ("measured (blue), " if measured else "") + "filtered (green)"
-                         + (" with +-3 sigma from K" if bands["covariance"] else "")
+                "title": f"{label}: " + ("measured (blue), " if measured else "")
+                         + ("smoothed (green) with +-3 sigma from its covariance" if smoothed else "filtered (green)"
+                            + (" with +-3 sigma from K" if bands["covariance"] else ""))
                          + f", from {Path(common['log_file']).name}"}]
     metrics = {
         "schema": SCHEMA,
@@ -710,7 +768,9 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
                    "updates": updates, "substeps": substeps, "curvature": flt.curvature,
                    "error": flt.error, "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
                   "system_settings": source.settings, "rest": source.rest},
-        "innovation": {"definition": "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
+        "innovation": {"definition": ("y (-) h(g_smoothed) (the sensors' residual, y - h unless declared) at each "
+                                      "present sample, at the smoother's estimate (which has used every sample)")
+                       if smoothed else "y (-) h(g_hat) (the sensors' residual, y - h unless declared) at each present "
                        "sample (before the update of that sample)",
                        "components": table,
                        "outliers": outliers},
@@ -794,10 +854,16 @@ class SavedRun:
                           False))
         lines += [(f"WARNING: {w}", True) for w in run.warnings()]
         if not run.ok:
-            return lines
+            return lines + ([(f"Smoothed: {run.smoothed['message']}", True)] if run.smoothed else [])
         if run.monitor is not None:
-            lines.append((run.monitor.message(), run.inconsistent or run.nonlinear))
-        return lines + [("Innovation y - h(g_hat) over the present samples:", False), (run.innovation_text, False),
+            lines.append((("The filter's innovations: " if run.smoothed else "") + run.monitor.message(),
+                          run.inconsistent or run.nonlinear))
+        if run.smoothed is not None:
+            lines.append((f"Smoothed: {run.smoothed['message']}" if not run.not_converged else
+                          f"WARNING: the smoother {run.smoothed['message']}; the estimates written are its last "
+                          "accepted ones, not the minimizer", run.not_converged))
+        residual = "Residual y - h(g_smoothed)" if run.smoothed else "Innovation y - h(g_hat)"
+        return lines + [(f"{residual} over the present samples:", False), (run.innovation_text, False),
                         (f"Sub-steps: {run.report['substeps_total']} over {run.report['steps']} intervals (at most "
                          f"{run.report['substeps_max']} in one)", False),
                         ("Wrote estimates.csv (coordinates and K's diagonal), innovations.csv, metrics.json, "
@@ -860,7 +926,10 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     if system_file is not None and not Path(system_file).is_file():
         raise _bad("--system-file", f"expected a Python file defining `system`, got {str(system_file)!r} "
                                     "(not found)")
-    target = outputs.claim(out, "run", force)
+    smooth = options.get("smooth")
+    if smooth is not None:
+        options["smooth"] = smoother_options(**smooth)
+    target = outputs.claim(out, "run" if smooth is None else "smooth", force)
     recorded = None
     if system is not None and not settings:  # a ready system: its columns and sizes are known without JAX
         known = registry.system_schema(system)
