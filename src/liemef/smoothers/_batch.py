@@ -55,8 +55,8 @@ are raised to ``FLOOR_STD**2``, so that a coordinate known exactly (a singular P
 stiff prior rather than an infinite weight."""
 
 STATUSES = {
-    "converged": "the last accepted step was below the tolerance",
-    "max-iterations": "max_iterations steps were taken and the last accepted one was not below the tolerance",
+    "converged": "a step with little damping was below the tolerance: the estimate is the minimizer to it",
+    "max-iterations": "max_iterations steps were taken and none was below the tolerance",
     "stalled": "no step lowered the cost, even with the largest damping (the estimate is the last accepted one)",
     "failed": "the cost or the covariances are not finite (the estimates are NaN)",
 }
@@ -431,11 +431,16 @@ def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, 
             if not bool(jnp.isfinite(f)):
                 status = "failed"
                 break
-        if bool(jnp.isfinite(fc)) and float(fc) <= float(f) + ROUNDOFF * (1.0 + abs(float(f))):
-            used, xs, mu = mu, cand, mu / 10.0
-            if float(step) < tol and used < _CONVERGED_DAMPING:
-                status = "converged"
-                break
+        lower = bool(jnp.isfinite(fc)) and float(fc) <= float(f) + ROUNDOFF * (1.0 + abs(float(f)))
+        if float(step) < tol and mu < _CONVERGED_DAMPING:
+            # a step below the tolerance: xs is the minimizer to it, whether or not the cost, at its round-off,
+            # can tell the candidate from xs (a sum of stiff terms rounds far above eps |J|)
+            if lower:
+                xs = cand
+            status = "converged"
+            break
+        if lower:
+            xs, mu = cand, mu / 10.0
         else:
             mu = max(10.0 * mu, 1e-8)
             if mu > _MAX_DAMPING:
@@ -454,8 +459,7 @@ def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, 
         message = f"failed after {it} iteration(s): {why}"
     else:
         message = {"converged": f"converged in {it} iteration(s): the last step was below {tol:g}",
-                   "max-iterations": f"not converged: {it} iteration(s) taken, the last accepted step was not "
-                                     f"below {tol:g}",
+                   "max-iterations": f"not converged: {it} iteration(s) taken, no step below {tol:g}",
                    "stalled": f"stalled after {it} iteration(s): no step lowered the cost"}[status]
     return g, P, f, cost_init, gn, it, status, message
 
@@ -513,7 +517,8 @@ def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], 
         max_iterations: the most Levenberg-Marquardt steps, accepted or not. Gauss-Newton converges
             quadratically where the residuals at the minimizer are small, and only linearly where they are large
             (samples that the model cannot fit): then it takes tens of steps.
-        tol: converged when an accepted step's largest component is below it.
+        tol: converged when a step's largest component is below it (with little damping; the step is kept if
+            the cost, to its round-off, does not rise).
         floor_std: the floor of the prior's and the process noise's stds (:data:`FLOOR_STD`).
 
     Returns:
