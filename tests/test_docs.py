@@ -60,7 +60,7 @@ def test_site_builds_strict_with_every_page(site):
     ("systems", "systems", ["AbstractSystem", "System", "PlanarRigidBody"]),
     ("filter", "filters", ["MinimumEnergyFilter", "MinimumEnergyFilter.run", "FilterState", "Trajectory"]),
     ("engines", "engines", ["run", "step", "OnlineFilter", "engine_of"]),
-    ("smoothers", "smoothers", ["smooth", "Smoothed", "STATUSES"]),
+    ("smoothers", "smoothers", ["smooth", "Smoothed", "FixedLagSmoother", "FixedLagSmoother.update", "STATUSES"]),
     ("simulation", "simulation", ["simulate", "SensorLog"]),
     ("metrics", "metrics", ["state_error", "ErrorTable"]),
     ("experiments", "studies.experiments", ["MonteCarloResult", "tse2.TSE2Config"]),

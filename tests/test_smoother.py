@@ -388,3 +388,54 @@ def test_bad_arguments_are_named():
         liemef.smooth(flt, state, ts, us, ys, init=Rn[2](np.zeros((3, 2))))
     with pytest.raises(ValueError, match="ys"):
         liemef.smooth(flt, state, ts, us, ys[:, :0])
+
+
+# --- fixed lag ------------------------------------------------------------------------------------------------
+def test_fixed_lag_on_a_linear_system_is_rts_of_the_log_so_far():
+    """With the invariant EKF as the filter (on R^n the discrete Kalman filter of the same Euler model), each
+    window of the fixed-lag smoother is the RTS smoother of the log cut at the window's newest sample, over the
+    window's states, to 1e-10: the filter's state at the window's start is the exact prior of the samples
+    before it. Missing samples included; the window warm-starts from the last one."""
+    from liemef.filters.baselines import invariant_ekf
+
+    system, ts, us, ys = _linear_log("sample")
+    x0, P0 = np.array([0.5, -0.3]), np.diag([1.0, 2.0])
+    flt = invariant_ekf(system)
+    lag = 6
+    fl = liemef.smoothers.FixedLagSmoother(flt, flt.init(Rn[2](x0), K0=P0), lag, integrator="lie-euler")
+    R = [np.array([[SIGMA**2]])] * ts.size
+    windows = 0
+    for e in range(ts.size):
+        w = fl.update(ts[e], us[e], ys[e])
+        if e < lag:
+            assert w is None
+            continue
+        assert w.ok, w.message
+        xs, Ps = _rts(ts[:e + 1], us[:e + 1], ys[:e + 1], x0, P0, R[:e + 1], np.diag(Q_DENSITY**2) * DT)
+        np.testing.assert_allclose(np.asarray(w.ts), ts[e - lag:e + 1])
+        np.testing.assert_allclose(np.asarray(w.g.x), xs[e - lag:], atol=RTS)
+        np.testing.assert_allclose(np.asarray(w.P), Ps[e - lag:], atol=RTS)
+        windows += 1
+    assert windows == ts.size - lag
+
+
+def test_fixed_lag_bad_arguments_and_a_failed_filter():
+    system, ts, us, ys = _linear_log("sample")
+    flt = liemef.MinimumEnergyFilter(system, integrator="lie-euler")
+    state = flt.init(Rn[2](np.zeros(2)), K0=np.eye(2))
+    with pytest.raises(ValueError, match="lag: expected a number of samples >= 1, got 0"):
+        liemef.smoothers.FixedLagSmoother(flt, state, 0)
+    fl = liemef.smoothers.FixedLagSmoother(flt, state, 2)
+    fl.update(0.0, us[0], ys[0])
+    with pytest.raises(ValueError, match="t: expected a time after the previous sample's 0.0, got 0.0"):
+        fl.update(0.0, us[1], ys[1])
+    with pytest.raises(ValueError, match="y"):
+        fl.update(0.1, us[1], ys[1, :0])
+    # a filter that fails (a non-finite input): the window that would take its prior says so, with NaN estimates
+    system_nan = System(group_type=Rn[2], dynamics_fn=_blows_up, output_fn=lambda g, t: g.x, B=np.eye(2),
+                        D=np.eye(2), Q=np.eye(2), R=np.eye(2))
+    bad = liemef.MinimumEnergyFilter(system_nan, integrator="lie-euler")
+    fl = liemef.smoothers.FixedLagSmoother(bad, bad.init(Rn[2](np.zeros(2)), K0=np.eye(2)), 2)
+    out = [fl.update(0.2 * k, None, np.ones(2)) for k in range(8)]
+    assert out[-1].status == "failed" and "the filter that gives the window's prior failed" in out[-1].message
+    assert bool(jnp.all(jnp.isnan(out[-1].g.x)))

@@ -3,9 +3,11 @@ r"""The minimum-energy smoother: every state of a whole log estimated from all o
 A filter's estimate at $t_k$ uses the samples up to $t_k$. :func:`smooth` minimizes the same cost over the whole
 log, so every state's estimate uses the samples before and after it (the batch MAP of the model the filter runs:
 the same group, sensors, weights, residuals and robust losses), with the marginal covariance of each state.
-docs/smoothing.md states the cost, the solver and what it was checked against.
+:class:`FixedLagSmoother` does it online over a window of the last samples, for estimates delayed by that
+window. docs/smoothing.md states the cost, the solver and what it was checked against.
 """
 
 from ._batch import FLOOR_STD, STATUSES, Smoothed, smooth
+from ._lag import FixedLagSmoother
 
-__all__ = ["smooth", "Smoothed", "STATUSES", "FLOOR_STD"]
+__all__ = ["smooth", "Smoothed", "FixedLagSmoother", "STATUSES", "FLOOR_STD"]
