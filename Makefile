@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out/tse2
 MINUTES ?= 60
 
-.PHONY: venv demo test test-slow claims bench bench-soak bench-campaign bench-scaling lint docs clean
+.PHONY: venv demo test test-slow claims bench bench-smoother bench-soak bench-campaign bench-scaling lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -60,6 +60,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_real_logs.py
 	$(PY) benchmarks/bench_first_call.py
 	$(PY) benchmarks/bench_side.py
+
+# The whole-log smoother's cost per sample at 1k-16k samples and the fixed-lag smoother's per step, beside the
+# filter's, on ukfm's planar localization (a few minutes).
+bench-smoother: $(STAMP)
+	$(PY) benchmarks/bench_smoother.py
 
 # One hour of 1 kHz TSE(2) data (3.6 M filter steps), chunk by chunk; MINUTES=2 for a smoke test.
 # The hour takes 5-11 min on one core of a shared 2-core machine (load average 4-8), 30-40 s of it compiling;

@@ -1,0 +1,119 @@
+"""What the smoother costs beside the filter: the whole-log smoother (``liemef.smooth``) at several log lengths,
+and the fixed-lag smoother per step at several lags, on ukfm's planar localization (100 Hz odometry, a fix a
+second), against the filter's run on the same log.
+
+Prints one JSON document on one core: per log length, the filter's seconds per sample, the smoother's (its
+first call, compiling, and the best of ``--repeats`` further calls), their ratio, the iterations, and the
+smoother's seconds per sample relative to the shortest log (linear in the log's length: about 1); per lag, the
+fixed-lag smoother's median milliseconds per step over a log, and its ratio to the filter's step. Figures from
+one run on a shared machine: compare the ratios; ``machine.loadavg`` says how busy it was. Nothing asserts a
+time.
+
+    python benchmarks/bench_smoother.py [--lengths 1000,4000,16000] [--lags 20,100] [--repeats 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+
+from _timing import cpu_model, one_core
+
+one_core(fresh_kernel_cache=False)
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+from _provenance import source_version  # noqa: E402
+
+import liemef  # noqa: E402
+from liemef.studies.experiments import localization as loc  # noqa: E402
+from liemef.systems import planar_localization  # noqa: E402
+
+
+def scenario(n: int):
+    """ukfm's localization over ``n`` samples (a circle of 5 m radius, driven once a minute)."""
+    c = loc.LocalizationConfig(duration=n / 100.0, gps_period=1.0, steady=0.0, radius=5.0)
+    vstd, lstd, wstd = c.odometry_std
+    system = planar_localization(odometry_std=(wstd, vstd, lstd), odometry_rate=1.0 / c.dt, gps_std=c.gps_std)
+    idx = np.arange(c.n_states)
+    vx, _, w = loc.true_input(c)
+    theta = idx * w * c.dt
+    steps = vx * c.dt * np.stack([np.cos(theta), np.sin(theta)], 1)
+    p = np.concatenate([np.zeros((1, 2)), np.cumsum(steps[:-1], axis=0)])
+    truth = liemef.groups.SE2.from_coords(np.concatenate([theta[:, None], p], 1))
+    log, g0 = loc.sensor_log(c, truth, loc.jax_draws(c, jax.random.key(0)))
+    flt = liemef.MinimumEnergyFilter(system)
+    state = flt.init(g0, K0=np.diag([c.theta0_std**2, 1e-6, 1e-6]))
+    return flt, state, np.asarray(log.ts), np.asarray(log.us), np.asarray(log.ys)
+
+
+def whole_log(n: int, repeats: int) -> dict:
+    flt, state, ts, us, ys = scenario(n)
+    traj = flt.run(state, ts, us, ys)  # compiles
+    t0 = time.perf_counter()
+    traj = jax.block_until_ready(flt.run(state, ts, us, ys))
+    filt = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sm = liemef.smooth(flt, state, ts, us, ys, init=traj.g_hat)
+    first = time.perf_counter() - t0
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sm = liemef.smooth(flt, state, ts, us, ys, init=traj.g_hat)
+        best = min(best, time.perf_counter() - t0)
+    if not sm.ok:
+        raise RuntimeError(f"the smoother did not converge on {n} samples: {sm.message}")
+    return {"samples": n, "filter_us_per_sample": filt / n * 1e6, "smoother_first_call_s": first,
+            "smoother_us_per_sample": best / n * 1e6, "smoother_over_filter": best / filt,
+            "iterations": sm.iterations}
+
+
+def fixed_lag(lag: int, n: int) -> dict:
+    flt, state, ts, us, ys = scenario(n)
+    fl = liemef.smoothers.FixedLagSmoother(flt, state, lag)
+    step = []
+    for k in range(n):
+        t0 = time.perf_counter()
+        w = fl.update(ts[k], us[k], ys[k])
+        if w is not None:
+            jax.block_until_ready(w.P)
+            step.append(time.perf_counter() - t0)
+            if not w.ok:
+                raise RuntimeError(f"a fixed-lag window failed at sample {k}: {w.message}")
+    steady = step[len(step) // 10:]  # after the first windows (compiling)
+    flt_step = []
+    s = state
+    for k in range(min(n - 1, 200)):
+        t0 = time.perf_counter()
+        s = jax.block_until_ready(flt.step(s, ts[k], us[k], ys[k], ts[k + 1] - ts[k]))
+        flt_step.append(time.perf_counter() - t0)
+    filt = statistics.median(flt_step[20:])
+    return {"lag_samples": lag, "windows": len(step), "ms_per_step": statistics.median(steady) * 1e3,
+            "filter_step_ms": filt * 1e3, "over_filter_step": statistics.median(steady) / filt}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lengths", default="1000,4000,16000", help="Log lengths (samples), comma separated.")
+    ap.add_argument("--lags", default="20,100", help="Fixed-lag windows (samples), comma separated.")
+    ap.add_argument("--lag-samples", type=int, default=600, help="Samples of the log each lag is timed over.")
+    ap.add_argument("--repeats", type=int, default=2, help="Steady smoother calls per length.")
+    a = ap.parse_args()
+    lengths = [int(v) for v in a.lengths.split(",")]
+    rows = [whole_log(n, a.repeats) for n in lengths]
+    for r in rows:
+        r["per_sample_over_shortest"] = r["smoother_us_per_sample"] / rows[0]["smoother_us_per_sample"]
+    lags = [fixed_lag(int(v), a.lag_samples) for v in a.lags.split(",")]
+    json.dump({"benchmark": "smoother", "source": source_version(), "machine": {
+        "cpu": cpu_model(), "loadavg": os.getloadavg(), "python": sys.version.split()[0]},
+        "whole_log": rows, "fixed_lag": lags}, sys.stdout, indent=2)
+    print()
+
+
+if __name__ == "__main__":
+    main()
