@@ -439,3 +439,25 @@ def test_fixed_lag_bad_arguments_and_a_failed_filter():
     out = [fl.update(0.2 * k, None, np.ones(2)) for k in range(8)]
     assert out[-1].status == "failed" and "the filter that gives the window's prior failed" in out[-1].message
     assert bool(jnp.all(jnp.isnan(out[-1].g.x)))
+
+
+# --- behind a filter's run -------------------------------------------------------------------------------------
+def test_offline_smoother_runs_as_a_filter_and_fails_as_one(localization):
+    """OfflineSmoother's run is the smoother's estimates and covariances as a Trajectory; one that does not
+    converge is a failed status (cause "not converged") with NaN states after the first, as a failed filter run."""
+    from liemef.filters import CAUSES
+
+    c, truth, system, flt, K0 = localization
+    log, g0 = loc.sensor_log(c, truth, loc.jax_draws(c, jax.random.key(9)))
+    ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
+    state = flt.init(g0, K0=K0)
+    ref = liemef.smooth(flt, state, ts, us, ys)
+    off = liemef.smoothers.OfflineSmoother(flt)
+    traj = off.run(off.init(g0, K0=K0), ts, us, ys)
+    assert traj.ok and off.offline
+    np.testing.assert_array_equal(np.asarray(traj.g_hat.coords()), np.asarray(ref.g.coords()))
+    np.testing.assert_array_equal(np.asarray(traj.K), np.asarray(ref.P))
+    short = liemef.smoothers.OfflineSmoother(flt, max_iterations=1).run(state, ts, us, ys)
+    assert not short.ok and int(short.status.code) == CAUSES.NOT_CONVERGED.code
+    assert "did not converge" in short.status.message(ts)
+    assert bool(jnp.all(jnp.isnan(short.g_hat.coords()[1:]))) and bool(jnp.all(jnp.isfinite(short.g_hat.coords()[0])))

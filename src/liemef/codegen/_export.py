@@ -29,7 +29,7 @@ import numpy as np
 
 from .._names import C_BACKENDS
 from ..filters._base import AbstractFilter, FilterState
-from ..filters._status import CAUSES, DEFINITE_TOL
+from ..filters._status import DEFINITE_TOL, FILTER_CAUSES
 from . import _cache
 from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
@@ -87,7 +87,7 @@ class ExportedC:
             size = "" if f.scalar else f"[{f.size}]"
             members.append(f"{f.name}{size}" + (f" ({n} x {n}, row-major)" if f.name == "K" else ""))
         codes = ", ".join(f"{i} {U}_{re.sub(r'[^A-Z]', '_', cause.upper()).strip('_')} ({cause})"
-                          for i, cause in enumerate(CAUSES))
+                          for i, cause in enumerate(FILTER_CAUSES))
         return "\n".join([
             f"C API ({P}.h; n = {n}, m = {m} inputs, p = {p} outputs, {self.group_params} group parameters, "
             f"{self.coords_dim} coordinates):",
@@ -216,7 +216,7 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
     status_init = [(f, leaf) for f, leaf, (path, _) in zip(fields, leaves, paths, strict=True)
                    if getattr(path[0], "name", None) == "status"]
     causes = "\n".join(f"#define {U}_{re.sub(r'[^A-Z]', '_', cause.upper()).strip('_')} {i}  /* {cause} */"
-                       for i, cause in enumerate(CAUSES))
+                       for i, cause in enumerate(FILTER_CAUSES))
     header = f"""/* {P}.h: a liemef filter exported as standalone C99 (liemef export-c). No heap, no library but libm.
  *
  * Filter: {flt!r}

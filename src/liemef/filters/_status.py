@@ -63,6 +63,8 @@ class CAUSES(enum.StrEnum, metaclass=_Enumeration):
     ASYMMETRIC = 2, "K not symmetric", f"the gain K lost its symmetry (beyond {SYMMETRY_TOL:g} relative)"
     INDEFINITE = 3, "K not positive definite", "the gain K lost positive definiteness"
     GATE = 4, "gate", "a sensor's gate rejected more consecutive samples than its max_rejections"
+    NOT_CONVERGED = 5, "not converged", ("the smoother over the whole log did not converge (its iterations ran out, or "
+                                         "no step lowered its cost; liemef.smoothers)")
 
     @_ClassMethodOnClass
     def index(cls, label: str) -> int:
@@ -76,6 +78,10 @@ class CAUSES(enum.StrEnum, metaclass=_Enumeration):
         member.code = code
         member.message = message
         return member
+
+
+FILTER_CAUSES = tuple(c for c in CAUSES if c is not CAUSES.NOT_CONVERGED)
+"""The causes a filter's interval can produce (an exported C filter's status codes): all but the smoother's."""
 
 
 class Status(eqx.Module):

@@ -9,5 +9,6 @@ window. docs/smoothing.md states the cost, the solver and what it was checked ag
 
 from ._batch import FLOOR_STD, STATUSES, Smoothed, smooth
 from ._lag import FixedLagSmoother
+from ._offline import OfflineSmoother
 
-__all__ = ["smooth", "Smoothed", "FixedLagSmoother", "STATUSES", "FLOOR_STD"]
+__all__ = ["smooth", "Smoothed", "FixedLagSmoother", "OfflineSmoother", "STATUSES", "FLOOR_STD"]

@@ -22,7 +22,8 @@ magnetometer sample k, as BROAD's evaluation and the published figures index the
 and UKF filters record their state at t_k before the sample at t_k acts: one sample late on the accelerometer
 and the magnetometer, and on the gyro too but for :data:`OWN_TIME`. The study records every filter's lag per
 sensor (:func:`lags`, the ``lags`` of ``broad.json`` and a column of the table); ``tests/test_broad.py`` checks
-each by perturbing the samples after the ones it says the estimate has seen. ``vqf-offline`` is acausal.
+each by perturbing the samples after the ones it says the estimate has seen. ``vqf-offline`` and
+``mef-vel-smooth`` are acausal.
 
 The weights are **one set for all trials**: the defaults of :func:`liemef.systems.attitude_gyro_bias`. The
 metrics are the dataset's own: the total, heading and inclination rms of the error
@@ -39,6 +40,9 @@ Filters (:data:`BROAD_FILTERS`):
 - ahrs's Madgwick and Mahony (:mod:`liemef.filters.baselines`), with ahrs's default gains and with the gains published
   with the dataset (Madgwick beta = 0.12; Mahony Kp = 0.74, Ki = 0.0012);
 - VQF (Laidig and Seel 2023), online (``vqf``; ``vqf-broad`` is the same filter, its former name) and offline;
+- ``mef-vel-smooth``: beside VQF offline, the minimum-energy smoother of ``mef-vel``'s model
+  (:class:`liemef.smoothers.OfflineSmoother`): that filter's cost minimized over the whole trial, from its pass.
+  Not run by default;
 - x-io's Fusion AHRS (the ``imufusion`` package), with its defaults (``fusion``) and with the settings of its
   example ``advanced_example.py`` (``fusion-example``).
 
@@ -63,6 +67,7 @@ from ...filters import MinimumEnergyFilter
 from ...filters.baselines import VQF, Fusion, Madgwick, Mahony, invariant_ekf, ukf_m
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
+from ...smoothers import OfflineSmoother
 from ...systems import attitude_field, attitude_gyro_bias
 from ...systems.attitude_bias import (
     K0_VELOCITY,
@@ -135,6 +140,10 @@ BROAD_FILTERS = {
                      lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="safe", error="left")),
     "mef-vel-first": ("first-order minimum-energy filter, bounded-velocity model, samples at their own time",
                       lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete", error="left")),
+    "mef-vel-smooth": ("minimum-energy smoother, bounded-velocity model: mef-vel's cost minimized over the whole "
+                       "trial (liemef.smooth; acausal: estimate k has seen the whole trial)",
+                       lambda c: OfflineSmoother(MinimumEnergyFilter(_velocity(c), updates="discrete",
+                                                                     curvature="exact", error="left"))),
     "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
                  lambda c: invariant_ekf(_velocity(c))),
     "mef-field": ("minimum-energy filter, lasting magnetic disturbances as states (attitude_field: the bounded "
