@@ -278,7 +278,6 @@ def marginal_covariances(D, C):
     return jnp.concatenate([Sig, Sinv[-1:]])
 
 
-@eqx.filter_jit
 def _lm_step(system, integ, screens, prob, xs, mu):
     """One damped Gauss-Newton step from ``xs``: the candidate, its cost, the cost at ``xs``, the largest
     gradient component and the step's largest component."""
@@ -290,11 +289,39 @@ def _lm_step(system, integ, screens, prob, xs, mu):
     return cand, _cost(system, integ, screens, prob, cand), f, jnp.max(jnp.abs(gr)), jnp.max(jnp.abs(delta))
 
 
+_RUNNING, _CODES = -1, {"converged": 0, "max-iterations": 1, "stalled": 2, "failed": 3}
+
+
 @eqx.filter_jit
-def _at_minimum(system, integ, screens, prob, xs):
-    """The marginal covariances, the cost and the largest gradient component at ``xs``."""
+def _solve(system, integ, screens, prob, xs, max_iterations, tol):
+    """Levenberg-Marquardt from ``xs`` in one compiled loop (:func:`minimize`): the trajectory, the marginal
+    covariances, the cost there and at ``xs``, the largest gradient component, the iterations and the status's
+    code (:data:`_CODES`)."""
+
+    def cond(c):
+        return (c[3] == _RUNNING) & (c[2] < max_iterations)
+
+    def body(c):
+        xs, mu, it, _, f0 = c
+        cand, fc, f, _, step = _lm_step(system, integ, screens, prob, xs, mu)
+        f0 = jnp.where(it == 0, f, f0)
+        failed = ~jnp.isfinite(f0)
+        lower = jnp.isfinite(fc) & (fc <= f + ROUNDOFF * (1.0 + jnp.abs(f)))
+        # a step below the tolerance: xs is the minimizer to it, whether or not the cost, at its round-off, can
+        # tell the candidate from xs (a sum of stiff terms rounds far above eps |J|)
+        small = (step < tol) & (mu < _CONVERGED_DAMPING)
+        mu1 = jnp.where(lower, mu / 10.0, jnp.maximum(10.0 * mu, 1e-8))
+        status = jnp.where(failed, _CODES["failed"], jnp.where(small, _CODES["converged"], jnp.where(
+            ~lower & (mu1 > _MAX_DAMPING), _CODES["stalled"], _RUNNING)))
+        keep = lower & ~failed
+        xs = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), cand, xs)
+        return xs, mu1, it + 1, status, f0
+
+    start = (xs, jnp.asarray(0.0), jnp.asarray(0), jnp.asarray(_RUNNING), jnp.asarray(jnp.nan))
+    xs, _, it, status, f0 = jax.lax.while_loop(cond, body, start)
+    status = jnp.where(status == _RUNNING, _CODES["max-iterations"], status)
     D, C, gr, f = _linearize(system, integ, screens, prob, xs)
-    return marginal_covariances(D, C), f, jnp.max(jnp.abs(gr))
+    return xs, marginal_covariances(D, C), f, f0, jnp.max(jnp.abs(gr)), it, status
 
 
 @eqx.filter_jit
@@ -363,20 +390,26 @@ def sample_information(system: AbstractSystem, weights: Weights, diagonal: bool,
     present[:-1] &= ~((dts > gap)[:, None] & ~sample[None, :])  # density samples are not held across a gap
     present[N - 1] &= sample if last_sample else False  # a density sample at the last time has no interval
     yz = np.where(present, np.nan_to_num(ys, nan=0.0), 0.0)
-    dt_ext = jnp.asarray(np.concatenate([dts, [1.0]]))
-    W = jax.vmap(lambda m, dt: information_in_force(jnp.asarray(weights.Wy), jnp.asarray(sample), m, dt,
-                                                    diagonal=diagonal) * dt)(jnp.asarray(present), dt_ext)
+    W = _information(system, jnp.asarray(weights.Wy), jnp.asarray(sample), jnp.asarray(present), jnp.asarray(yz),
+                     jnp.asarray(ts), jnp.asarray(np.concatenate([dts, [1.0]])), diagonal)
+    return present, yz, W
+
+
+@eqx.filter_jit
+def _information(system, Wy, sample, present, yz, ts, dt_ext, diagonal: bool):
+    """:func:`sample_information`'s W in one compiled program (a fixed-lag window calls it at every step)."""
+    W = jax.vmap(lambda m, dt: information_in_force(Wy, sample, m, dt, diagonal=diagonal) * dt)(present, dt_ext)
     blocks = system.blocks()
     if any(b.adaptive for b in blocks):
-        T = jax.vmap(system.sample_transform)(jnp.asarray(yz))
+        T = jax.vmap(system.sample_transform)(yz)
         W = jnp.swapaxes(T, -1, -2) @ W @ T
-    factor = jnp.ones((N, system.output_dim))
+    factor = jnp.ones((ts.shape[0], system.output_dim))
     for b in blocks:
         if b.weight_fn is not None:
-            w = jax.vmap(lambda t, fn=b.weight_fn: jnp.asarray(fn(t), jnp.float64))(jnp.asarray(ts))
-            factor = factor.at[:, b.start:b.stop].set(jnp.broadcast_to(w[:, None], (N, b.dim)))
+            w = jax.vmap(lambda t, fn=b.weight_fn: jnp.asarray(fn(t), jnp.float64))(ts)
+            factor = factor.at[:, b.start:b.stop].set(jnp.broadcast_to(w[:, None], (ts.shape[0], b.dim)))
     root = jnp.sqrt(factor)
-    return present, yz, W * root[:, :, None] * root[:, None, :]
+    return W * root[:, :, None] * root[:, None, :]
 
 
 def problem(system: AbstractSystem, weights: Weights, diagonal: bool, ts, us, ys, g0: LieGroup, P0, *,
@@ -418,50 +451,27 @@ def problem(system: AbstractSystem, weights: Weights, diagonal: bool, ts, us, ys
 
 def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, prob: Problem, xs: LieGroup, N: int,
              *, max_iterations: int, tol: float) -> tuple[LieGroup, Array, Array, Array, Array, int, str, str]:
-    """Levenberg-Marquardt from ``xs`` (module docstring). Returns the trajectory and the marginal covariances
-    of the first ``N`` states, the cost there and at ``xs``, the largest gradient component, the iterations,
-    the status and its message."""
-    mu, it, status = 0.0, 0, "max-iterations"
-    cost_init = None
-    while it < max_iterations:
-        cand, fc, f, _, step = _lm_step(system, integ, screens, prob, xs, jnp.asarray(mu))
-        it += 1
-        if cost_init is None:
-            cost_init = f
-            if not bool(jnp.isfinite(f)):
-                status = "failed"
-                break
-        lower = bool(jnp.isfinite(fc)) and float(fc) <= float(f) + ROUNDOFF * (1.0 + abs(float(f)))
-        if float(step) < tol and mu < _CONVERGED_DAMPING:
-            # a step below the tolerance: xs is the minimizer to it, whether or not the cost, at its round-off,
-            # can tell the candidate from xs (a sum of stiff terms rounds far above eps |J|)
-            if lower:
-                xs = cand
-            status = "converged"
-            break
-        if lower:
-            xs, mu = cand, mu / 10.0
-        else:
-            mu = max(10.0 * mu, 1e-8)
-            if mu > _MAX_DAMPING:
-                status = "stalled"
-                break
-    P, f, gn = _at_minimum(system, integ, screens, prob, xs)
+    """Levenberg-Marquardt from ``xs`` (module docstring), compiled as one loop (``max_iterations`` and ``tol``
+    are traced: new values do not recompile). Returns the trajectory and the marginal covariances of the first
+    ``N`` states, the cost there and at ``xs``, the largest gradient component, the iterations, the status and
+    its message."""
+    xs, P, f, f0, gn, it, code = _solve(system, integ, screens, prob, xs, jnp.asarray(max_iterations),
+                                        jnp.asarray(float(tol)))
+    it = int(it)
+    status = {v: k for k, v in _CODES.items()}[int(code)]
     g, P = xs[:N], P[:N]
     finite = bool(jnp.isfinite(f)) and bool(jnp.all(jnp.isfinite(P)))
     if status == "failed" or not finite:
-        status = "failed"
         g = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan), g)
         P = jnp.full_like(P, jnp.nan)
-        why = ("the cost is not finite at the starting trajectory" if cost_init is not None
-               and not bool(jnp.isfinite(cost_init)) else
+        why = ("the cost is not finite at the starting trajectory" if status == "failed" else
                "the cost or the Hessian at the estimate is not finite, or the Hessian is not positive definite")
-        message = f"failed after {it} iteration(s): {why}"
+        status, message = "failed", f"failed after {it} iteration(s): {why}"
     else:
         message = {"converged": f"converged in {it} iteration(s): the last step was below {tol:g}",
                    "max-iterations": f"not converged: {it} iteration(s) taken, no step below {tol:g}",
                    "stalled": f"stalled after {it} iteration(s): no step lowered the cost"}[status]
-    return g, P, f, cost_init, gn, it, status, message
+    return g, P, f, f0, gn, it, status, message
 
 
 def _filled(system, integ, g: LieGroup, ts, us) -> LieGroup:
