@@ -26,12 +26,19 @@ def localization_log(path, outlier=False, N=1000):
     return ts, p, th
 
 
+def gated_localization(d):
+    """In the folder ``d``: the localization log with a 1e4 m GPS outlier (``log.csv``) and a user's system file
+    whose GPS has a gate (``my_system.py``). Returns the truth (ts, p, th)."""
+    truth = localization_log(d / "log.csv", outlier=True)
+    (d / "my_system.py").write_text("from liemef.systems import planar_localization\n"
+                                    "system = planar_localization(gate=0.999)\nK0 = [0.01, 0.0, 0.0]\n")
+    return truth
+
+
 @pytest.fixture(scope="module")
 def user_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("run")
-    ts, p, th = localization_log(d / "log.csv", outlier=True)
-    (d / "my_system.py").write_text("from liemef.systems import planar_localization\n"
-                                    "system = planar_localization(gate=0.999)\nK0 = [0.01, 0.0, 0.0]\n")
+    ts, p, th = gated_localization(d)
     res = invoke("run", "--system-file", d / "my_system.py", "--log", d / "log.csv", "--out", d / "out",
                  "--no-progress")
     return d, res, ts, p, th

@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from liemef.cli import EXIT_NOT_CONVERGED, cli
-from test_cli_run import localization_log
+from test_cli_run import gated_localization, localization_log
 
 
 def invoke(*args):
@@ -19,9 +19,7 @@ def invoke(*args):
 def runs(tmp_path_factory):
     """The same log with a 1e4 m GPS outlier, a gated system file, run and smoothed."""
     d = tmp_path_factory.mktemp("smooth")
-    ts, p, th = localization_log(d / "log.csv", outlier=True)
-    (d / "my_system.py").write_text("from liemef.systems import planar_localization\n"
-                                    "system = planar_localization(gate=0.999)\nK0 = [0.01, 0.0, 0.0]\n")
+    _, p, _ = gated_localization(d)
     common = ("--system-file", d / "my_system.py", "--log", d / "log.csv", "--no-progress")
     run = invoke("run", *common, "--out", d / "run")
     smooth = invoke("smooth", *common, "--out", d / "smooth")
