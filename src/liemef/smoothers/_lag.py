@@ -38,7 +38,11 @@ class FixedLagSmoother:
         flt: the filter whose model is smoothed (its weights, integrator and sensors).
         state: the filter's initial state at the first sample's time (:meth:`~liemef.MinimumEnergyFilter.init`).
         lag: the window, in samples: each estimate is of the state ``lag`` samples before the newest one.
-        gap, integrator, max_iterations, tol, floor_std: as :func:`liemef.smooth` (``gap``: default none).
+        gap: an interval longer than this holds no density sample, as in the filter (default: none is a gap).
+        integrator: the process model's step (default: the filter's integrator, else RKMK4).
+        max_iterations: the most Levenberg-Marquardt steps per window.
+        tol: a window has converged when a step's largest component is below it.
+        floor_std: the floor of the prior's and the process noise's stds (:data:`~liemef.smoothers.FLOOR_STD`).
 
     :meth:`update` takes each sample as it comes and, once ``lag + 1`` samples are in, returns the window's
     :class:`~liemef.smoothers.Smoothed`: ``g[0]`` is the estimate of the state at ``ts[0]``, delayed by ``lag``
