@@ -154,10 +154,11 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
                         settings=settings, force=force, progress=progress))
 
 
-@_command(cli, "run")
-def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
-            alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings, monitor,
-            force, progress):
+def _filter_log(smooth, system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection,
+                order, alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings,
+                monitor, force, progress):
+    """``liemef run`` (``smooth`` None) and ``liemef smooth`` (the smoother's options): filter the log, smooth it
+    if asked, write the outputs, print, and exit with the run's status."""
     from .studies import logs
 
     saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
@@ -167,34 +168,24 @@ def run_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k
                                force=force, connection=connection, order=order, alpha=alpha,
                                interpolation=interpolation, updates=updates, curvature=curvature, error=error,
                                substeps=_substeps(substeps), gap=gap,
-                               chunk=chunk, progress=progress, monitor=monitor)
+                               chunk=chunk, progress=progress, monitor=monitor, smooth=smooth)
     _echo(saved)
-    if saved.run.inconsistent:  # the outputs are written: an exit status of its own, for scripts
-        click.get_current_context().exit(EXIT_INCONSISTENT)
-    if saved.run.nonlinear:
-        click.get_current_context().exit(EXIT_NONLINEAR)
-
-
-@_command(cli, "smooth")
-def smooth_log(system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection, order,
-               alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings, monitor,
-               max_iterations, tol, force, progress):
-    from .studies import logs
-
-    saved = logs.filter_log_to(out, log_path, system=system_name, system_file=system_file, timeout=timeout,
-                               topics=topics, params=params_file, settings=settings, x0=_floats(x0, "'--x0'"),
-                               K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
-                               force=force, connection=connection, order=order, alpha=alpha,
-                               interpolation=interpolation, updates=updates, curvature=curvature, error=error,
-                               substeps=_substeps(substeps), gap=gap, chunk=chunk, progress=progress,
-                               monitor=monitor, smooth={"max_iterations": max_iterations, "tol": tol})
-    _echo(saved)
-    if saved.run.not_converged:
+    if saved.run.not_converged:  # the outputs are written: an exit status of its own, for scripts
         click.get_current_context().exit(EXIT_NOT_CONVERGED)
     if saved.run.inconsistent:
         click.get_current_context().exit(EXIT_INCONSISTENT)
     if saved.run.nonlinear:
         click.get_current_context().exit(EXIT_NONLINEAR)
+
+
+@_command(cli, "run")
+def run_log(**params):
+    _filter_log(None, **params)
+
+
+@_command(cli, "smooth")
+def smooth_log(max_iterations, tol, **params):
+    _filter_log({"max_iterations": max_iterations, "tol": tol}, **params)
 
 
 @_command(cli, "export-c")
