@@ -222,8 +222,8 @@ def test_marginal_covariances_are_blocks_of_the_inverse_hessian(localization):
     sm = liemef.smooth(flt, flt.init(g0, K0=K0), ts, us, ys)
     assert sm.ok, sm.message
     integ = flt.integrator
-    prob, xs = _batch.problem(system, flt.weights, bool(flt.diagonal), ts, _batch._held(us, np.zeros(3)), ys, g0,
-                              K0, init=sm.g, integ=integ)
+    prob, xs = _batch.problem(system, flt.weights, ts, _batch._held(us, np.zeros(3)), ys, g0, K0, init=sm.g,
+                              integ=integ)
     M, n = prob.ts.shape[0], 3
 
     def whitened(d):
@@ -289,7 +289,7 @@ def test_robust_gradient_is_the_robust_costs(robust):
     flt = liemef.MinimumEnergyFilter(system, integrator="lie-euler")
     integ = flt.integrator
     init = Rn[2](np.random.default_rng(0).standard_normal((ts.size, 2)))
-    prob, xs = _batch.problem(system, flt.weights, True, ts, us, ys, Rn[2](np.zeros(2)), np.eye(2), init=init,
+    prob, xs = _batch.problem(system, flt.weights, ts, us, ys, Rn[2](np.zeros(2)), np.eye(2), init=init,
                               integ=integ)
     screens = _batch._screens(system)
     _, _, gr, f = _batch._linearize(system, integ, screens, prob, xs)

@@ -43,7 +43,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .. import _validate
 from ..engines import bucket
 from ..filters import FilterState, Weights, information_in_force
-from ..filters._base import AbstractFilter, check_log
+from ..filters._base import AbstractFilter, check_log, sensor_layout
 from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
@@ -367,28 +367,21 @@ def _screens(system: AbstractSystem) -> tuple:
                  if b.gate_threshold is not None or b.robust is not None)
 
 
-def _sample_components(system: AbstractSystem) -> np.ndarray:
-    """Per output component, whether its sensor has sample meaning (else density)."""
-    sample = np.zeros(system.output_dim, bool)
-    for b in system.blocks():
-        sample[b.start:b.stop] = b.sample
-    return sample
-
-
-def sample_information(system: AbstractSystem, weights: Weights, diagonal: bool, ts: np.ndarray, ys: np.ndarray, *,
-                       gap: float = math.inf, last_sample: bool = True) -> tuple[np.ndarray, np.ndarray, Array]:
+def sample_information(system: AbstractSystem, weights: Weights, ts: np.ndarray, ys: np.ndarray, *,
+                       gap: float = math.inf, last: int | None = None) -> tuple[np.ndarray, np.ndarray, Array]:
     """Per state k of a log: which components of ``ys[k]`` enter (present, and a density sample only where it
     has an interval that is not a gap), the samples with zeros elsewhere, and W_k, the information in force
-    over the interval after t_k times its length (at the last state, which has no interval, a sample sensor's
-    per-sample information), with the sensors' time-varying weights and sample-dependent noise (``adaptive``)
-    applied as the filters apply them. ``last_sample=False``: the last row does not enter (the filter's
-    information set at ``ts[-1]``)."""
+    over the interval after t_k times its length, with the sensors' time-varying weights and sample-dependent
+    noise (``adaptive``) applied as the filters apply them. At the log's last state ``last`` (default: the last
+    row), which has no interval, a sample sensor's per-sample information and no density sample."""
     N = ts.shape[0]
+    last = N - 1 if last is None else last
     dts = np.diff(ts)
-    sample = _sample_components(system)
+    _, sample, diagonal = sensor_layout(system, weights.Wy)
+    sample = np.asarray(sample, bool)
     present = np.isfinite(ys)
     present[:-1] &= ~((dts > gap)[:, None] & ~sample[None, :])  # density samples are not held across a gap
-    present[N - 1] &= sample if last_sample else False  # a density sample at the last time has no interval
+    present[last] &= sample  # a density sample at the last time has no interval
     yz = np.where(present, np.nan_to_num(ys, nan=0.0), 0.0)
     W = _information(system, jnp.asarray(weights.Wy), jnp.asarray(sample), jnp.asarray(present), jnp.asarray(yz),
                      jnp.asarray(ts), jnp.asarray(np.concatenate([dts, [1.0]])), diagonal)
@@ -412,13 +405,14 @@ def _information(system, Wy, sample, present, yz, ts, dt_ext, diagonal: bool):
     return W * root[:, :, None] * root[:, None, :]
 
 
-def problem(system: AbstractSystem, weights: Weights, diagonal: bool, ts, us, ys, g0: LieGroup, P0, *,
+def problem(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, P0, *,
             init: LieGroup, integ: AbstractIntegrator, gap: float = math.inf, last_sample: bool = True,
             floor_std: float = FLOOR_STD) -> tuple[Problem, LieGroup]:
     """The cost's data for a checked log (``us`` with missing inputs already held), padded to a length bucket,
     and ``init`` extended over the padding by dead reckoning. The padded states carry no sample: they are free
     extrapolations whose terms vanish at the minimum and leave the log's states and their marginals unchanged.
-    ``last_sample``: :func:`sample_information`. The process noise is evaluated on ``init``."""
+    ``last_sample=False``: the last row's samples do not enter (the filter's information set at ``ts[-1]``).
+    The process noise is evaluated on ``init``."""
     N = ts.shape[0]
     pad = bucket(N - 1) + 1 - N
     dt_last = ts[-1] - ts[-2]
@@ -427,11 +421,7 @@ def problem(system: AbstractSystem, weights: Weights, diagonal: bool, ts, us, ys
     ysp = np.concatenate([ys, np.full((pad, ys.shape[1]), np.nan)])
     if not last_sample:
         ysp[N - 1] = np.nan
-    present, yz, W = sample_information(system, weights, diagonal, tsp, ysp, gap=gap)
-    if last_sample:  # a density sample at the log's last time has no interval, even where padding gives it one
-        present[N - 1] &= _sample_components(system)
-        yz[N - 1] = np.where(present[N - 1], yz[N - 1], 0.0)
-        W = W.at[N - 1].multiply(jnp.outer(present[N - 1], present[N - 1]))
+    present, yz, W = sample_information(system, weights, tsp, ysp, gap=gap, last=N - 1)
     dts = np.diff(tsp)
     tsj, usj = jnp.asarray(tsp), jnp.asarray(usp)
     if pad:
@@ -556,7 +546,7 @@ def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], 
     if init is None:
         init = flt.run(state, ts, us, ys, gap=gap).g_hat
     init = _filled(system, integ, init, ts, held)
-    prob, xs = problem(system, flt.weights, bool(flt.diagonal), ts, held, ys, state.g_hat, P0, init=init,
+    prob, xs = problem(system, flt.weights, ts, held, ys, state.g_hat, P0, init=init,
                        integ=integ, gap=gap, floor_std=floor_std)
     g, P, f, f0, gn, it, status, message = minimize(system, integ, screens, prob, xs, N,
                                                     max_iterations=max_iterations, tol=tol)

@@ -113,7 +113,7 @@ class FixedLagSmoother:
             step = _batch.dead_reckoning(system, self.integ, prev[-1], jnp.asarray(ts[-2:]), jnp.asarray(us[-2:]))
             init = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[1:], b[1:]]), prev, step)
         P0 = np.asarray(first.K, dtype=np.float64)
-        prob, xs = _batch.problem(system, flt.weights, bool(flt.diagonal), ts, us, ys, first.g_hat, P0, init=init,
+        prob, xs = _batch.problem(system, flt.weights, ts, us, ys, first.g_hat, P0, init=init,
                                   integ=self.integ, gap=self.gap, floor_std=self.floor_std)
         g, P, f, f0, gn, it, status, message = _batch.minimize(system, self.integ, self.screens, prob, xs, N,
                                                                max_iterations=self.max_iterations, tol=self.tol)

@@ -115,10 +115,9 @@ def _weights(system: AbstractSystem, ts, ys, floor_std):
     """Per interval k < K: dt_k, Q_k (the process noise over dt_k, floored) and the measurement information W_k
     (the smoother's, :func:`liemef.smoothers._batch.sample_information`, with the last row left out)."""
     weights = Weights.of(system)
-    Wy = np.asarray(weights.Wy)
     ys = np.array(ys, dtype=np.float64)
     ys[-1] = np.nan
-    _, _, W = _smoothers.sample_information(system, weights, bool(np.array_equal(Wy, np.diag(np.diag(Wy)))), ts, ys)
+    _, _, W = _smoothers.sample_information(system, weights, ts, ys)
     dts = np.diff(ts)
     Qd = _smoothers.floor(np.asarray(weights.BRB)[None] * dts[:, None, None], floor_std)
     return dts, Qd, np.asarray(W[:-1])
@@ -188,10 +187,8 @@ def batch_map(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[Arra
     integ = LieEuler()
     if init is None:
         init = _smoothers.dead_reckoning(system, integ, g0, jnp.asarray(ts), jnp.asarray(us))
-    weights = Weights.of(system)
-    Wy = np.asarray(weights.Wy)
-    prob, xs = _smoothers.problem(system, weights, bool(np.array_equal(Wy, np.diag(np.diag(Wy)))), ts, us, ys, g0,
-                                  P0, init=init, integ=integ, last_sample=False, floor_std=floor_std)
+    prob, xs = _smoothers.problem(system, Weights.of(system), ts, us, ys, g0, P0, init=init, integ=integ,
+                                  last_sample=False, floor_std=floor_std)
     g, P, f, _, gn, it, status, _ = _smoothers.minimize(system, integ, (), prob, xs, N,
                                                         max_iterations=max_iterations, tol=tol)
     return BatchMAP(ts=jnp.asarray(ts), g=g, P_last=P[-1], cost=f, gradient_norm=gn, iterations=jnp.asarray(it),
