@@ -479,14 +479,11 @@ def _filled(system, integ, g: LieGroup, ts, us) -> LieGroup:
     return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[:k - 1], b]), g, tail)
 
 
-def _check_options(max_iterations, tol, floor_std):
-    if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
-        raise ValueError(f"max_iterations: expected an integer >= 1, got {max_iterations!r}")
-    tol = _validate.nonnegative("tol", tol)
-    if not (isinstance(floor_std, int | float) and not isinstance(floor_std, bool) and math.isfinite(floor_std)
-            and floor_std > 0):
-        raise ValueError(f"floor_std: expected a std > 0, got {floor_std!r}")
-    return tol
+def _check_options(max_iterations, tol, floor_std) -> float:
+    """The solver's options, checked (ValueError naming each); returns ``tol`` as a float."""
+    _validate.integer("max_iterations", max_iterations, low=1)
+    _validate.positive("floor_std", floor_std)
+    return _validate.nonnegative("tol", tol)
 
 
 def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"] | None,
