@@ -3,10 +3,12 @@ as one more row (``liemef compare broad``'s ``mef-vel-smooth``)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 
-from ..filters import CAUSES, Status, Trajectory
+from ..filters import CAUSES, Trajectory
 from ..filters._base import AbstractFilter, nan_after_failure
 from ._batch import smooth
 
@@ -46,12 +48,8 @@ class OfflineSmoother:
         if sm.ok:
             return Trajectory(ts=traj.ts, g_hat=sm.g, K=sm.P, status=traj.status, final=traj.final)
         cause = CAUSES.NONFINITE if sm.status == "failed" else CAUSES.NOT_CONVERGED
-        st = traj.status
-        status = Status(code=jnp.asarray(cause.code, jnp.int32), index=jnp.asarray(0, jnp.int32),
-                        time=jnp.asarray(float(np.asarray(ts)[0])), steps=st.steps, rejected=st.rejected,
-                        consecutive=st.consecutive, substeps_max=st.substeps_max, substeps_total=st.substeps_total,
-                        substeps_capped=st.substeps_capped, gaps=st.gaps, longest_gap=st.longest_gap,
-                        inputs_held=st.inputs_held)
+        status = dataclasses.replace(traj.status, code=jnp.asarray(cause.code, jnp.int32),
+                                     index=jnp.asarray(0, jnp.int32), time=jnp.asarray(float(np.asarray(ts)[0])))
         codes = np.full(np.asarray(ts).shape[0], cause.code, np.int32)
         g, K = nan_after_failure(codes, (sm.g, sm.P), first_given=True)
         return Trajectory(ts=traj.ts, g_hat=g, K=K, status=status, final=traj.final)

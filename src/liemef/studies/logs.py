@@ -704,13 +704,14 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
 def smoother_options(max_iterations: int = 200, tol: float = 1e-9) -> dict:
     """``liemef smooth``'s options of :func:`liemef.smooth`, checked before JAX loads (ValueError naming
     ``--max-iterations`` or ``--tol``)."""
-    if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
-        raise _bad("--max-iterations", f"expected an integer >= 1, got {max_iterations!r}")
-    try:
-        tol = _validate.nonnegative("--tol", tol)
-    except ValueError as err:
-        raise _bad("--tol", str(err).removeprefix("--tol: ")) from err
-    return {"max_iterations": max_iterations, "tol": tol}
+    out = {}
+    for option, check, value in (("--max-iterations", lambda n, v: _validate.integer(n, v, low=1), max_iterations),
+                                 ("--tol", _validate.nonnegative, tol)):
+        try:
+            out[option[2:].replace("-", "_")] = check(option, value)
+        except ValueError as err:
+            raise _bad(option, str(err).removeprefix(f"{option}: ")) from err
+    return out
 
 
 def report_failed(report: dict, cause: str) -> dict:
@@ -727,7 +728,7 @@ def _smoothed(flt, state, log, traj, gap: float, options: dict):
     sm = smooth(flt, state, log.ts, log.us, log.ys, gap=gap, init=traj.g_hat, **options)
     said = {"status": sm.status, "message": sm.message, "iterations": sm.iterations, "cost": float(sm.cost),
             "cost_init": float(sm.cost_init), "gradient_norm": float(sm.gradient_norm),
-            "options": {k: v for k, v in options.items()}}
+            "options": dict(options)}
     return Trajectory(ts=traj.ts, g_hat=sm.g, K=sm.P, status=traj.status, final=traj.final), said
 
 
@@ -750,9 +751,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     outliers = {} if smoothed else innovation_outliers(flt, log, traj, innov)
     label, measured = source.label, source.measured
     bands = state_bands(system, traj.g_hat, K, None if measured is None else measured(log.ys))
-    bands["covariance"] = np.bool_(gain_is_covariance(flt))  # the figure draws K's sigma band only then
-    if smoothed:
-        bands["covariance"] = np.bool_(True)  # the smoother's P is the marginal covariance of its estimates
+    # the figure draws a sigma band only from a covariance: K where it is one, the smoother's P always
+    bands["covariance"] = np.bool_(smoothed or gain_is_covariance(flt))
     figures = [{"file": "estimate.png", "kind": "run", "components": [str(v) for v in bands["names"]],
                 "title": f"{label}: " + ("measured (blue), " if measured else "")
                          + ("smoothed (green) with +-3 sigma from its covariance" if smoothed else "filtered (green)"
