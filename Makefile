@@ -42,7 +42,7 @@ JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(C
 # their programs in both workers: a cold run from 1064 s to 838-903 s. `make test-slow` runs only the
 # `@pytest.mark.slow` tests: the full-size studies and the heaviest variants of fast tests.
 test: $(STAMP)
-	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q --durations=30
+	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart=0 -q --durations=30
 
 test-slow: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -q -m slow
