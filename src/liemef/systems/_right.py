@@ -207,24 +207,26 @@ def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol
     n = G.tangent_dim
     rng = np.random.default_rng(seed)
     zetas = np.vstack([np.zeros(n), rng.standard_normal((states, n))])
-    points = G.exp(jnp.asarray(zetas))
-    times = jnp.asarray(np.concatenate([[0.0], rng.uniform(0.0, 10.0, states)]))  # an output may vary with t
+    times = np.concatenate([[0.0], rng.uniform(0.0, 10.0, states)])  # an output may vary with t
     zero = jnp.zeros(n)
     moves = {"left": lambda g, e: g.rplus(e), "right": lambda g, e: G.exp(e) @ g}
 
-    def jacobians(move):
-        """The Jacobian of the outputs as the filter linearizes them (a sensor's own residual included: the
-        output as seen from the sample y = h(g)), at every state and its time at once, compiled as one program
-        (run eagerly, JAX compiles each of its hundreds of operations alone: 22 s for ukfm's inertial system on
-        a loaded machine)."""
-        def one(g, t):
+    @jax.jit
+    def jacobians(zetas, times):
+        """The Jacobians of the outputs as the filter linearizes them (a sensor's own residual included: the
+        output as seen from the sample y = h(g)), on each side, at every state and its time, compiled as one
+        program: run eagerly, JAX compiled each of its hundreds of operations alone (22 s for ukfm's inertial
+        system on a loaded machine, 2 s compiled)."""
+        def one(zeta, t):
+            g = G.exp(zeta)
             y = system.output(g, t)
-            return jax.jacfwd(lambda e: system.output_seen_from(y, move(g, e), t))(zero)
-        return np.asarray(jax.jit(jax.vmap(one))(points, times), np.float64)
+            return {side: jax.jacfwd(lambda e, move=move: system.output_seen_from(y, move(g, e), t))(zero)
+                    for side, move in moves.items()}
+        return jax.vmap(one)(zetas, times)
 
     out = {}
     try:
-        J = {side: jacobians(move) for side, move in moves.items()}
+        J = {side: np.asarray(a, np.float64) for side, a in jacobians(jnp.asarray(zetas), jnp.asarray(times)).items()}
     except Exception:  # noqa: BLE001 (a user's output that fails at a random state: nothing measured)
         return {s.name: "neither" for s in system.sensors}
     for b in system.blocks():
