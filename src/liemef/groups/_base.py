@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import abc
+import functools
 from typing import ClassVar, Self
 
 import equinox as eqx
@@ -141,11 +142,19 @@ class LieGroup(eqx.Module):
     @classmethod
     def structure_constants(cls) -> Float[Array, "n n n"]:
         r"""$C[m, j, i] = (\mathrm{ad}_{e_j} e_i)_m$, constant for a given group."""
-        return jnp.moveaxis(cls.ad(jnp.eye(cls.tangent_dim)), 0, 1)
+        return _structure_constants(cls)
 
     def __getitem__(self, index) -> Self:
         """Index the batch axes."""
         return jax.tree_util.tree_map(lambda leaf: leaf[index], self)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _structure_constants(cls: type[LieGroup]) -> Array:
+    """:meth:`LieGroup.structure_constants`, compiled as one program per group (every filter's connection needs
+    them): eagerly, JAX compiled each operation of ``ad`` alone, 1.1 s for SE_2(3) in a new process, 0.4 s
+    compiled."""
+    return jnp.moveaxis(cls.ad(jnp.eye(cls.tangent_dim)), 0, 1)
 
 
 def as_float_array(x: ArrayLike) -> Array:
