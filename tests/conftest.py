@@ -1,5 +1,3 @@
-import ctypes
-import gc
 import os
 import sys
 
@@ -16,10 +14,7 @@ if os.path.exists("/proc/cpuinfo"):
         if " avx2" in _f.read():
             os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
 
-import jax  # noqa: E402
-import pytest  # noqa: E402
-
-import liemef._config  # noqa: E402, F401  (switches JAX to float64 before any test creates an array)
+import liemef._config  # noqa: F401  (switches JAX to float64 before any test creates an array)
 
 # `make test` runs the files with `--dist loadfile --no-loadscope-reorder`: each file in one xdist worker, which
 # compiles the programs its tests share once (split across two workers, each compiled them). The workers take
@@ -36,26 +31,3 @@ HEAVY_FIRST = ("test_engine.py", "test_sample_update.py", "test_predict_update.p
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests as written
-
-
-# A worker keeps every program it compiled until it exits, and its memory only grows: in one cold run
-# (December 2026) a worker held 7 GB by the end. A worker of CI died late in a run with SIGABRT, in JAX's write of
-# a compiled program to its cache; the cause was not found, and memory is the suspect that can be removed. An
-# xdist worker that dies under `--dist loadfile` is never replaced cleanly (the run then hangs until CI's limit),
-# so `make test` says `--max-worker-restart=0` and the memory is freed here, after each file: the compiled
-# programs (a later file that needs one again reads it from the persistent cache), then the allocator's free
-# pages. Four files run in one process (test_smoother, test_optimum, test_residuals, test_right_error) held
-# 3.9 GB at their end without this, 0.6 GB with it, and peaked at 2.1 GB.
-try:
-    _LIBC = ctypes.CDLL("libc.so.6")
-except OSError:  # not glibc: its allocator keeps its own pages
-    _LIBC = None
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _free_compiled_programs():
-    yield
-    jax.clear_caches()
-    gc.collect()
-    if _LIBC is not None and hasattr(_LIBC, "malloc_trim"):
-        _LIBC.malloc_trim(0)
