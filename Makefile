@@ -41,6 +41,9 @@ JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(C
 # the heaviest files first: tests/conftest.py) instead of worksteal, which split a file's tests and compiled
 # their programs in both workers: a cold run from 1064 s to 838-903 s. `make test-slow` runs only the
 # `@pytest.mark.slow` tests: the full-size studies and the heaviest variants of fast tests.
+# --max-worker-restart=0: under --dist loadfile pytest-xdist does not replace a crashed worker cleanly (it then
+# waits forever, as a CI run did until its limit after a worker's SIGABRT), so a crash ends the run at once,
+# with the test it happened in named.
 test: $(STAMP)
 	$(JAX_CACHE) $(PY) -m pytest -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart=0 -q --durations=30
 
