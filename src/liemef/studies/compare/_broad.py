@@ -89,6 +89,8 @@ SMOOTH_TOL = 1e-6
 """``mef-vel-smooth``'s tolerance (rad, rad/s, m/s^2 steps), 1000 times :func:`liemef.smooth`'s default. On trial
 07 (December 2026) its attitudes were within 2.4e-7 deg of those at 1e-9, after 5 iterations instead of 8 (22 s
 instead of 32 s, filter pass included): below 1e-6 the steps follow the round-off of a cost of 1e7."""
+
+
 def _plain(ctx):
     return attitude_gyro_bias(dip=ctx["dip"])
 
