@@ -13,7 +13,9 @@ What it counts:
 - XLA: each call of JAX's ``backend_compile_and_load`` (a program compiled, not loaded from a cache), by the
   program's name and by the innermost frame of liemef or of the tests that asked for it;
 - C: the time C compiler subprocesses (cc, gcc, clang) took to answer, from any thread. The kernels' -O2
-  builds run in a background thread beside the tests, so a file's C time can exceed its own run time.
+  builds run in a background thread beside the tests, so a file's C time can exceed its own run time;
+- C translation: the time liemef's kernels took to translate their traced interval into C (Python), in any
+  thread, and how many kernels did.
 
 It wraps a private function of JAX (``jax._src.compiler.backend_compile_and_load``, as in the JAX this project
 installs): where another JAX lacks it, the plugin says so and times the C compilers only.
@@ -33,7 +35,7 @@ from pathlib import Path
 OUT_ENV = "LIEMEF_SUITE_PROFILE"
 COMPILERS = ("cc", "gcc", "clang")
 _STATS = {key: collections.Counter() for key in ("xla_s", "xla_n", "site_s", "site_n", "file_xla_s",
-                                                  "file_xla_n", "file_c_s", "file_s")}
+                                                  "file_xla_n", "file_c_s", "file_tr_s", "file_tr_n", "file_s")}
 _CURRENT = {"file": "(collection)"}
 
 
@@ -77,6 +79,17 @@ def _timed_communicate(original):
     return communicate
 
 
+def _timed_translate(original):
+    def _translate(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            _STATS["file_tr_s"][_CURRENT["file"]] += time.perf_counter() - start
+            _STATS["file_tr_n"][_CURRENT["file"]] += 1
+    return _translate
+
+
 def pytest_configure(config):
     try:
         from jax._src import compiler
@@ -84,6 +97,8 @@ def pytest_configure(config):
     except (ImportError, AttributeError) as exc:
         print(f"suite_profile: XLA compiles not timed ({exc})", file=sys.stderr)
     subprocess.Popen.communicate = _timed_communicate(subprocess.Popen.communicate)
+    from liemef.codegen import _kernel
+    _kernel._translate = _timed_translate(_kernel._translate)
 
 
 def pytest_runtest_protocol(item, nextitem):
@@ -115,12 +130,14 @@ def summary(folder: Path, top: int = 30) -> str:
     test_s, xla_s = sum(total["file_s"].values()), sum(total["xla_s"].values())
     lines = [f"{len(files)} worker(s): tests {test_s:.0f} s; XLA compiles {xla_s:.0f} s "
              f"({100 * xla_s / max(test_s, 1e-9):.0f} %, {sum(total['xla_n'].values())} programs); "
-             f"C compilers {sum(total['file_c_s'].values()):.0f} s (any thread)"]
+             f"C compilers {sum(total['file_c_s'].values()):.0f} s (any thread); kernels translated to C "
+             f"{sum(total['file_tr_s'].values()):.0f} s ({sum(total['file_tr_n'].values())} kernels)"]
     for title, s_key, n_key in (("program", "xla_s", "xla_n"), ("asked from", "site_s", "site_n")):
         lines += ["", f"XLA compile s, count, {title}"]
         lines += [f"{s:8.1f} {total[n_key][k]:6d}  {k}" for k, s in total[s_key].most_common(top)]
-    lines += ["", "file: test s, XLA compile s (count), C compiler s"]
-    lines += [f"{s:8.1f} {total['file_xla_s'][k]:8.1f} ({total['file_xla_n'][k]:5d}) {total['file_c_s'][k]:8.1f}  {k}"
+    lines += ["", "file: test s, XLA compile s (count), C compiler s, C translation s (count)"]
+    lines += [f"{s:8.1f} {total['file_xla_s'][k]:8.1f} ({total['file_xla_n'][k]:5d}) {total['file_c_s'][k]:8.1f} "
+              f"{total['file_tr_s'][k]:8.1f} ({total['file_tr_n'][k]:4d})  {k}"
               for k, s in total["file_s"].most_common(top)]
     return "\n".join(lines)
 
