@@ -1,10 +1,11 @@
 """The C engine (issue 9): ``run``, ``step`` and ``run_batch`` by the compiled C kernel of the filter's interval
 (:mod:`liemef.codegen._kernel`) are the XLA engine's computation.
 
-On every ready system, with held and missing inputs, missing outputs, a gap and a failure, the C engine's
-trajectory, final state and status equal the XLA engine's to ``ENGINES`` relative (statuses and counters
-exactly). A new weight set with the same zero pattern reuses the kernel (``TRACES["kernel"]``); a new zero
-pattern builds one more. Unknown engines, a missing compiler and a kernel that cannot be built are clear.
+On every ready system (``make test``: one of each group and kind of sensor, FAST_SYSTEMS; ``make test-slow``:
+the rest), with held and missing inputs, missing outputs, a gap and a failure, the C engine's trajectory,
+final state and status equal the XLA engine's to ``ENGINES`` relative (statuses and counters exactly). A new
+weight set with the same zero pattern reuses the kernel (``TRACES["kernel"]``); a new zero pattern builds one
+more. Unknown engines, a missing compiler and a kernel that cannot be built are clear.
 """
 
 from __future__ import annotations
@@ -59,9 +60,18 @@ def _runs(flt, *args, **kw):
         return flt.run(*args, engine="c", **kw), flt.run(*args, engine="xla", **kw)
 
 
-@pytest.mark.parametrize("system", [
-    # attitude-velocity's second-order step (9 states, 11 outputs) takes about 25 s to build in C: make test-slow
-    pytest.param(s, marks=pytest.mark.slow) if s == "attitude-velocity" else s for s in sorted(SYSTEMS)])
+# The ready systems whose engine comparisons run in `make test`: each group and kind of sensor once (the plane,
+# landmarks, a nonholonomic constraint, the circle, SO(3) with directions, SE_2(3) with biases at the scalar
+# code's 15 states). The others, which repeat a group or a sensor of these (and cost 5-20 s each cold, mostly
+# building their kernels), run in `make test-slow`.
+FAST_SYSTEMS = ("tse2", "localization", "chaplygin", "unit-circle", "attitude", "inertial-navigation")
+
+
+def _systems(fast=FAST_SYSTEMS):
+    return [s if s in fast else pytest.param(s, marks=pytest.mark.slow) for s in sorted(SYSTEMS)]
+
+
+@pytest.mark.parametrize("system", _systems())
 def test_run_equals_xla_on_every_ready_system(system):
     """Second order, (0)-connection, RKMK4 with adaptive sub-steps: the whole trajectory, the final state and its
     status, with missing samples and a gap predicted through."""
@@ -380,7 +390,7 @@ def _two_weight_sets(flt):
     return both, eqx.filter(flt, eqx.is_array, inverse=True)
 
 
-@pytest.mark.parametrize("keep_every", [1, 4])
+@pytest.mark.parametrize("keep_every", [1, pytest.param(4, marks=pytest.mark.slow)])
 def test_scan_by_c_under_jit_and_vmap(keep_every):
     """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states and logs (the Monte Carlo engine's
     form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included; over the
@@ -636,11 +646,12 @@ def test_folded_constants_are_xlas_bits():
     assert _np_eval("reduce_sum", {"axes": (0,)}, [np.array([-0.0, -0.0])], [np.float64]) is None
 
 
-@pytest.mark.parametrize("system", sorted(SYSTEMS))
+@pytest.mark.parametrize("system", _systems(("tse2", "localization", "chaplygin", "unit-circle", "attitude-bias")))
 def test_quick_and_optimized_builds_agree_bit_for_bit(system):
     """The quick first build (-O0) and the -O2 build for the host that replaces it compute the same bits on a
-    log of every ready system (no fused multiply-add in either: GCC's vectorizer made some at
-    -march=native); a kernel whose build thread was lost in a fork builds it when waited for."""
+    log of every ready system (five in ``make test``, the rest in ``make test-slow``; no fused multiply-add in
+    either: GCC's vectorizer made some at -march=native); a kernel whose build thread was lost in a fork builds
+    it when waited for."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS[system].make())
     state, ts, us, ys = _log(flt, n=150, seed=6)
     kern = _kernel.kernel_for(flt).wait()
