@@ -62,6 +62,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_batch.py
 	$(PY) benchmarks/bench_real_logs.py
 	$(PY) benchmarks/bench_first_call.py
+	$(PY) benchmarks/bench_quick_build.py
 	$(PY) benchmarks/bench_side.py
 
 # The whole-log smoother's cost per sample at 1k-16k samples and the fixed-lag smoother's per step, beside the

@@ -671,6 +671,25 @@ def test_quick_and_optimized_builds_agree_bit_for_bit(system):
         assert quick.wait().optimized and quick.path == kern.path
 
 
+def test_the_quick_build_takes_clang_unless_cc_says_otherwise(monkeypatch):
+    """The quick (-O0) kernels are Clang's where it is on the PATH (faster at -O0 than GCC), ``$CC``'s where it
+    is set, else the system compiler's; the -O2 kernels are always the system compiler's. That the two builds
+    give the same bits is ``test_quick_and_optimized_builds_agree_bit_for_bit``."""
+    from liemef.codegen import _export
+
+    monkeypatch.delenv("CC", raising=False)
+    real_which = _export.shutil.which
+    monkeypatch.setattr(_export.shutil, "which", lambda name: f"/usr/bin/{name}" if name == "clang" else
+                        real_which(name))
+    assert _export.quick_compiler() == "clang" and _kernel._compiler_for("quick") == "clang"
+    assert _kernel._compiler_for("kernel") == _export.compiler()
+    monkeypatch.setenv("CC", "gcc")
+    assert _export.quick_compiler() == "gcc" == _kernel._compiler_for("kernel")
+    monkeypatch.delenv("CC")
+    monkeypatch.setattr(_export.shutil, "which", lambda name: None if name == "clang" else f"/usr/bin/{name}")
+    assert _export.quick_compiler() == _export.compiler() == "cc"
+
+
 @pytest.mark.parametrize("cc", COMPILERS)
 def test_the_kernel_source_builds_warning_free(cc, tmp_path):
     """The engine's C (TSE(2)'s kernel, built without warnings flags) is ISO C99 that GCC and Clang build with

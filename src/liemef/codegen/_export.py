@@ -392,11 +392,22 @@ def compiler() -> str | None:
     return None
 
 
-def run_compiler(args, cwd: str | os.PathLike | None = None) -> None:
-    """Run the system C compiler (:func:`compiler`) with ``args`` (in ``cwd``): the one compiler runner of
-    :mod:`liemef.codegen` (exports, engine kernels, the fast step's extension). RuntimeError if there is no
-    compiler, or with the command and the compiler's message if it fails."""
-    cc = compiler()
+def quick_compiler() -> str | None:
+    """The compiler of the C engine's quick (-O0) kernels: ``$CC`` where it is set, else ``clang`` where it is
+    on the PATH, else :func:`compiler`. At -O0 Clang built the kernels of TSE(2), the attitude with gyro bias
+    and the inertial navigation 1.7-1.8x faster than GCC (benchmarks/bench_quick_build.py); both compile ISO
+    C99 without contraction on the x86-64 baseline (no FMA), so the quick kernel computes the -O2 kernel's bits
+    (tests/test_engine.py)."""
+    if not os.environ.get("CC") and shutil.which("clang"):
+        return "clang"
+    return compiler()
+
+
+def run_compiler(args, cwd: str | os.PathLike | None = None, cc: str | None = None) -> None:
+    """Run the system C compiler (:func:`compiler`, or ``cc``) with ``args`` (in ``cwd``): the one compiler
+    runner of :mod:`liemef.codegen` (exports, engine kernels, the fast step's extension). RuntimeError if there
+    is no compiler, or with the command and the compiler's message if it fails."""
+    cc = cc or compiler()
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     cmd = [cc, *args]

@@ -57,7 +57,7 @@ from .. import _side, _validate
 from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _elf, _fast
 from ._cache import Library, cache_dir
-from ._export import _dce, compiler, run_compiler
+from ._export import _dce, compiler, quick_compiler, run_compiler
 from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype, helpers_used
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c, structural_zero
@@ -476,13 +476,19 @@ def _library(tr: _Traced, flags, kind: str) -> Path:
     """Where the disk cache keeps the library of a traced interval built with ``flags`` (``kind``: "kernel",
     "quick" or "lanes"): keyed by the jaxpr, the generator, the compiler, the flags and, for the host's SIMD,
     the CPU; in the checked cache folder (:func:`._cache.folder`)."""
-    cc = compiler()
+    cc = _compiler_for(kind)
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     _elf.host()  # a system whose libraries the cache cannot check: refused by name, before anything is built
     parts = [tr.key, cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
         ([_host()] if "-march=native" in flags else [])
     return _cache.folder() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
+
+
+def _compiler_for(kind: str) -> str | None:
+    """The compiler of a kernel library: :func:`~._export.quick_compiler` for the quick build, else the
+    system's (:func:`~._export.compiler`)."""
+    return quick_compiler() if kind == "quick" else compiler()
 
 
 def _cached(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel") -> Library | None:
@@ -505,15 +511,15 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
         Path(tmp, "kernel.c").write_text(source)
         # relative names in the build folder: the same source gives the same bytes in any process
         args = [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+        cc = _compiler_for(kind)
         try:
-            run_compiler(args, cwd=tmp)
+            run_compiler(args, cwd=tmp, cc=cc)
         except RuntimeError:
             if "-march=native" not in flags:
                 raise
-            run_compiler([c for c in args if c not in NATIVE], cwd=tmp)  # a compiler without them (some ARM clangs)
+            run_compiler([c for c in args if c not in NATIVE], cwd=tmp, cc=cc)  # without them (some ARM clangs)
         data = Path(tmp, "kernel.so").read_bytes()
-    return _cache.install(lib, data, tr.key, kind, {"filter": tr.title, "compiler": compiler(),
-                                                      "flags": list(flags)})
+    return _cache.install(lib, data, tr.key, kind, {"filter": tr.title, "compiler": cc, "flags": list(flags)})
 
 
 def _open(lib: Library | Path, tr: _Traced):
