@@ -77,9 +77,12 @@ three-operand instructions: a TSE(2) step in 1.04-1.16 us against 1.41-1.46 us, 
 ``-fno-math-errno`` lets ``sqrt`` be one instruction (the kernel never reads errno; results are
 IEEE-identical)."""
 
-QUICK_CFLAGS = ("-std=c99", "-O0", "-fno-math-errno")
+QUICK_CFLAGS = ("-std=c99", "-O0", "-fno-math-errno", "-ffp-contract=off")
 """The first build's flags: on TSE(2) -O0 compiles in 0.3 s against 1.2 s, and runs a step in 3.0 us against
-1.0 us. Both are ISO C without contraction: the same numbers, bit for bit (tested)."""
+1.0 us. Both are ISO C without contraction: the same numbers, bit for bit (tested). ``-ffp-contract=off`` is
+GCC's default in ISO C mode but not Clang's, which builds the quick kernels where it is on the PATH
+(:func:`~._export.quick_compiler`): on a target with FMA in its baseline (AArch64) Clang could otherwise fuse
+a multiply and an add within one expression."""
 
 OPTIMIZE_AFTER_S = 2.0
 """Seconds of C calls (``scan``, ``history``, ``batch``) that the quick build serves in a process before the
