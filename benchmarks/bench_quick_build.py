@@ -17,7 +17,6 @@ import json
 import os
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,6 +41,7 @@ def main(argv=None) -> None:
     one_core()
     import liemef
     from liemef.codegen import _kernel
+    from liemef.codegen._export import run_compiler
     from liemef.studies.experiments import SYSTEMS
 
     names = [n.strip() for n in args.only.split(",") if n.strip()]
@@ -60,8 +60,8 @@ def main(argv=None) -> None:
                 times = []
                 for _ in range(args.repeats):
                     t0 = time.perf_counter()
-                    subprocess.run([cc, *_kernel.QUICK_CFLAGS, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c",
-                                    "-lm"], cwd=tmp, check=True, capture_output=True)
+                    run_compiler([*_kernel.QUICK_CFLAGS, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"],
+                                 cwd=tmp, cc=cc)
                     times.append(time.perf_counter() - t0)
                 row[f"{cc}_s"] = round(statistics.median(times), 3)
         row["gcc_over_clang"] = round(row["gcc_s"] / row["clang_s"], 2)
