@@ -790,19 +790,26 @@ def test_the_runs_credentials_connect(campaign_cluster):
 def test_a_tls_scheduler_without_credentials_is_named_and_with_them_used(campaign_cluster, tmp_path):
     """--scheduler tls://...: without credentials a CampaignError says how to give them; with the cluster's
     credentials in Dask's configuration (distributed.comm.tls.*, as files) the client connects."""
+    import gc
     import os
 
     import dask
+    from dask.distributed import Client
 
     from liemef.studies.campaign import CampaignError
     from liemef.studies.campaign._run import _client
 
     _, cluster, _, pids = campaign_cluster
     address = cluster.scheduler_address
+    before = {id(c) for c in gc.get_objects() if isinstance(c, Client)}
     with pytest.raises(CampaignError) as err:
         _client(address, 1)
     for words in (f"scheduler: cannot connect to {address!r}", "TypeError", "distributed.comm.tls"):
         assert words in str(err.value), str(err.value)
+    # the half-made client is finalized at once, not left in a cycle for a later garbage collection (which, run
+    # inside another client's start, would wait forever on Dask's loop-runner lock)
+    assert err.value.__context__ is None and err.value.__cause__ is None
+    assert not [c for c in gc.get_objects() if isinstance(c, Client) and id(c) not in before], "a client lives"
     files = {}
     for key, text in (("ca-file", cluster.security.tls_ca_file), ("client.cert", cluster.security.tls_client_cert),
                       ("client.key", cluster.security.tls_client_key)):

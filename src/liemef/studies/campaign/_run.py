@@ -199,16 +199,31 @@ def _client(scheduler: str | None, workers: int):
         try:
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError, ValueError, TypeError) as err:  # TypeError: tls:// without credentials
-            raise CampaignError(f"scheduler: cannot connect to {scheduler!r} ({type(err).__name__}: {err}); "
-                                "expected the address of a running Dask scheduler, e.g. tcp://HOST:8786, or "
-                                "tls://HOST:8786 with the cluster's credentials in Dask's configuration "
-                                "(distributed.comm.tls.*)") from None
+            why = f"{type(err).__name__}: {err}"
+        _finalize_failed_clients()
+        raise CampaignError(f"scheduler: cannot connect to {scheduler!r} ({why}); expected the address of a "
+                            "running Dask scheduler, e.g. tcp://HOST:8786, or tls://HOST:8786 with the cluster's "
+                            "credentials in Dask's configuration (distributed.comm.tls.*)")
     cluster = _local_cluster(workers)
     try:
         return Client(cluster, timeout="20s"), cluster
     except BaseException:
         cluster.close()
         raise
+
+
+def _finalize_failed_clients() -> None:
+    """Finalize, now, a ``Client`` whose constructor raised.
+
+    The half-made client is kept alive by reference cycles (its exception's traceback holds its frames), so
+    its ``__del__`` (``close()``, then ``LoopRunner.stop()``) runs in a later garbage collection. If that
+    collection happens while another client starts, inside ``LoopRunner.start()``, both take the lock that
+    all of Dask's loop runners share (a ``threading.Lock``, not reentrant): the thread waits on itself, forever
+    (distributed 2026.8.0: a test of the suite hung so). Collecting here, where no such lock is held, runs that
+    ``__del__`` at once."""
+    import gc
+
+    gc.collect()
 
 
 CLOSED_HTTP = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
