@@ -137,7 +137,8 @@ def test_step_equals_xla_and_chains():
                  flt.step(sc, ts[20], us[20], ys[20], 0.01, engine="c"))
 
 
-@pytest.mark.parametrize("system", ["tse2", pytest.param("attitude-bias", marks=pytest.mark.slow), "attitude"])
+@pytest.mark.parametrize("system", ["tse2", pytest.param("attitude-bias", marks=pytest.mark.slow),
+                                    pytest.param("attitude", marks=pytest.mark.slow)])
 def test_run_batch_equals_single_runs(system):
     """Nine trials (two SIMD groups and a remainder) with their own logs and initial states, one of which fails,
     on two threads: each equals its own run, and the XLA engine's vmap. The attitude's solve with its inertia

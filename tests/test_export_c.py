@@ -414,13 +414,21 @@ COMPILERS = ("gcc", "clang")
 (CI installs both and names both, so that a missing Clang fails there instead of passing unseen)."""
 
 
-def test_exported_c_builds_warning_free_with_gcc_and_clang(build, tmp_path):
+# Each translator and group kind in make test (scalar code of TSE(2) and of SO(3) x R^3, the array translator's);
+# the other default exports, other connections and orders of the same code, in make test-slow
+WARNING_FREE_FAST = [("tse2", "second", "zero"), ("attitude-bias", "second", "zero"),
+                     ("tse2", "second", "zero", "array")]
+
+
+@pytest.mark.parametrize("keys", [WARNING_FREE_FAST, pytest.param(
+    [key for key in DEFAULT if key not in WARNING_FREE_FAST], marks=pytest.mark.slow)], ids=["fast", "others"])
+def test_exported_c_builds_warning_free_with_gcc_and_clang(build, tmp_path, keys):
     present = [cc for cc in COMPILERS if shutil.which(cc)]
     missing = set(os.environ.get("LIEMEF_REQUIRE_COMPILERS", "").split()) - set(present)
     assert not missing, f"required by $LIEMEF_REQUIRE_COMPILERS but not on the PATH: {sorted(missing)}"
     if not present:
         pytest.skip(f"none of {COMPILERS} on the PATH")
-    for key in [*DEFAULT, ("tse2", "second", "zero", "array")]:
+    for key in keys:
         _, cf = build(*key)
         for cc in present:
             obj = tmp_path / f"{cf.exported.prefix}.{cc}.o"

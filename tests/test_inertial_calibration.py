@@ -85,7 +85,8 @@ def _flight(M, seconds=40.0, rate=100.0, fix_rate=10.0, r=(0.02, -0.01, 0.03), b
     return ts, us, ys, Rs, pos(ts), v0
 
 
-@pytest.mark.parametrize("kind", ["scale", "matrix"])
+# the 27-state matrix model (its kernel: 20 MB of C) in make test-slow; the 21-state scale model here
+@pytest.mark.parametrize("kind", ["scale", pytest.param("matrix", marks=pytest.mark.slow)])
 def test_the_filter_recovers_a_known_lever_arm_and_gyro_calibration(kind):
     r = np.array([0.02, -0.01, 0.03])
     M = np.diag([0.01, -0.015, 0.02])

@@ -217,8 +217,13 @@ def _robot_log(N=24, seed=0):
     return ts, us, ys
 
 
-@pytest.mark.parametrize("engine", ["xla", "c"])
-@pytest.mark.parametrize("name", list(ROBOT_FILTERS))
+# By XLA in make test: the second order, the IEKF and the UKF (three tolerances); the other three in make test-slow
+_XLA_SLOW = ("mef-first", "mef-exact-curvature", "ekf-local")
+
+
+@pytest.mark.parametrize(("name", "engine"), [
+    pytest.param(name, engine, marks=[pytest.mark.slow] if (engine, name in _XLA_SLOW) == ("xla", True) else [])
+    for name in ROBOT_FILTERS for engine in ("xla", "c")])
 def test_predict_after_update_is_step(name, engine):
     """``predict(update(state, t, y), t, u, dt)`` against ``step(state, t, u, y, dt)`` along a log, from step's
     states: estimate, K and the status (gate counters included) agree to round-off. By XLA, measured 0 for the

@@ -206,7 +206,7 @@ def test_invariant_sides_says_where_the_observed_directions_stay():
         invariant_sides(CASES["tse2"][1](1.0).system)
 
 
-@pytest.mark.parametrize("connection", ["zero", "minus"])
+@pytest.mark.parametrize("connection", ["zero", pytest.param("minus", marks=pytest.mark.slow)])
 def test_error_right_is_the_filter_of_the_right_error_mapped_back(connection):
     """A run of MinimumEnergyFilter(system, error="right"), which inverts the state about each interval's first
     estimate (RightErrorAbout), is that of the filter of right_error(system) (inverted about the world's origin)
