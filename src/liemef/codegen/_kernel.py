@@ -475,11 +475,12 @@ def _host() -> str:
     return f"{platform.machine()} {flags}"
 
 
-def _library(tr: _Traced, flags, kind: str) -> Path:
+def _library(tr: _Traced, flags, kind: str, cc: str | None = None) -> Path:
     """Where the disk cache keeps the library of a traced interval built with ``flags`` (``kind``: "kernel",
-    "quick" or "lanes"): keyed by the jaxpr, the generator, the compiler, the flags and, for the host's SIMD,
-    the CPU; in the checked cache folder (:func:`._cache.folder`)."""
-    cc = _compiler_for(kind)
+    "quick" or "lanes") by ``cc`` (default :func:`_compiler_for` the kind): keyed by the jaxpr, the generator,
+    the compiler, the flags and, for the host's SIMD, the CPU; in the checked cache folder
+    (:func:`._cache.folder`)."""
+    cc = cc or _compiler_for(kind)
     if cc is None:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     _elf.host()  # a system whose libraries the cache cannot check: refused by name, before anything is built
@@ -504,7 +505,8 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
     passes its check (the translation is skipped too), else translated (unless ``source`` is given), built in
     a private folder and put in the cache with its manifest. A file that fails its check (truncated, zero
     bytes, changed, another filter's kernel) is replaced, never loaded."""
-    lib = _library(tr, flags, kind)
+    cc = _compiler_for(kind)  # once: the compiler of the cache key is the one that builds
+    lib = _library(tr, flags, kind, cc)
     got = _cache.read_verified(lib, tr.key, kind)
     if got is not None:
         return got
@@ -514,7 +516,6 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
         Path(tmp, "kernel.c").write_text(source)
         # relative names in the build folder: the same source gives the same bytes in any process
         args = [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
-        cc = _compiler_for(kind)
         try:
             run_compiler(args, cwd=tmp, cc=cc)
         except RuntimeError:
