@@ -60,8 +60,7 @@ def main(argv=None) -> None:
                 times = []
                 for _ in range(args.repeats):
                     t0 = time.perf_counter()
-                    run_compiler([*_kernel.QUICK_CFLAGS, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"],
-                                 cwd=tmp, cc=cc)
+                    run_compiler(_kernel.build_args(_kernel.QUICK_CFLAGS), cwd=tmp, cc=cc)
                     times.append(time.perf_counter() - t0)
                 row[f"{cc}_s"] = round(statistics.median(times), 3)
         row["gcc_over_clang"] = round(row["gcc_s"] / row["clang_s"], 2)

@@ -489,6 +489,12 @@ def _library(tr: _Traced, flags, kind: str, cc: str | None = None) -> Path:
     return _cache.folder() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
 
 
+def build_args(flags) -> list[str]:
+    """The compiler's arguments for a kernel library: ``kernel.c`` into ``kernel.so`` in the build folder, with
+    ``flags`` (relative names: the same source gives the same bytes in any process)."""
+    return [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+
+
 def _compiler_for(kind: str) -> str | None:
     """The compiler of a kernel library: :func:`~._export.quick_compiler` for the quick build, else the
     system's (:func:`~._export.compiler`)."""
@@ -514,8 +520,7 @@ def _build(tr: _Traced, flags=KERNEL_CFLAGS, kind: str = "kernel", source: str |
         source = _translate_lanes(tr) if kind == "lanes" else _translate(tr)
     with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build.") as tmp:  # 0700
         Path(tmp, "kernel.c").write_text(source)
-        # relative names in the build folder: the same source gives the same bytes in any process
-        args = [*flags, "-fPIC", "-shared", "-o", "kernel.so", "kernel.c", "-lm"]
+        args = build_args(flags)
         try:
             run_compiler(args, cwd=tmp, cc=cc)
         except RuntimeError:
