@@ -222,7 +222,7 @@ _XLA_SLOW = ("mef-first", "mef-exact-curvature", "ekf-local")
 
 
 @pytest.mark.parametrize(("name", "engine"), [
-    pytest.param(name, engine, marks=[pytest.mark.slow] if (engine, name in _XLA_SLOW) == ("xla", True) else [])
+    pytest.param(name, engine, marks=[pytest.mark.slow] if engine == "xla" and name in _XLA_SLOW else [])
     for name in ROBOT_FILTERS for engine in ("xla", "c")])
 def test_predict_after_update_is_step(name, engine):
     """``predict(update(state, t, y), t, u, dt)`` against ``step(state, t, u, y, dt)`` along a log, from step's
