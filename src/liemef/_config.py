@@ -26,12 +26,13 @@ from jax._src import xla_bridge
 
 # jax's own test of whether a backend has started (private: a jax without it is taken as not started yet)
 _started = getattr(xla_bridge, "backends_are_initialized", lambda: False)
-SCHEDULER_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+SCHEDULER = "xla_cpu_enable_concurrency_optimized_scheduler"
+SCHEDULER_FLAG = f"--{SCHEDULER}=false"
 
 
 def _keep_xla_cpu_depth_first() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_enable_concurrency_optimized_scheduler" in flags or _started():
+    if SCHEDULER in flags or _started():
         return
     os.environ["XLA_FLAGS"] = f"{flags} {SCHEDULER_FLAG}".strip()
 
