@@ -552,6 +552,101 @@ def test_fixed_lag_bad_arguments_and_a_failed_filter():
     assert bool(jnp.all(jnp.isnan(out[-1].g.x)))
 
 
+# --- in chunks ------------------------------------------------------------------------------------------------
+def test_windows_cover_the_log_once_and_hold_their_blocks():
+    for N, chunk, before, after in [(41, 7, 2, 3), (43, 7, 0, 0), (8, 7, 0, 0), (5, 100, 3, 3), (2, 1, 0, 0)]:
+        ws = liemef.smoothers._chunks.windows(N, chunk, before, after)
+        assert [a for a, *_ in ws] == sorted({a for a, *_ in ws}) and ws[0][0] == 0 and ws[-1][1] == N
+        assert all(ws[i][1] == ws[i + 1][0] for i in range(len(ws) - 1))  # consecutive blocks, each state once
+        for a, b, s, e in ws:
+            assert s <= a < b <= e + 1 and e - s >= 1 and 0 <= s and e <= N - 1
+            assert s == max(0, a - before) or (before == 0 and b - a == 1)
+
+
+def test_chunks_whose_windows_run_to_the_end_are_rts_on_a_linear_system():
+    """On the linear system with the invariant EKF (on R^n the discrete Kalman filter of the smoother's Euler
+    model), blocks of 7 states whose windows start at the block and run to the log's end are the RTS smoother's
+    estimates and covariances to 1e-10: each window's prior, the filter's state at its first time, is the exact
+    Gaussian of the samples before it. The joined cost is the whole log's: that of the whole-log smoother, and
+    at the filter's pass its cost_init. smooth_chunks yields the same blocks one by one."""
+    from liemef.filters.baselines import invariant_ekf
+
+    system, ts, us, ys = _linear_log("sample")
+    x0, P0 = np.array([0.5, -0.3]), np.diag([1.0, 2.0])
+    flt = invariant_ekf(system)
+    state = flt.init(Rn[2](x0), K0=P0)
+    N = ts.size
+    xs, Ps = _rts(ts, us, ys, x0, P0, [np.array([[SIGMA**2]])] * N, np.diag(Q_DENSITY**2) * DT)
+    ch = liemef.smooth(flt, state, ts, us, ys, integrator="lie-euler", chunk=7, overlap=(0, N))
+    assert ch.ok, ch.message
+    assert ch.message.startswith("converged: 6 windows of 7 states with overlaps 0 before and 41 after")
+    np.testing.assert_allclose(np.asarray(ch.ts), ts)
+    np.testing.assert_allclose(np.asarray(ch.g.x), xs, atol=RTS)
+    np.testing.assert_allclose(np.asarray(ch.P), Ps, atol=RTS)
+    whole = liemef.smooth(flt, state, ts, us, ys, integrator="lie-euler")
+    np.testing.assert_allclose(float(ch.cost), float(whole.cost), rtol=1e-12)
+    np.testing.assert_allclose(float(ch.cost_init), float(whole.cost_init), rtol=1e-12)
+    blocks = list(liemef.smoothers.smooth_chunks(flt, state, ts, us, ys, integrator="lie-euler", chunk=7,
+                                                  overlap=(0, N)))
+    assert [b.ts.shape[0] for b in blocks] == [7] * 5 + [6] and all(b.ok for b in blocks)
+    np.testing.assert_array_equal(np.concatenate([np.asarray(b.g.x) for b in blocks]), np.asarray(ch.g.x))
+    assert "window of samples 7..40 (states 7..13)" in blocks[1].message
+
+
+def test_chunks_approach_the_whole_log_smoother_as_the_overlap_grows(localization):
+    """On SE(2) localization (a 10 deg initial heading error, a fix every 0.25 s), blocks of 50 of the 200 states:
+    the windows leave out the samples after them and linearize their prior at the filter's estimate, so the
+    joined estimate costs more than the whole-log minimizer, and both that excess and the distance to the
+    minimizer fall as the overlap grows."""
+    c, truth, system, flt, K0 = localization
+    log, g0 = loc.sensor_log(c, truth, loc.jax_draws(c, jax.random.key(9)))
+    ts, us, ys = (np.asarray(a) for a in (log.ts, log.us, log.ys))
+    state = flt.init(g0, K0=K0)
+    whole = liemef.smooth(flt, state, ts, us, ys)
+    assert whole.ok
+
+    def off(sm):
+        d = np.asarray(sm.g.coords()) - np.asarray(whole.g.coords())
+        d[:, 0] = np.angle(np.exp(1j * d[:, 0]))
+        return np.abs(d).max(), float(sm.cost) - float(whole.cost)
+
+    near = [off(liemef.smooth(flt, state, ts, us, ys, chunk=50, overlap=o)) for o in (25, 100)]
+    assert all(excess > 0 for _, excess in near)  # the whole-log smoother is the minimizer
+    assert near[1][0] < 0.2 * near[0][0] and near[1][1] < 0.05 * near[0][1], near
+    assert near[1][0] < 0.05, near
+
+
+def test_chunks_say_when_a_window_has_no_prior_and_refuse_bad_options():
+    system, ts, us, ys = _linear_log("sample")
+    flt = liemef.MinimumEnergyFilter(system, integrator="lie-euler")
+    state = flt.init(Rn[2](np.zeros(2)), K0=np.eye(2))
+    for kwargs, match in [(dict(chunk=0), "chunk: expected an integer >= 1"),
+                          (dict(chunk=5, overlap=-1), "overlap: expected an integer >= 0"),
+                          (dict(chunk=5, overlap=(1, -2)), r"overlap\[1\]: expected an integer >= 0"),
+                          (dict(chunk=5, overlap=(1, 2, 3)), r"overlap: expected a number of samples or a pair"),
+                          (dict(overlap=3), "overlap: only with chunk"),
+                          (dict(chunk=2.5), "chunk: expected an integer")]:
+        with pytest.raises(ValueError, match=match):
+            liemef.smooth(flt, state, ts, us, ys, **kwargs)
+    with pytest.raises(ValueError, match="chunk: expected an integer >= 1"):
+        liemef.smoothers.smooth_chunks(flt, state, ts, us, ys, chunk=0)
+    # dynamics that are NaN after t = 5 s: the blocks before are smoothed, the windows whose states (or padding)
+    # reach past it fail, and those after the filter's failure have no prior; the joined run fails with NaN
+    # estimates
+    system_nan = System(group_type=Rn[2], dynamics_fn=lambda g, u, t: jnp.where(t > 5.0, jnp.nan, 0.0) * g.x,
+                        output_fn=lambda g, t: g.x, B=np.eye(2), D=np.eye(2), Q=np.eye(2), R=np.eye(2))
+    bad = liemef.MinimumEnergyFilter(system_nan, integrator="lie-euler")
+    args = (bad, bad.init(Rn[2](np.zeros(2)), K0=np.eye(2)), np.arange(200) * 0.05, None, np.ones((200, 2)))
+    blocks = list(liemef.smoothers.smooth_chunks(*args, chunk=30, overlap=0))
+    assert [b.status for b in blocks] == ["converged"] * 2 + ["failed"] * 5
+    assert "the cost is not finite" in blocks[2].message
+    assert "the filter that gives the window's prior failed at sample 101" in blocks[-1].message
+    assert bool(jnp.all(jnp.isnan(blocks[-1].g.x))) and bool(jnp.all(jnp.isfinite(blocks[1].g.x)))
+    sm = liemef.smooth(*args, chunk=30, overlap=0)
+    assert sm.status == "failed" and "states 60..89" in sm.message
+    assert bool(jnp.all(jnp.isnan(sm.g.x))) and bool(jnp.all(jnp.isnan(sm.P)))
+
+
 # --- behind a filter's run -------------------------------------------------------------------------------------
 def test_offline_smoother_runs_as_a_filter_and_fails_as_one(localization):
     """OfflineSmoother's run is the smoother's estimates and covariances as a Trajectory; one that does not

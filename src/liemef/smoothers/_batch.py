@@ -31,6 +31,7 @@ forward pass's information, $C_k$ the coupling of $x_k$ and $x_{k+1}$): the Rauc
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -38,7 +39,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .. import _validate
 from ..engines import bucket
@@ -486,42 +487,28 @@ def _check_options(max_iterations, tol, floor_std) -> float:
     return _validate.nonnegative("tol", tol)
 
 
-def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"] | None,
-           ys: Float[ArrayLike, "N p"], *, gap: float | None = None, init: LieGroup | None = None,
-           integrator: str | AbstractIntegrator | None = None, max_iterations: int = 200, tol: float = 1e-9,
-           floor_std: float = FLOOR_STD) -> Smoothed:
-    r"""Smooth a whole log: the minimizer of the cost of the model ``flt`` runs (module docstring) over every
-    state, with the marginal covariance of each.
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """A smoother's checked arguments (:func:`setup`): the system, the integrator, the robust sensors, the
+    prior's covariance, the log (``us`` as given, ``held`` with missing inputs held), the gap and the options."""
 
-    The log has the filter's layout and conventions (:meth:`~liemef.MinimumEnergyFilter.run`): ``ts`` (N,),
-    ``us`` (N, m), ``ys`` (N, p); NaN in ``ys`` is a missing sample, NaN in ``us`` holds the last input; each
-    sensor at its own rate, with its residual (angles wrap, directions and rotations on their manifolds), its
-    gate or robust loss and its time-varying weight. The prior is the filter's initial state: ``state.g_hat``
-    and the covariance ``state.K`` (singular allowed: floored at ``floor_std``). The weights are the filter's
-    (``flt.weights``), so a tuned filter is smoothed with its own weights.
+    system: AbstractSystem
+    integ: AbstractIntegrator
+    screens: tuple
+    P0: np.ndarray
+    ts: np.ndarray
+    us: np.ndarray
+    held: np.ndarray
+    ys: np.ndarray
+    gap: float
+    max_iterations: int
+    tol: float
+    floor_std: float
 
-    Args:
-        flt: the filter whose model is smoothed (:class:`~liemef.MinimumEnergyFilter` or a baseline).
-        state: its initial state (:meth:`~liemef.MinimumEnergyFilter.init`), the prior.
-        ts: (N,) strictly increasing sample times.
-        us: (N, m) inputs (NaN: hold the last), or None for a system without inputs.
-        ys: (N, p) samples (NaN: missing).
-        gap: an interval longer than this holds no density sample, as in the filter (default: 10 times the
-            median interval).
-        init: the starting trajectory (batch (N,)); default: the filter's own run over the log (where that run
-            failed, dead reckoning from its last good state).
-        integrator: the process model's one step per interval (default: the filter's integrator, else RKMK4).
-        max_iterations: the most Levenberg-Marquardt steps, accepted or not. Gauss-Newton converges
-            quadratically where the residuals at the minimizer are small, and only linearly where they are large
-            (samples that the model cannot fit): then it takes tens of steps.
-        tol: converged when a step's largest component is below it (with little damping; the step is kept if
-            the cost, to its round-off, does not rise).
-        floor_std: the floor of the prior's and the process noise's stds (:data:`FLOOR_STD`).
 
-    Returns:
-        :class:`Smoothed`. A run that does not converge says so in ``status`` and ``message``; one whose cost
-        or covariances are not finite has status ``"failed"`` and NaN estimates: failures are values.
-    """
+def setup(flt: AbstractFilter, state: FilterState, ts, us, ys, *, gap: float | None, init: LieGroup | None,
+          integrator: str | AbstractIntegrator | None, max_iterations: int, tol: float, floor_std: float) -> Setup:
+    """:func:`~liemef.smoothers.smooth`'s arguments checked (ValueError naming each), before anything runs."""
     if not isinstance(flt, AbstractFilter):
         raise ValueError(f"flt: expected a liemef filter (MinimumEnergyFilter or a baseline), got {type(flt).__name__}")
     flt._check_state(state)
@@ -537,15 +524,20 @@ def smooth(flt: AbstractFilter, state: FilterState, ts: Float[ArrayLike, " N"], 
                          f"{type(init).__name__} {getattr(init, 'batch_shape', None)}")
     if integrator is None:
         integrator = getattr(flt, "integrator", None) or "rkmk4"
-    integ = make_integrator(integrator)
-    screens = _screens(system)
-    held = _held(us, np.asarray(state.u_last, dtype=np.float64))
+    return Setup(system=system, integ=make_integrator(integrator), screens=_screens(system), P0=P0, ts=ts, us=us,
+                 held=_held(us, np.asarray(state.u_last, dtype=np.float64)), ys=ys, gap=gap,
+                 max_iterations=max_iterations, tol=tol, floor_std=floor_std)
+
+
+def smooth_whole(flt: AbstractFilter, state: FilterState, su: Setup, init: LieGroup | None) -> Smoothed:
+    """The whole log as one problem (:func:`~liemef.smoothers.smooth` without chunks)."""
+    system, integ, ts = su.system, su.integ, su.ts
     if init is None:
-        init = flt.run(state, ts, us, ys, gap=gap).g_hat
-    init = _filled(system, integ, init, ts, held)
-    prob, xs = problem(system, flt.weights, ts, held, ys, state.g_hat, P0, init=init,
-                       integ=integ, gap=gap, floor_std=floor_std)
-    g, P, f, f0, gn, it, status, message = minimize(system, integ, screens, prob, xs, N,
-                                                    max_iterations=max_iterations, tol=tol)
+        init = flt.run(state, ts, su.us, su.ys, gap=su.gap).g_hat
+    init = _filled(system, integ, init, ts, su.held)
+    prob, xs = problem(system, flt.weights, ts, su.held, su.ys, state.g_hat, su.P0, init=init,
+                       integ=integ, gap=su.gap, floor_std=su.floor_std)
+    g, P, f, f0, gn, it, status, message = minimize(system, integ, su.screens, prob, xs, ts.shape[0],
+                                                    max_iterations=su.max_iterations, tol=su.tol)
     return Smoothed(ts=jnp.asarray(ts), g=g, P=P, cost=f, cost_init=f0, gradient_norm=gn, iterations=it,
                     status=status, message=message)

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..filters import CAUSES, Trajectory
 from ..filters._base import AbstractFilter, nan_after_failure
-from ._batch import smooth
+from ._chunks import smooth
 
 
 class OfflineSmoother:
