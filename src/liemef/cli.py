@@ -184,8 +184,9 @@ def run_log(**params):
 
 
 @_command(cli, "smooth")
-def smooth_log(max_iterations, tol, **params):
-    _filter_log({"max_iterations": max_iterations, "tol": tol}, **params)
+def smooth_log(max_iterations, tol, smooth_chunk, smooth_overlap, **params):
+    _filter_log({"max_iterations": max_iterations, "tol": tol, "chunk": smooth_chunk, "overlap": smooth_overlap},
+                **params)
 
 
 @_command(cli, "export-c")

@@ -209,6 +209,13 @@ SMOOTH = Command(
                help="The most Levenberg-Marquardt steps of the smoother."),
         option("--tol", type=float, default=1e-9, show_default=True,
                help="The smoother has converged when an accepted step's largest component is below this."),
+        option("--smooth-chunk", type=at_least(1),
+               help="Smooth in windows that each estimate this many states, for a log too long to smooth as one "
+               "problem: the memory is one window's, and the estimate approaches the whole log's as the overlap "
+               "grows (docs/smoothing.md, Long logs). Default: the whole log as one problem."),
+        option("--smooth-overlap", type=at_least(0),
+               help="With --smooth-chunk: the samples each window adds before and after its states (default: half "
+               "of --smooth-chunk)."),
     ) + RUN.params[-2:-1] + (progress("Samples filtered, on stderr, between chunks (the filter's pass)."),))
 
 EXPORT_C = Command(

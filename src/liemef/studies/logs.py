@@ -701,16 +701,23 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     return dataclasses.replace(run, metrics={**run.metrics, **extra}, monitor=report, smoothed=smoothed)
 
 
-def smoother_options(max_iterations: int = 200, tol: float = 1e-9) -> dict:
+def smoother_options(max_iterations: int = 200, tol: float = 1e-9, chunk: int | None = None,
+                     overlap: int | None = None) -> dict:
     """``liemef smooth``'s options of :func:`liemef.smooth`, checked before JAX loads (ValueError naming
-    ``--max-iterations`` or ``--tol``)."""
+    ``--max-iterations``, ``--tol``, ``--smooth-chunk`` or ``--smooth-overlap``)."""
     out = {}
     for option, check, value in (("--max-iterations", lambda n, v: _validate.integer(n, v, low=1), max_iterations),
-                                 ("--tol", _validate.nonnegative, tol)):
+                                 ("--tol", _validate.nonnegative, tol),
+                                 ("--smooth-chunk", lambda n, v: v if v is None else _validate.integer(n, v, low=1),
+                                  chunk),
+                                 ("--smooth-overlap", lambda n, v: v if v is None else _validate.integer(n, v),
+                                  overlap)):
         try:
-            out[option[2:].replace("-", "_")] = check(option, value)
+            out[option[2:].removeprefix("smooth-").replace("-", "_")] = check(option, value)
         except ValueError as err:
             raise _bad(option, str(err).removeprefix(f"{option}: ")) from err
+    if overlap is not None and chunk is None:
+        raise _bad("--smooth-overlap", f"only with --smooth-chunk (the states per window), got {overlap}")
     return out
 
 
