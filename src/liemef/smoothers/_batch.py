@@ -440,6 +440,16 @@ def problem(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, 
     return prob, init
 
 
+def failed(ts, element: LieGroup, message: str, iterations: int = 0) -> Smoothed:
+    """A smoother's failure as a value: status ``"failed"``, NaN estimates (of ``element``'s group) and
+    covariances at every time of ``ts``, NaN costs, and ``message`` saying why."""
+    N, n = len(ts), type(element).tangent_dim
+    g = jax.tree_util.tree_map(lambda a: jnp.full((N, *jnp.shape(a)), jnp.nan), element)
+    nan = jnp.asarray(jnp.nan)
+    return Smoothed(ts=jnp.asarray(ts), g=g, P=jnp.full((N, n, n), jnp.nan), cost=nan, cost_init=nan,
+                    gradient_norm=nan, iterations=iterations, status="failed", message=message)
+
+
 def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, prob: Problem, xs: LieGroup, N: int,
              *, max_iterations: int, tol: float) -> tuple[LieGroup, Array, Array, Array, Array, int, str, str]:
     """Levenberg-Marquardt from ``xs`` (module docstring), compiled as one loop (``max_iterations`` and ``tol``

@@ -158,14 +158,9 @@ class _Piece:
     start: LieGroup  # the block's starting trajectory
 
 
-def _nan_like(g: LieGroup) -> LieGroup:
-    return jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan), g)
-
-
 def _pieces(flt, state, su: _batch.Setup, init, chunk: int, before: int, after: int) -> Iterator[_Piece]:
     """Each block's smoothed estimates, from its window (module docstring)."""
     system, integ, ts, us, ys, held = su.system, su.integ, su.ts, su.us, su.ys, su.held
-    n = system.group.tangent_dim
     cur, prior, dead = 0, state, None  # the filter's state at ts[cur], before sample cur acts
     for a, b, s, e in windows(ts.shape[0], chunk, before, after):
         where = f"window of samples {s}..{e} (states {a}..{b - 1})"
@@ -179,11 +174,8 @@ def _pieces(flt, state, su: _batch.Setup, init, chunk: int, before: int, after: 
                        f"({CAUSES[int(tr.status.code)].message})"
             prior, cur = tr.final, s
         if dead is not None:
-            g = jax.tree_util.tree_map(lambda x, m=b - a: jnp.full((m, *jnp.shape(x)), jnp.nan), state.g_hat)
-            nan = jnp.asarray(jnp.nan)
-            yield _Piece(a, b, Smoothed(ts=jnp.asarray(ts[a:b]), g=g, P=jnp.full((b - a, n, n), jnp.nan), cost=nan,
-                                        cost_init=nan, gradient_norm=nan, iterations=0, status="failed",
-                                        message=f"{where}: failed: {dead}"), g)
+            result = _batch.failed(ts[a:b], state.g_hat, f"{where}: failed: {dead}")
+            yield _Piece(a, b, result, result.g)
             continue
         w = slice(s, e + 1)
         if init is None:
@@ -209,30 +201,32 @@ def _cost(system, integ, screens, prob, xs):
     return _batch._cost(system, integ, screens, prob, xs)
 
 
-def whole_cost(flt, state, su: _batch.Setup, xs: LieGroup, start: LieGroup,
-               blocks: list[tuple[int, int]]) -> float:
-    """The whole log's cost at the trajectory ``xs`` (batch (N,)), summed block by block so that only one block's
-    terms are held at a time: the prior in the first block, and in block ``[a, b)`` the process terms from
-    ``x_a`` to ``x_b`` and the samples at ``a..b-1`` (at the log's last state too, in the last block). A
-    process noise that depends on the state is evaluated on ``start``, as the smoother evaluates it."""
+def whole_costs(flt, state, su: _batch.Setup, start: LieGroup, blocks: list[tuple[int, int]],
+                trajectories: list[LieGroup]) -> list[float]:
+    """The whole log's cost at each of ``trajectories`` (batch (N,)), summed block by block so that only one
+    block's terms are held at a time: the prior in the first block, and in block ``[a, b)`` the process terms
+    from ``x_a`` to ``x_b`` and the samples at ``a..b-1`` (at the log's last state too, in the last block). Each
+    block's terms are built once for all trajectories; a process noise that depends on the state is evaluated on
+    ``start``, as the smoother evaluates it."""
     system, integ, ts, held, ys = su.system, su.integ, su.ts, su.held, su.ys
     N = ts.shape[0]
-    total = 0.0
+    totals = [0.0] * len(trajectories)
     for a, b in blocks:
         last = b == N
         seg = slice(a, N if last else b + 1)
-        g0, P0 = (state.g_hat, su.P0) if a == 0 else (xs[a], np.eye(system.group.tangent_dim))
-        prob, _ = _batch.problem(system, flt.weights, ts[seg], held[seg], ys[seg], g0, P0, init=start[seg],
-                                 integ=integ, gap=su.gap, last_sample=last, floor_std=su.floor_std)
+        P0 = su.P0 if a == 0 else np.eye(system.group.tangent_dim)
+        prob, _ = _batch.problem(system, flt.weights, ts[seg], held[seg], ys[seg], state.g_hat, P0,
+                                 init=start[seg], integ=integ, gap=su.gap, last_sample=last, floor_std=su.floor_std)
         if a > 0:  # the prior is the first block's alone
             prob = eqx.tree_at(lambda p: p.P0inv, prob, jnp.zeros_like(prob.P0inv))
-        x = xs[seg]
         M, m = prob.ts.shape[0], ts[seg].shape[0]
-        if M > m:  # the padded states: free extrapolations, as the smoother pads (their terms vanish)
-            tail = _batch.dead_reckoning(system, integ, x[-1], prob.ts[m - 1:], prob.us[m - 1:])
-            x = jax.tree_util.tree_map(lambda u, v: jnp.concatenate([u, v[1:]]), x, tail)
-        total += float(_cost(system, integ, su.screens, prob, x))
-    return total
+        for i, xs in enumerate(trajectories):
+            x = xs[seg]
+            if M > m:  # the padded states: free extrapolations, as the smoother pads (their terms vanish)
+                tail = _batch.dead_reckoning(system, integ, x[-1], prob.ts[m - 1:], prob.us[m - 1:])
+                x = jax.tree_util.tree_map(lambda u, v: jnp.concatenate([u, v[1:]]), x, tail)
+            totals[i] += float(_cost(system, integ, su.screens, prob, x))
+    return totals
 
 
 def _joined(flt, state, su: _batch.Setup, pieces: list[_Piece], chunk: int, before: int, after: int) -> Smoothed:
@@ -246,13 +240,9 @@ def _joined(flt, state, su: _batch.Setup, pieces: list[_Piece], chunk: int, befo
     gn = jnp.max(jnp.stack([p.smoothed.gradient_norm for p in pieces]))
     said = f"{len(pieces)} windows of {chunk} states with overlaps {before} before and {after} after"
     if worst.status == "failed":
-        nan = jnp.asarray(jnp.nan)
-        return Smoothed(ts=jnp.asarray(su.ts), g=_nan_like(g), P=jnp.full_like(P, jnp.nan), cost=nan, cost_init=nan,
-                        gradient_norm=nan, iterations=iterations, status="failed",
-                        message=f"failed: {said}; the first that failed: {worst.message}")
-    blocks = [(p.a, p.b) for p in pieces]
-    cost = whole_cost(flt, state, su, g, start, blocks)
-    cost_init = whole_cost(flt, state, su, start, start, blocks)
+        return _batch.failed(su.ts, state.g_hat, f"failed: {said}; the first that failed: {worst.message}",
+                             iterations)
+    cost, cost_init = whole_costs(flt, state, su, start, [(p.a, p.b) for p in pieces], [g, start])
     if worst.status == "converged":
         most = max(p.smoothed.iterations for p in pieces)
         message = f"converged: {said}, each in at most {most} iteration(s), its last step below {su.tol:g}"

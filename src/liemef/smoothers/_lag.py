@@ -94,13 +94,8 @@ class FixedLagSmoother:
         ts = np.array([b[0] for b in self._buffer])
         first = self._buffer[0][3]
         if int(first.status.code) != CAUSES.OK.code:  # the window's prior is the filter's: no prior, no window
-            n = system.group.tangent_dim
-            nan = jax.tree_util.tree_map(lambda a: jnp.full((ts.size, *jnp.shape(a)), jnp.nan), first.g_hat)
-            return _batch.Smoothed(ts=jnp.asarray(ts), g=nan, P=jnp.full((ts.size, n, n), jnp.nan),
-                                   cost=jnp.asarray(jnp.nan), cost_init=jnp.asarray(jnp.nan),
-                                   gradient_norm=jnp.asarray(jnp.nan), iterations=0, status="failed",
-                                   message=f"failed: the filter that gives the window's prior failed "
-                                           f"({CAUSES[int(first.status.code)].message})")
+            return _batch.failed(ts, first.g_hat, f"failed: the filter that gives the window's prior failed "
+                                                  f"({CAUSES[int(first.status.code)].message})")
         us = np.stack([b[1] for b in self._buffer]) if system.input_dim else np.zeros((ts.size, 0))
         ys = np.stack([b[2] for b in self._buffer])
         us = _batch._held(us, np.asarray(first.u_last, dtype=np.float64))
