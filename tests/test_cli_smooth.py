@@ -57,21 +57,22 @@ def test_smooth_writes_a_run_of_the_smoothers_estimates(runs):
 
 
 def test_smooth_in_chunks_writes_the_same_files_and_says_how_it_cut_the_log(runs):
-    """--smooth-chunk: windows of 200 states with 300 samples of overlap on each side (of the 1000 of a log with
-    a fix a second) write the files of the whole-log smoother; their estimates leave out the fixes beyond each
+    """--smooth-chunk: windows of 200 states with 320 samples of overlap on each side (of the 1000 of a log with
+    a fix a second; every window, the first and last too, in the whole log's length bucket, so that no other
+    program is compiled) write the files of the whole-log smoother; their estimates leave out the fixes beyond each
     window, so they are not the whole log's, but they are nearer the truth than the filter's. metrics.json
     records the options and the windows."""
     d, _, _, p = runs
     res = invoke("smooth", "--system-file", d / "my_system.py", "--log", d / "log.csv", "--no-progress",
-                 "--smooth-chunk", 200, "--smooth-overlap", 300, "--out", d / "chunks")
+                 "--smooth-chunk", 200, "--smooth-overlap", 320, "--out", d / "chunks")
     assert res.exit_code == 0, res.output
     err = {name: np.linalg.norm(np.loadtxt(d / name / "estimates.csv", delimiter=",", skiprows=1)[:, 2:4] - p,
                                 axis=1).mean() for name in ("run", "smooth", "chunks")}
     print("mean position error (m):", err)
     assert err["chunks"] < err["run"]
     sm = json.loads((d / "chunks" / "metrics.json").read_text())["smoother"]
-    assert sm["status"] == "converged" and sm["options"]["chunk"] == 200 and sm["options"]["overlap"] == 300
-    assert "5 windows of 200 states with overlaps 300 before and 300 after" in sm["message"]
+    assert sm["status"] == "converged" and sm["options"]["chunk"] == 200 and sm["options"]["overlap"] == 320
+    assert "5 windows of 200 states with overlaps 320 before and 320 after" in sm["message"]
     whole = json.loads((d / "smooth" / "metrics.json").read_text())["smoother"]  # the whole log's minimizer
     assert whole["cost"] < sm["cost"] < sm["cost_init"] == pytest.approx(whole["cost_init"], rel=1e-9)
 

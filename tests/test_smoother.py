@@ -9,6 +9,7 @@ import pytest
 from scipy import optimize, stats
 
 import liemef
+from fast_compile import fast_jit
 from liemef.groups import SE2, Rn
 from liemef.smoothers import _batch
 from liemef.studies.experiments import inertial as ins
@@ -296,7 +297,6 @@ def test_inertial_smoother_is_scipy_least_squares_on_se23():
         z = z.reshape(N, 9)
         return _se23_matrices(_so3_exp_and_jacobian(z[:, :3])[0], z[:, 3:6], z[:, 6:9])
 
-    @jax.jit
     def residuals(z):
         X = states(z)
         Rt = jnp.swapaxes(X[:-1, :3, :3], -1, -2)
@@ -308,7 +308,7 @@ def test_inertial_smoother_is_scipy_least_squares_on_se23():
         h = jnp.einsum("kji,klj->kli", Rs, landmarks[None] - ps[:, None]).reshape(seen.size, -1)
         return jnp.concatenate([r0, rp.ravel(), ((ys[seen] - h) @ Lm.T).ravel()])
 
-    jacobian = jax.jit(jax.jacfwd(residuals))
+    jacobian, residuals = fast_jit(jax.jacfwd(residuals)), fast_jit(residuals)
     M = np.asarray(sm.g.as_matrix())
     z_sm = np.concatenate([np.asarray(_so3_log(jnp.asarray(M[:, :3, :3]))), M[:, :3, 3], M[:, :3, 4]], -1).ravel()
     res = optimize.least_squares(lambda z: np.asarray(residuals(z)), z_sm + 1e-3,
@@ -346,7 +346,7 @@ def test_marginal_covariances_are_blocks_of_the_inverse_hessian(localization):
         return jnp.concatenate([chol(prob.P0inv) @ r0, jnp.einsum("kij,kj->ki", chol(prob.Qinv), rp).ravel(),
                                 wm.ravel()])
 
-    J = np.asarray(jax.jacfwd(whitened)(jnp.zeros(M * n)))
+    J = np.asarray(fast_jit(jax.jacfwd(whitened))(jnp.zeros(M * n)))
     H = J.T @ J
     Sigma = np.linalg.inv(H)
     N = ts.size
@@ -448,13 +448,11 @@ def test_a_non_finite_cost_is_a_failed_status_with_nan_estimates():
     assert bool(jnp.all(jnp.isnan(sm.g.x))) and bool(jnp.all(jnp.isnan(sm.P)))
 
 
-def test_too_few_iterations_is_said():
+def test_too_few_iterations_is_said(localization):
     """One step from a start far from the minimizer on SE(2) does not converge, and the status says so; the
-    estimate it has is finite and no costlier than the start."""
-    c = loc.LocalizationConfig(duration=1.0, gps_period=0.25, steady=0.0)
-    vstd, lstd, wstd = c.odometry_std
-    system = planar_localization(odometry_std=(wstd, vstd, lstd), odometry_rate=1.0 / c.dt, gps_std=c.gps_std)
-    flt = liemef.MinimumEnergyFilter(system, integrator="lie-euler")
+    estimate it has is finite and no costlier than the start (the localization's filter and log length, with
+    fixes far from its path)."""
+    c, _, _, flt, _ = localization
     ts = np.asarray(c.ts)
     us = np.tile(np.asarray(loc.true_input(c)), (ts.size, 1))
     ys = np.full((ts.size, 2), np.nan)
