@@ -63,7 +63,7 @@ def test_run_with_a_system_file_a_sparse_sensor_and_a_gate(user_run):
 
 
 def test_a_failed_run_exits_non_zero_and_writes_only_the_failure(tmp_path):
-    localization_log(tmp_path / "log.csv", N=300)
+    localization_log(tmp_path / "log.csv")
     res = invoke("run", "--system-file", tmp_path / "none.py", "--log", tmp_path / "log.csv", "--out", tmp_path / "o")
     assert res.exit_code != 0 and "--system-file" in res.output and "not found" in res.output
     (tmp_path / "s.py").write_text("from liemef.systems import planar_localization\nsystem = planar_localization()\n")
@@ -189,7 +189,7 @@ def test_run_with_discrete_updates(tmp_path):
 def test_set_reaches_a_ready_systems_parameters(tmp_path):
     """`liemef run --system localization --set gps_std=0.5` builds the ready system with that GPS std (not a
     system file), records it in metrics.json, and the estimates differ from the default's."""
-    localization_log(tmp_path / "log.csv", N=300)
+    localization_log(tmp_path / "log.csv")
     common = ("--system", "localization", "--log", tmp_path / "log.csv", "--updates", "discrete", "--no-progress")
     assert invoke("run", *common, "--out", tmp_path / "d").exit_code == 0
     res = invoke("run", *common, "--set", "gps_std=0.5", "--set", "gate=0.999", "--out", tmp_path / "s")
@@ -321,7 +321,7 @@ def test_dataset_broad_writes_the_best_model_and_run_filters_it(tmp_path):
 def test_run_says_when_a_log_has_no_initial_rest(tmp_path):
     """A log that starts in motion keeps the factory's dip and norms, and the run says so (a warning, and
     metrics.json's config.rest)."""
-    broad_mat(tmp_path / "01_moving.mat", rest_s=0.0, seconds=2.0)
+    broad_mat(tmp_path / "01_moving.mat", rest_s=0.0)
     assert invoke("dataset", "broad", tmp_path / "01_moving.mat", "--out", tmp_path / "log.csv").exit_code == 0
     res = invoke("run", "--system", "attitude-velocity", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
                  "--no-monitor", "--no-progress")
