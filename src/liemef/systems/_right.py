@@ -181,6 +181,24 @@ def _same_space(bases: list[np.ndarray], tol: float) -> bool:
     return True
 
 
+@eqx.filter_jit
+def _side_jacobians(system: SensorSystem, zetas, times) -> dict:
+    """The Jacobians of the outputs as the filter linearizes them (a sensor's own residual included: the output
+    as seen from the sample y = h(g)), on each side, at every state and its time, compiled as one program, once
+    per system's structure (its arrays are traced: a new weight set reuses it): run eagerly, JAX compiled each of
+    its hundreds of operations alone (22 s for ukfm's inertial system on a loaded machine, 1.7 s compiled)."""
+    G = system.group
+    zero = jnp.zeros(G.tangent_dim)
+    moves = {"left": lambda g, e: g.rplus(e), "right": lambda g, e: G.exp(e) @ g}
+
+    def one(zeta, t):
+        g = G.exp(zeta)
+        y = system.output(g, t)
+        return {side: jax.jacfwd(lambda e, move=move: system.output_seen_from(y, move(g, e), t))(zero)
+                for side, move in moves.items()}
+    return jax.vmap(one)(zetas, times)
+
+
 def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol: float = 1e-6) -> dict[str, str]:
     r"""Per sensor of ``system`` (by name): ``"left"``, ``"right"``, ``"both"`` or ``"neither"``, the error
     coordinates in which the directions the sensor observes (the row space of its output's Jacobian) are the same
@@ -208,30 +226,16 @@ def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol
     rng = np.random.default_rng(seed)
     zetas = np.vstack([np.zeros(n), rng.standard_normal((states, n))])
     times = np.concatenate([[0.0], rng.uniform(0.0, 10.0, states)])  # an output may vary with t
-    zero = jnp.zeros(n)
-    moves = {"left": lambda g, e: g.rplus(e), "right": lambda g, e: G.exp(e) @ g}
-
-    @jax.jit
-    def jacobians(zetas, times):
-        """The Jacobians of the outputs as the filter linearizes them (a sensor's own residual included: the
-        output as seen from the sample y = h(g)), on each side, at every state and its time, compiled as one
-        program: run eagerly, JAX compiled each of its hundreds of operations alone (22 s for ukfm's inertial
-        system on a loaded machine, 1.7 s compiled)."""
-        def one(zeta, t):
-            g = G.exp(zeta)
-            y = system.output(g, t)
-            return {side: jax.jacfwd(lambda e, move=move: system.output_seen_from(y, move(g, e), t))(zero)
-                    for side, move in moves.items()}
-        return jax.vmap(one)(zetas, times)
 
     out = {}
     try:
-        J = {side: np.asarray(a, np.float64) for side, a in jacobians(jnp.asarray(zetas), jnp.asarray(times)).items()}
+        J = {side: np.asarray(a, np.float64)
+             for side, a in _side_jacobians(system, jnp.asarray(zetas), jnp.asarray(times)).items()}
     except Exception:  # noqa: BLE001 (a user's output that fails at a random state: nothing measured)
         return {s.name: "neither" for s in system.sensors}
     for b in system.blocks():
         verdict = {}
-        for side in moves:
+        for side in ("left", "right"):
             bases = [v for v in map(_row_space, J[side][:, b.start:b.stop]) if v is not None]
             seen = [v for v in bases if v.shape[0] > 0]  # a state where it observes nothing says nothing
             verdict[side] = (len(seen) >= 2 and _same_space(seen, tol)) or (len(bases) >= 2 and not seen)
