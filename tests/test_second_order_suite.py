@@ -23,6 +23,9 @@ from liemef.studies.compare._second_order import (
 
 FAST_SYSTEMS = ("quad-range", "se2-bearing")
 FAST_FILTERS = ("mef-hold", "mef-discrete", "mef-first", "iekf")
+FAST_DURATION = 10.0
+"""The fast fixture's trials' duration (s); the other tests simulate their systems on the same grid, so that each
+system's simulation compiles once in the file."""
 
 
 def _row(failed, nees, dof=3):
@@ -52,8 +55,9 @@ def test_the_suite_is_registered_with_twelve_systems_and_checks_its_settings():
 
 @pytest.mark.parametrize("scale", [0.0, 0.5])
 def test_the_initial_scale_scales_the_drawn_initial_error(scale):
-    """``initial_scale`` multiplies each trial's drawn error log(g0^-1 g_hat0); 0 starts every filter at the truth."""
-    case = CASES["se2-range"][1](1.0)
+    """``initial_scale`` multiplies each trial's drawn error log(g0^-1 g_hat0); 0 starts every filter at the truth.
+    (The fast fixture's bearing-only SE(2) of 10 s: the same compiled simulation.)"""
+    case = CASES["se2-bearing"][1](FAST_DURATION)
     truth, _, _, drawn = trials(case, 2, 0)
     _, _, _, scaled = trials(case, 2, 0, initial_scale=scale)
     g0 = jax.tree_util.tree_map(lambda a: a[:, 0], truth)
@@ -65,8 +69,8 @@ def test_the_initial_scale_scales_the_drawn_initial_error(scale):
 @pytest.fixture(scope="module")
 def fast():
     """2 trials of 10 s of the quadrotor (range + magnetometer) and the bearing-only SE(2) of the issue."""
-    return compare_second_order(SecondOrderSuite(runs=2, duration=10.0, systems=FAST_SYSTEMS, filters=FAST_FILTERS),
-                                progress=False)
+    return compare_second_order(SecondOrderSuite(runs=2, duration=FAST_DURATION, systems=FAST_SYSTEMS,
+                                                 filters=FAST_FILTERS), progress=False)
 
 
 def _check_rows(result, systems, filters):
@@ -116,8 +120,9 @@ def test_first_order_and_the_iekf_run_through_where_the_second_order_filter_fail
 
 def test_the_two_quadrotors_are_one_system_on_two_groups():
     """quad-range-world is quad-range written on SO(3) x R^3 x R^3: the same truth (rotation vector, world velocity
-    and position) and the same samples from the same keys, to the integrators' accuracy."""
-    se23, world = (trials(CASES[name][1](2.0), 1, 0) for name in ("quad-range", "quad-range-world"))
+    and position) and the same samples from the same keys, to the integrators' accuracy, over the fast fixture's
+    10 s (the simulations it and the SO(3) x R^6 test compile)."""
+    se23, world = (trials(CASES[name][1](FAST_DURATION), 1, 0) for name in ("quad-range", "quad-range-world"))
     np.testing.assert_allclose(np.asarray(world[0].coords()), np.asarray(se23[0].coords()), atol=1e-9)
     np.testing.assert_array_equal(world[1], se23[1])
     np.testing.assert_allclose(world[2], se23[2], atol=1e-9)
@@ -128,7 +133,7 @@ def test_on_so3_r6_the_quadrotor_is_consistent_where_on_se23_it_is_not(fast):
     (world-frame velocity and position) leave every held second-order filter within its band, the exact curvature
     included, which on SE_2(3) loses K's definiteness (the fast fixture's quad-range rows, the same trials)."""
     assert fast["cases"]["quad-range"]["filters"]["mef-hold"]["failed"] >= 1
-    world = compare_second_order(SecondOrderSuite(runs=2, duration=10.0, systems="quad-range-world",
+    world = compare_second_order(SecondOrderSuite(runs=2, duration=FAST_DURATION, systems="quad-range-world",
                                                   filters="mef-hold,mef-hold-safe"), progress=False)
     _check_rows(world, ("quad-range-world",), ("mef-hold", "mef-hold-safe"))
     for name, r in world["cases"]["quad-range-world"]["filters"].items():
