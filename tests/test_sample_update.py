@@ -141,9 +141,27 @@ def _cost(output, g_hat, K, y, W):
     return c
 
 
+def _key(output, g_hat, K, *arrays):
+    """What a compiled program of this file depends on: the output map and the sample's arrays, by value."""
+    leaves = jax.tree_util.tree_leaves(g_hat)
+    return (id(output), type(g_hat), *(np.asarray(a).tobytes() for a in (*leaves, K, *arrays)))
+
+
+_MINIMIZERS: dict = {}
+_UPDATES: dict = {}
+
+
 def _scipy_minimizer(output, g_hat, K, y, W):
     """scipy's least squares on the stacked residual (L^-1 xi, W^(1/2) e(xi)), K = L L^T, whose half
-    squared norm is c: a minimizer that shares nothing with the update but the output map."""
+    squared norm is c: a minimizer that shares nothing with the update but the output map. Kept per sample:
+    the tests of one case share it (and its four compiled programs)."""
+    key = _key(output, g_hat, K, y, W)
+    if key not in _MINIMIZERS:
+        _MINIMIZERS[key] = _minimize(output, g_hat, K, y, W)
+    return _MINIMIZERS[key]
+
+
+def _minimize(output, g_hat, K, y, W):
     L_inv = jnp.asarray(np.linalg.inv(np.linalg.cholesky(K)))
     W_root = jnp.asarray(np.linalg.cholesky(W).T)
     yj = jnp.asarray(y)
@@ -164,10 +182,14 @@ def _scipy_minimizer(output, g_hat, K, y, W):
 
 
 def _update(output, g_hat, K, y, W, **kw):
-    kw = {"iterations": 30, "newton": True} | kw
-    y = jnp.asarray(y)
-    return fast_jit(lambda yy: sample_update(lambda gg: output(gg, yy), g_hat, jnp.asarray(K), yy, jnp.asarray(W),
-                                             **kw))(y)
+    """sample_update of the sample y, compiled once per output map, prior, weights and options (y an argument:
+    the samples of one case share the program)."""
+    kw = {"iterations": 30, "newton": True, "safe": False} | kw
+    key = (_key(output, g_hat, K, W), tuple(sorted(kw.items())))
+    if key not in _UPDATES:
+        _UPDATES[key] = fast_jit(lambda yy: sample_update(lambda gg: output(gg, yy), g_hat, jnp.asarray(K), yy,
+                                                          jnp.asarray(W), **kw))
+    return _UPDATES[key](jnp.asarray(y))
 
 
 @pytest.mark.parametrize(("name", "output", "g_hat", "K", "y", "W"), CASES, ids=[c[0] for c in CASES])
@@ -207,7 +229,7 @@ def test_one_unchecked_newton_step_raises_the_cost_the_update_lowers_it():
     name, output, g_hat, K, y, W = CASES[1]
     c = fast_jit(_cost(output, g_hat, K, y, W))
     c0 = float(c(jnp.zeros(3)))
-    c_newton = float(c(_one_newton_step(output, g_hat, K, y, W)))
+    c_newton = float(c(fast_jit(lambda: _one_newton_step(output, g_hat, K, y, W))()))  # one program, not eager
     assert c_newton > c0, (c0, c_newton)
     for kw in ({"iterations": 1}, {"iterations": 1, "newton": False}, {}, {"safe": True}):
         _, _, info = _update(output, g_hat, K, y, W, **kw)
