@@ -105,9 +105,10 @@ def test_keep_every_and_gap_threshold():
 
 def test_a_failure_is_the_same_value():
     """A sample of 1e200 makes the state non-finite: both engines stop at the same interval with the same
-    cause, the states after it are NaN and the final state is the last good one."""
+    cause, the states after it are NaN and the final state is the last good one. (The log has the default 120
+    samples: the XLA run is the program ``test_run_equals_xla_on_every_ready_system[tse2]`` compiled.)"""
     flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make())
-    state, ts, us, ys = _log(flt, n=60, seed=3)
+    state, ts, us, ys = _log(flt, seed=3)
     ys[40] = 1e200
     c, x = _runs(flt, state, ts, us, ys)
     assert not c.status.ok and c.status.cause == "non-finite" and int(c.status.index) == 40
@@ -395,9 +396,11 @@ def _two_weight_sets(flt):
 def test_scan_by_c_under_jit_and_vmap(keep_every):
     """``scan(engine="c")`` inside ``jit(vmap(...))`` over the trials' states and logs (the Monte Carlo engine's
     form): one callback for the batch, equal to the XLA scan's vmap, padding (``n_valid``) included; over the
-    weights: ``test_scan_by_c_vmaps_over_weights``."""
+    weights: ``test_scan_by_c_vmaps_over_weights``. Three trials, fewer than a SIMD group (:data:`_kernel.LANES`):
+    the batch runs one trial at a time, with no batch kernel to build; the lane groups' bits are
+    ``test_lane_groups_compute_each_trials_bits``'s and ``test_run_batch_equals_single_runs``'s."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS["localization"].make())
-    logs = [_log(flt, n=41, seed=20 + b) for b in range(6)]
+    logs = [_log(flt, n=41, seed=20 + b) for b in range(3)]
     ts = jnp.asarray(logs[0][1])
     states = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[lg[0] for lg in logs])
     us, ys = jnp.asarray(np.stack([lg[2] for lg in logs])), jnp.asarray(np.stack([lg[3] for lg in logs]))
@@ -409,7 +412,7 @@ def test_scan_by_c_under_jit_and_vmap(keep_every):
 
     for n_valid in (None, 30):
         c, x = batch("c", n_valid), batch("xla", n_valid)
-        assert np.asarray(c.K).shape[:2] == (6, 1 + -(-40 // keep_every))
+        assert np.asarray(c.K).shape[:2] == (3, 1 + -(-40 // keep_every))
         assert_trees_close(c, x)
 
 
