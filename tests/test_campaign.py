@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -181,7 +182,7 @@ def test_a_sweep_of_values_compiles_one_batch():
     assert TRACES["heading"] - before == 1  # noise levels, alpha, initial state and window: values only
     assert np.isfinite(a.stats).all() and not np.allclose(a.stats[:, 0], b.stats[:, 0])
     # the shared batch computes what the trial computes on its own (closed over its config's parameters)
-    s, f, c = trial_statistics(exp.trial_fn(other))(trial_keys(0, 4)[2])
+    s, f, c = jax.jit(trial_statistics(exp.trial_fn(other)))(trial_keys(0, 4)[2])  # one program, not op by op
     np.testing.assert_allclose(b.stats[2], np.asarray(s), rtol=1e-12, atol=1e-15)
 
 

@@ -783,6 +783,16 @@ def _so3_exp_autodiff_left_jacobian():
     return fast_jit(jax.vmap(J))
 
 
+@functools.cache
+def _sek3_coefficient_hessians():
+    """Batched Hessians of SE_K(3)'s Jacobian coefficients (a, b, c of theta^2), compiled once for the five cases."""
+    from liemef.groups import _sek3
+
+    coeffs = lambda x: jnp.stack([*_sek3.left_jacobian_coefficients(x),  # noqa: E731
+                                  _sek3.inverse_left_jacobian_coefficient(x)])
+    return fast_jit(jax.vmap(jax.hessian(coeffs)))
+
+
 @pytest.mark.parametrize("where", ["zero", "near_identity", "random", "pi-1e-3", "pi-1e-6"])
 def test_sek3_left_jacobian_closed_forms_equal_autodiff(where, rng):
     # SE_K(3)'s exp and log use J_l(w) and J_l(w)^{-1} in closed form (Taylor branches): pinned to autodiff of
@@ -803,9 +813,7 @@ def test_sek3_left_jacobian_closed_forms_equal_autodiff(where, rng):
     Jl_inv = np.swapaxes(np.asarray(_sek3.inverse_left_jacobian_apply(w, np.swapaxes(eye, -1, -2))), -1, -2)
     assert_close(Jl, J, ROUNDOFF)
     assert_close(Jl_inv @ J, eye, ROUNDOFF if where[:2] != "pi" else NEAR_PI)
-    coeffs = lambda x: jnp.stack([*_sek3.left_jacobian_coefficients(x),  # noqa: E731
-                                  _sek3.inverse_left_jacobian_coefficient(x)])
-    H = np.asarray(jax.vmap(jax.hessian(coeffs))(jnp.asarray(w)))
+    H = np.asarray(_sek3_coefficient_hessians()(jnp.asarray(w)))
     assert np.isfinite(H).all()
     if where == "zero":  # d^2/dw^2 of a(theta^2) at 0 = 2 a'(0) I: a' = -1/24, b' = -1/120, c' = 1/720
         assert_close(H[0], 2 * np.array([-1 / 24, -1 / 120, 1 / 720])[:, None, None] * np.eye(3), ROUNDOFF)
@@ -864,11 +872,12 @@ def test_matrix_group_log_on_the_cut_locus(G, rng):
     # The principal logarithm is undefined for a rotation by exactly pi (eigenvalues -1). Round-off may still
     # lead the square roots to a preimage; otherwise the result is NaN, never a wrong finite value.
     xi = near_pi_xi(G, rng, 0.0)
-    g = G.exp(xi)
+    exp = fast_jit(G.exp)  # compiled once, for both calls (eager: an expm op by op)
+    g = exp(xi)
     log = np.asarray(fast_jit(lambda e: e.log())(g))
     finite = np.isfinite(log).all(axis=-1)
     assert (finite | np.isnan(log).any(axis=-1)).all()
-    back = np.asarray(G.exp(np.where(finite[:, None], log, 0.0)).as_matrix())[finite]
+    back = np.asarray(exp(np.where(finite[:, None], log, 0.0)).as_matrix())[finite]
     assert_close(back, np.asarray(g.as_matrix())[finite], NEAR_PI)
 
 
