@@ -1,3 +1,4 @@
+import math
 import os
 import sys
 
@@ -13,6 +14,8 @@ if os.path.exists("/proc/cpuinfo"):
     with open("/proc/cpuinfo") as _f:
         if " avx2" in _f.read():
             os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
+
+import pytest  # noqa: E402
 
 import liemef._config  # noqa: F401  (switches JAX to float64 before any test creates an array)
 
@@ -33,3 +36,16 @@ HEAVY_FIRST = ("test_engine.py", "test_smoother.py", "test_export_c.py", "test_r
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests as written
+
+
+@pytest.fixture(autouse=True)
+def _no_background_optimized_builds(monkeypatch):
+    """No -O2 kernel build starts by the engine's rule (liemef.codegen._kernel.OPTIMIZE_AFTER_S: once a quick
+    build has served 2 s of C calls) in the tests' own processes. A test's few runs of a large system reach that
+    rule and start a build the test never uses (the -O2 build computes the quick build's bits,
+    test_quick_and_optimized_builds_agree_bit_for_bit): up to 45 s of compiler CPU beside the tests for a
+    9.6 MB kernel, on cores the other worker needs. ``Kernel.wait()`` and online filters still build it; the
+    tests of the rule itself (tests/test_engine.py) set the threshold they check; CLI subprocesses keep the rule."""
+    from liemef.codegen import _kernel
+
+    monkeypatch.setattr(_kernel, "OPTIMIZE_AFTER_S", math.inf)

@@ -58,16 +58,6 @@ def run_field(kind, **levels):
                                  "first_5s_after": (ON[1], ON[1] + 5)}.items()}
 
 
-@pytest.fixture(autouse=True)
-def _quick_kernel_only(monkeypatch):
-    """The four runs (two per test) share one C kernel, its quick (-O0) build: each run serves about a second of
-    C calls, so the engine's rule (liemef.codegen._kernel.OPTIMIZE_AFTER_S) would start its -O2 build, a 9.6 MB
-    source, some 45 s of compiler CPU that the tests never use (the -O2 build computes the same bits)."""
-    from liemef.codegen import _kernel
-
-    monkeypatch.setattr(_kernel, "OPTIMIZE_AFTER_S", math.inf)
-
-
 @pytest.mark.parametrize("kind", ["world", "body"])
 def test_a_lasting_disturbance_moves_the_state_not_the_heading(kind):
     memory = run_field(kind)
