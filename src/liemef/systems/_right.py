@@ -235,7 +235,7 @@ def invariant_sides(system: SensorSystem, *, states: int = 8, seed: int = 0, tol
         return {s.name: "neither" for s in system.sensors}
     for b in system.blocks():
         verdict = {}
-        for side in ("left", "right"):
+        for side in J:  # the two sides _side_jacobians measured
             bases = [v for v in map(_row_space, J[side][:, b.start:b.stop]) if v is not None]
             seen = [v for v in bases if v.shape[0] > 0]  # a state where it observes nothing says nothing
             verdict[side] = (len(seen) >= 2 and _same_space(seen, tol)) or (len(bases) >= 2 and not seen)
