@@ -75,7 +75,7 @@ def test_vqf_on_broad_matches_its_published_accuracy():
     path = datasets.broad_trials().get("24")
     if path is None:
         pytest.skip("real data absent: BROAD trial 24 not found (../shared/realdata or LIEMEF_REALDATA)")
-    from liemef.studies.compare._broad import broad_errors
+    from liemef.metrics import attitude_rms
 
     tr = datasets.broad(path)
     log = datasets.broad_to_log(tr, norms=True)
@@ -83,7 +83,7 @@ def test_vqf_on_broad_matches_its_published_accuracy():
     q = np.asarray(flt.run(flt.init(_g0()), log.ts, log.us, log.ys).g_hat.factors[0].wxyz)
     # measured: 1.55 deg total rms (VQF averages 2.4 deg over BROAD's 30 trials in the run); state k + 1
     # is BROAD's estimate at sample k, so the truth is compared with the states shifted by one
-    e = broad_errors(q[1:], tr.quat_true[:-1], tr.movement[:-1])
+    e = attitude_rms(q[1:], tr.quat_true[:-1], tr.movement[:-1])
     assert e["total"] < 2.5
 
 

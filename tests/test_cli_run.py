@@ -355,8 +355,8 @@ def test_run_takes_an_attitude_velocity_tuning_file(tmp_path):
 def test_the_printed_command_runs_a_broad_head(tmp_path):
     """On BROAD trial 07's first 28 s (26.4 s of rest, then the fast rotation starts), the commands `liemef dataset
     broad` prints run the bounded-velocity model; its attitude error over BROAD's movement mask is small."""
+    from liemef.metrics import attitude_rms
     from liemef.studies import datasets
-    from liemef.studies.compare._broad import broad_errors
 
     if "07" not in datasets.broad_trials():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
@@ -373,4 +373,4 @@ def test_the_printed_command_runs_a_broad_head(tmp_path):
     est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
     truth = np.loadtxt(tmp_path / "truth.csv", delimiter=",", skiprows=1)
     q = Rotation.from_rotvec(est[:, 1:4]).as_quat()[:, [3, 0, 1, 2]]
-    assert broad_errors(q, truth[:, 1:5], truth[:, 5] > 0)["total"] < 3.0
+    assert attitude_rms(q, truth[:, 1:5], truth[:, 5] > 0)["total"] < 3.0

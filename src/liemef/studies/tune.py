@@ -133,14 +133,15 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.attitude_bias.imu_velocity_log`), the state
     with a velocity at rest and ``K0_VELOCITY``."""
     from ..reports import io as _io
+    from ..systems.attitude_bias import K0_GYRO_BIAS as K0
     from ..systems.attitude_bias import (
+        K0_VELOCITY,
         attitude_velocity_state,
         imu_velocity_log,
         initial_estimate,
         rest_constants,
     )
     from . import datasets
-    from .compare._broad import K0, K0_VELOCITY
 
     if system not in SYSTEMS:
         raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
@@ -248,11 +249,11 @@ def system_from(params: dict, constants: dict, system: str = SYSTEM):
 # --- objectives -------------------------------------------------------------------------------------------------
 def truth_error(rec: Recording, quat: np.ndarray) -> float:
     """BROAD's total rms (deg) of the estimate against the recording's truth over its mask."""
-    from .compare._broad import broad_errors
+    from ..metrics import attitude_rms
 
     if rec.quat_true is None:
         raise ValueError(f"objective: 'truth' needs a truth; recording {rec.name!r} has none")
-    e = broad_errors(quat, rec.quat_true, rec.mask if rec.mask is not None else np.ones(len(rec.ts), bool))
+    e = attitude_rms(quat, rec.quat_true, rec.mask if rec.mask is not None else np.ones(len(rec.ts), bool))
     return float("inf") if e["total"] is None else e["total"]
 
 

@@ -460,6 +460,10 @@ def imu_velocity_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"],
     return ts, np.concatenate([us, a], axis=1), np.concatenate([ys, np.zeros((ys.shape[0], 3))], axis=1)
 
 
+K0_GYRO_BIAS = np.diag([0.05**2] * 3 + [0.01**2] * 3)
+"""A K0 for :func:`attitude_gyro_bias` from a TRIAD estimate at rest (:func:`initial_estimate`): (0.05 rad)^2 on
+the attitude and (0.01 rad/s)^2 on an unknown bias; ``liemef compare broad``'s."""
+
 K0_VELOCITY = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
 """A K0 for :func:`attitude_velocity` from a TRIAD estimate at rest (:func:`initial_estimate`): (0.05 rad)^2 on
 the attitude, (0.01 rad/s)^2 on an unknown bias and (0.1 m/s)^2 on the velocity (at rest); ``liemef compare

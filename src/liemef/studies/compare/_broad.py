@@ -65,10 +65,15 @@ import numpy as np
 
 from ...filters import MinimumEnergyFilter
 from ...filters.baselines import VQF, Fusion, Madgwick, Mahony, invariant_ekf, ukf_m
+from ...metrics import ATTITUDE_METRICS as METRICS
+from ...metrics import attitude_error_per_second, attitude_rms
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...smoothers import OfflineSmoother
 from ...systems import attitude_field, attitude_gyro_bias
+from ...systems.attitude_bias import (
+    K0_GYRO_BIAS as K0,
+)
 from ...systems.attitude_bias import (
     K0_VELOCITY,
     attitude_velocity_state,
@@ -207,11 +212,9 @@ PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "ma
              "33": {"madgwick": 7.1, "mahony": 11.0}}
 """Total rms (deg) of BROAD's own Madgwick (beta = 0.12) and Mahony (Kp = 0.74, Ki = 0.0012) per trial, one
 parameter set for all 39 trials (BROAD ``example_code/out/*_average_rmse.json``; the dataset README here)."""
-METRICS = ("total", "heading", "inclination")
 INITIAL_SAMPLES = 50
 """The initial estimate is TRIAD of the mean of the initial rest's first samples, this many (fewer if the rest is
 shorter)."""
-K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
 
 
 
@@ -361,42 +364,6 @@ def setup(name: str, ctx: dict, logs: dict[str, io.RecordedLog]):
     return flt, state, io.RecordedLog(log.ts, log.us, log.ys if p == log.ys.shape[1] else log.ys[:, :p])
 
 
-def broad_errors(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> dict[str, float]:
-    """BROAD's total, heading and inclination rms (deg) of the error ``q_est * q_ref^-1`` (world frame) over
-    ``mask`` where the reference is present; quaternions (w, x, y, z), body -> world (the dataset README). None
-    when no sample qualifies."""
-    from scipy.spatial.transform import Rotation
-
-    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
-    e = (Rotation.from_quat(quat_est[ok][:, [1, 2, 3, 0]]) * Rotation.from_quat(quat_ref[ok][:, [1, 2, 3, 0]]).inv()
-         ).as_quat()
-    w, z = np.abs(e[:, 3]), e[:, 2]
-    total = 2 * np.arccos(np.clip(w, 0, 1))
-    heading = 2 * np.arctan(np.abs(z) / np.maximum(w, 1e-12))
-    incl = 2 * np.arccos(np.clip(np.hypot(w, z), 0, 1))
-    if not ok.any():
-        return dict.fromkeys(METRICS)
-    return {k: float(np.degrees(np.sqrt(np.mean(x**2)))) for k, x in zip(METRICS, (total, heading, incl),
-                                                                          strict=True)}
-
-
-def error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """The total attitude error (deg) as its rms over each whole second (NaN where the second has no sample in
-    the movement mask with a reference), for the figure."""
-    from scipy.spatial.transform import Rotation
-
-    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
-    err = np.full(ts.shape, np.nan)
-    e = (Rotation.from_quat(quat_est[ok][:, [1, 2, 3, 0]]) * Rotation.from_quat(quat_ref[ok][:, [1, 2, 3, 0]]).inv())
-    err[ok] = np.degrees(e.magnitude())
-    sec = np.floor(ts - ts[0]).astype(int)
-    out = np.full(sec[-1] + 1, np.nan)
-    for k in np.unique(sec[ok]):
-        x = err[(sec == k) & ok]
-        out[k] = np.sqrt(np.mean(x**2))
-    return out
-
-
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
     """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
     st = BroadComparison() if study is None else study
@@ -420,10 +387,10 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
             traj = flt.run(state, log.ts, log.us, log.ys)
             q = np.asarray(traj.g_hat.factors[0].wxyz)
             status = traj.status
-            arrays[f"{tid}/{name}/error_1s"] = error_per_second(trial.ts, q, trial.quat_true, trial.movement)
+            arrays[f"{tid}/{name}/error_1s"] = attitude_error_per_second(trial.ts, q, trial.quat_true, trial.movement)
             ok = bool(int(status.code) == 0)
             # a failed run has no error figures: its states before the failure are not the whole trial's
-            errors = broad_errors(q, trial.quat_true, trial.movement) if ok else dict.fromkeys(METRICS)
+            errors = attitude_rms(q, trial.quat_true, trial.movement) if ok else dict.fromkeys(METRICS)
             rows[name] = {"filter": BROAD_FILTERS[name][0], "ok": ok, "given": list(given(flt)),
                           "status": status.message(log.ts) if not ok else "ok", **errors,
                           "elapsed_s": time.perf_counter() - t0}

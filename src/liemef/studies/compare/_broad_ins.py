@@ -61,7 +61,7 @@ filters' state is the IMU's, so the optical position and velocity are carried to
 (:func:`truth_at_imu`; the scoring's only use of it):
 
 * attitude: BROAD's total, heading and inclination rms of $q_{est} \otimes q_{ref}^{-1}$
-  (:func:`~liemef.studies.compare._broad.broad_errors`), the same definition as the attitude-only filters';
+  (:func:`~liemef.metrics.attitude_rms`), the same definition as the attitude-only filters';
 * velocity: the central difference of the optical positions over $\pm$ :data:`VELOCITY_HALF_WINDOW` = 10 ms
   (3 samples; :func:`truth_velocity`). The window is chosen from the optical positions alone, where the
   difference's bias ($h^2 \dddot p / 6$) meets its noise: on the fast translation trial 16 the +-10 ms difference
@@ -387,7 +387,7 @@ def errors(data: InsTrial, traj, arm=None, truth=None) -> tuple[dict, np.ndarray
     (:func:`truth_at_imu`), and its attitude error per second (for the figure): ``total``, ``heading``,
     ``inclination`` (deg), ``velocity`` (m/s), ``position`` (m) rms, the NEES (:data:`NEES_KEYS`) and
     ``samples``, the samples scored. ``truth``: :func:`truth_at_imu`'s result, when the caller already has it."""
-    from ._broad import broad_errors, error_per_second
+    from ...metrics import attitude_error_per_second, attitude_rms
 
     tr = data.trial
     x = traj.g_hat.factors[0]
@@ -396,7 +396,7 @@ def errors(data: InsTrial, traj, arm=None, truth=None) -> tuple[dict, np.ndarray
     mask = scored(data)
     p_true, v_true = truth_at_imu(data, arm) if truth is None else truth
     vmask = mask & np.isfinite(v_true).all(axis=1)
-    out = broad_errors(q, tr.quat_true, tr.movement)  # as compare broad: movement mask, optical attitude present
+    out = attitude_rms(q, tr.quat_true, tr.movement)  # as compare broad: movement mask, optical attitude present
     rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if e.size else None  # noqa: E731
     out["velocity"] = rms(v_hat[vmask] - v_true[vmask])
     out["position"] = rms(p_hat[mask] - p_true[mask])
@@ -410,7 +410,7 @@ def errors(data: InsTrial, traj, arm=None, truth=None) -> tuple[dict, np.ndarray
         out.update({key: float(f) for key, f in zip(BAND_KEYS, in_band(values), strict=True)})
     else:
         out.update(dict.fromkeys(NEES_KEYS + BAND_KEYS))
-    return out, error_per_second(tr.ts, q, tr.quat_true, tr.movement)
+    return out, attitude_error_per_second(tr.ts, q, tr.quat_true, tr.movement)
 
 
 def in_band(values: np.ndarray, prob: float = 0.95) -> np.ndarray:

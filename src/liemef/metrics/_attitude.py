@@ -1,0 +1,50 @@
+"""Attitude errors as BROAD (Laidig et al. 2021) scores them: the world-frame error ``q_est * q_ref^-1`` split into
+its heading (about the vertical) and inclination (tilt) parts, on quaternions (w, x, y, z), body -> world."""
+
+from __future__ import annotations
+
+import numpy as np
+
+ATTITUDE_METRICS = ("total", "heading", "inclination")
+"""The keys of :func:`attitude_rms`."""
+
+
+def _world_error(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray):
+    """The samples that count (in ``mask``, the reference present, the estimate finite) and the world-frame error
+    rotation ``q_est * q_ref^-1`` on them."""
+    from scipy.spatial.transform import Rotation
+
+    ok = mask & ~np.isnan(quat_ref).any(axis=1) & np.isfinite(quat_est).all(axis=1)
+    est, ref = (Rotation.from_quat(q[ok][:, [1, 2, 3, 0]]) for q in (quat_est, quat_ref))
+    return ok, est * ref.inv()
+
+
+def attitude_rms(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -> dict[str, float | None]:
+    """BROAD's total, heading and inclination rms (deg) of the error ``q_est * q_ref^-1`` (world frame) over
+    ``mask`` where the reference is present and the estimate finite; quaternions (w, x, y, z), body -> world
+    (the dataset's README). None for each when no sample qualifies."""
+    ok, rot = _world_error(quat_est, quat_ref, mask)
+    e = rot.as_quat()
+    w, z = np.abs(e[:, 3]), e[:, 2]
+    total = 2 * np.arccos(np.clip(w, 0, 1))
+    heading = 2 * np.arctan(np.abs(z) / np.maximum(w, 1e-12))
+    incl = 2 * np.arccos(np.clip(np.hypot(w, z), 0, 1))
+    if not ok.any():
+        return dict.fromkeys(ATTITUDE_METRICS)
+    return {k: float(np.degrees(np.sqrt(np.mean(x**2)))) for k, x in zip(ATTITUDE_METRICS, (total, heading, incl),
+                                                                          strict=True)}
+
+
+def attitude_error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray,
+                              mask: np.ndarray) -> np.ndarray:
+    """The total attitude error (deg) of :func:`attitude_rms` as its rms over each whole second from ``ts[0]``
+    (NaN where the second has no sample in ``mask`` with a reference), for figures."""
+    ok, rot = _world_error(quat_est, quat_ref, mask)
+    err = np.full(ts.shape, np.nan)
+    err[ok] = np.degrees(rot.magnitude())
+    sec = np.floor(ts - ts[0]).astype(int)
+    out = np.full(sec[-1] + 1, np.nan)
+    for k in np.unique(sec[ok]):
+        x = err[(sec == k) & ok]
+        out[k] = np.sqrt(np.mean(x**2))
+    return out
