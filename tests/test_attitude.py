@@ -14,7 +14,14 @@ import numpy as np
 import pytest
 
 from liemef.groups import SO3
-from liemef.studies.experiments import EXPERIMENTS, MonteCarloResult, attitude, get_experiment, montecarlo
+from liemef.studies.experiments import (
+    EXPERIMENTS,
+    MonteCarloResult,
+    attitude,
+    get_experiment,
+    montecarlo,
+    reproduce_experiment,
+)
 from tolerances import ON_GROUP, ROUNDOFF, SYMMETRY
 
 CONFIG = attitude.AttitudeConfig(duration=15.0, steady=(10.0, 15.0))
@@ -44,7 +51,7 @@ NOISE_STD = 0.05
 @pytest.fixture(scope="module")
 def reproduced(tmp_path_factory):
     out = tmp_path_factory.mktemp("attitude")
-    rep = attitude.ATTITUDE.reproduce(out, CONFIG, runs=RUNS, progress=False)
+    rep = reproduce_experiment(attitude.ATTITUDE, out, CONFIG, runs=RUNS, progress=False)
     return out, rep
 
 

@@ -19,7 +19,7 @@ import paper_forms as pf
 from liemef.groups import SE2R2
 from liemef.metrics import FULL
 from liemef.reports import io
-from liemef.studies.experiments import EXPERIMENTS, MonteCarloResult, get_experiment, montecarlo
+from liemef.studies.experiments import EXPERIMENTS, MonteCarloResult, get_experiment, montecarlo, reproduce_experiment
 from liemef.studies.experiments import chaplygin as ch
 from liemef.systems import ChaplyginSleigh
 from liemef.systems.chaplygin import constraint_K0, se2r2_state
@@ -375,7 +375,7 @@ def test_reproduce_writes_tables_and_figures(tmp_path):
     """The reproduction at a reduced size (6 trials, Ts = 10 ms, with the alternatives): every file, the
     paper's values in the tables, the band fraction in the summary."""
     config = _config(table_dts=(0.01,))
-    rep = ch.CHAPLYGIN.reproduce(tmp_path, config, runs=6, progress=False)
+    rep = reproduce_experiment(ch.CHAPLYGIN, tmp_path, config, runs=6, progress=False)
     names = {p.name for p in rep.files}
     for f in ("tables.md", "tables.csv", "velocity.md", "alternatives.md", "reproduction.json",
               "fig3_gps_ins_10ms.png", "fig4_gps_10ms.png", "fig3_gps_ins_10ms.npz"):
@@ -401,7 +401,7 @@ def test_full_size_table1_velocity_rows():
 @pytest.mark.slow
 def test_single_run_reproduction_without_trials(tmp_path):
     """``runs = 0``: the seeded run of the config only (the default reproduction), at a short duration."""
-    rep = ch.CHAPLYGIN.reproduce(tmp_path, dataclasses.replace(ch.CHAPLYGIN.default_config, duration=0.5), runs=0,
-                                 progress=False)
+    config = dataclasses.replace(ch.CHAPLYGIN.default_config, duration=0.5)
+    rep = reproduce_experiment(ch.CHAPLYGIN, tmp_path, config, runs=0, progress=False)
     assert (tmp_path / "metrics.json").exists() and rep.experiment == "chaplygin"
     assert io.read_metrics(tmp_path / "metrics.json")["constraint"]["max_abs_lateral_velocity"] > 0.0

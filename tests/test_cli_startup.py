@@ -18,7 +18,7 @@ from liemef import cli
 from liemef.codegen import BACKENDS
 from liemef.connections import CARTAN_SCHOUTEN
 from liemef.filters import ERROR_SIDES, INTERPOLATIONS, ORDERS, UPDATES
-from liemef.studies import registry
+from liemef.studies import load, registry
 from liemef.studies.compare import STUDIES
 from liemef.studies.experiments import DEFAULT_BATCH_SIZE, EXPERIMENTS, SYSTEMS
 
@@ -87,19 +87,19 @@ def test_the_console_script_lists_the_commands_without_importing_jax():
 
 def test_the_registry_is_what_the_library_registers():
     """The JAX-free registry names and describes the studies and systems the library loads: the same names in
-    the same order, the same titles and papers, each entry's ``load()`` the library's object."""
+    the same order, the same titles and papers, and :func:`liemef.studies.load` of each the library's object."""
     experiments = registry.STUDIES["experiment"]
     assert list(experiments) == [name for name in EXPERIMENTS if name in experiments] == list(EXPERIMENTS)[:6]
     for name, study in experiments.items():
         assert (study.title, study.paper) == (EXPERIMENTS[name].title, EXPERIMENTS[name].paper)
-        assert study.load() is EXPERIMENTS[name]
+        assert load("experiment", name) is EXPERIMENTS[name]
     comparisons = registry.STUDIES["comparison"]
     assert list(comparisons) == list(STUDIES)
     from liemef.studies.compare import _PARTS  # every comparison the library implements is declared, and no other
 
     assert sorted(_PARTS) == sorted(comparisons)
     for name, study in comparisons.items():
-        assert study.load() is STUDIES[name] and study.title == STUDIES[name].description
+        assert load("comparison", name) is STUDIES[name] and study.title == STUDIES[name].description
         fields = {f.name for f in dataclasses.fields(STUDIES[name].settings)}
         assert set(study.settings) <= fields - {"seed", "runs", "filters"}, name  # --set's help names real keys
     assert sorted(registry.SYSTEMS) == sorted(SYSTEMS)

@@ -26,7 +26,7 @@ import liemef
 from liemef.groups import SE2, Rn
 from liemef.metrics import chi2_bounds, left_error, nees
 from liemef.reports import io
-from liemef.studies.experiments import EXPERIMENTS, get_experiment, montecarlo
+from liemef.studies.experiments import EXPERIMENTS, get_experiment, montecarlo, reproduce_experiment
 from liemef.studies.experiments import localization as loc
 from liemef.systems import Noise, Sensor, SensorSystem
 from tolerances import ROUNDOFF
@@ -266,7 +266,7 @@ def test_100_seeds_for_each_filter_variant():
 
 @pytest.mark.slow
 def test_reproduce_writes_the_run_the_monte_carlo_the_study_and_the_band_figure(tmp_path):
-    rep = get_experiment("localization").reproduce(tmp_path, runs=4, progress=False)
+    rep = reproduce_experiment(get_experiment("localization"), tmp_path, runs=4, progress=False)
     names = {p.name for p in rep.files}
     for f in ("metrics.json", "arrays.npz", "fig_pose.png", "errors.md", "montecarlo.json", "montecarlo.npz",
               "localization.md", "localization.json", "bands.npz", "fig_errors.png"):

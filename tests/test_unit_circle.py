@@ -14,7 +14,7 @@ from scipy.integrate import solve_ivp
 
 import liemef
 import paper_forms as pf
-from liemef.studies.experiments import get_experiment, unit_circle
+from liemef.studies.experiments import get_experiment, reproduce_experiment, unit_circle
 from liemef.systems import UnitCircleBias
 from liemef.systems.unit_circle import B_BIAS, B_OMEGA, DEG
 from test_zamani import _cases, _engine_rhs, circle_system
@@ -165,7 +165,7 @@ def test_bias_estimate_tracks_the_jumps(paper_run):
 
 def test_monte_carlo_reproduction_writes_figures_and_tables(tmp_path, paper_run):
     exp = get_experiment("unit-circle")
-    rep = exp.reproduce(tmp_path, runs=3, progress=False)  # the seeded run is paper_run (compiled once)
+    rep = reproduce_experiment(exp, tmp_path, runs=3, progress=False)  # the seeded run is paper_run (compiled once)
     for name in ("metrics.json", "arrays.npz", "fig2_angle.png", "fig3_bias.png", "montecarlo.json"):
         assert (tmp_path / name).is_file(), name
     assert (tmp_path / "fig3_bias.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -7,3 +7,19 @@
 * :mod:`liemef.studies.optimum`: the exact minimum-energy (batch MAP) estimate, by GTSAM;
 * :mod:`liemef.studies.datasets`: the real recordings (BROAD, Wifibot) as logs with their truth.
 """
+
+from . import registry
+
+
+def load(kind: str, name: str):
+    """The full study ``name`` of ``kind`` declared in :mod:`liemef.studies.registry` (a ValueError listing the
+    names otherwise): an :class:`~liemef.studies.experiments.Experiment` for ``"experiment"``, a
+    :class:`~liemef.studies.compare.Study` for ``"comparison"``. Imports the module that holds it (hence JAX)."""
+    registry.get(kind, name)
+    if kind == "experiment":
+        from .experiments import EXPERIMENTS
+
+        return EXPERIMENTS[name]
+    from .compare import STUDIES
+
+    return STUDIES[name]

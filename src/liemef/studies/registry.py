@@ -2,7 +2,8 @@
 
 A study is a name, a frozen config, a trial or run function, and its tables and figures. Here each study is
 declared once, by what names and describes it (:class:`Study`: name, kind, title, paper, and for a comparison the
-settings it takes); :meth:`Study.load` imports the module that holds the rest and returns the full object:
+settings it takes). This module imports none of the studies (it sits below them all);
+:func:`liemef.studies.load` returns the full object, which imports the module that holds the rest:
 
 * an ``"experiment"``: a paper's experiment, :class:`liemef.studies.experiments.Experiment` (default config,
   ``run``, ``trial_fn``, figures, tables), for ``liemef reproduce``, ``liemef montecarlo`` and campaigns;
@@ -18,9 +19,7 @@ here plus its module; a new ready system one entry of :data:`SYSTEMS` plus its s
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 KINDS = ("experiment", "comparison")
 """What a study is: a paper's ``experiment`` (reproduced, Monte Carlo) or a ``comparison`` of filters."""
@@ -43,8 +42,8 @@ DURATION_RULE = ("a statistics window that would start at or after T moves in pr
 @dataclass(frozen=True)
 class Study:
     """A registered study: its name, kind (one of :data:`KINDS`), title, paper (or source), for a comparison
-    the keys of its settings (``liemef compare --set``) and its help paragraph, and ``load()`` giving the full
-    object (an :class:`~liemef.studies.experiments.Experiment` or a :class:`~liemef.studies.compare.Study`)."""
+    the keys of its settings (``liemef compare --set``) and its help paragraph (the full object:
+    :func:`liemef.studies.load`)."""
 
     name: str
     kind: str
@@ -52,19 +51,12 @@ class Study:
     paper: str = ""
     settings: tuple[str, ...] = ()
     help: str = ""
-    loader: Callable[[], Any] = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         if self.kind not in KINDS:
             raise ValueError(f"kind: expected one of {list(KINDS)}, got {self.kind!r}")
         if not self.name or not isinstance(self.name, str):
             raise ValueError(f"name: expected a non-empty string, got {self.name!r}")
-
-    def load(self) -> Any:
-        """The full study (imports its module, hence JAX, on first use)."""
-        if self.loader is None:
-            raise ValueError(f"study {self.name!r} has no loader")
-        return self.loader()
 
 
 STUDIES: dict[str, dict[str, Study]] = {kind: {} for kind in KINDS}
@@ -100,22 +92,6 @@ def card(name: str) -> dict[str, str]:
     return {"name": st.name, "title": st.title, "paper": st.paper}
 
 
-def _experiment(name: str) -> Callable[[], Any]:
-    def load():
-        from .experiments import EXPERIMENTS
-
-        return EXPERIMENTS[name]
-    return load
-
-
-def _comparison(name: str) -> Callable[[], Any]:
-    def load():
-        from .compare import STUDIES as COMPARISONS
-
-        return COMPARISONS[name]
-    return load
-
-
 for _name, _title, _paper in (
     ("attitude", "Rigid-body attitude on TSO(3) with two direction sensors, (0)- and (-)-connection filters",
      "Saccon, Trumpf, Mahony, Aguiar 2016, Sec. V-B, Fig. 3"),
@@ -131,7 +107,7 @@ for _name, _title, _paper in (
      "Zamani, Hua, Trumpf, Mahony, 'Minimum-Energy Filtering on the Unit Circle Using Velocity Measurements "
      "with Bias and Vectorial State Measurements', Sec. IV, Figs. 2-3"),
 ):
-    declare(Study(_name, "experiment", _title, _paper, loader=_experiment(_name)))
+    declare(Study(_name, "experiment", _title, _paper))
 
 for _name, _title, _settings, _help in (
     ("localization", "ukfm's 2D localization benchmark: every filter on the same trials",
@@ -197,7 +173,7 @@ for _name, _title, _settings, _help in (
      "UKF-M's Wifibot runs (real wheel odometry, optical truth) with synthetic 1 Hz GPS of 0.1 m over --runs "
      "seeds; writes wifibot.md, wifibot.csv, wifibot.json and arrays.npz."),
 ):
-    declare(Study(_name, "comparison", _title, settings=_settings, help=_help, loader=_comparison(_name)))
+    declare(Study(_name, "comparison", _title, settings=_settings, help=_help))
 
 SYSTEMS: dict[str, str] = {
     "tse2": "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)",

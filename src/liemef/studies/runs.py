@@ -155,7 +155,7 @@ def reproduce_to(out: str | os.PathLike, experiment: str, *, quick: bool = False
     reproduce`): its config (``quick``: the reduced one) with ``seed``, ``duration``, ``connection`` and
     ``order`` (None: the config's) and the ``KEY=VALUE`` ``settings`` replaced, and ``runs`` Monte Carlo
     trials (None: the experiment's own number; 0: the seeded run only)."""
-    from .experiments import get_experiment
+    from .experiments import get_experiment, reproduce_experiment
     from .settings import experiment_config
 
     exp = get_experiment(experiment)
@@ -164,7 +164,7 @@ def reproduce_to(out: str | os.PathLike, experiment: str, *, quick: bool = False
     runs = (exp.quick_runs if quick else exp.runs) if runs is None else runs
     target = outputs.claim(out, "reproduce", force)
     with outputs.staged(target) as d:
-        rep = exp.reproduce(d, config, runs=runs, progress=progress)
+        rep = reproduce_experiment(exp, d, config, runs=runs, progress=progress)
     return SavedReproduction(rep, _shown(rep.text, d, target.path), tuple(rep.warnings), target.path)
 
 

@@ -14,7 +14,7 @@ split keys) into a :class:`MonteCarloResult` (statistics per trial, then across 
 Its parts are public for drivers that split the trials elsewhere (campaigns): :func:`resolve_experiment`,
 :func:`run_trials` (one slice of trials as :class:`TrialArrays`) and :func:`result_of` (the result of them all).
 The experiments' names, titles and papers are declared in :mod:`liemef.studies.registry`.
-Reproduction: :meth:`Experiment.reproduce` writes an experiment's folder (:func:`default_reproduce` unless the
+Reproduction: :func:`reproduce_experiment` writes an experiment's folder (:func:`default_reproduce` unless the
 experiment has its own ``reproduce_fn``), :func:`reproduce_all` every experiment plus ``index.md``.
 """
 
@@ -49,12 +49,20 @@ from ._montecarlo import (
     trial_keys,
     trial_statistics,
 )
-from ._reproduce import INDEX_FILE, Failure, default_reproduce, listing, reproduce_all, write_index
+from ._reproduce import (
+    INDEX_FILE,
+    Failure,
+    default_reproduce,
+    listing,
+    reproduce_all,
+    reproduce_experiment,
+    write_index,
+)
 from ._systems import SYSTEMS, SystemSpec, get_system
 
 __all__ = ["EXPERIMENTS", "Experiment", "FigureSpec", "Result", "TrialSpec", "SCHEMA", "get_experiment", "register",
            "config_dict", "evaluate", "SYSTEMS", "SystemSpec", "get_system", "tse2", "attitude", "unit_circle",
            "chaplygin", "localization", "montecarlo", "MonteCarloResult", "trial_keys", "trial_statistics",
            "trial_cause", "ProgressLine", "STATS", "PERCENTILES", "DEFAULT_BATCH_SIZE", "Output", "Reproduction",
-           "default_reproduce", "reproduce_all", "write_index", "Failure", "listing", "INDEX_FILE", "TrialArrays",
-           "format_seconds",            "resolve_experiment", "result_of", "run_trials"]
+           "default_reproduce", "reproduce_experiment", "reproduce_all", "write_index", "Failure", "listing",
+           "INDEX_FILE", "TrialArrays", "format_seconds", "resolve_experiment", "result_of", "run_trials"]

@@ -3,7 +3,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -186,10 +185,10 @@ class Output(NamedTuple):
 
 @dataclass(frozen=True)
 class Reproduction:
-    """What :meth:`Experiment.reproduce` wrote to its folder ``out``: read by the CLI (which prints ``text``
-    and writes ``warnings`` to stderr) and by ``liemef reproduce all`` (whose ``index.md`` links ``figures``
-    and ``tables``). ``files`` is every file written; ``summary`` is a short JSON-ready digest for the index
-    (e.g. runs, non-finite trials)."""
+    """What :func:`~liemef.studies.experiments.reproduce_experiment` wrote to its folder ``out``: read by the CLI
+    (which prints ``text`` and writes ``warnings`` to stderr) and by ``liemef reproduce all`` (whose ``index.md``
+    links ``figures`` and ``tables``). ``files`` is every file written; ``summary`` is a short JSON-ready digest
+    for the index (e.g. runs, non-finite trials)."""
 
     experiment: str
     out: Path
@@ -265,23 +264,6 @@ class Experiment:
         """One run: ``run_fn(config, key)``; ``config=None``: the default config, ``key=None``: from its seed."""
         return self.run_fn(self.default_config if config is None else config, key)
 
-    def reproduce(self, out: str | os.PathLike, config: Any | None = None, runs: int | None = None,
-                  progress: bool = True) -> Reproduction:
-        """Write the experiment's reproduction into the folder ``out`` (created if missing): its
-        ``reproduce_fn`` or :func:`default_reproduce`. ``config=None``: the default config; ``runs=None``:
-        ``self.runs`` Monte Carlo trials."""
-        from ...reports.io import ensure_dir
-        from ._reproduce import default_reproduce
-
-        runs = self.runs if runs is None else runs
-        if not isinstance(runs, int) or isinstance(runs, bool) or runs < 0:
-            raise ValueError(f"runs: expected an integer >= 0, got {runs!r}")
-        config = self.default_config if config is None else config
-        d = ensure_dir(out)
-        if self.reproduce_fn is not None:
-            return self.reproduce_fn(config, d, runs, progress)
-        return default_reproduce(self, config, d, runs, progress)
-
     def describe(self) -> dict:
         """Name, title, paper, figures, tables and whether it has a Monte Carlo (``reproduce --list``)."""
         return {"name": self.name, "title": self.title, "paper": self.paper,
@@ -296,13 +278,12 @@ EXPERIMENTS: dict[str, Experiment] = {}
 def register(experiment: Experiment) -> Experiment:
     """Add ``experiment`` to :data:`EXPERIMENTS` under its name and return it; a ValueError if the name is taken,
     or if the name is declared in :mod:`liemef.studies.registry` with another title or paper. A name the
-    registry does not know is declared there, loading this object."""
+    registry does not know is declared there."""
     if experiment.name in EXPERIMENTS:
         raise ValueError(f"experiment {experiment.name!r} is already registered")
     declared = registry.STUDIES["experiment"].get(experiment.name)
     if declared is None:
-        registry.declare(registry.Study(experiment.name, "experiment", experiment.title, experiment.paper,
-                                        loader=lambda: experiment))
+        registry.declare(registry.Study(experiment.name, "experiment", experiment.title, experiment.paper))
     elif (declared.title, declared.paper) != (experiment.title, experiment.paper):
         raise ValueError(f"experiment {experiment.name!r}: expected the registry's title and paper "
                          f"{(declared.title, declared.paper)!r}, got {(experiment.title, experiment.paper)!r}")

@@ -1,7 +1,7 @@
 """Writing an experiment's reproduction to a folder, and ``reproduce all`` with its Markdown index.
 
-:func:`default_reproduce` is what :meth:`Experiment.reproduce <liemef.studies.experiments.Experiment.reproduce>` does
-for an experiment without its own ``reproduce_fn``; :func:`reproduce_all` runs every registered experiment
+:func:`reproduce_experiment` writes one experiment's folder: its own ``reproduce_fn``, or
+:func:`default_reproduce`; :func:`reproduce_all` runs every registered experiment
 into one folder each and writes ``index.md`` (:func:`write_index`). Figures are drawn from the saved files
 by :mod:`liemef.reports.plots`, imported only when a reproduction is written.
 """
@@ -58,6 +58,21 @@ def _config_line(config: Any) -> str:
         if hasattr(config, key):
             parts.append(fmt.format(getattr(config, key)))
     return ", ".join(parts)
+
+
+def reproduce_experiment(experiment: Experiment, out: str | os.PathLike, config: Any | None = None,
+                         runs: int | None = None, progress: bool = True) -> Reproduction:
+    """Write ``experiment``'s reproduction into the folder ``out`` (created if missing): its ``reproduce_fn``
+    or :func:`default_reproduce`. ``config=None``: the default config; ``runs=None``: ``experiment.runs`` Monte
+    Carlo trials."""
+    runs = experiment.runs if runs is None else runs
+    if not isinstance(runs, int) or isinstance(runs, bool) or runs < 0:
+        raise ValueError(f"runs: expected an integer >= 0, got {runs!r}")
+    config = experiment.default_config if config is None else config
+    d = io.ensure_dir(out)
+    if experiment.reproduce_fn is not None:
+        return experiment.reproduce_fn(config, d, runs, progress)
+    return default_reproduce(experiment, config, d, runs, progress)
 
 
 def default_reproduce(experiment: Experiment, config: Any, out: Path, runs: int = 0,
@@ -169,7 +184,7 @@ def reproduce_all(out: str | os.PathLike, quick: bool = True, progress: bool = T
                                 + [f"{n} Monte Carlo trials" if n else "one seeded run"])
         sub = d / name
         try:
-            rep = exp.reproduce(sub, config, runs=n, progress=progress)
+            rep = reproduce_experiment(exp, sub, config, runs=n, progress=progress)
         except Exception as err:  # one failure must not stop the others; it is reported
             rep = Failure(name, sub, f"{type(err).__name__}: {err}", traceback.format_exc())
         done.append(rep)

@@ -24,8 +24,8 @@ Simulation choices the paper leaves open, and what reproduces its tables (``docs
 Tables 1-2 side by side with the paper, the alternatives' numbers, and Figs. 3-6 from one representative run.
 
 The package, one job per module: ``_paper`` (the config and the printed values), ``_trial`` (the filter as
-printed, the setup cache, the run and the Monte Carlo trial, the registered :data:`CHAPLYGIN`) and
-``_reproduce`` (the Monte Carlo grid and the reproduction). The tables and figures are written by
+printed, the setup cache, the run and the Monte Carlo trial) and ``_reproduce`` (the Monte Carlo grid and the
+reproduction); this module registers :data:`CHAPLYGIN` from them. The tables and figures are written by
 :mod:`liemef.reports.chaplygin`; its names are re-exported here.
 """
 
@@ -43,6 +43,8 @@ from ....reports.chaplygin import (
     velocity_markdown,
 )
 from ....systems.chaplygin import CONNECTIONS
+from ... import registry
+from .._base import Experiment, FigureSpec, register
 from ._paper import (
     COMPONENTS,
     K0_CHOICES,
@@ -58,7 +60,6 @@ from ._paper import (
 )
 from ._reproduce import entries, figure_arrays, representative_trial, reproduce
 from ._trial import (
-    CHAPLYGIN,
     PrintedWeightsFilter,
     Setup,
     group_velocity,
@@ -69,6 +70,29 @@ from ._trial import (
     trial,
     trial_spec,
 )
+
+_POSE = ("theta", "x", "y")
+_VEL = ("omega", "v")
+
+CHAPLYGIN = register(Experiment(
+    **registry.card("chaplygin"),
+    default_config=ChaplyginConfig(),
+    run_fn=run,
+    trial_fn=trial_spec,
+    figures=(
+        FigureSpec("pose.png", _POSE, "Pose: nominal (black), measured (blue), filtered (green); errors (red)",
+                   "Rigo et al. 2023, Figs. 3-6 (pose)"),
+        FigureSpec("velocity.png", _VEL,
+                   "Velocities: nominal (black), measured (blue), filtered (green); errors (red)",
+                   "Rigo et al. 2023, Figs. 3-6 (velocities)"),
+    ),
+    tables=("Table 1 (Ts = 10 ms)", "Table 2 (Ts = 1 ms)"),
+    runs=100,
+    quick_config=ChaplyginConfig(table_dts=(0.01,), alternatives=False),
+    quick_runs=8,
+    reproduce_fn=reproduce,
+))
+"""``chaplygin``: one run of a :class:`ChaplyginConfig`; ``reproduce`` writes Tables 1-2 and Figs. 3-6."""
 
 __all__ = ["CHAPLYGIN", "ChaplyginConfig", "CONNECTIONS", "WEIGHTS", "K0_CHOICES", "PRINTED_MODEL_ERROR_STD",
            "PAPER_DTS", "SCALE", "COMPONENTS", "STATS3", "PAPER_TABLES", "paper_input", "paper_value",

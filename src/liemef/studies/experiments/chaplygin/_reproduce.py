@@ -16,12 +16,12 @@ from ....reports import io
 from ....reports.chaplygin import LABEL, Entry, band_fraction, ms, slug
 from ....reports.progress import ProgressLine
 from ....systems.chaplygin import CONNECTIONS, SENSORS
-from .._base import Output, Reproduction, config_dict
+from .._base import Output, Reproduction, config_dict, get_experiment
 from .._mcresult import MonteCarloResult
 from .._montecarlo import DEFAULT_BATCH_SIZE, montecarlo
 from .._reproduce import default_reproduce
 from ._paper import PRINTED_MODEL_ERROR_STD, SCALE, STATS3, ChaplyginConfig, paper_value
-from ._trial import CHAPLYGIN, run
+from ._trial import run
 
 
 def entries(mc: MonteCarloResult, dt: float, sensor: str, connection: str) -> list[Entry]:
@@ -85,7 +85,7 @@ def _grid(config: ChaplyginConfig, runs: int, progress: bool, out: Path, choice:
             for conn in CONNECTIONS:
                 cfg = dataclasses.replace(config, dt=dt, sensor=sensor, connection=conn)
                 label = f"{choice}, Ts = {ms(dt)}, {LABEL[sensor]}, {LABEL[conn]}"
-                mc = montecarlo(CHAPLYGIN, cfg, runs, seed=config.seed, batch_size=batch_size,
+                mc = montecarlo(get_experiment("chaplygin"), cfg, runs, seed=config.seed, batch_size=batch_size,
                                 progress=ProgressLine(f"chaplygin {label}") if progress else False)
                 mc.save(out / "montecarlo", slug(f"{choice}_{1e3 * dt:g}ms_{sensor}_{conn}"))
                 es += entries(mc, dt, sensor, conn)
@@ -111,8 +111,9 @@ def reproduce(config: ChaplyginConfig, out: Path, runs: int = 100, progress: boo
     (:func:`representative_trial`), arrays saved next to the figures and drawn from them. ``runs = 0``: the
     single seeded run of ``config`` only (:func:`~liemef.studies.experiments.default_reproduce`).
     """
+    exp = get_experiment("chaplygin")
     if runs == 0:
-        return default_reproduce(CHAPLYGIN, config, out, 0, progress)
+        return default_reproduce(exp, config, out, 0, progress)
     from ....reports import plots
 
     out = io.ensure_dir(out)
@@ -152,7 +153,7 @@ def reproduce(config: ChaplyginConfig, out: Path, runs: int = 100, progress: boo
         summary[f"band_std_rms_{slug(name)}"] = {"inside": k, "total": n}
     elapsed = time.perf_counter() - t0
     files.append(io.write_json(out / "reproduction.json", {
-        "schema": "liemef.reproduction.chaplygin/1", "experiment": CHAPLYGIN.name, "paper": CHAPLYGIN.paper,
+        "schema": "liemef.reproduction.chaplygin/1", "experiment": exp.name, "paper": exp.paper,
         "config": config_dict(config),
         "runs": runs, "elapsed_s": elapsed, "summary": summary,
         "figures": [{"file": f.path.name, "caption": f.caption} for f in figures]}))
@@ -160,10 +161,10 @@ def reproduce(config: ChaplyginConfig, out: Path, runs: int = 100, progress: boo
     if summary["nonfinite"]:
         warnings.append(f"WARNING: {summary['nonfinite']} Monte Carlo trials of the main choice were non-finite "
                         "(diverged) and are left out of the statistics")
-    text = "\n".join([f"{CHAPLYGIN.name}: {CHAPLYGIN.title}", f"  {CHAPLYGIN.paper}; {runs_note} ({elapsed:.0f} s)",
+    text = "\n".join([f"{exp.name}: {exp.title}", f"  {exp.paper}; {runs_note} ({elapsed:.0f} s)",
                       "", written.markdown, "", written.velocity,
                       *([written.alternatives] if written.alternatives else []),
                       f"Wrote {len(files)} files (and montecarlo/) to {out}"])
     mc_files = tuple(sorted((out / "montecarlo").glob("*")))
-    return Reproduction(experiment=CHAPLYGIN.name, out=out, figures=tuple(figures), tables=tuple(tables),
+    return Reproduction(experiment=exp.name, out=out, figures=tuple(figures), tables=tuple(tables),
                         files=tuple(files) + mc_files, text=text, warnings=tuple(warnings), summary=summary)

@@ -18,8 +18,7 @@ from ....metrics import FULL
 from ....simulation import SensorLog, Truth, simulate, simulate_core
 from ....systems import ChaplyginSleigh
 from ....systems.chaplygin import se2r2_state
-from ... import registry
-from .._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Reproduction, Result, TrialSpec, register
+from .._base import PAPER_SUBSTEPS, Result, TrialSpec, get_experiment
 from .._evaluate import evaluate, state_error_trial
 from ._paper import PAPER_DTS, ChaplyginConfig, paper_input
 
@@ -49,8 +48,8 @@ class PrintedWeightsFilter(AbstractFilter):
             raise AttributeError(name)
         return getattr(self.filter, name)
 
-    def _interval(self, state, t, dt, u0, u1, y0, y1, gap):
-        return self.filter._interval(state, t, dt, u0, u1, y0, y1, gap)
+    def interval(self, state, t, dt, u0, u1, y0, y1, gap):
+        return self.filter.interval(state, t, dt, u0, u1, y0, y1, gap)
 
 
 @dataclass(frozen=True)
@@ -170,9 +169,9 @@ def run(config: ChaplyginConfig | None = None, key=None) -> Result:
         "max_abs_lateral_velocity": float(np.max(np.abs(lateral))),
         "max_abs_K_third_row_column": float(max(np.abs(K[:, 2, :]).max(), np.abs(K[:, :, 2]).max())),
     }}
-    return evaluate(CHAPLYGIN, c, s.filter, truth, log, traj, measured_state(c.sensor, np.asarray(log.ys)),
-                    (FULL,), _assumptions(c), extra_metrics=extra,
-                    extra_arrays={"lateral_velocity": np.append(lateral, np.nan)})
+    measured = measured_state(c.sensor, np.asarray(log.ys))
+    return evaluate(get_experiment("chaplygin"), c, s.filter, truth, log, traj, measured, (FULL,), _assumptions(c),
+                    extra_metrics=extra, extra_arrays={"lateral_velocity": np.append(lateral, np.nan)})
 
 
 def trial_spec(config: ChaplyginConfig) -> TrialSpec:
@@ -181,31 +180,3 @@ def trial_spec(config: ChaplyginConfig) -> TrialSpec:
     return state_error_trial(setup(config), trial, (FULL,))
 
 
-def _reproduce_hook(config, out, runs, progress) -> Reproduction:
-    from ._reproduce import reproduce  # the reproduction runs this module's trials: imported when called
-
-    return reproduce(config, out, runs, progress)
-
-
-_POSE = ("theta", "x", "y")
-_VEL = ("omega", "v")
-
-CHAPLYGIN = register(Experiment(
-    **registry.card("chaplygin"),
-    default_config=ChaplyginConfig(),
-    run_fn=run,
-    trial_fn=trial_spec,
-    figures=(
-        FigureSpec("pose.png", _POSE, "Pose: nominal (black), measured (blue), filtered (green); errors (red)",
-                   "Rigo et al. 2023, Figs. 3-6 (pose)"),
-        FigureSpec("velocity.png", _VEL,
-                   "Velocities: nominal (black), measured (blue), filtered (green); errors (red)",
-                   "Rigo et al. 2023, Figs. 3-6 (velocities)"),
-    ),
-    tables=("Table 1 (Ts = 10 ms)", "Table 2 (Ts = 1 ms)"),
-    runs=100,
-    quick_config=ChaplyginConfig(table_dts=(0.01,), alternatives=False),
-    quick_runs=8,
-    reproduce_fn=_reproduce_hook,
-))
-"""``chaplygin``: one run of a :class:`ChaplyginConfig`; ``reproduce`` writes Tables 1-2 and Figs. 3-6."""
