@@ -3,7 +3,8 @@
 The layers, from the top: cli > studies > reports > metrics > smoothers > engines > codegen > filters > simulation >
 systems > integrators, connections > groups > the private helpers (``[tool.importlinter]`` in
 pyproject.toml, checked by import-linter). A lower layer never imports a higher one, not even inside a
-function. Beside it, the import graph collapsed to packages, at every depth, has no cycle, and the only
+function. Beside it, the import graph has no cycle, neither of modules nor collapsed to packages at any depth,
+and the only
 import by name (``importlib``) below the top is the filters' call of the engines that run them.
 """
 
@@ -63,6 +64,70 @@ def test_no_packages_import_each_other_in_a_cycle():
              if b.startswith("liemef.") and not b.startswith(a + ".")}
     packages = {m for m in graph.modules if graph.find_children(m)}
     assert package_cycles(edges, packages) == []
+
+
+def module_cycles(edges: set[tuple[str, str]]) -> list[list[str]]:
+    """The import cycles of a graph of modules: its strongly connected components of more than one module
+    (Tarjan's algorithm, iterative), each sorted, largest first."""
+    adj: dict[str, list[str]] = {}
+    for a, b in sorted(edges):
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, [])
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+    for root in adj:
+        if root in index:
+            continue
+        work = [(root, iter(adj[root]))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, targets = work[-1]
+            w = next(targets, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(adj[w])))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.append(w)
+                    if w == v:
+                        break
+                if len(component) > 1:
+                    found.append(sorted(component))
+    return sorted(found, key=lambda c: (-len(c), c))
+
+
+def test_the_module_cycle_finder_finds_cycles():
+    edges = {("a", "b"), ("b", "c"), ("c", "a"), ("c", "d"), ("d", "e"), ("e", "d"), ("f", "a")}
+    assert module_cycles(edges) == [["a", "b", "c"], ["d", "e"]]
+    assert module_cycles({("a", "b"), ("b", "c"), ("a", "c")}) == []
+
+
+def test_no_modules_import_each_other_in_a_cycle():
+    """Not only packages: no two modules import each other, directly or through others, even inside a function
+    (a module-level cycle is what a lazy import hides; a package's own ``__init__`` importing its modules is
+    not one, since they never import the ``__init__`` back)."""
+    graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
+    edges = {(a, b) for a in graph.modules for b in graph.find_modules_directly_imported_by(a)
+             if b.startswith("liemef")}
+    assert len(edges) > 400
+    assert module_cycles(edges) == []
 
 
 # Imports by name that the graph cannot see, each with the reason it does not break a layer.
