@@ -3,9 +3,9 @@
 The layers, from the top: cli > studies > reports > metrics > smoothers > engines > codegen > filters > simulation >
 systems > integrators, connections > groups > the private helpers (``[tool.importlinter]`` in
 pyproject.toml, checked by import-linter). A lower layer never imports a higher one, not even inside a
-function. Beside it, the import graph has no cycle, neither of modules nor collapsed to packages at any depth,
-and the only
-import by name (``importlib``) below the top is the filters' call of the engines that run them.
+function. Beside it, the import graph has no cycle, neither of modules nor collapsed to packages at any depth;
+no module imports by name (``importlib``) but the package's root, the composition root that gives the filters the
+engines above them (``liemef._runner``); and the layers above the filters read only their public contract.
 """
 
 import ast
@@ -133,8 +133,6 @@ def test_no_modules_import_each_other_in_a_cycle():
 # Imports by name that the graph cannot see, each with the reason it does not break a layer.
 BY_NAME = {
     ("liemef", "."): "the package's lazy attributes (PEP 562): the root is above every layer",
-    ("liemef.filters._base", "liemef.engines"): "a filter's run/step methods call the engines that run it "
-    "(dependency inversion: the filters define the interface, the engines loop over it)",
 }
 
 
@@ -206,3 +204,43 @@ def test_nothing_below_the_reports_loads_matplotlib():
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+BELOW_ENGINES = ("filters", "codegen", "simulation", "systems", "integrators", "connections", "groups")
+
+
+def test_nothing_below_the_engines_names_them():
+    """The filters reach the engines only through the slot the root fills (``liemef._runner``): no module of a
+    layer below them names ``liemef.engines``, not even in a string, a comment or a docstring."""
+    paths = [p for p in SRC.rglob("*.py") if p.relative_to(SRC).parts[0] in BELOW_ENGINES
+             or (p.parent == SRC and p.stem.startswith("_") and p.stem != "__init__")]
+    assert len(paths) > 50
+    named = [str(p.relative_to(SRC)) for p in paths if "liemef.engines" in p.read_text()]
+    assert named == []
+
+
+def test_the_layers_above_read_only_the_filters_public_names():
+    """No module outside ``liemef.filters`` imports a private module of it (``liemef.filters._base``, ...) or
+    calls a private method of a filter: the filters' contract is their public names."""
+    graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
+    private = {(a, b) for a in graph.modules if not a.startswith("liemef.filters")
+               for b in graph.find_modules_directly_imported_by(a)
+               if b.startswith("liemef.filters.") and any(part.startswith("_") for part in b.split(".")[2:])}
+    assert private == set()
+    calls = []
+    for layer in ("engines", "codegen", "smoothers"):
+        for path in (SRC / layer).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Attribute) and node.attr in PRIVATE_FILTER_METHODS:
+                    calls.append(f"{path.relative_to(SRC)}:{node.lineno} .{node.attr}")
+    assert calls == []
+
+
+def _private_filter_methods() -> frozenset[str]:
+    from liemef.filters import AbstractFilter, MinimumEnergyFilter
+
+    return frozenset(name for cls in (AbstractFilter, MinimumEnergyFilter) for name in vars(cls)
+                     if name.startswith("_") and not name.startswith("__"))
+
+
+PRIVATE_FILTER_METHODS = _private_filter_methods()

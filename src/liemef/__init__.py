@@ -16,6 +16,8 @@ import importlib
 import sys
 from typing import TYPE_CHECKING
 
+from . import _runner
+
 __all__ = ["MinimumEnergyFilter", "FilterState", "Trajectory", "Terms", "Connection", "connection", "simulate",
            "SensorLog", "Truth", "smooth", "Smoothed", "groups", "systems", "connections", "simulation", "metrics"]
 __version__ = "0.1.0"
@@ -31,7 +33,7 @@ _ATTRS = {
 _SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "simulation", "filters", "codegen",
                          "engines", "smoothers", "metrics", "studies", "reports"})
 # Modules (dotted below the package) that load without JAX: importing them does not run _config.
-_JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "_validate", "studies", "studies.registry",
+_JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "_validate", "_runner", "studies", "studies.registry",
                         "studies.commands", "studies.logs", "studies.runs", "studies.settings", "studies._schemas",
                         "reports", "reports.outputs", "reports.io"})
 
@@ -78,6 +80,10 @@ class _Float64First:
             _enable_float64()
         return None
 
+
+# The composition root: the filters' run, step and online methods reach the engines above them through this slot
+# (they never import them), loaded on first use.
+_runner.provide(lambda: importlib.import_module(".engines", __name__))
 
 _FLOAT64_FIRST = _Float64First()
 if "jax" in sys.modules:  # JAX is loaded already: nothing to save, configure it now

@@ -28,8 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._names import C_BACKENDS
-from ..filters._base import AbstractFilter, FilterState
-from ..filters._status import DEFINITE_TOL, FILTER_CAUSES
+from ..filters import DEFINITE_TOL, FILTER_CAUSES, AbstractFilter, FilterState
 from . import _cache
 from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
@@ -183,7 +182,7 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
 
     def step_fn(leaves_in, t, dt, u, y):
         st = jax.tree_util.tree_unflatten(treedef, leaves_in)
-        return jax.tree_util.tree_leaves(flt._interval(st, t, dt, u, u, y, y, jnp.inf))
+        return jax.tree_util.tree_leaves(flt.interval(st, t, dt, u, u, y, y, jnp.inf))
 
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     closed = jax.make_jaxpr(step_fn)([jnp.asarray(x) for x in leaves], f64(0.0), f64(0.01), jnp.zeros(m), jnp.zeros(p))

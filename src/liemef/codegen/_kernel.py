@@ -2,7 +2,7 @@ r"""The C engine: a filter's sample interval as a compiled C kernel whose parame
 
 :func:`export_c` writes a standalone filter with its weights folded in as constants, for a flight computer.
 The engine needs the opposite: one build that serves every weight set, initial state and log, so that a
-parameter sweep never recompiles ("parameters are data"). Here the jaxpr of ``flt._interval`` is traced with
+parameter sweep never recompiles ("parameters are data"). Here the jaxpr of ``flt.interval`` is traced with
 the filter's array leaves (weights, noise levels, system parameters, connection coefficients, ``alpha``) as
 *inputs*: the scalar translator folds only their **zero pattern** (the structural zeros of a diagonal
 weight, of a connection on a torus, of ``alpha = 0``), and reads every other element at run time. One kernel
@@ -54,7 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
-from ..filters._base import TRACES, AbstractFilter, FilterState, check_samples, check_time
+from ..filters import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _elf, _fast
 from ._cache import Library, cache_dir
 from ._export import _dce, compiler, quick_compiler, run_compiler
@@ -155,7 +155,7 @@ def _trace(flt: AbstractFilter) -> _Traced:
     def interval(params, leaves, t, dt, gap, u0, u1, y0, y1):
         f = eqx.combine(jax.tree_util.tree_unflatten(pdef, params), static)
         st = jax.tree_util.tree_unflatten(sdef, leaves)
-        return jax.tree_util.tree_leaves(f._interval(st, t, dt, u0, u1, y0, y1, gap))
+        return jax.tree_util.tree_leaves(f.interval(st, t, dt, u0, u1, y0, y1, gap))
 
     # abstract arguments: the trace needs shapes and dtypes only (jnp.asarray of each leaf compiled a small XLA
     # conversion per shape and dtype: nine of them, 0.3-0.5 s of a first build)
@@ -710,7 +710,7 @@ class Kernel:
         history.restype = ctypes.c_int
         self._history = history
         # c_step: the C kernel_step on addresses, (theta, x, xo, t, dt, gap, z) -> status code (-2: an infinite
-        # sample, xo untouched), for an engine that keeps packed states of its own (liemef.engines.OnlineFilter)
+        # sample, xo untouched), for an engine that keeps packed states of its own (the online filter)
         self.lib, self._scan, self.c_step, self._batch = lib, scan, step, batch
         self._step_cell.value = _fast.address(step)
         self.path = built.path if isinstance(built, Library) else Path(built)
@@ -858,7 +858,7 @@ class Kernel:
         the new state, in a row of a preallocated block (:meth:`_new_block`)."""
         got = _side.get(state, "packed")
         if got is None or got[2] is not self:
-            type(flt)._check_state(flt, state)
+            type(flt).check_state(flt, state)
             x = self.pack(state)
             got = (x, x.ctypes.data)
         xs, addresses, counter, block = self._block

@@ -11,8 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..filters import Trajectory
-from ..filters._base import nan_after_failure
+from ..filters import Trajectory, nan_after_failure
 from ._select import theta
 
 

@@ -19,8 +19,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .. import _validate
-from ..filters import FilterState, Trajectory
-from ..filters._base import check_log, check_samples, check_time
+from ..filters import FilterState, Trajectory, check_log, check_samples, check_time
 from . import _c, _xla
 from ._select import LAZY, _entry, fast_ctl, kernel
 
@@ -44,8 +43,8 @@ def run(flt, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayL
     structure and zero pattern of the weights, no padding), ``"xla"`` (the jitted :func:`scan`) or ``"auto"``
     (the default, or ``$LIEMEF_ENGINE``): C where it is available (:func:`~liemef.engines.engine_of`).
     """
-    flt._check_state(state)
-    flt._check_element("state.g_hat", state.g_hat)
+    flt.check_state(state)
+    flt.check_element("state.g_hat", state.g_hat)
     _validate.square("state.K", state.K, flt.n)
     ts, us, ys, gap = check_log(flt, ts, us, ys, (), gap, keep_every)
     kern = kernel(flt, engine)
@@ -79,7 +78,7 @@ def run_batch(flt, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys:
         if np.ndim(leaf) == 0 or np.shape(leaf)[0] != B or B < 1:
             raise ValueError(f"states: expected a leading trial axis of one length B >= 1 on every leaf, got "
                              f"shape {np.shape(leaf)} at {jax.tree_util.keystr(path)} (B = {B})")
-    flt._check_state(jax.tree_util.tree_map(lambda a: a[0], states_np))
+    flt.check_state(jax.tree_util.tree_map(lambda a: a[0], states_np))
     ts, us, ys, gap = check_log(flt, ts, us, ys, (B,), gap, keep_every, threads=threads,
                                  g_hat=states_np.g_hat)
     kern = kernel(flt, engine)
@@ -131,7 +130,7 @@ def step(flt, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: floa
             ctl = fast_ctl(flt)
         return kern.step(flt, address, ctl, state, t, dt, gap, u, y, u_next, y_next)
     t, dt = check_time(t, dt)
-    cls._check_state(flt, state)
+    cls.check_state(flt, state)
     u, y, u1, y1 = check_samples(flt.system.input_dim, flt.system.output_dim, u, y, u_next, y_next)
     return _xla.step(flt, state, t, dt, gap, u, y, u1, y1)
 

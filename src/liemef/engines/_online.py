@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from ..codegen import _fast
-from ..filters._base import AbstractFilter, FilterState
+from ..filters import AbstractFilter, FilterState
 from ._select import fast_ctl, kernel, theta_address
 
 
@@ -27,7 +27,7 @@ class OnlineFilter:
     """
 
     def __init__(self, flt: AbstractFilter, state: FilterState, engine: str | None = None):
-        type(flt)._check_state(flt, state)
+        type(flt).check_state(flt, state)
         self.filter = flt
         self.m, self.p = flt.system.input_dim, flt.system.output_dim
         self._kern = kernel(flt, engine)

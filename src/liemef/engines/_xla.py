@@ -10,8 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side
-from ..filters import FilterState, Status, Trajectory
-from ..filters._base import TRACES, nan_after_failure
+from ..filters import TRACES, FilterState, Status, Trajectory, nan_after_failure
 
 
 def bucket(n: int) -> int:
@@ -29,7 +28,7 @@ def scan(flt, state: FilterState, ts, us, ys, gap, n_valid, keep_every: int) -> 
 
     def advance(st, x):
         k, t, dt, u0, u1, y0, y1 = x
-        return jax.lax.cond(k + 1 < n_valid, lambda s: flt._interval(s, t, dt, u0, u1, y0, y1, gap),
+        return jax.lax.cond(k + 1 < n_valid, lambda s: flt.interval(s, t, dt, u0, u1, y0, y1, gap),
                             lambda s: s, st)
 
     def emit(st):
@@ -122,7 +121,7 @@ def _step_leaves(static, leaves, state_leaves, z):
     state = jax.tree_util.tree_unflatten(static[2], state_leaves)
     o = 3
     u0, u1, y0, y1 = z[o:o + m], z[o + m:o + 2 * m], z[o + 2 * m:o + 2 * m + p], z[o + 2 * m + p:]
-    return jax.tree_util.tree_leaves(flt._interval(state, z[0], z[1], u0, u1, y0, y1, z[2]))
+    return jax.tree_util.tree_leaves(flt.interval(state, z[0], z[1], u0, u1, y0, y1, z[2]))
 
 
 _STEP_JIT: dict = {}

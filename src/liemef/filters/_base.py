@@ -2,12 +2,14 @@ r"""What every filter of the library shares: its state, its trajectory, the samp
 checks of one interval.
 
 A filter is an :class:`AbstractFilter` that says how one sample interval ``[t, t + dt]`` advances its state
-(``_interval``), from :meth:`~AbstractFilter.init`'s state. The minimum-energy filter
+(:meth:`~AbstractFilter.interval`), from :meth:`~AbstractFilter.init`'s state. The minimum-energy filter
 (:class:`~liemef.MinimumEnergyFilter`) and the baselines (:mod:`liemef.filters.baselines`) are such filters: they
 share the sample conventions (a sample at ``ts[k]`` is used over ``[ts[k], ts[k+1])``, NaN is missing), the
-status and the outputs. What loops over intervals (a log, a batch, a robot's loop) is an engine's
-(:mod:`liemef.engines`): the methods ``run``, ``run_batch``, ``scan``, ``step``, ``predict`` and ``online`` call
-it. ``update``, the update at a sample's time with the sample's log-likelihood, is this layer's own (compiled by
+status and the outputs. What loops over intervals (a log, a batch, a robot's loop) is the engines' layer, above
+this one, which reads only this public contract (``interval``, ``init``, ``check_state``, ``check_element`` and
+the checks of this module); the methods ``run``, ``run_batch``, ``scan``, ``step``, ``predict`` and ``online``
+call the engines the package's root gives this layer (``liemef._runner``), so that it never imports them.
+``update``, the update at a sample's time with the sample's log-likelihood, is this layer's own (compiled by
 XLA).
 """
 
@@ -17,9 +19,7 @@ import abc
 import collections
 import dataclasses
 import functools
-import importlib
 import math
-import sys
 
 import equinox as eqx
 import jax
@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .. import _side, _validate
+from .._runner import engines
 from ..groups import LieGroup
 from ..systems._traced import is_traced
 from ._riccati import information_in_force
@@ -160,16 +161,21 @@ class AbstractFilter(eqx.Module):
 
     A concrete filter holds ``system``, ``weights`` (the system's nominal :class:`~liemef.filters.Weights`),
     ``blocks``, ``sample`` and ``diagonal`` (the sensor layout, see :func:`sensor_layout`) and ``symmetric``
-    (whether K must stay symmetric), and implements ``_interval(state, t, dt, u0, u1, y0, y1, gap)``: advance
-    over ``[t, t + dt]`` from the samples at its two ends (NaN = missing), with :meth:`_samples` and
-    :meth:`_finish` for the shared conventions. For :meth:`update` it implements ``_prior_output`` (the
-    predicted output and its covariance from the state) and ``_correct`` (the state after a sample of given
-    information), which its ``_interval`` uses too.
+    (whether K must stay symmetric), and implements :meth:`interval`, with :meth:`_samples` and :meth:`_finish`
+    for the shared conventions. For :meth:`update` it implements ``_prior_output`` (the predicted output and its
+    covariance from the state) and ``_correct`` (the state after a sample of given information), which its
+    ``interval`` uses too.
     """
 
     @abc.abstractmethod
-    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
-        """Advance over ``[t, t + dt]``."""
+    def interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        """The state after the sample interval ``[t, t + dt]``: the extension point of every filter, and all an
+        engine calls (traced once per filter structure, by XLA or into the C kernel).
+
+        ``u0``, ``y0`` are the samples at ``t`` and ``u1``, ``y1`` those at ``t + dt`` (NaN: missing; shapes
+        (m,) and (p,)); ``gap`` the threshold above which ``dt`` is a gap. Pure and traceable: arrays in, a
+        :class:`FilterState` out, with no check and no Python branch on a value (a failure is the status that
+        :meth:`_finish` writes, never an exception)."""
 
     def __hash__(self) -> int:
         # The structure only (static fields and non-array leaves), never the arrays: filters equal as pytrees
@@ -193,7 +199,7 @@ class AbstractFilter(eqx.Module):
         The system's outputs and residuals are evaluated once at ``g0`` (t = 0, outside a trace): an output that
         is NaN there, or a residual that is not finite at ``y = h``, is a ValueError naming its sensor and function
         (:meth:`~liemef.systems.AbstractSystem.check_finite_at`; an infinite output, a singularity, passes)."""
-        self._check_element("g0", g0)
+        self.check_element("g0", g0)
         if not is_traced(g0):
             self.system.check_finite_at(g0)
         n, m = self.n, self.system.input_dim
@@ -374,33 +380,33 @@ class AbstractFilter(eqx.Module):
         return code.astype(jnp.int32)
 
     # --- drivers ------------------------------------------------------------------------------------------
-    # --- running: by the engines (liemef.engines), which this layer does not import -------------------------
+    # --- running: by the engines the package's root gives this layer (liemef._runner), which it never imports --
     def run(self, state: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
             gap: float | None = None, keep_every: int = 1, engine: str | None = None) -> Trajectory:
-        """Filter a whole log: :func:`liemef.engines.run` (``ts`` (N,), ``us`` (N, m), ``ys`` (N, p); sample k
-        used over ``[ts[k], ts[k+1])``; ``engine``: ``"auto"``, ``"c"`` or ``"xla"``)."""
-        return _engines().run(self, state, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine)
+        """Filter a whole log: the engines' ``run`` (``ts`` (N,), ``us`` (N, m), ``ys`` (N, p); sample k used
+        over ``[ts[k], ts[k+1])``; ``engine``: ``"auto"``, ``"c"`` or ``"xla"``)."""
+        return engines().run(self, state, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine)
 
     def run_batch(self, states: FilterState, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *,
                   gap: float | None = None, keep_every: int = 1, engine: str | None = None,
                   threads: int | None = None) -> Trajectory:
-        """Filter B logs on one time grid: :func:`liemef.engines.run_batch` (``states`` with a leading trial
-        axis, ``us`` (B, N, m), ``ys`` (B, N, p))."""
-        return _engines().run_batch(self, states, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine,
+        """Filter B logs on one time grid: the engines' ``run_batch`` (``states`` with a leading trial axis,
+        ``us`` (B, N, m), ``ys`` (B, N, p))."""
+        return engines().run_batch(self, states, ts, us, ys, gap=gap, keep_every=keep_every, engine=engine,
                                     threads=threads)
 
     def scan(self, state: FilterState, ts, us, ys, *, gap=jnp.inf, n_valid=None, keep_every: int = 1,
              engine: str | None = "xla") -> Trajectory:
-        """Traceable core of :meth:`run` (no checks): :func:`liemef.engines.scan`."""
-        return _engines().scan(self, state, ts, us, ys, gap=gap, n_valid=n_valid, keep_every=keep_every,
+        """Traceable core of :meth:`run` (no checks): the engines' ``scan``."""
+        return engines().scan(self, state, ts, us, ys, gap=gap, n_valid=n_valid, keep_every=keep_every,
                                engine=engine)
 
     @_hot_path
     def step(self, state: FilterState, t: float, u: ArrayLike, y: ArrayLike, dt: float, *,
              u_next: ArrayLike | None = None, y_next: ArrayLike | None = None, gap: float = math.inf,
              engine: str | None = None) -> FilterState:
-        """Advance one sample interval ``[t, t + dt]`` (online use): :func:`liemef.engines.step`."""
-        return _engines().step(self, state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap, engine=engine)
+        """Advance one sample interval ``[t, t + dt]`` (online use): the engines' ``step``."""
+        return engines().step(self, state, t, u, y, dt, u_next=u_next, y_next=y_next, gap=gap, engine=engine)
 
     @_hot_path
     def predict(self, state: FilterState, t: float, u: ArrayLike, dt: float, *, u_next: ArrayLike | None = None,
@@ -412,7 +418,7 @@ class AbstractFilter(eqx.Module):
         t, u, dt)`` is ``flt.step(state, t, u, y, dt)`` to round-off where every present sensor is a sample
         sensor, for the Kalman baselines and for the minimum-energy filter with ``updates="discrete"``
         (docs/concepts.md, "Predict and update")."""
-        return _engines().step(self, state, t, u, np.full(self.system.output_dim, np.nan), dt, u_next=u_next,
+        return engines().step(self, state, t, u, np.full(self.system.output_dim, np.nan), dt, u_next=u_next,
                                gap=gap, engine=engine)
 
     @_hot_path
@@ -443,7 +449,7 @@ class AbstractFilter(eqx.Module):
         Compiled by XLA (``jax.jit``, once per filter structure), whatever the engine of ``step``: the C engine
         has no separate update."""
         t = check_t(t)
-        self._check_state(state)
+        self.check_state(state)
         y = self._check_sample("y", y, self.system.output_dim, missing=True)
         for b in self.blocks:
             present = np.isfinite(y[b.start:b.stop])
@@ -455,12 +461,13 @@ class AbstractFilter(eqx.Module):
         return _update_jit(self, state, np.asarray(t), y)
 
     def online(self, state: FilterState, *, engine: str | None = None):
-        """The online filter of a robot's loop: :func:`liemef.engines.online`."""
-        return _engines().online(self, state, engine=engine)
+        """The online filter of a robot's loop: the engines' ``online``."""
+        return engines().online(self, state, engine=engine)
 
     # --- checks -------------------------------------------------------------------------------------------
-    def _check_state(self, state):
-        # cheap structural checks only: step() is the online hot path
+    def check_state(self, state):
+        """``state`` is a :class:`FilterState` of this filter's group and dimension (a ValueError naming
+        ``state`` otherwise): cheap structural checks only, for the engines' online hot path."""
         if not isinstance(state, FilterState):
             raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
         G = self.system.group
@@ -469,7 +476,9 @@ class AbstractFilter(eqx.Module):
             raise ValueError(f"state: expected g_hat in {G.__name__} and K of shape ({n}, {n}), got "
                              f"{type(state.g_hat).__name__} and {getattr(state.K, 'shape', None)}")
 
-    def _check_element(self, name, g):
+    def check_element(self, name, g):
+        """``g`` is a single element of this filter's group with finite parameters (a ValueError naming
+        ``name`` otherwise)."""
         check_element(self.system.group, name, g)
 
     @staticmethod
@@ -578,14 +587,3 @@ def check_log(flt, ts, us, ys, lead=(), gap=None, keep_every=1, *, threads=None,
     elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
         gap = float(_validate.nonnegative("gap", gap))
     return ts, us, ys, gap
-
-
-_ENGINES = "liemef.engines"
-
-
-def _engines():
-    """The engines layer, loaded by name where a filter is run: a filter says how one interval advances and
-    knows nothing of what loops over intervals (as diffrax's ``Euler.step`` knows nothing of ``diffeqsolve``),
-    so this layer imports no engine; the methods above call the engines' functions of the same names."""
-    module = sys.modules.get(_ENGINES)
-    return module if module is not None else importlib.import_module(_ENGINES)

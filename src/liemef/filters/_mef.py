@@ -224,7 +224,7 @@ class MinimumEnergyFilter(AbstractFilter):
         evaluate the terms at random K); ``t`` and ``dt`` must be finite. ``g_hat`` and ``K`` are the system's
         (K of its left error); the terms are those of the filter's coordinates: with ``error="right"``, those of
         the right error about $\hat g$ (:meth:`_model_at`) at the identity, where its K is this K."""
-        self._check_element("g_hat", g_hat)
+        self.check_element("g_hat", g_hat)
         K = _validate.square("K", K, self.n)  # any finite K: the terms are polynomials in it
         t = _validate.real("t", t)
         u = self._check_sample("u", u, self.system.input_dim)
@@ -283,7 +283,7 @@ class MinimumEnergyFilter(AbstractFilter):
         return self._from_model(model, *self._sample_update(model, *self._to_model(state.g_hat, state.K), t, y0, W))
 
     # --- one sample interval --------------------------------------------------------------------------------
-    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+    def interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
         """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing); checks the result."""
         st, g, K = state.status, state.g_hat, state.K
         u0, u1, u_ok, y0, y1, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)

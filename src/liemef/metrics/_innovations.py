@@ -72,8 +72,7 @@ def _nis_one(flt, g, K, t, dt, y, leak):
     :func:`_manifold_nis` takes. With ``leak`` (static), each block's result is a pair: that and the sample's
     linearization leak $\operatorname{tr}(S^{-1} N)$ (module :func:`linearization_leak`; for manifold residuals
     the block's $N$, which :func:`_manifold_nis` projects)."""
-    from ..filters._base import sample_covariance
-    from ..filters._riccati import information_in_force
+    from ..filters import information_in_force, sample_covariance
 
     system = flt.system
     mask = jnp.isfinite(y)
@@ -187,7 +186,7 @@ def linearization_leak(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
 def _per_sample(flt, traj, ts, us, ys, leak):
     """``(nis, dof, leak)`` of :func:`innovation_nis` and :func:`linearization_leak` from one compiled loop (the
     leak None unless asked for)."""
-    from ..filters._base import check_log
+    from ..filters import check_log
 
     ts, us, ys, _ = check_log(flt, ts, us, ys, (), math.inf)
     idx = _samples_of(traj, ts)

@@ -43,8 +43,7 @@ from jaxtyping import Array, Float
 
 from .. import _validate
 from ..engines import bucket
-from ..filters import FilterState, Weights, information_in_force
-from ..filters._base import AbstractFilter, check_log, sensor_layout
+from ..filters import AbstractFilter, FilterState, Weights, check_log, information_in_force, sensor_layout
 from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
@@ -521,8 +520,8 @@ def setup(flt: AbstractFilter, state: FilterState, ts, us, ys, *, gap: float | N
     """:func:`~liemef.smoothers.smooth`'s arguments checked (ValueError naming each), before anything runs."""
     if not isinstance(flt, AbstractFilter):
         raise ValueError(f"flt: expected a liemef filter (MinimumEnergyFilter or a baseline), got {type(flt).__name__}")
-    flt._check_state(state)
-    flt._check_element("state.g_hat", state.g_hat)
+    flt.check_state(state)
+    flt.check_element("state.g_hat", state.g_hat)
     system = flt.system
     n = system.group.tangent_dim
     P0 = _validate.symmetric_psd("state.K", state.K, n, definite=False)

@@ -32,8 +32,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import _validate
 from ..engines import LogGapWarning
-from ..filters import CAUSES, FilterState
-from ..filters._base import AbstractFilter
+from ..filters import CAUSES, AbstractFilter, FilterState
 from ..groups import LieGroup
 from ..integrators import AbstractIntegrator
 from . import _batch

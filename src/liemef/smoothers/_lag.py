@@ -24,8 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
-from ..filters import CAUSES, FilterState
-from ..filters._base import AbstractFilter
+from ..filters import CAUSES, AbstractFilter, FilterState
 from ..integrators import AbstractIntegrator
 from ..integrators import integrator as make_integrator
 from . import _batch
@@ -55,7 +54,7 @@ class FixedLagSmoother:
         if not isinstance(flt, AbstractFilter):
             raise ValueError(f"flt: expected a liemef filter (MinimumEnergyFilter or a baseline), got "
                              f"{type(flt).__name__}")
-        flt._check_state(state)
+        flt.check_state(state)
         if not (isinstance(lag, int) and not isinstance(lag, bool) and lag >= 1):
             raise ValueError(f"lag: expected a number of samples >= 1, got {lag!r}")
         self.tol = _batch._check_options(max_iterations, tol, floor_std)

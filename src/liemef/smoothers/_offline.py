@@ -8,8 +8,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ..filters import CAUSES, Trajectory
-from ..filters._base import AbstractFilter, nan_after_failure
+from ..filters import CAUSES, AbstractFilter, Trajectory, nan_after_failure
 from ._chunks import smooth
 
 

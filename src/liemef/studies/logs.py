@@ -223,8 +223,7 @@ def run_chunked(flt, state, log, gap: float, chunk: int = DEFAULT_CHUNK, progres
     import jax.numpy as jnp
 
     from ..engines import LogGapWarning
-    from ..filters import CAUSES, Trajectory
-    from ..filters._base import nan_after_failure
+    from ..filters import CAUSES, Trajectory, nan_after_failure
     from ..reports.progress import ProgressLine
 
     N = log.ts.shape[0]
@@ -268,7 +267,7 @@ def failure_context(flt, log, k: int, g, K, gap: float, report: dict) -> dict:
     clause that the failure message ends with."""
     import jax.numpy as jnp
 
-    from ..filters._derivatives import left_jacobian
+    from ..filters import left_jacobian
 
     system, ts = flt.system, log.ts
     t0 = float(ts[k])
@@ -432,7 +431,7 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
     import jax
     from scipy.stats import chi2
 
-    from ..filters._derivatives import left_jacobian
+    from ..filters import left_jacobian
 
     system, ts = flt.system, log.ts
     ys = np.asarray(log.ys, dtype=np.float64)

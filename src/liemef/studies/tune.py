@@ -269,7 +269,7 @@ def innovation_nll(system, traj, ys: np.ndarray) -> float:
 def _nll_one(system, g, K, y):
     import jax.numpy as jnp
 
-    from ..filters._derivatives import left_jacobian
+    from ..filters import left_jacobian
 
     h, Dh = left_jacobian(lambda gg: system.output(gg, 0.0), g)
     T = system.sample_transform(jnp.where(jnp.isfinite(y), y, 0.0))

@@ -182,11 +182,12 @@ class AbstractKalmanFilter(AbstractFilter):
     def _correct(self, state: FilterState, t, y0, mask, W, prior):
         h0, C, (P, P_ey) = prior
         g, P = self._kalman_update(state.g_hat, P, y0 - h0, mask, C, P_ey, W)
-        # the state's K: the covariance of the left error at the new mean (P is not transported, as in _interval)
+        # the state's K: the covariance of the left error at the new mean (P is not transported, as in interval)
         K = self._to_left(g, 0.5 * (P + P.T))
         return g, 0.5 * (K + K.T)
 
-    def _interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+    def interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
+        """One Kalman update with ``y0`` (its information over the interval), then one prediction with ``u0``."""
         st = state.status
         u0, _, u_ok, y0, _, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
         # update with y0: the information of the present components over the interval

@@ -49,6 +49,7 @@ class PrintedWeightsFilter(AbstractFilter):
         return getattr(self.filter, name)
 
     def interval(self, state, t, dt, u0, u1, y0, y1, gap):
+        """The wrapped filter's interval, with the printed E."""
         return self.filter.interval(state, t, dt, u0, u1, y0, y1, gap)
 
 
