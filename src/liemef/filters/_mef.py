@@ -25,10 +25,8 @@ from ._base import AbstractFilter, FilterState, sensor_layout
 from ._derivatives import left_jacobian, refuse_state_while_in_outputs
 from ._riccati import Terms, Weights, information_in_force, riccati_rhs, terms
 from ._status import SYMMETRY_TOL
+from ._substeps import stiffness_rate, substep_controller
 from ._update import sample_update
-
-# Sub-step budget per unit of stiffness (docs/weights.md): ||K E|| h, ||A|| h and the group step ||xi|| h.
-_KE_BUDGET, _A_BUDGET, _XI_BUDGET = 0.5, 0.5, 0.5
 
 
 class MinimumEnergyFilter(AbstractFilter):
@@ -284,114 +282,90 @@ class MinimumEnergyFilter(AbstractFilter):
 
     # --- one sample interval --------------------------------------------------------------------------------
     def interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
-        """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing); checks the result."""
-        st, g, K = state.status, state.g_hat, state.K
+        """Advance over ``[t, t + dt]`` from the samples at its two ends (NaN = missing), in four parts: the
+        information the interval's samples carry, screened by the sensors (:meth:`_information`); with
+        ``updates="discrete"``, the update at ``t`` (:meth:`_sample_update`); the flow of Theorem 4.1 over the
+        interval (:meth:`_flow`), integrated by the sub-step controller (:mod:`~liemef.filters._substeps`);
+        and the checks of the result (:meth:`_finish`). In the coordinates of :meth:`_model_at`."""
         u0, u1, u_ok, y0, y1, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
-        discrete = self.updates == "discrete" and any(self.sample)
-        if discrete:
+        Wy, W_sample, rejected, consecutive = self._information(state, t, dt, y0, mask, Wy)
+        model = self._model_at(state.g_hat)
+        g, K = self._to_model(state.g_hat, state.K)
+        if W_sample is not None:
+            g, K = self._sample_update(model, g, K, t, y0, W_sample)
+        # static: with only sample sensors, no output acts over the discrete filter's interval
+        outputs = W_sample is None or not all(self.sample)
+        data = _interpolated(self.interpolation, t, dt, u0, u1, y0, y1)
+        f, field_and_rate = self._flow(model, Weights(Wy=Wy, BRB=self.weights.BRB), outputs, data)
+        controller = substep_controller(self.substeps, self.max_substeps)
+        g1, K1, n_sub, capped, skew = controller.integrate(self.integrator, f, field_and_rate, g, K, t, dt)
+        g1, K1 = self._from_model(model, g1, K1)
+        return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
+                            consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
+
+    def _information(self, state: FilterState, t, dt, y0, mask, Wy):
+        """``(Wy, W_sample, rejected, consecutive)``: the information in force over the interval, the samples'
+        information for the update at ``t`` (``updates="discrete"`` with sample sensors; else None, and the
+        samples are in ``Wy``), both screened by the sensors' gates, robust losses and time-varying weights, and
+        the gates' counters."""
+        st = state.status
+        W_sample = None
+        if self.updates == "discrete" and any(self.sample):
             # the samples' information, per sample, for the update at t; the density sensors' over the interval
             sample = jnp.asarray(self.sample, dtype=bool)
             W_sample = self._adapted(
                 information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal), y0)
             Wy = self._adapted(
                 information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal), y0)
-        if self._screens_samples:
-            h0, HKH, _ = self._prior_output(state, t, y0)
-            W_all = Wy + W_sample / dt if discrete else Wy  # the information in force, as the gate reads it
-            scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, W_all, st)
-            root = jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
-            Wy = Wy * root
-            if discrete:
-                W_sample = W_sample * root
-        else:
-            rejected, consecutive = st.rejected, st.consecutive
-        # the interval in the model's coordinates; the state's are the system's
-        model = self._model_at(g)
-        g, K = self._to_model(g, K)
-        if discrete:
-            g, K = self._sample_update(model, g, K, t, y0, W_sample)
-        weights = Weights(Wy=Wy, BRB=self.weights.BRB)
-        # static: with only sample sensors, no output acts over the discrete filter's interval
-        outputs = not (discrete and all(self.sample))
+        if not self._screens_samples:
+            return Wy, W_sample, st.rejected, st.consecutive
+        h0, HKH, _ = self._prior_output(state, t, y0)
+        W_all = Wy if W_sample is None else Wy + W_sample / dt  # the information in force, as the gate reads it
+        scale, rejected, consecutive = self._sensor_scale(y0 - h0, HKH, t, dt, mask, W_all, st)
+        root = jnp.sqrt(scale)[:, None] * jnp.sqrt(scale)[None, :]
+        return Wy * root, None if W_sample is None else W_sample * root, rejected, consecutive
 
-        def data(tau):
-            if self.interpolation == "hold":
-                return u0, y0
-            s = (tau - t) / dt
-            return u0 + s * (u1 - u0), y0 + s * (y1 - y0)
+    def _flow(self, model, weights: Weights, outputs: bool, data):
+        """The interval's vector field ``f(g, K, tau) -> (xi, K_dot)`` and ``field_and_rate`` (the field, its
+        stiffness rate and whether E is not symmetric where K must stay so), for the sub-step controller. An
+        output without information in force adds nothing (r, E and W are linear in the weights and vanish with
+        them): where none is in force, the field is the prediction's, taken whole (its Riccati equation without
+        the K E K product) and without differentiating the outputs, as between the samples of a slower sensor
+        (constant_E="unit" has E = Dh^T Dh without information too, so it keeps the outputs)."""
+        if not (outputs and self.constant_E == "weighted"):
+            return self._field(model, weights, outputs, data)
+        in_force = jnp.any(weights.Wy != 0)
+        (f_out, far_out), (f_pred, far_pred) = (self._field(model, weights, o, data) for o in (True, False))
+        return (lambda gg, KK, tau: jax.lax.cond(in_force, f_out, f_pred, gg, KK, tau),
+                lambda gg, KK, tau: jax.lax.cond(in_force, far_out, far_pred, gg, KK, tau))
 
-        def f_of(outputs):
-            def f(gg, KK, tau):
-                u, y = data(tau)
-                tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
-                return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
-            return f
+    def _field(self, model, weights: Weights, outputs: bool, data):
+        """:meth:`_flow`'s pair with the outputs' terms (``outputs``) or without."""
+        def f(gg, KK, tau):
+            u, y = data(tau)
+            tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
+            return tm.lam + mv(KK, tm.r), self._riccati(tm, KK)
 
-        def field_and_rate_of(outputs):
-            def field_and_rate(gg, KK, tau):
-                # the vector field at a point, and its stiffness rate: the step h is budgeted so that
-                # ||K E|| h, ||A|| h and ||lambda + K r|| h stay below their budgets (docs/weights.md)
-                u, y = data(tau)
-                tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
-                xi = tm.lam + mv(KK, tm.r)
-                fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
-                # ||K E|| as ||E K||: equal for a symmetric K and E, and E K is the Riccati term's own product
-                rate = jnp.maximum(jnp.maximum(fro(mm(tm.E, KK)) / _KE_BUDGET, fro(tm.A) / _A_BUDGET),
-                                   jnp.linalg.norm(xi) / _XI_BUDGET)
-                # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from
-                # a broken system, is a failure ("K not symmetric"), checked at each interval's start
-                big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
-                skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
-                return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
-            return field_and_rate
+        def field_and_rate(gg, KK, tau):
+            u, y = data(tau)
+            tm = self._terms(model, weights, gg, KK, u, y, tau, outputs=outputs)
+            xi = tm.lam + mv(KK, tm.r)
+            rate = stiffness_rate(tm.E, tm.A, KK, xi)
+            # K stays symmetric only if E is (its rate keeps one triangle, _riccati): an E that is not, from a
+            # broken system, is a failure ("K not symmetric"), checked at each interval's start
+            big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
+            skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
+            return (xi, self._riccati(tm, KK)), rate, skew
+        return f, field_and_rate
 
-        f, field_and_rate = f_of(outputs), field_and_rate_of(outputs)
-        if outputs and self.constant_E == "weighted":
-            # An output without information in force adds nothing (r, E and W are linear in the weights, and
-            # vanish with them): the vector field of an interval without is the prediction's, taken whole (its
-            # Riccati equation without the K E K product) and without differentiating the outputs, as between
-            # the samples of a slower sensor. (constant_E="unit" has E = Dh^T Dh without information too.)
-            in_force = jnp.any(Wy != 0)
-            f_out, f_pred = f, f_of(False)
-            far_out, far_pred = field_and_rate, field_and_rate_of(False)
 
-            def f(gg, KK, tau):
-                return jax.lax.cond(in_force, f_out, f_pred, gg, KK, tau)
+def _interpolated(interpolation: str, t, dt, u0, u1, y0, y1):
+    """The input and output at a time ``tau`` of the interval ``[t, t + dt]``: held at its start (``"hold"``)
+    or linear between its two samples (``"linear"``; the samples are held where the one at the end is missing)."""
+    if interpolation == "hold":
+        return lambda tau: (u0, y0)
 
-            def field_and_rate(gg, KK, tau):
-                return jax.lax.cond(in_force, far_out, far_pred, gg, KK, tau)
-
-        if self.substeps == "auto":
-            # Adaptive sub-steps: each step's size comes from the stiffness where it starts, so an impulsive
-            # sample with a large K takes small steps while K shrinks, then larger ones (a number of steps
-            # logarithmic, not linear, in ||K E|| dt). The last allowed step finishes the interval.
-            def sub(c):
-                gg, KK, done, j, _, skew = c
-                first, rate, skew_here = field_and_rate(gg, KK, t + done)
-                left = dt - done
-                forced = (j + 1 >= self.max_substeps) & (rate * left > 1.0)  # the cap: finish, though stiff
-                last = forced | (rate * left <= 1.0)
-                h = jnp.where(last, left, 1.0 / rate)
-                g2, K2 = self.integrator.step(f, gg, KK, t + done, h, first=first)
-                return g2, K2, jnp.where(last, dt, done + h), j + 1, forced, jnp.where(j == 0, skew_here, skew)
-
-            def more(c):
-                return c[2] < dt
-
-            # one integrator step in the program, in the loop (which runs once where the interval is not stiff):
-            # half the code of a first step taken outside it, for XLA to compile and in exported C
-            g1, K1, _, n_sub, capped, skew = jax.lax.while_loop(
-                more, sub, (g, K, jnp.zeros_like(dt), jnp.asarray(0, jnp.int32), jnp.asarray(False),
-                            jnp.asarray(False)))
-        else:
-            n_sub, capped = jnp.asarray(self.substeps, jnp.int32), jnp.asarray(False)
-            h = dt / self.substeps
-            first, _, skew = field_and_rate(g, K, t)
-            g1, K1 = self.integrator.step(f, g, K, t, h, first=first)
-            if self.substeps > 1:
-                g1, K1 = jax.lax.fori_loop(1, self.substeps, lambda j, gK: self.integrator.step(f, *gK, t + j * h, h),
-                                           (g1, K1))
-
-        g1, K1 = self._from_model(model, g1, K1)
-        return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
-                            consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
+    def data(tau):
+        s = (tau - t) / dt
+        return u0 + s * (u1 - u0), y0 + s * (y1 - y0)
+    return data
