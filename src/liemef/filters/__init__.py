@@ -13,6 +13,7 @@ from ._base import (
     TRACES,
     AbstractFilter,
     FilterState,
+    IntervalSamples,
     Trajectory,
     UpdateResult,
     check_log,
@@ -33,5 +34,5 @@ __all__ = ["MinimumEnergyFilter", "AbstractFilter", "sensor_layout", "ORDERS", "
            "ERROR_SIDES", "TRACES",
            "Status", "CAUSES", "information_in_force", "FilterState", "Trajectory", "Terms", "Weights", "terms",
            "riccati_rhs", "left_jacobian", "left_hessian", "safe_curvature", "sample_update", "UpdateInfo",
-           "UpdateResult", "check_log", "check_samples", "check_time", "nan_after_failure", "sample_covariance",
-           "DEFINITE_TOL", "FILTER_CAUSES"]
+           "UpdateResult", "IntervalSamples", "check_log", "check_samples", "check_time", "nan_after_failure",
+           "sample_covariance", "DEFINITE_TOL", "FILTER_CAUSES"]

@@ -20,6 +20,7 @@ import collections
 import dataclasses
 import functools
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -129,6 +130,27 @@ def sensor_layout(system, Wy) -> tuple[tuple, tuple[bool, ...], bool]:
     return blocks, tuple(sample), bool(np.array_equal(Wy, np.diag(np.diag(Wy))))
 
 
+class IntervalSamples(NamedTuple):
+    """One sample interval's data under the shared conventions (:meth:`AbstractFilter.samples`)."""
+
+    u0: Float[Array, " m"]
+    """The input at the interval's start (the last present one where missing)."""
+    u1: Float[Array, " m"]
+    """The input at its end (``u0`` where missing)."""
+    u_ok: Bool[Array, " m"]
+    """Which components of the given ``u0`` were present."""
+    y0: Float[Array, " p"]
+    """The sample at the start, zeros where missing."""
+    y1: Float[Array, " p"]
+    """The sample at the end for density sensors present at both ends (``y0`` elsewhere)."""
+    mask: Bool[Array, " p"]
+    """The present components of ``y0``."""
+    Wy: Float[Array, "p p"]
+    """The information in force over the interval, per unit time."""
+    is_gap: Bool[Array, ""]
+    """Whether the interval is longer than the gap threshold."""
+
+
 def sample_covariance(Wy, dt, present, block) -> Float[Array, "k k"]:
     """The covariance of one sample of the sensor ``block``: the inverse of its information over the interval
     ``dt`` it is used in, ``Wy[sl, sl] * dt`` with ``Wy`` the information in force
@@ -161,7 +183,7 @@ class AbstractFilter(eqx.Module):
 
     A concrete filter holds ``system``, ``weights`` (the system's nominal :class:`~liemef.filters.Weights`),
     ``blocks``, ``sample`` and ``diagonal`` (the sensor layout, see :func:`sensor_layout`) and ``symmetric``
-    (whether K must stay symmetric), and implements :meth:`interval`, with :meth:`_samples` and :meth:`_finish`
+    (whether K must stay symmetric), and implements :meth:`interval`, with :meth:`samples` and :meth:`finish`
     for the shared conventions. For :meth:`update` it implements ``_prior_output`` (the predicted output and its
     covariance from the state) and ``_correct`` (the state after a sample of given information), which its
     ``interval`` uses too.
@@ -175,7 +197,7 @@ class AbstractFilter(eqx.Module):
         ``u0``, ``y0`` are the samples at ``t`` and ``u1``, ``y1`` those at ``t + dt`` (NaN: missing; shapes
         (m,) and (p,)); ``gap`` the threshold above which ``dt`` is a gap. Pure and traceable: arrays in, a
         :class:`FilterState` out, with no check and no Python branch on a value (a failure is the status that
-        :meth:`_finish` writes, never an exception)."""
+        :meth:`finish` writes, never an exception)."""
 
     def __hash__(self) -> int:
         # The structure only (static fields and non-array leaves), never the arrays: filters equal as pytrees
@@ -214,12 +236,12 @@ class AbstractFilter(eqx.Module):
         return FilterState(g_hat=g0, K=jnp.asarray(K), u_last=jnp.asarray(u), status=Status.initial(len(self.blocks)))
 
 
-    def _samples(self, state: FilterState, dt, u0, u1, y0, y1, gap):
-        """The interval's data under the shared conventions: a missing input sample holds the last one; a missing
-        measurement component has no weight; density samples are not held across a gap. Returns the inputs
-        ``u0, u1``, whether ``u0`` was present, the measurements ``y0, y1`` (zeros where missing), the mask of
-        present components of ``y0``, the information in force ``Wy`` (for sensors marked ``adaptive``, given the
-        sample: :meth:`~liemef.systems.AbstractSystem.sample_transform`) and whether the interval is a gap."""
+    def samples(self, state: FilterState, dt, u0, u1, y0, y1, gap) -> IntervalSamples:
+        """The interval's data under the shared conventions (:class:`IntervalSamples`): a missing input sample
+        holds the last one; a missing measurement component has no weight; density samples are not held across
+        a gap; the information in force ``Wy`` is per unit time (a sample sensor's divided by ``dt``), for sensors
+        marked ``adaptive`` given the sample (:meth:`~liemef.systems.AbstractSystem.sample_transform`).
+        Traceable; for :meth:`interval`."""
         sample = jnp.asarray(self.sample, dtype=bool)
         u_ok = jnp.isfinite(u0)
         u0 = jnp.where(u_ok, u0, state.u_last)
@@ -230,7 +252,7 @@ class AbstractFilter(eqx.Module):
         y0 = jnp.where(mask, y0, 0.0)
         y1 = jnp.where(dense, y1, y0)
         Wy = self._adapted(information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal), y0)
-        return u0, u1, u_ok, y0, y1, mask, Wy, is_gap
+        return IntervalSamples(u0, u1, u_ok, y0, y1, mask, Wy, is_gap)
 
     def _adapted(self, Wy, y0):
         """The information ``Wy`` for the sample ``y0`` (zeros where missing): for sensors marked ``adaptive``, a
@@ -240,12 +262,19 @@ class AbstractFilter(eqx.Module):
         T = self.system.sample_transform(y0)
         return T.T @ Wy @ T
 
-    def _finish(self, state: FilterState, g1, K1, *, t, dt, u0, u_ok, is_gap, rejected, consecutive,
-                n_sub=1, capped=False, asymmetric=None) -> FilterState:
-        """The state after an interval: checks ``(g1, K1)`` (:meth:`_health`) and updates the status; a failing
-        interval keeps the state before it, and a state that had failed stays as it was. ``asymmetric``: the
-        filter's own verdict that K cannot stay symmetric (in place of checking K1's symmetry)."""
+    def finish(self, state: FilterState, g1, K1, *, t, dt, samples: IntervalSamples, rejected=None,
+               consecutive=None, n_sub=1, capped=False, asymmetric=None) -> FilterState:
+        """The state after an interval, the end of every :meth:`interval`: checks ``(g1, K1)`` (finite, K
+        symmetric where it must be and positive definite, the gates' runs of rejections) and counts the interval
+        in the status; a failing interval keeps the state before it, and a state that had failed stays as it
+        was. ``samples``: :meth:`samples`' of the interval; ``rejected``, ``consecutive``: the gates' counters
+        after it (default: unchanged); ``n_sub``: integrator steps taken, ``capped``: whether the last was
+        forced; ``asymmetric``: the filter's own verdict that K cannot stay symmetric (in place of checking
+        K1's symmetry). Traceable."""
         st = state.status
+        u0, u_ok, is_gap = samples.u0, samples.u_ok, samples.is_gap
+        rejected = st.rejected if rejected is None else rejected
+        consecutive = st.consecutive if consecutive is None else consecutive
         code = self._health(g1, K1, consecutive, asymmetric)
         new_fail = code != CAUSES.OK.code
         g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)
@@ -349,7 +378,7 @@ class AbstractFilter(eqx.Module):
         used = jnp.stack([jnp.any(mask[b.start:b.stop]) & (scale[b.start] > 0) for b in self.blocks])
         result = UpdateResult(log_likelihood=log_likelihood, innovation=jnp.where(mask, nu, jnp.nan),
                               S=jnp.where(both, S, jnp.nan), nis=nis, sensors_used=used)
-        # the state: checked as an interval's (_finish), but no interval is counted
+        # the state: checked as an interval's (finish), but no interval is counted
         code = self._health(g1, K1, consecutive)
         new_fail = code != CAUSES.OK.code
         g_out = jax.tree_util.tree_map(lambda a, b: jnp.where(new_fail, a, b), state.g_hat, g1)

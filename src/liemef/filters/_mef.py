@@ -286,22 +286,22 @@ class MinimumEnergyFilter(AbstractFilter):
         information the interval's samples carry, screened by the sensors (:meth:`_information`); with
         ``updates="discrete"``, the update at ``t`` (:meth:`_sample_update`); the flow of Theorem 4.1 over the
         interval (:meth:`_flow`), integrated by the sub-step controller (:mod:`~liemef.filters._substeps`);
-        and the checks of the result (:meth:`_finish`). In the coordinates of :meth:`_model_at`."""
-        u0, u1, u_ok, y0, y1, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
-        Wy, W_sample, rejected, consecutive = self._information(state, t, dt, y0, mask, Wy)
+        and the checks of the result (:meth:`finish`). In the coordinates of :meth:`_model_at`."""
+        s = self.samples(state, dt, u0, u1, y0, y1, gap)
+        Wy, W_sample, rejected, consecutive = self._information(state, t, dt, s.y0, s.mask, s.Wy)
         model = self._model_at(state.g_hat)
         g, K = self._to_model(state.g_hat, state.K)
         if W_sample is not None:
-            g, K = self._sample_update(model, g, K, t, y0, W_sample)
+            g, K = self._sample_update(model, g, K, t, s.y0, W_sample)
         # static: with only sample sensors, no output acts over the discrete filter's interval
         outputs = W_sample is None or not all(self.sample)
-        data = _interpolated(self.interpolation, t, dt, u0, u1, y0, y1)
+        data = _interpolated(self.interpolation, t, dt, s.u0, s.u1, s.y0, s.y1)
         f, field_and_rate = self._flow(model, Weights(Wy=Wy, BRB=self.weights.BRB), outputs, data)
         controller = substep_controller(self.substeps, self.max_substeps)
         g1, K1, n_sub, capped, skew = controller.integrate(self.integrator, f, field_and_rate, g, K, t, dt)
         g1, K1 = self._from_model(model, g1, K1)
-        return self._finish(state, g1, K1, t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap, rejected=rejected,
-                            consecutive=consecutive, n_sub=n_sub, capped=capped, asymmetric=skew)
+        return self.finish(state, g1, K1, t=t, dt=dt, samples=s, rejected=rejected, consecutive=consecutive,
+                           n_sub=n_sub, capped=capped, asymmetric=skew)
 
     def _information(self, state: FilterState, t, dt, y0, mask, Wy):
         """``(Wy, W_sample, rejected, consecutive)``: the information in force over the interval, the samples'

@@ -189,7 +189,8 @@ class AbstractKalmanFilter(AbstractFilter):
     def interval(self, state: FilterState, t, dt, u0, u1, y0, y1, gap) -> FilterState:
         """One Kalman update with ``y0`` (its information over the interval), then one prediction with ``u0``."""
         st = state.status
-        u0, _, u_ok, y0, _, mask, Wy, is_gap = self._samples(state, dt, u0, u1, y0, y1, gap)
+        s = self.samples(state, dt, u0, u1, y0, y1, gap)
+        u0, y0, mask, Wy = s.u0, s.y0, s.mask, s.Wy
         # update with y0: the information of the present components over the interval
         h0, C, (P, P_ey) = self._prior_output(state, t, y0)
         nu = y0 - h0
@@ -199,8 +200,8 @@ class AbstractKalmanFilter(AbstractFilter):
         # predict with u0 over the interval
         g1, P1 = self._predict(g, 0.5 * (P + P.T), u0, t, dt)
         K1 = self._to_left(g1, 0.5 * (P1 + P1.T))
-        return self._finish(state, g1, 0.5 * (K1 + K1.T), t=t, dt=dt, u0=u0, u_ok=u_ok, is_gap=is_gap,
-                            rejected=rejected, consecutive=consecutive, n_sub=self.substeps)
+        return self.finish(state, g1, 0.5 * (K1 + K1.T), t=t, dt=dt, samples=s, rejected=rejected,
+                           consecutive=consecutive, n_sub=self.substeps)
 
     def _euler(self, g, u, t, h, w):
         """One Lie-Euler step of the discrete model with the algebra noise ``w``."""
