@@ -19,6 +19,7 @@ import os
 import re
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -49,9 +50,13 @@ def blocks(page: Path) -> list[tuple[str | None, str, str | None]]:
 def run_blocks(page: Path) -> tuple[dict, list[tuple[str, str | None, str]]]:
     """Execute the page's blocks in order in one namespace, in the current folder (a titled block is written to
     its file instead, importable from there); returns the namespace and (code, shown, printed) per block."""
-    namespace: dict = {"__name__": "__docs__"}
+    # one module, as a reader's script is (a class the page defines is a dataclass of it), compiled without this
+    # file's ``from __future__ import annotations``
+    module = types.ModuleType("__docs__")
+    namespace: dict = module.__dict__
     results, files = [], []
     sys.path.insert(0, os.getcwd())
+    sys.modules["__docs__"] = module
     try:
         for title, code, shown in blocks(page):
             buf = io.StringIO()
@@ -60,9 +65,10 @@ def run_blocks(page: Path) -> tuple[dict, list[tuple[str, str | None, str]]]:
                 files.append(Path(title).stem)
             else:
                 with contextlib.redirect_stdout(buf):
-                    exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
+                    exec(compile(code, str(page), "exec", dont_inherit=True), namespace)  # noqa: S102
             results.append((code, shown, buf.getvalue()))
     finally:
+        sys.modules.pop("__docs__", None)
         sys.path.remove(os.getcwd())
         for name in files:
             sys.modules.pop(name, None)
