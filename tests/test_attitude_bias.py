@@ -11,9 +11,11 @@ from scipy.spatial.transform import Rotation
 
 from liemef.filters import CAUSES, MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
+from liemef.metrics import attitude_error
 from liemef.studies import datasets
 from liemef.systems import Noise, attitude_gyro_bias
 from liemef.systems import attitude_bias as ab
+from liemef.systems import imu_rest as ab_rest
 from tolerances import ROUNDOFF
 
 OK = CAUSES.OK.code
@@ -90,9 +92,9 @@ def test_dip_triad_initial_estimate_and_measured_state():
     dip = math.radians(66.0)
     up, mag = _directions(R, dip)
     acc, field = 9.81 * up, 43.0 * mag  # any units
-    assert ab.magnetic_dip(acc, field) == pytest.approx(dip, abs=1e-12)
-    np.testing.assert_allclose(ab.triad(acc, field), R, atol=1e-12)
-    g = ab.initial_estimate(acc[:1], field[:1], bias=(0.1, 0.2, 0.3))
+    assert ab_rest.magnetic_dip(acc, field) == pytest.approx(dip, abs=1e-12)
+    np.testing.assert_allclose(ab_rest.triad(acc, field), R, atol=1e-12)
+    g = ab_rest.initial_estimate(acc[:1], field[:1], bias=(0.1, 0.2, 0.3))
     np.testing.assert_allclose(g.factors[0].as_matrix(), R[0], atol=1e-12)
     np.testing.assert_allclose(g.factors[1].x, [0.1, 0.2, 0.3])
     # measured state: the rotation vector where both directions are present, NaN elsewhere and for the bias
@@ -115,13 +117,13 @@ def test_dip_triad_initial_estimate_and_measured_state():
     with pytest.raises(ValueError, match="mag"):
         ab.imu_log(gyr, acc, field[:10], 200.0)
     with pytest.raises(ValueError, match="acc, mag"):
-        ab.initial_estimate([0.0, 0.0, 1.0], [0.0, 0.0, 2.0])
+        ab_rest.initial_estimate([0.0, 0.0, 1.0], [0.0, 0.0, 2.0])
 
 
 def test_attitude_error_is_the_rotation_angle():
     A = Rotation.random(20, random_state=1)
     small = Rotation.from_rotvec(np.outer(np.geomspace(1e-9, 3.0, 20), [0.6, 0.0, 0.8]))
-    e = ab.attitude_error(A.as_matrix(), (small * A).as_matrix())
+    e = attitude_error(A.as_matrix(), (small * A).as_matrix())
     np.testing.assert_allclose(e, small.magnitude(), rtol=1e-9, atol=1e-15)
 
 
@@ -170,7 +172,7 @@ def synthetic():
 
 
 def _errors(traj, R, b):
-    e = np.degrees(ab.attitude_error(R, np.asarray(traj.g_hat.factors[0].as_matrix())))
+    e = np.degrees(attitude_error(R, np.asarray(traj.g_hat.factors[0].as_matrix())))
     eb = np.linalg.norm(np.asarray(traj.g_hat.factors[1].x) - b, axis=1)
     return e, eb
 
@@ -255,7 +257,7 @@ def broad_errors(trial: datasets.BroadTrial, traj) -> tuple[float, float]:
     ok = trial.movement & ~np.isnan(trial.quat_true).any(axis=1)
     R_true = np.asarray(ab.quaternion_to_tso3(trial.quat_true[ok]).factors[0].as_matrix())
     R_hat = np.asarray(traj.g_hat.factors[0].as_matrix())[ok]
-    total = ab.attitude_error(R_true, R_hat)
+    total = attitude_error(R_true, R_hat)
     incl = np.arccos(np.clip(np.einsum("ni,ni->n", R_hat[:, 2, :], R_true[:, 2, :]), -1.0, 1.0))
     rms = lambda x: float(np.degrees(np.sqrt(np.mean(x**2))))  # noqa: E731
     return rms(total), rms(incl)
@@ -266,12 +268,12 @@ def test_broad_trial_01_first_minute():
     # (BROAD's Madgwick / Mahony baselines over the whole trial: 2.3 / 3.4 deg; this filter over the whole trial:
     # 2.35 deg). Compilation takes most of this test's time.
     trial = datasets.broad(_broad_path("01")).head(60.0)
-    k = ab.initial_rest(trial.gyr, trial.acc, trial.rate)  # from the IMU alone
-    dip = ab.magnetic_dip(trial.acc[:k], trial.mag[:k])
+    k = ab_rest.initial_rest(trial.gyr, trial.acc, trial.rate)  # from the IMU alone
+    dip = ab_rest.magnetic_dip(trial.acc[:k], trial.mag[:k])
     assert math.degrees(dip) == pytest.approx(71.3, abs=0.1)
     log = datasets.broad_to_log(trial)
     flt = MinimumEnergyFilter(attitude_gyro_bias(dip=dip))
-    g0 = ab.initial_estimate(trial.acc[:50], trial.mag[:50])
+    g0 = ab_rest.initial_estimate(trial.acc[:50], trial.mag[:50])
     traj = flt.run(flt.init(g0, np.diag([0.05**2] * 3 + [0.01**2] * 3)), log.ts, log.us, log.ys, keep_every=1)
     assert traj.status.ok, traj.status.message(log.ts)
     total, incl = broad_errors(trial, traj)
@@ -300,38 +302,38 @@ def test_initial_rest_ends_within_a_window_before_the_motion():
     rate = 100.0
     gyr, acc, mag, k = _rest_then_motion(rate)
     for window in (0.3, 0.5, 1.0):
-        found = ab.initial_rest(gyr, acc, rate, window=window)
+        found = ab_rest.initial_rest(gyr, acc, rate, window=window)
         assert k - window * rate <= found <= k, window
     # an acceleration alone (no turn) ends the rest too: the accelerometer's spread
     acc2 = np.tile([0.0, 0.0, 9.81], (gyr.shape[0], 1))
     acc2[k:, 0] = 2.0
-    assert k - 50 <= ab.initial_rest(np.zeros_like(gyr), acc2, rate) <= k
-    c = ab.rest_constants(gyr, acc, mag, rate)
-    assert c["rest_samples"] == ab.initial_rest(gyr, acc, rate) and c["rest_s"] == c["rest_samples"] / rate
+    assert k - 50 <= ab_rest.initial_rest(np.zeros_like(gyr), acc2, rate) <= k
+    c = ab_rest.rest_constants(gyr, acc, mag, rate)
+    assert c["rest_samples"] == ab_rest.initial_rest(gyr, acc, rate) and c["rest_s"] == c["rest_samples"] / rate
     assert c["gravity"] == pytest.approx(9.81, abs=0.05) and c["field"] == pytest.approx(math.hypot(16, 40), abs=0.3)
     assert math.degrees(c["dip"]) == pytest.approx(math.degrees(math.atan2(40, 16)), abs=0.5)
     # missing rows are skipped; a log at rest throughout is all rest, which the caller sees
     gyr[10:20] = np.nan
-    assert k - 50 <= ab.initial_rest(gyr, acc, rate) <= k
-    assert ab.initial_rest(gyr[: k - 10], acc[: k - 10], rate) == k - 10
+    assert k - 50 <= ab_rest.initial_rest(gyr, acc, rate) <= k
+    assert ab_rest.initial_rest(gyr[: k - 10], acc[: k - 10], rate) == k - 10
 
 
 def test_initial_rest_refuses_a_log_that_does_not_start_at_rest_by_name():
     rate = 100.0
     gyr, acc, _, k = _rest_then_motion(rate)
     with pytest.raises(ValueError, match=r"^gyr, acc: expected a log that starts at rest .* got 1\.0"):
-        ab.initial_rest(gyr[k:], acc[k:], rate)
+        ab_rest.initial_rest(gyr[k:], acc[k:], rate)
     with pytest.raises(ValueError, match=r"^gyr, acc: expected a log of at least one window \(50 samples"):
-        ab.initial_rest(gyr[:10], acc[:10], rate)
+        ab_rest.initial_rest(gyr[:10], acc[:10], rate)
     with pytest.raises(ValueError, match=r"^acc: expected shape \(600, 3\)"):
-        ab.initial_rest(gyr, acc[:-1], rate)
+        ab_rest.initial_rest(gyr, acc[:-1], rate)
     for name, kw, words in (("rate", {"rate": 0.0}, "a sample rate > 0 in Hz"),
                             ("window", {"window": -1.0}, "a duration > 0 in s"),
                             ("gyro_tol", {"gyro_tol": math.nan}, "a tolerance > 0 in rad/s"),
                             ("acc_tol", {"acc_tol": True}, "a tolerance > 0 in m/s\\^2")):
         args = {"rate": rate, **kw}
         with pytest.raises(ValueError, match=f"^{name}: expected {words}"):
-            ab.initial_rest(gyr, acc, args.pop("rate"), **args)
+            ab_rest.initial_rest(gyr, acc, args.pop("rate"), **args)
 
 
 @pytest.mark.parametrize("trial", ["01", "07", "10", "16", "24", "28", "33"])
@@ -339,6 +341,6 @@ def test_initial_rest_of_broad_ends_just_before_its_movement_annotation(trial):
     """The rest found from the IMU alone ends before BROAD's first annotated movement (the annotation is read here
     only to check it) and less than one window (0.5 s) before it."""
     tr = datasets.broad(_broad_path(trial))
-    k = ab.initial_rest(tr.gyr, tr.acc, tr.rate)
+    k = ab_rest.initial_rest(tr.gyr, tr.acc, tr.rate)
     first_movement = int(np.argmax(tr.movement))
-    assert first_movement - ab.REST_WINDOW * tr.rate <= k <= first_movement
+    assert first_movement - ab_rest.REST_WINDOW * tr.rate <= k <= first_movement

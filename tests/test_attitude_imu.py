@@ -11,8 +11,11 @@ import pytest
 from imu_motion import turning
 from liemef.filters import MinimumEnergyFilter
 from liemef.groups import R3, SO3, TSO3
+from liemef.metrics import attitude_error
 from liemef.systems import attitude_bias as ab
 from liemef.systems import attitude_gyro_bias, attitude_imu
+from liemef.systems import bounded_velocity as ab_vel
+from liemef.systems import imu_noise as ab_imu
 
 RATE = 100.0
 G = 9.81
@@ -48,7 +51,7 @@ def simulate(seed=0, duration=40.0, bursts=True, magnet=True):
 
 
 def _rms_deg(traj, R):
-    e = ab.attitude_error(R, np.asarray(traj.g_hat.factors[0].as_matrix()))
+    e = attitude_error(R, np.asarray(traj.g_hat.factors[0].as_matrix()))
     return float(np.degrees(np.sqrt(np.mean(e[200:] ** 2))))
 
 
@@ -84,7 +87,7 @@ def test_without_disturbances_the_imu_model_costs_little():
 
 
 def test_the_noise_model_in_closed_form():
-    acc = ab.AccelerationNoise(norm=6, gravity=G)
+    acc = ab_imu.AccelerationNoise(norm=6, gravity=G)
     y = np.zeros(8)
     y[6] = 1.2 * G
     std = jnp.array([0.02])
@@ -92,7 +95,7 @@ def test_the_noise_model_in_closed_form():
     assert f == pytest.approx(0.02**2 / (0.02**2 + 2 * 0.04 / 0.23), rel=1e-9)
     y[6] = G
     assert float(acc(std, jnp.array([5.0, 0.03]), y)) == 1.0
-    mag = ab.MagneticNoise(acc=0, mag=3, norm=7, field=B, dip=ab.DIP)
+    mag = ab_imu.MagneticNoise(acc=0, mag=3, norm=7, field=B, dip=ab.DIP)
     up = np.array([0.0, 0.0, 1.0])
     m = np.array(ab.magnetic_reference(ab.DIP))
     y = np.concatenate([up, m, [G, B]])
@@ -157,12 +160,12 @@ def test_the_velocity_model_beats_the_direction_model_under_translation():
     _, us, ys = ab.imu_log(gyr, acc, mag, RATE, norms=True)
     imu = MinimumEnergyFilter(attitude_imu(imu_rate=RATE, gravity=G, field=B), updates="discrete")
     ti = imu.run(imu.init(_g0(R), K0), ts, us, ys)
-    _, us, ys = ab.imu_velocity_log(gyr, acc, mag, RATE)
+    _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, RATE)
     assert us.shape == (len(ts), 6) and ys.shape == (len(ts), 11) and np.all(ys[:, 8:] == 0.0)
     # the simulation's own gyro noise, and a velocity std of its motion's order (rms 0.53 m/s, period 1.3-2 s)
     vel = MinimumEnergyFilter(attitude_velocity(ab.GYRO_STD, RATE, velocity_std=0.5, gravity=G, field=B),
                               updates="discrete")
-    g0 = ab.attitude_velocity_state(_g0(R), v[0])
+    g0 = ab_vel.attitude_velocity_state(_g0(R), v[0])
     tv = vel.run(vel.init(g0, np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)), ts, us, ys)
     assert ti.status.ok and tv.status.ok
     e_imu, e_vel = _rms_deg(ti, R), _rms_deg(tv, R)
@@ -195,7 +198,7 @@ def test_the_gyro_scale_noise_in_closed_form_and_as_a_leaf():
     from liemef.systems import attitude_velocity, right_error
 
     s = attitude_velocity(imu_rate=RATE, gyro_scale_std=0.02, gravity=G, field=B)
-    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
+    g = ab_vel.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
                                    (0.2, -0.1, 0.0))
     BRB, t = _nominal(s), jnp.asarray(0.0)
     # the gyro's block grows by s^2 |u_omega|^2 / f on its diagonal, isotropic; nothing else moves
@@ -238,7 +241,7 @@ def test_the_filters_see_the_rate_dependent_noise():
 
     s = attitude_velocity(imu_rate=RATE, gyro_scale_std=0.03, gravity=G, field=B)
     s0 = s.with_gyro_scale(0.0)
-    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.zeros(3)))))
+    g = ab_vel.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.zeros(3)))))
     K = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
     add = np.diag([0.03**2 * float(U[:3] @ U[:3]) / RATE] * 3 + [0.0] * 6)
     dK = [np.asarray(MinimumEnergyFilter(x, error="left").vector_field(g, K, U, s.output(g, 0.0), 0.0)[1])
@@ -259,7 +262,7 @@ def test_a_zero_gyro_scale_changes_no_bit_of_the_terms():
 
     s = attitude_velocity(imu_rate=RATE, gravity=G, field=B)
     plain = _plain_copy(s)
-    g = ab.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
+    g = ab_vel.attitude_velocity_state(TSO3((SO3.exp(jnp.asarray([0.3, -0.2, 1.1])), R3(jnp.asarray([0.01, 0, 0])))),
                                    (0.2, -0.1, 0.0))
     K = jnp.asarray(np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3))
     y = s.output(g, 0.0) + 0.01
@@ -278,9 +281,9 @@ def test_a_zero_gyro_scale_changes_no_bit_of_a_run():
     from liemef.systems import attitude_velocity
 
     ts, gyr, acc, mag, R, v = simulate_translation(duration=0.5)
-    _, us, ys = ab.imu_velocity_log(gyr, acc, mag, RATE, gyro="backward")
+    _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, RATE, gyro="backward")
     s = attitude_velocity(imu_rate=RATE, gravity=G, field=B)
-    g0 = ab.attitude_velocity_state(_g0(R), v[0])
+    g0 = ab_vel.attitude_velocity_state(_g0(R), v[0])
     K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)
     for make in (lambda x: MinimumEnergyFilter(x, updates="discrete", curvature="exact", error="left"),
                  invariant_ekf):

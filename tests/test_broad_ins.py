@@ -117,7 +117,7 @@ def test_the_truth_scores_zero_and_an_offset_scores_itself():
 def test_the_initial_state_comes_from_the_imu_alone():
     """TRIAD of the accelerometer and magnetometer at rest, the origin, zero velocity, the rest's mean gyro as the
     bias: the optical attitude and position (here a turned attitude and a far position) are not read."""
-    from liemef.systems.attitude_bias import initial_estimate
+    from liemef.systems.imu_rest import initial_estimate
 
     data = _synthetic()
     turned = np.tile([0.0, 1.0, 0.0, 0.0], (data.trial.ts.shape[0], 1))

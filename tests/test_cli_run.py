@@ -270,7 +270,7 @@ def test_dataset_broad_writes_the_best_model_and_run_filters_it(tmp_path):
     """`liemef dataset broad` writes the bounded-velocity model's log by default and prints the command that runs
     it; `liemef run --system attitude-velocity` runs it as compare broad's mef-vel (discrete updates, exact
     curvature, left error, its K0), with the dip and the norms measured over the rest found in the log."""
-    from liemef.systems.attitude_bias import K0_VELOCITY
+    from liemef.systems.bounded_velocity import K0_VELOCITY
 
     R = broad_mat(tmp_path / "01_synthetic.mat")
     res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--out", tmp_path / "log.csv")

@@ -35,6 +35,7 @@ from liemef.reports import io
 from liemef.simulation import simulate
 from liemef.systems import Noise, PlanarRigidBody, Sensor, SensorSystem, direction_residual, planar_localization
 from liemef.systems import attitude_bias as ab
+from liemef.systems import bounded_velocity as ab_vel
 from localization_scenario import circle_samples
 from test_hybrid import ATT_K0, ATTITUDE, G_IN, H_OUT, Q_WALK, SIGMA, WALK, _walk_log, simulate_attitude
 from tolerances import ROUNDOFF
@@ -505,11 +506,11 @@ def test_a_covariate_sensor_is_not_judged():
     acc = np.einsum("nji,j->ni", R, [0.0, 0.0, 9.81]) + 0.05 * rng.standard_normal((N, 3))
     mag = np.einsum("nji,j->ni", R, field) + 0.3 * rng.standard_normal((N, 3))
     gyr = w + 0.005 * rng.standard_normal((N, 3))
-    _, us, ys = ab.imu_velocity_log(gyr, acc, mag, rate)
+    _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, rate)
     system = attitude_velocity(0.005, rate, gravity=9.81, field=43.0)
     assert [s.name for s in system.sensors if s.covariate] == ["acc", "norm"]
     flt = MinimumEnergyFilter(system, updates="discrete", order="first")
-    g0 = ab.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))))
+    g0 = ab_vel.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))))
     traj = flt.run(flt.init(g0, np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3)), ts, us, ys)
     report = innovation_monitor(flt, traj, ts, us, ys)
     judged = {s.name: s.windows for s in report.sensors}

@@ -11,6 +11,7 @@ from scipy.optimize import minimize
 from liemef.groups import R3, SO3, TSO3
 from liemef.studies import tune as T
 from liemef.systems import attitude_bias as ab
+from liemef.systems import bounded_velocity as ab_vel
 from test_attitude_imu import simulate
 
 ACC, MAG = 0.03, 0.06                     # the truth the fit must find
@@ -211,8 +212,8 @@ def test_the_velocity_model_tunes_and_its_file_names_it(tmp_path):
     recs = []
     for seed in (0, 1):
         ts, gyr, acc, mag, R, v = simulate_translation(seed=seed, duration=3.0)
-        _, us, ys = ab.imu_velocity_log(gyr, acc, mag, 100.0)
-        g0 = ab.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))), v[0])
+        _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, 100.0)
+        g0 = ab_vel.attitude_velocity_state(TSO3((SO3.from_matrix(jnp.asarray(R[0])), R3(jnp.zeros(3)))), v[0])
         recs.append(T.Recording(f"v{seed}", ts, us, ys, {"dip": ab.DIP, "gravity": 9.81, "field": 43.0}, g0,
                                 np.diag([1e-4] * 3 + [1e-4] * 3 + [1e-2] * 3), system="attitude-velocity"))
     with pytest.raises(ValueError, match="^names:"):

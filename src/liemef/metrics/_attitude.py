@@ -48,3 +48,14 @@ def attitude_error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np
         x = err[(sec == k) & ok]
         out[k] = np.sqrt(np.mean(x**2))
     return out
+
+
+def attitude_error(R_true: np.ndarray, R_hat: np.ndarray) -> np.ndarray:
+    r"""The total attitude error angle (rad) of $E = \hat R R^\top$ per row, as BROAD's total error, by
+    ``atan2(sin, cos)`` (accurate at small angles, unlike ``arccos``); NaN rows stay NaN."""
+    R_true, R_hat = np.asarray(R_true, dtype=np.float64), np.asarray(R_hat, dtype=np.float64)
+    E = R_hat @ np.swapaxes(R_true, -1, -2)
+    s = 0.5 * np.linalg.norm(np.stack([E[..., 2, 1] - E[..., 1, 2], E[..., 0, 2] - E[..., 2, 0],
+                                       E[..., 1, 0] - E[..., 0, 1]], -1), axis=-1)
+    c = 0.5 * (np.trace(E, axis1=-2, axis2=-1) - 1.0)
+    return np.arctan2(s, c)

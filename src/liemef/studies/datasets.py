@@ -125,7 +125,7 @@ class BroadTrial:
         quat_true: (N, 4) OptiTrack attitude, unit quaternion (w, x, y, z) body -> ENU; NaN rows where the
             optical tracking dropped out.
         movement: (N,) bool, BROAD's evaluation mask (the authors' metrics use only these samples): for scoring
-            only; a filter's rest is found from the IMU (:func:`liemef.systems.attitude_bias.initial_rest`).
+            only; a filter's rest is found from the IMU (:func:`liemef.systems.imu_rest.initial_rest`).
         rate: sample rate, Hz.
         name: the file's stem.
     """
@@ -273,11 +273,11 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     first ``seconds`` if given, written to ``out`` (``.csv`` or ``.npz``) and its ground truth to ``truth`` (CSV).
     ``system``: the ready system whose log to write (:data:`liemef.studies.registry.DATASET_SYSTEMS`; default the
     first: for BROAD ``attitude-velocity``, the bounded-velocity model, whose log holds the gyro as the rate over
-    the interval that ends at each sample, :func:`~liemef.systems.attitude_bias.imu_velocity_log`;
+    the interval that ends at each sample, :func:`~liemef.systems.bounded_velocity.imu_velocity_log`;
     ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions). ``path``
     may also be the id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`,
     :func:`wifibot_runs`). Returns the log, the ready system's name and the files written."""
-    from ..systems.attitude_bias import imu_velocity_log
+    from ..systems.bounded_velocity import imu_velocity_log
     from . import registry
     from .experiments import get_system
 

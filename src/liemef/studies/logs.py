@@ -108,7 +108,7 @@ CONSTANTS = ("dip", "gravity", "field")
 def with_log_constants(source: LogSystem, log) -> LogSystem:
     """``source`` rebuilt with the constants its ready system measures in the ``log`` before the run
     (``SystemSpec.constants``: the IMU systems' dip, gravity and field over the initial rest found from the IMU
-    samples, :func:`liemef.systems.attitude_bias.log_rest_constants`); those given with ``--set`` are kept. A log
+    samples, :func:`liemef.systems.imu_rest.log_rest_constants`); those given with ``--set`` are kept. A log
     without an initial rest keeps the factory's defaults, which :attr:`LogSystem.rest` records and
     :meth:`LogRun.warnings` says. Any other system is returned as it is."""
     spec = source.spec

@@ -113,7 +113,7 @@ class Recording:
     system: str = SYSTEM
     rest_s: float | None = None
     """The initial rest (s) the constants were measured over, found from the IMU samples
-    (:func:`~liemef.systems.attitude_bias.initial_rest`); None when they come from elsewhere."""
+    (:func:`~liemef.systems.imu_rest.initial_rest`); None when they come from elsewhere."""
 
 
 def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None = None,
@@ -121,7 +121,7 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
                      system: str = SYSTEM) -> list[Recording]:
     """The BROAD trials present (:func:`liemef.studies.datasets.broad_trials`) as recordings for
     :func:`liemef.systems.attitude_imu`, with the dip and the norms measured over the initial rest, which is found
-    from the IMU samples alone (:func:`~liemef.systems.attitude_bias.rest_constants`; BROAD's movement annotation
+    from the IMU samples alone (:func:`~liemef.systems.imu_rest.rest_constants`; BROAD's movement annotation
     only scores, as the mask of the ``"truth"`` objective).
 
     Whole trials (``seconds`` None) start as ``liemef compare broad`` does: TRIAD of the first 50 samples, zero
@@ -130,17 +130,12 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
     the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
     ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``). ``system``: a key of :data:`SYSTEMS`;
-    ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.attitude_bias.imu_velocity_log`), the state
+    ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.bounded_velocity.imu_velocity_log`), the state
     with a velocity at rest and ``K0_VELOCITY``."""
     from ..reports import io as _io
     from ..systems.attitude_bias import K0_GYRO_BIAS as K0
-    from ..systems.attitude_bias import (
-        K0_VELOCITY,
-        attitude_velocity_state,
-        imu_velocity_log,
-        initial_estimate,
-        rest_constants,
-    )
+    from ..systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
+    from ..systems.imu_rest import initial_estimate, rest_constants
     from . import datasets
 
     if system not in SYSTEMS:

@@ -9,10 +9,12 @@ from ._residuals import direction_residual, rotation_residual
 from ._right import RightErrorSystem, invariant_sides, natural_error, right_error
 from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
 from .attitude import RigidBodyAttitude
-from .attitude_bias import attitude_gyro_bias, attitude_imu, attitude_velocity
+from .attitude_bias import attitude_gyro_bias
 from .attitude_field import attitude_field
 from .attitude_so3 import ukfm_attitude
+from .bounded_velocity import attitude_velocity
 from .chaplygin import ChaplyginSleigh
+from .imu_noise import attitude_imu
 from .inertial import inertial_navigation
 from .localization import planar_localization
 from .planar_rigid_body import PlanarRigidBody, tse2_state

@@ -1,7 +1,7 @@
 r"""Attitude with magnetic disturbances that last: the field's disturbance as a state with memory.
 
 :func:`~liemef.systems.attitude_velocity` weighs each magnetometer sample by the inverse of its variance, which
-grows with the sample's norm and dip errors (:class:`~liemef.systems.attitude_bias.MagneticNoise`). A magnet
+grows with the sample's norm and dip errors (:class:`~liemef.systems.imu_noise.MagneticNoise`). A magnet
 beside the path for a minute disturbs every one of the 17 000 samples of that minute by the same field, so the
 samples' errors are not independent: however much each is down-weighted, their sum pulls the heading. The model
 here says what the disturbance is: a field added to the earth's, with its own dynamics.
@@ -51,7 +51,7 @@ evaluate it at their estimate (:meth:`~liemef.systems.AbstractSystem.process_noi
 
 The log is :func:`imu_field_log`'s: ``us`` = (gyro, accelerometer) (N, 6), ``ys`` = (accelerometer direction,
 magnetometer in uT, zero velocity) (N, 9). The undisturbed field's norm $B$ and dip $\delta$ and gravity are
-structure: measure them over the log's initial rest (:func:`~liemef.systems.attitude_bias.rest_constants`).
+structure: measure them over the log's initial rest (:func:`~liemef.systems.imu_rest.rest_constants`).
 The noise levels, $q_w$, $q_c$, $k_w$, $k_c$ and $e_0$ are array leaves: a new set never recompiles; $\tau_w$ and
 $\tau_c$ are structure.
 """
@@ -70,19 +70,9 @@ from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, Product
 from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
-from .attitude_bias import (
-    ACC_DENSITY,
-    DIP,
-    E_UP,
-    FIELD,
-    GRAVITY,
-    IMU_BIAS_WALK,
-    IMU_RATE,
-    VELOCITY_GYRO_STD,
-    VELOCITY_STD,
-    imu_velocity_log,
-    magnetic_reference,
-)
+from .attitude_bias import DIP, E_UP, IMU_RATE, magnetic_reference
+from .bounded_velocity import ACC_DENSITY, VELOCITY_GYRO_STD, VELOCITY_STD, imu_velocity_log
+from .imu_noise import FIELD, GRAVITY, IMU_BIAS_WALK
 
 FieldGroup = Product[SO3, R3, R3, R3, R3]
 """SO(3) x R^3 x R^3 x R^3 x R^3: attitude, gyro bias, velocity, world and body disturbance."""
@@ -295,14 +285,14 @@ def imu_field_log(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], ma
 
 
 K0_FIELD = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
-"""A K0 for :func:`attitude_field` from a TRIAD estimate at rest: :data:`~liemef.systems.attitude_bias.K0_VELOCITY`'s
-blocks and (0.1 uT)^2 on each disturbance (the reference is the field measured over the initial rest, where the
-run starts); ``liemef compare broad``'s."""
+"""A K0 for :func:`attitude_field` from a TRIAD estimate at rest:
+:data:`~liemef.systems.bounded_velocity.K0_VELOCITY`'s blocks and (0.1 uT)^2 on each disturbance (the reference
+is the field measured over the initial rest, where the run starts); ``liemef compare broad``'s."""
 
 
 def attitude_field_state(g, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0), c=(0.0, 0.0, 0.0)):
     """The :func:`attitude_field` state from an attitude-and-bias estimate (e.g.
-    :func:`~liemef.systems.attitude_bias.initial_estimate`), a velocity (m/s) and the disturbances (uT)."""
+    :func:`~liemef.systems.imu_rest.initial_estimate`), a velocity (m/s) and the disturbances (uT)."""
     parts = [R3(jnp.asarray(_validate.array(n, np.asarray(x, dtype=np.float64), (3,))))
              for n, x in (("v", v), ("w", w), ("c", c))]
     return FieldGroup((g.factors[0], g.factors[1], *parts))

@@ -44,7 +44,7 @@ from .. import _validate
 from .._linalg import mv
 from ..groups import SO3
 from ._sensors import Noise, Sensor, SensorSystem
-from .attitude_bias import triad
+from .imu_rest import triad
 
 IMU_RATE = 100.0
 """Default IMU rate (Hz), ukfm's ``imu_freq``."""
@@ -117,7 +117,7 @@ def ukfm_attitude(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, acc_std=
 
 def triad_nwu(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> Float[np.ndarray, "N 3 3"]:
     """Rotations body -> world (ukfm's NWU frame) from this system's accelerometer (the gravity vector, pointing
-    down) and magnetometer samples: TRIAD trusting gravity first (:func:`~liemef.systems.attitude_bias.triad` on
+    down) and magnetometer samples: TRIAD trusting gravity first (:func:`~liemef.systems.imu_rest.triad` on
     ``-acc`` gives east-north-up axes with north along the field, turned here to north-west-up). Rows with a
     NaN, or with a field parallel to gravity, give NaN."""
     acc = _validate.array("acc", np.atleast_2d(_validate.numeric("acc", acc)), (None, 3), missing=True)

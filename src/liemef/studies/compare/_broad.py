@@ -11,8 +11,8 @@ the real-data folder (:func:`liemef.studies.datasets.realdata_dir`). Every filte
 - for the covariance filters, the same K0 = diag((0.05 rad)^2 I3, (0.01 rad/s)^2 I3).
 
 Nothing from the truth reaches a filter: the initial rest is found from the IMU samples alone
-(:func:`~liemef.systems.attitude_bias.initial_rest`), and the magnetic dip, gravity and field are measured over
-it (:func:`~liemef.systems.attitude_bias.rest_constants`); BROAD's ``movement`` annotation and the optical
+(:func:`~liemef.systems.imu_rest.initial_rest`), and the magnetic dip, gravity and field are measured over
+it (:func:`~liemef.systems.imu_rest.rest_constants`); BROAD's ``movement`` annotation and the optical
 attitude only score. Not every filter takes every prior: :func:`given` reads off each filter what it uses
 (VQF none: its defaults on the raw readings, from its own first samples), and the table says so.
 
@@ -71,17 +71,10 @@ from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...smoothers import OfflineSmoother
 from ...systems import attitude_field, attitude_gyro_bias
-from ...systems.attitude_bias import (
-    K0_GYRO_BIAS as K0,
-)
-from ...systems.attitude_bias import (
-    K0_VELOCITY,
-    attitude_velocity_state,
-    imu_velocity_log,
-    initial_estimate,
-    rest_constants,
-)
+from ...systems.attitude_bias import K0_GYRO_BIAS as K0
 from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_state, imu_field_log
+from ...systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
+from ...systems.imu_rest import initial_estimate, rest_constants
 from .. import datasets
 from ._common import fmt, parse_names, realdata_present
 
@@ -286,7 +279,7 @@ class BroadComparison:
 def trial_context(trial: datasets.BroadTrial, params: dict | None = None, tuned_system: str | None = None) -> dict:
     """What every filter of a trial starts from (the factories' ``ctx``), from the IMU samples alone: the magnetic
     dip and the norms of gravity and of the field measured over the initial rest found in them
-    (:func:`~liemef.systems.attitude_bias.rest_constants`; its length ``rest_s``), the initial estimate ``g0``
+    (:func:`~liemef.systems.imu_rest.rest_constants`; its length ``rest_s``), the initial estimate ``g0``
     (TRIAD of the rest's first :data:`INITIAL_SAMPLES` samples, zero bias), and the IMU model's tuned ``params``
     (for ``tuned_system``; default none)."""
     rest = rest_constants(trial.gyr, trial.acc, trial.mag, trial.rate)

@@ -32,9 +32,9 @@ seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (the
 
 * gyro 0.01 rad/s per sample at BROAD's rate (the top of the consumer-MEMS range in
   :mod:`liemef.systems.inertial`; about twice the white noise BROAD's gyro shows at rest, 0.0015-0.004 rad/s,
-  for scale-factor and cross-axis errors in motion, as :data:`~liemef.systems.attitude_bias.VELOCITY_GYRO_STD`
+  for scale-factor and cross-axis errors in motion, as :data:`~liemef.systems.bounded_velocity.VELOCITY_GYRO_STD`
   argues);
-* accelerometer 0.02 m/s^2/sqrt(Hz) (:data:`~liemef.systems.attitude_bias.ACC_DENSITY`: a MEMS accelerometer's
+* accelerometer 0.02 m/s^2/sqrt(Hz) (:data:`~liemef.systems.bounded_velocity.ACC_DENSITY`: a MEMS accelerometer's
   white noise plus its scale and misalignment errors in motion; 0.34 m/s^2 per sample at 285.7 Hz);
 * bias random walks: :func:`~liemef.systems.inertial_navigation`'s defaults (1e-4 rad/s/sqrt(s), 1e-3
   m/s^2/sqrt(s));
@@ -45,7 +45,7 @@ seen fix k). The Kalman baselines update with the fix at $t_k$ then predict (the
 
 **Initial state, from the IMU alone, the same for every filter** (:func:`initial_state`): the run starts at the
 file's first sample, as ``compare broad``'s. The attitude is TRIAD of the accelerometer and magnetometer over the
-first samples of the initial rest found from the IMU (:func:`~liemef.systems.attitude_bias.initial_rest`), as
+first samples of the initial rest found from the IMU (:func:`~liemef.systems.imu_rest.initial_rest`), as
 ``compare broad``'s filters start; the velocity is zero (at rest); the gyro bias is the mean gyro over that rest,
 the accelerometer bias zero; the position is the origin, with a prior wide enough for a laboratory's optical
 volume, so the first fixes place it. Nothing of the optical attitude or position enters before the fixes do.
@@ -299,7 +299,7 @@ def initial_state(data: InsTrial) -> INS_GROUP:
     """The initial estimate from the IMU alone (module docstring): TRIAD of the initial rest's first samples (as
     ``compare broad``'s :func:`~liemef.studies.compare._broad.trial_context`), zero velocity, the origin, the
     mean gyro over the rest as the gyro bias, zero accelerometer bias, lever arm and gyro calibration errors."""
-    from ...systems.attitude_bias import initial_estimate, initial_rest
+    from ...systems.imu_rest import initial_estimate, initial_rest
     from ._broad import INITIAL_SAMPLES
 
     tr = data.trial
@@ -368,7 +368,7 @@ def truth_at_imu(data: InsTrial, arm=None) -> tuple[np.ndarray, np.ndarray]:
     :func:`truth_velocity`. NaN where the optical pose is missing."""
     from scipy.spatial.transform import Rotation
 
-    from ...systems.attitude_bias import initial_rest
+    from ...systems.imu_rest import initial_rest
 
     tr = data.trial
     v = truth_velocity(data.pos, tr.rate)

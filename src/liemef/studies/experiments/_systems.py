@@ -21,6 +21,8 @@ from ...systems import (
 )
 from ...systems import attitude_bias as _attitude_bias
 from ...systems import attitude_so3 as _attitude_so3
+from ...systems import bounded_velocity as ab_vel
+from ...systems import imu_rest as ab_rest
 from .. import registry
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
@@ -36,7 +38,7 @@ class SystemSpec:
     ``run_options``: the filter's options this system is run with unless the user gives them (``updates``,
     ``curvature``, ``error``); ``constants(ts, us, ys)``: the factory's keyword arguments measured from the log
     before the run (the IMU systems' dip, gravity and field over the rest found in the log,
-    :func:`liemef.systems.attitude_bias.log_rest_constants`), None for a system that takes none.
+    :func:`liemef.systems.imu_rest.log_rest_constants`), None for a system that takes none.
     """
 
     name: str
@@ -96,12 +98,12 @@ SYSTEMS: dict[str, SystemSpec] = {
         attitude_gyro_bias, _attitude_bias.measured_state),
     "attitude-imu": SystemSpec(
         "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state,
-        constants=_attitude_bias.log_rest_constants),
+        constants=ab_rest.log_rest_constants),
     "attitude-velocity": SystemSpec(
         "attitude-velocity", registry.SYSTEMS["attitude-velocity"], attitude_velocity,
-        _attitude_bias.velocity_measured_state, K0=_attitude_bias.K0_VELOCITY,
+        ab_vel.velocity_measured_state, K0=ab_vel.K0_VELOCITY,
         run_options=registry.RUN_OPTIONS["attitude-velocity"],
-        constants=_attitude_bias.log_rest_constants),
+        constants=ab_rest.log_rest_constants),
     "pose3d": SystemSpec("pose3d", registry.SYSTEMS["pose3d"], pose3d, _position_fix_state(3)),
     "inertial-navigation": SystemSpec(
         "inertial-navigation", registry.SYSTEMS["inertial-navigation"], inertial_navigation, _position_fix_state(6)),
