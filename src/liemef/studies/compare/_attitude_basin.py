@@ -48,7 +48,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ...filters import MinimumEnergyFilter
 from ...filters.baselines import Madgwick, Mahony
 from ...groups import R3, SO3, TSO3
 from ...metrics import chi2_bounds, left_error, nees
@@ -68,7 +67,7 @@ from ._basins import (
     last_quarter,
     progress_line,
 )
-from ._common import FILTERS, check_counts, fmt, parse_names
+from ._common import FILTERS, check_counts, fmt, make_filter, parse_names
 
 SCHEMA = "liemef.compare.attitude-basin/1"
 """Version tag of ``attitude_basin.json``."""
@@ -80,8 +79,6 @@ SYSTEMS = {
                  "synthetic IMU",
 }
 """The study's systems."""
-MEF_VARIANTS = {"mef": ("zero", "second"), "mef-first": ("zero", "first"), "mef-minus": ("minus", "second"),
-                "mef-plus": ("plus", "second")}
 AHRS = {"madgwick": ("ahrs Madgwick, ahrs's default beta = 0.041 (gyro-bias only)", Madgwick),
         "mahony": ("ahrs Mahony, ahrs's default Kp = 1, Ki = 0.3 (gyro-bias only)", Mahony)}
 FILTER_NAMES = ("mef", "mef-first", "mef-minus", "mef-plus", "iekf", "ukf-left", "madgwick", "mahony")
@@ -238,13 +235,10 @@ def _logs_fn(make_log):
 
 
 def _make_filter(name: str, system, alpha: float):
-    if name in MEF_VARIANTS:
-        connection, order = MEF_VARIANTS[name]
-        return MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, curvature="exact",
-                                   error="left")
     if name in AHRS:
         return AHRS[name][1](system)
-    return FILTERS[name][1](system)
+    # the minimum-energy filters with the study's forgetting factor and Theorem 4.1's curvature
+    return make_filter(name, system, **({"alpha": alpha, "curvature": "exact"} if name.startswith("mef") else {}))
 
 
 def _description(name: str) -> str:

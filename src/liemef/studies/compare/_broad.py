@@ -63,8 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...filters import MinimumEnergyFilter
-from ...filters.baselines import VQF, Fusion, Madgwick, Mahony, invariant_ekf, ukf_m
+from ...filters.baselines import VQF, Fusion, Madgwick, Mahony
 from ...metrics import ATTITUDE_METRICS as METRICS
 from ...metrics import attitude_error_per_second, attitude_rms
 from ...reports import io
@@ -76,7 +75,7 @@ from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_stat
 from ...systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
 from ...systems.imu_rest import initial_estimate, rest_constants
 from .. import datasets
-from ._common import fmt, parse_names, realdata_present
+from ._common import fmt, make_filter, parse_names, realdata_present
 
 SCHEMA = "liemef.compare.broad/1"
 """Version tag of ``broad.json``."""
@@ -115,51 +114,47 @@ def _field(ctx):
 
 BROAD_FILTERS = {
     "mef": ("minimum-energy filter, second order, (0)-connection",
-            lambda c: MinimumEnergyFilter(_plain(c), curvature="exact", error="left")),
+            lambda c: make_filter("mef", _plain(c))),
     "mef-first": ("first-order minimum-energy filter",
-                  lambda c: MinimumEnergyFilter(_plain(c), order="first", error="left")),
-    "mef-minus": ("minimum-energy filter, (-)-connection", lambda c: MinimumEnergyFilter(
-        _plain(c), connection="minus", curvature="exact", error="left")),
-    "mef-plus": ("minimum-energy filter, (+)-connection", lambda c: MinimumEnergyFilter(
-        _plain(c), connection="plus", curvature="exact", error="left")),
+                  lambda c: make_filter("mef-first", _plain(c))),
+    "mef-minus": ("minimum-energy filter, (-)-connection", lambda c: make_filter("mef-minus", _plain(c))),
+    "mef-plus": ("minimum-energy filter, (+)-connection", lambda c: make_filter("mef-plus", _plain(c))),
     "mef-robust": ("minimum-energy filter with Huber losses on the accelerometer and the magnetometer",
-                   lambda c: MinimumEnergyFilter(attitude_gyro_bias(dip=c["dip"], acc_robust="huber",
-                                                                    mag_robust="huber"),
-                                                       curvature="exact", error="left")),
+                   lambda c: make_filter("mef", attitude_gyro_bias(dip=c["dip"], acc_robust="huber",
+                                                                   mag_robust="huber"))),
     "mef-imu": ("minimum-energy filter, IMU noise model (attitude_imu: linear acceleration, magnetic "
                 "disturbance, heading-only magnetometer)",
-                lambda c: MinimumEnergyFilter(_imu(c), curvature="exact", error="left")),
+                lambda c: make_filter("mef", _imu(c))),
     "mef-imu-first": ("first-order minimum-energy filter, IMU noise model",
-                      lambda c: MinimumEnergyFilter(_imu(c), order="first", error="left")),
+                      lambda c: make_filter("mef-first", _imu(c))),
     "mef-imu-d": ("minimum-energy filter, IMU noise model, samples at their own time (updates='discrete', gyro "
                   "sample k over the interval ending at t_k as in VQF)",
-                  lambda c: MinimumEnergyFilter(_imu(c), updates="discrete", curvature="exact", error="left")),
+                  lambda c: make_filter("mef", _imu(c), updates="discrete")),
     "mef-imu-d-first": ("first-order minimum-energy filter, IMU noise model, samples at their own time",
-                        lambda c: MinimumEnergyFilter(_imu(c), order="first", updates="discrete", error="left")),
+                        lambda c: make_filter("mef-first", _imu(c), updates="discrete")),
     "mef-vel": ("minimum-energy filter, bounded-velocity model (attitude_velocity: linear acceleration as a "
                 "velocity state, heading-only magnetometer), samples at their own time",
-                lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="exact", error="left")),
+                lambda c: make_filter("mef", _velocity(c), updates="discrete")),
     "mef-vel-safe": ("minimum-energy filter, bounded-velocity model, samples at their own time, the safe curvature "
                      "(the library's default; mef-vel keeps Theorem 4.1's)",
-                     lambda c: MinimumEnergyFilter(_velocity(c), updates="discrete", curvature="safe", error="left")),
+                     lambda c: make_filter("mef-safe", _velocity(c), updates="discrete")),
     "mef-vel-first": ("first-order minimum-energy filter, bounded-velocity model, samples at their own time",
-                      lambda c: MinimumEnergyFilter(_velocity(c), order="first", updates="discrete", error="left")),
+                      lambda c: make_filter("mef-first", _velocity(c), updates="discrete")),
     "mef-vel-smooth": ("minimum-energy smoother, bounded-velocity model: mef-vel's cost minimized over the whole "
                        "trial (liemef.smooth; acausal: estimate k has seen the whole trial)",
-                       lambda c: OfflineSmoother(MinimumEnergyFilter(_velocity(c), updates="discrete",
-                                                                     curvature="exact", error="left"),
+                       lambda c: OfflineSmoother(make_filter("mef", _velocity(c), updates="discrete"),
                                                  tol=SMOOTH_TOL)),
     "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
-                 lambda c: invariant_ekf(_velocity(c))),
+                 lambda c: make_filter("iekf", _velocity(c))),
     "mef-field": ("minimum-energy filter, lasting magnetic disturbances as states (attitude_field: the bounded "
                   "velocity and a world and a body disturbance field), samples at their own time",
-                  lambda c: MinimumEnergyFilter(_field(c), updates="discrete", curvature="exact", error="left")),
+                  lambda c: make_filter("mef", _field(c), updates="discrete")),
     "mef-field-first": ("first-order minimum-energy filter, lasting magnetic disturbances as states",
-                        lambda c: MinimumEnergyFilter(_field(c), order="first", updates="discrete", error="left")),
-    "iekf-field": ("invariant EKF, lasting magnetic disturbances as states", lambda c: invariant_ekf(_field(c))),
-    "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: invariant_ekf(_plain(c))),
-    "iekf-imu": ("invariant EKF, IMU noise model", lambda c: invariant_ekf(_imu(c))),
-    "ukf-left": ("UKF-M, left retraction", lambda c: ukf_m(_plain(c))),
+                        lambda c: make_filter("mef-first", _field(c), updates="discrete")),
+    "iekf-field": ("invariant EKF, lasting magnetic disturbances as states", lambda c: make_filter("iekf", _field(c))),
+    "iekf": ("invariant EKF (= the local EKF on SO(3) x R^3)", lambda c: make_filter("iekf", _plain(c))),
+    "iekf-imu": ("invariant EKF, IMU noise model", lambda c: make_filter("iekf", _imu(c))),
+    "ukf-left": ("UKF-M, left retraction", lambda c: make_filter("ukf-left", _plain(c))),
     "vqf": ("VQF (Laidig and Seel 2023), online, its defaults; starts from its own first samples",
             lambda c: VQF(_imu(c), broad_indexing=True)),
     "vqf-offline": ("VQF, offline (acausal: estimate k has seen the whole trial), its defaults",

@@ -97,14 +97,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ...filters import MinimumEnergyFilter
 from ...groups import SE23, Product, Rn
 from ...reports import io
 from ...systems import inertial_navigation
 from ...systems._gyro_scale import gyro_scale_value
 from .. import datasets
 from ._broad import trial_ids
-from ._common import FILTERS, fmt, parse_names, realdata_present
+from ._common import FILTERS, fmt, make_filter, parse_names, realdata_present
 
 SCHEMA = "liemef.compare.broad-ins/1"
 """Version tag of ``broad_ins.json``."""
@@ -142,10 +141,11 @@ RPE_DELTA = 10
 
 INS_FILTERS = {
     "mef": ("minimum-energy filter, second order, (0)-connection, samples at their own time",
-            lambda s: MinimumEnergyFilter(s, updates="discrete", curvature="exact", error="left")),
+            lambda s: make_filter("mef", s, updates="discrete")),
     "mef-first": ("first-order minimum-energy filter, samples at their own time",
-                  lambda s: MinimumEnergyFilter(s, order="first", updates="discrete", error="left")),
-    **{n: FILTERS[n] for n in ("iekf-right", "iekf", "ekf", "ukf-left", "ukf-right", "ukf-local")},
+                  lambda s: make_filter("mef-first", s, updates="discrete")),
+    **{n: (FILTERS[n][0], lambda s, n=n: make_filter(n, s))
+       for n in ("iekf-right", "iekf", "ekf", "ukf-left", "ukf-right", "ukf-local")},
 }
 """The inertial filters of the study: a description and a factory from the system."""
 DEFAULT_FILTERS = ("mef", "mef-first", "iekf-right", "ekf", "ukf-left", "ukf-right")

@@ -15,28 +15,32 @@ from ...filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_ekf,
 from ...metrics._stats import json_number
 from .. import registry
 
-_FACTORIES = {
-    "mef": lambda s: MinimumEnergyFilter(s, curvature="exact", error="left"),
-    "mef-safe": lambda s: MinimumEnergyFilter(s, curvature="safe", error="left"),
-    "mef-minus": lambda s: MinimumEnergyFilter(s, connection="minus", curvature="exact", error="left"),
-    "mef-plus": lambda s: MinimumEnergyFilter(s, connection="plus", curvature="exact", error="left"),
-    "mef-first": lambda s: MinimumEnergyFilter(s, order="first", error="left"),
-    "iekf": invariant_ekf,
-    "iekf-right": lambda s: ExtendedKalmanFilter(s, "right"),
-    "ekf": local_ekf,
-    "ukf-left": ukf_m,
-    "ukf-right": lambda s: ukf_m(s, "right"),
-    "ukf-local": lambda s: ukf_m(s, "local"),
+_CONSTRUCTORS = {
+    "mef": (MinimumEnergyFilter, {"curvature": "exact", "error": "left"}),
+    "mef-safe": (MinimumEnergyFilter, {"curvature": "safe", "error": "left"}),
+    "mef-minus": (MinimumEnergyFilter, {"connection": "minus", "curvature": "exact", "error": "left"}),
+    "mef-plus": (MinimumEnergyFilter, {"connection": "plus", "curvature": "exact", "error": "left"}),
+    "mef-first": (MinimumEnergyFilter, {"order": "first", "error": "left"}),
+    "iekf": (invariant_ekf, {}),
+    "iekf-right": (ExtendedKalmanFilter, {"error": "right"}),
+    "ekf": (local_ekf, {}),
+    "ukf-left": (ukf_m, {}),
+    "ukf-right": (ukf_m, {"error": "right"}),
+    "ukf-local": (ukf_m, {"error": "local"}),
 }
-FILTERS = {name: (description, _FACTORIES[name]) for name, description in registry.FILTERS.items()}
-"""Filter names of the comparisons: a description (declared in :data:`liemef.studies.registry.FILTERS`) and a
-factory from a system."""
+FILTERS = {name: (description, *_CONSTRUCTORS[name]) for name, description in registry.FILTERS.items()}
+"""The one table of the comparisons' filters: per name a description (declared in
+:data:`liemef.studies.registry.FILTERS`), a constructor from a system and the options it takes them with. A study's
+own rows (``compare broad``'s ``mef-vel``, ...) are these filters on the study's system with more options
+(:func:`make_filter`)."""
 
 
-def make_filter(name: str, system) -> AbstractFilter:
-    """The filter ``name`` (:data:`FILTERS`) on ``system``."""
+def make_filter(name: str, system, **options) -> AbstractFilter:
+    """The filter ``name`` (:data:`FILTERS`) on ``system``, with ``options`` over the table's own (e.g.
+    ``updates="discrete"``)."""
     _validate.choice("filter", name, set(FILTERS))
-    return FILTERS[name][1](system)
+    _, constructor, own = FILTERS[name]
+    return constructor(system, **{**own, **options})
 
 
 def parse_names(what: str, names: str | Sequence[str] | None, options, default: Sequence[str]) -> tuple[str, ...]:
