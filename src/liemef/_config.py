@@ -22,17 +22,16 @@ started, and never over a choice of the user's: an ``XLA_FLAGS`` that names
 import os
 
 import jax
-from jax._src import xla_bridge
 
-# jax's own test of whether a backend has started (private: a jax without it is taken as not started yet)
-_started = getattr(xla_bridge, "backends_are_initialized", lambda: False)
+from ._jax import backends_started
+
 SCHEDULER = "xla_cpu_enable_concurrency_optimized_scheduler"
 SCHEDULER_FLAG = f"--{SCHEDULER}=false"
 
 
 def _keep_xla_cpu_depth_first() -> None:
     flags = os.environ.get("XLA_FLAGS", "")
-    if SCHEDULER in flags or _started():
+    if SCHEDULER in flags or backends_started():
         return
     os.environ["XLA_FLAGS"] = f"{flags} {SCHEDULER_FLAG}".strip()
 

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._jax import dce_jaxpr
 from .._names import C_BACKENDS
 from ..filters import DEFINITE_TOL, FILTER_CAUSES, AbstractFilter, FilterState
 from . import _cache
@@ -121,16 +122,6 @@ def _identifier(prefix: str) -> str:
     return prefix
 
 
-def _dce(closed):
-    """Dead-code elimination of a closed jaxpr keeping every input (JAX's own pass, when this JAX has it)."""
-    try:
-        from jax._src.interpreters import partial_eval as pe
-        jaxpr, used = pe.dce_jaxpr(closed.jaxpr, [True] * len(closed.jaxpr.outvars), instantiate=True)
-    except Exception:  # noqa: BLE001 - an internal API: without it, the C compiler removes the dead code
-        return closed, [True] * len(closed.jaxpr.invars)
-    return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
-
-
 BACKENDS = C_BACKENDS
 """The translators: ``"scalar"`` (straight-line code, with constants folded and zeros and common
 subexpressions removed: the fast one, :mod:`._scalar_c`), ``"array"`` (loops over arrays: compact code whose
@@ -186,7 +177,7 @@ def export_c(flt: AbstractFilter, out_dir: str | os.PathLike, name: str = "lieme
 
     f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
     closed = jax.make_jaxpr(step_fn)([jnp.asarray(x) for x in leaves], f64(0.0), f64(0.01), jnp.zeros(m), jnp.zeros(p))
-    closed, used = _dce(closed)
+    closed, used = dce_jaxpr(closed)
     in_names = [f"in_{f.name}" for f in fields] + ["t", "dt", "u", "y"]
     in_names = [a for a, keep in zip(in_names, used, strict=True) if keep]
     tr = ScalarTranslator() if backend == "scalar" else Translator()

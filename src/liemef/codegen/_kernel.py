@@ -54,10 +54,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
+from .._jax import dce_jaxpr, eager_context
 from ..filters import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _elf, _fast
 from ._cache import Library, cache_dir
-from ._export import _dce, compiler, quick_compiler, run_compiler
+from ._export import compiler, quick_compiler, run_compiler
 from ._fast import FALLBACK
 from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype, helpers_used
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c, structural_zero
@@ -115,17 +116,6 @@ def _slots(leaves) -> tuple[tuple[Slot, ...], int]:
     return tuple(out), off
 
 
-def _eager():
-    """A context in which JAX computes eagerly even inside an outer trace (``scan(engine="c")`` under ``jit``
-    asks for its kernel while tracing): JAX's own evaluation context (internal; without it, the public
-    ``ensure_compile_time_eval``, which also folds constants while tracing)."""
-    try:
-        from jax._src.core import eval_context
-    except ImportError:  # pragma: no cover - a JAX without it
-        return jax.ensure_compile_time_eval()
-    return eval_context()
-
-
 def _title(flt) -> str:
     try:
         return repr(flt)
@@ -163,7 +153,7 @@ def _trace(flt: AbstractFilter) -> _Traced:
     closed = jax.make_jaxpr(interval)([spec(x.shape, x.dtype) for x in pleaves],
                                       [spec(x.shape, x.dtype) for x in sleaves], spec(()), spec(()), spec(()),
                                       spec((m,)), spec((m,)), spec((p,)), spec((p,)))
-    closed, used = _dce(closed)
+    closed, used = dce_jaxpr(closed)
     return _Traced(closed, used, pleaves, sleaves, pslots, sslots, pdef, sdef, state, n_theta, n_state, m, p,
                    f"{_title(flt)} on {type(sysm).__name__}")
 
@@ -1018,7 +1008,7 @@ def kernel_for(flt: AbstractFilter) -> Kernel:
         if key is not None and key in _KERNELS:
             return _KERNELS[key]
         TRACES["kernel"] += 1
-        with _eager():  # also when asked from inside a trace (scan under jit)
+        with eager_context():  # also when asked from inside a trace (scan under jit)
             tr = _trace(flt)
         # the -O2 build, else an earlier process's quick one (translated again only if -O2 is built)
         found = _cached(tr)

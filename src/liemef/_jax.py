@@ -1,0 +1,52 @@
+"""The JAX internals liemef uses, behind one adapter: the only module that reads ``jax._src``.
+
+Three private APIs, each with a public fallback, so that a JAX without one still runs (slower or with a
+weaker guarantee), and ``tests/test_jax_adapter.py`` fails loudly on a JAX where an internal has moved:
+
+* :func:`backends_started`: whether XLA's backends have started (``xla_bridge.backends_are_initialized``), so
+  that :mod:`liemef._config` sets ``XLA_FLAGS`` only while they still read it (fallback: not started);
+* :func:`eager_context`: JAX's own evaluation context, in which JAX computes eagerly even inside an outer trace
+  (``core.eval_context``; fallback: the public ``ensure_compile_time_eval``, which also folds constants);
+* :func:`dce_jaxpr`: dead-code elimination of a closed jaxpr keeping every input
+  (``interpreters.partial_eval.dce_jaxpr``; fallback: the jaxpr as it is, and the C compiler removes the dead
+  code).
+
+The supported JAX versions are the range of ``pyproject.toml``, the versions these APIs were checked on.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import jax
+
+
+def _internal(module: str, name: str):
+    """``jax._src.<module>.<name>``, or None where this JAX has no such thing."""
+    try:
+        return getattr(importlib.import_module(f"jax._src.{module}"), name)
+    except (ImportError, AttributeError):
+        return None
+
+
+def backends_started() -> bool:
+    """Whether any XLA backend has started (then ``XLA_FLAGS`` is no longer read)."""
+    started = _internal("xla_bridge", "backends_are_initialized")
+    return bool(started()) if started is not None else False
+
+
+def eager_context():
+    """A context in which JAX computes eagerly, also when asked from inside an outer trace."""
+    context = _internal("core", "eval_context")
+    return context() if context is not None else jax.ensure_compile_time_eval()
+
+
+def dce_jaxpr(closed):
+    """``(closed, used)``: the closed jaxpr without the equations no output needs, every input kept (``used``:
+    one flag per input, all True), by JAX's own pass; the jaxpr unchanged without it."""
+    dce = _internal("interpreters.partial_eval", "dce_jaxpr")
+    try:
+        jaxpr, used = dce(closed.jaxpr, [True] * len(closed.jaxpr.outvars), instantiate=True)
+    except Exception:  # noqa: BLE001 - an internal API (None, or a new signature): the C compiler removes the code
+        return closed, [True] * len(closed.jaxpr.invars)
+    return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
