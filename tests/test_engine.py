@@ -627,7 +627,7 @@ def test_folded_constants_are_xlas_bits():
     """Constant folding in NumPy (no XLA compile during a translation) gives XLA's bits: integer powers by
     XLA's products (overflow and 0 ** -1 quietly, as XLA), and sums only where every order gives the same
     bits; float32 sums and sums with -0 are left to XLA."""
-    from liemef.codegen._jaxpr_c import _exact_sum, _np_eval
+    from liemef.codegen._primitives import exact_sum, np_eval
 
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.standard_normal(2000) * 10.0 ** rng.uniform(-8, 8, 2000), [0.0, -0.0, 1e200, 1e-200]])
@@ -635,19 +635,19 @@ def test_folded_constants_are_xlas_bits():
         want = np.asarray(jax.jit(lambda a, y=y: jax.lax.integer_pow(a, y))(x))
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            got = _np_eval("integer_pow", {"y": y}, [x], [np.float64])[0]
+            got = np_eval("integer_pow", {"y": y}, [x], [np.float64])[0]
         assert got.tobytes() == want.tobytes(), y
     ints = rng.integers(-9, 9, (4, 5)).astype(np.int32)
     want = np.asarray(jax.jit(lambda a: jnp.sum(a, axis=1))(ints))
-    got = _np_eval("reduce_sum", {"axes": (1,)}, [ints], [want.dtype])[0]
+    got = np_eval("reduce_sum", {"axes": (1,)}, [ints], [want.dtype])[0]
     assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
     whole = np.array([[1.0, -3.0], [2.0**40, 5.0]])
-    got = _np_eval("reduce_sum", {"axes": (0, 1)}, [whole], [np.float64])[0]
+    got = np_eval("reduce_sum", {"axes": (0, 1)}, [whole], [np.float64])[0]
     assert got.tobytes() == np.asarray(jax.jit(jnp.sum)(whole)).tobytes()
-    assert _exact_sum(whole)
+    assert exact_sum(whole)
     for bad in (np.array([0.1, 0.2]), np.array([np.inf, 1.0]), np.array([-0.0]), whole.astype(np.float32)):
-        assert not _exact_sum(bad)
-    assert _np_eval("reduce_sum", {"axes": (0,)}, [np.array([-0.0, -0.0])], [np.float64]) is None
+        assert not exact_sum(bad)
+    assert np_eval("reduce_sum", {"axes": (0,)}, [np.array([-0.0, -0.0])], [np.float64]) is None
 
 
 @pytest.mark.parametrize("system", _systems(("tse2", "localization", "chaplygin", "unit-circle", "attitude-bias")))

@@ -1474,7 +1474,7 @@ EDGE_FORMS = {"value": lambda f: f, "jacfwd": jax.jacfwd, "hessian": jax.hessian
 @pytest.fixture(scope="module")
 def edge_library(tmp_path_factory):
     """Every EDGE_FUNCTIONS form in one C source by the engine's translator, compiled once."""
-    from liemef.codegen._jaxpr_c import helpers_used
+    from liemef.codegen._primitives import helpers_used
     from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
     tr, texts, sizes = ScalarTranslator(), [], {}

@@ -23,7 +23,8 @@ import pytest
 
 from compilers import COMPILERS, compiler_or_skip, warning_free_flags
 from liemef import codegen
-from liemef.codegen._jaxpr_c import Translator, helpers_used, jaxpr_to_c
+from liemef.codegen._jaxpr_c import Translator, jaxpr_to_c
+from liemef.codegen._primitives import helpers_used
 from liemef.codegen._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 from tolerances import PRIMITIVE_C
 

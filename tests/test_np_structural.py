@@ -1,4 +1,4 @@
-"""The translator's NumPy versions of data-moving primitives (``codegen._jaxpr_c._np_eval``) against XLA's.
+"""The translator's NumPy versions of data-moving primitives (``codegen._primitives.np_eval``) against XLA's.
 
 The translator moves element ids and folds constants through these instead of an eager JAX call (whose first
 call compiles an XLA executable: 0.35 s of a first build for one ``scatter``). Each must give XLA's result
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from jax.extend import core as jcore
 
-from liemef.codegen._jaxpr_c import _np_eval
+from liemef.codegen._primitives import np_eval
 
 
 def _scatters(f, *args):
@@ -48,7 +48,7 @@ def test_scatter_window_equals_xla(case):
     found = _scatters(WINDOWS[case], x, u)
     assert found, f"{case}: no scatter in the jaxpr"
     for eqn, xs, want in found:
-        got = _np_eval("scatter", eqn.params, xs, [want.dtype])
+        got = np_eval("scatter", eqn.params, xs, [want.dtype])
         assert got is not None, f"{case}: the NumPy scatter declined a window inside the operand"
         np.testing.assert_array_equal(got[0], want)
         assert got[0].dtype == want.dtype and got[0].shape == want.shape
@@ -59,9 +59,9 @@ def test_scatter_window_declines_what_it_does_not_cover():
     (eqn, xs, _), = _scatters(lambda x, u: x.at[2:5, 1:4].set(u), x, u)
     # the same window at an index where it does not fit (XLA's modes decide: drop or clamp)
     outside = [xs[0], np.array([4, 1], xs[1].dtype), xs[2]]
-    assert _np_eval("scatter", eqn.params, outside, [np.float64]) is None
+    assert np_eval("scatter", eqn.params, outside, [np.float64]) is None
     negative = [xs[0], np.array([-1, 1], xs[1].dtype), xs[2]]
-    assert _np_eval("scatter", eqn.params, negative, [np.float64]) is None
+    assert np_eval("scatter", eqn.params, negative, [np.float64]) is None
     # several index vectors at once (scatter dims in the updates)
     (eqn, xs, want), = _scatters(lambda x, u: x.at[jnp.array([0, 2, 5])].set(u[:, 0]), np.zeros(6), u)
-    assert _np_eval("scatter", eqn.params, xs, [np.float64]) is None
+    assert np_eval("scatter", eqn.params, xs, [np.float64]) is None

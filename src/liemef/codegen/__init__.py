@@ -7,7 +7,8 @@
 """
 
 from ._export import BACKENDS, CFLAGS, SCALAR_MAX_N, CFilter, ExportedC, build_shared, compiler, export_c, state_leaves
-from ._jaxpr_c import PRIMITIVES, UnsupportedPrimitive, jaxpr_to_c
+from ._jaxpr_c import jaxpr_to_c
+from ._primitives import PRIMITIVES, UnsupportedPrimitive
 
 __all__ = ["BACKENDS", "CFLAGS", "PRIMITIVES", "SCALAR_MAX_N", "CFilter", "ExportedC", "UnsupportedPrimitive",
            "build_shared", "compiler", "export_c", "jaxpr_to_c", "state_leaves"]

@@ -31,7 +31,8 @@ from .._jax import dce_jaxpr
 from .._names import C_BACKENDS
 from ..filters import DEFINITE_TOL, FILTER_CAUSES, AbstractFilter, FilterState
 from . import _cache
-from ._jaxpr_c import Translator, ctype, helpers_used, jaxpr_to_c, literal
+from ._jaxpr_c import Translator, jaxpr_to_c
+from ._primitives import ctype, helpers_used, literal
 from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic")

@@ -60,7 +60,7 @@ from . import _cache, _elf, _fast
 from ._cache import Library, cache_dir
 from ._export import compiler, quick_compiler, run_compiler
 from ._fast import FALLBACK
-from ._jaxpr_c import HELPERS, UnsupportedPrimitive, ctype, helpers_used
+from ._primitives import HELPERS, UnsupportedPrimitive, ctype, helpers_used
 from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c, structural_zero
 
 NATIVE = ("-march=native", "-mno-fma", "-mno-avx512f") \
@@ -214,7 +214,7 @@ def _all_consts(closed) -> list:
 def _generator_hash() -> bytes:
     here = Path(__file__).parent
     h = hashlib.sha256()
-    for name in ("_kernel.py", "_scalar_c.py", "_jaxpr_c.py", "_export.py"):
+    for name in ("_kernel.py", "_scalar_c.py", "_jaxpr_c.py", "_primitives.py", "_export.py"):
         h.update((here / name).read_bytes())
     return h.digest()
 

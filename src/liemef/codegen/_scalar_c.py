@@ -43,33 +43,33 @@ import struct
 import numpy as np
 from jax.extend import core as jcore
 
-from ._jaxpr_c import (
-    _BINARY,
-    _BOOL_BINARY,
-    _BOOL_UNARY,
-    _CALLS,
-    _FLOAT_BINARY,
-    _FLOAT_UNARY,
-    _INT_BINARY,
-    _INT_UNARY,
-    _REDUCE,
-    _ROUND_EVEN,
-    _STRUCTURAL,
-    Translator,
+from .._frames import eqn_frames
+from ._jaxpr_c import Translator
+from ._primitives import (
+    BINARY,
+    BOOL_BINARY,
+    BOOL_UNARY,
+    CALLS,
+    FLOAT_BINARY,
+    FLOAT_UNARY,
+    INT_BINARY,
+    INT_UNARY,
+    REDUCE,
+    ROUND_EVEN,
+    STRUCTURAL,
     UnsupportedPrimitive,
     Val,
-    _fill_value,
-    _integer_pow,
-    _mode,
-    _np_eval,
-    _size,
     ctype,
     element_ids,
-    eqn_frames,
+    fill_value,
     float_to_int,
+    index_mode,
     inlined,
     int_division,
+    integer_pow,
+    jaxpr_size,
     literal,
+    np_eval,
     own_precision,
     refuse_choice,
     saturated,
@@ -102,7 +102,7 @@ LOOKUP_MIN = 8
 UNROLL_MAX = 20000
 """The most equations an unrolled ``scan`` (:meth:`ScalarTranslator.unrolled_scan`) may copy."""
 _F64_BYTES = struct.Struct("=d").pack  # as np.float64(v).tobytes(): native order
-_CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
+CUMULATIVE = {"cumsum": "add", "cumprod": "mul", "cummax": "max", "cummin": "min"}
 
 
 class Scope:
@@ -222,8 +222,8 @@ class ScalarTranslator:
             if op == "convert":
                 return saturated(xs[0], dt) if dt.kind in "iu" and xs[0].dtype.kind == "f" else xs[0].astype(dt)
             if op == "ipow":  # XLA's products (NumPy's power of a float may differ in the last bit)
-                return _integer_pow(xs[0], param) if xs[0].dtype.kind == "f" or param >= 0 else None
-            out = _np_eval(op, {}, xs, [dt])
+                return integer_pow(xs[0], param) if xs[0].dtype.kind == "f" or param >= 0 else None
+            out = np_eval(op, {}, xs, [dt])
             return None if out is None else out[0]
 
     def _simplify(self, op, a, dt, param):
@@ -362,8 +362,8 @@ class ScalarTranslator:
             return int_division(op, e[0], e[1], self.dtype[a[0]])
         if kind in "iu" and op == "shift_left":
             return shift_left(e[0], e[1], self.dtype[a[0]])
-        table = {"f": {**_FLOAT_UNARY, **_BINARY, **_FLOAT_BINARY, **_ROUND_EVEN},
-                 "b": {**_BOOL_UNARY, **_BINARY, **_BOOL_BINARY}}.get(kind, {**_INT_UNARY, **_BINARY, **_INT_BINARY})
+        table = {"f": {**FLOAT_UNARY, **BINARY, **FLOAT_BINARY, **ROUND_EVEN},
+                 "b": {**BOOL_UNARY, **BINARY, **BOOL_BINARY}}.get(kind, {**INT_UNARY, **BINARY, **INT_BINARY})
         if op not in table:
             raise UnsupportedPrimitive(f"primitive {op!r} on {self.dtype[a[0]]}")
         return table[op].format(a=e[0], b=e[1] if len(e) > 1 else "")
@@ -455,7 +455,7 @@ class ScalarTranslator:
         odt = [np.dtype(v.aval.dtype) for v in eqn.outvars]
         oshape = [tuple(v.aval.shape) for v in eqn.outvars]
         idt = [np.dtype(v.aval.dtype) for v in eqn.invars]
-        if name in _CALLS or name == "custom_linear_solve":
+        if name in CALLS or name == "custom_linear_solve":
             # inlined: a call's constants fold into it, and the zeros of its results reach the caller
             if name in ("checkpoint", "remat", "remat2") and params.get("differentiated", False):
                 # JAX lowers a differentiated checkpoint with an optimization barrier on the inputs it keeps
@@ -476,7 +476,7 @@ class ScalarTranslator:
             own_precision(params, idt[0])
         if all(self._known(x) for x in ins):
             xs = [self._values(x, d) for x, d in zip(ins, idt, strict=True)]
-            outs = _np_eval(name, params, xs, odt)
+            outs = np_eval(name, params, xs, odt)
             if outs is None:
                 import jax
                 with jax.ensure_compile_time_eval():
@@ -485,7 +485,7 @@ class ScalarTranslator:
             pinned = any(not self.pinned.isdisjoint(x.ravel().tolist()) for x in ins)
             return [self.const_array(np.asarray(o), d, pinned) for o, d in zip(outs, odt, strict=True)]
         if name == "gather" and not self._known(ins[1]):
-            if _mode(params) != "fill":
+            if index_mode(params) != "fill":
                 try:
                     return [self.take(ins[0], ins[1], params, oshape[0], odt[0])]
                 except UnsupportedPrimitive:
@@ -499,14 +499,14 @@ class ScalarTranslator:
             return [self.dynamic_slice(ins[0], ins[1:], params["slice_sizes"], oshape[0], odt[0])]
         if name == "dynamic_update_slice" and not all(self._known(x) for x in ins[2:]):
             return [self.dynamic_update_slice(ins[0], ins[1], ins[2:], odt[0])]
-        if name in _STRUCTURAL:
+        if name in STRUCTURAL:
             return self.structural(eqn, ins, idt, oshape)
-        if name in _REDUCE:
-            return [self.reduce(_REDUCE[name], ins[0], params["axes"], oshape[0], odt[0])]
+        if name in REDUCE:
+            return [self.reduce(REDUCE[name], ins[0], params["axes"], oshape[0], odt[0])]
         if name == "sort":
             return self.sort(ins, int(params["dimension"]), int(params["num_keys"]), idt)
-        if name in _CUMULATIVE:
-            return [self.cumulative(_CUMULATIVE[name], ins[0], int(params["axis"]), bool(params["reverse"]), odt[0])]
+        if name in CUMULATIVE:
+            return [self.cumulative(CUMULATIVE[name], ins[0], int(params["axis"]), bool(params["reverse"]), odt[0])]
         if name == "round":
             op = "rint" if int(params.get("rounding_method", 0)) == 1 else "round"
             return [self.map1(lambda x: self.node(op, (x,), odt[0]), ins[0], oshape[0])]
@@ -538,8 +538,8 @@ class ScalarTranslator:
                 return [np.broadcast_to(ins[0], oshape[0]).copy()]
             if name != "sub" and self._zero_array(ins[0]):
                 return [np.broadcast_to(ins[1], oshape[0]).copy()]
-        if name in _FLOAT_UNARY or name in _INT_UNARY or name in _BOOL_UNARY or name in _BINARY \
-                or name in _FLOAT_BINARY or name in _INT_BINARY or name in _BOOL_BINARY:
+        if name in FLOAT_UNARY or name in INT_UNARY or name in BOOL_UNARY or name in BINARY \
+                or name in FLOAT_BINARY or name in INT_BINARY or name in BOOL_BINARY:
             f = np.frompyfunc(lambda *a: self.node(name, tuple(a), odt[0]), len(ins), 1)
             out = np.asarray(f(*ins), dtype=object)  # frompyfunc broadcasts a scalar operand itself
             return [np.broadcast_to(out, oshape[0]).copy() if out.shape != oshape[0] else out]
@@ -707,10 +707,10 @@ class ScalarTranslator:
         collapsed = tuple(int(v) for v in dn.collapsed_slice_dims) + tuple(int(v) for v in dn.operand_batching_dims)
         op_dims = [d for d in range(x.ndim) if d not in collapsed]
         paired = self._batching(dn.operand_batching_dims, dn.start_indices_batching_dims, idx.dtype)
-        mode = _mode(params)
+        mode = index_mode(params)
         fill = params.get("fill_value")
         if mode == "fill":
-            fill = _fill_value(fill, dtype)
+            fill = fill_value(fill, dtype)
         flat = x.ravel()
         starts = {}
         out = np.empty(int(np.prod(shape, dtype=np.int64)), dtype=object)
@@ -736,7 +736,7 @@ class ScalarTranslator:
         for p, d in zip(wpos, op_dims, strict=True):
             sizes[d] = upd.shape[p]
         smap = tuple(int(v) for v in dn.scatter_dims_to_operand_dims)
-        clip = _mode(params) == "clip"
+        clip = index_mode(params) == "clip"
         out = x.ravel().copy()
         ups = upd.ravel()
         starts = {}
@@ -1094,9 +1094,9 @@ class ScalarTranslator:
         copy of the body folds its own constants. Refused above :data:`UNROLL_MAX` equations in all."""
         nc, ncar, length = params["num_consts"], params["num_carry"], int(params["length"])
         jaxpr = params["jaxpr"]
-        if length * max(_size(jaxpr.jaxpr), 1) > UNROLL_MAX:
+        if length * max(jaxpr_size(jaxpr.jaxpr), 1) > UNROLL_MAX:
             raise UnsupportedPrimitive(f"scan with per-iteration inputs or outputs over {length} iterations of "
-                                       f"{_size(jaxpr.jaxpr)} equations (unrolled up to {UNROLL_MAX} in all)")
+                                       f"{jaxpr_size(jaxpr.jaxpr)} equations (unrolled up to {UNROLL_MAX} in all)")
         # XLA's loop body: its inputs are parameters there (copies: no converted boolean seen through them)
         consts, carry, xs = [x.copy() for x in ins[:nc]], [x.copy() for x in ins[nc:nc + ncar]], ins[nc + ncar:]
         ys = [None] * length
