@@ -271,6 +271,24 @@ class Experiment:
                 "montecarlo": self.trial_fn is not None}
 
 
+def setup_cache(maxsize: int = 8, **irrelevant):
+    """An experiment's ``setup(config)`` from its builder: the builder runs once per config, with the fields that
+    do not enter the setup (the ``seed``, which picks the trials, and ``irrelevant``) set to fixed values, and
+    the last ``maxsize`` setups are kept. The one setup cache of every experiment module, whose shape is
+    ``setup(config) -> Setup`` (system, filter, initial states, time grid), ``trial(setup, key)`` (traceable, one
+    seeded run), ``trial_spec(config)`` (the Monte Carlo trial: ``trial_fn``) and ``run(config, key)`` (one
+    evaluated run: ``run_fn``)."""
+    def wrap(build):
+        cached = functools.lru_cache(maxsize=maxsize)(build)
+
+        @functools.wraps(build)
+        def setup(config):
+            return cached(dataclasses.replace(config, **{"seed": 0, **irrelevant}))
+        setup.cache_clear = cached.cache_clear
+        return setup
+    return wrap
+
+
 EXPERIMENTS: dict[str, Experiment] = {}
 """Every registered experiment by name."""
 

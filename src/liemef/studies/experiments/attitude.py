@@ -26,7 +26,6 @@ connections, per-trial rms of $e^R$ over the steady window, and how often the (0
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 from dataclasses import dataclass
@@ -56,6 +55,7 @@ from ._base import (
     RunConfig,
     TrialSpec,
     register,
+    setup_cache,
 )
 from ._evaluate import evaluate
 from ._montecarlo import DEFAULT_BATCH_SIZE, MonteCarloResult, montecarlo
@@ -178,11 +178,6 @@ class Setup:
     ts: np.ndarray
 
 
-def setup(config: AttitudeConfig) -> Setup:
-    """The system, filters, initial states and time grid of ``config`` (cached; see :class:`Setup`)."""
-    return _setup(dataclasses.replace(config, seed=0))
-
-
 def initial_estimate(config: AttitudeConfig) -> TSO3:
     """(R_hat(0), Omega_hat(0)) = (R(0) exp(angle * axis), filter_omega0), R(0) = I."""
     axis = np.asarray(config.initial_axis) / np.linalg.norm(config.initial_axis)
@@ -190,8 +185,9 @@ def initial_estimate(config: AttitudeConfig) -> TSO3:
     return TSO3((R_hat0, R3(jnp.asarray(config.filter_omega0))))
 
 
-@functools.lru_cache(maxsize=8)
-def _setup(config: AttitudeConfig) -> Setup:
+@setup_cache()
+def setup(config: AttitudeConfig) -> Setup:
+    """The system, filters, initial states and time grid of ``config`` (cached; see :class:`Setup`)."""
     se, sd = config.sigma_eps, config.sigma_delta
     printed = config.weights == "printed"
     system = RigidBodyAttitude(inertia=np.diag(config.inertia_diag),

@@ -58,7 +58,7 @@ from ...groups import SE23, SO3
 from ...metrics import left_error, nees
 from ...simulation import SensorLog
 from ...systems import inertial_navigation
-from ._base import UkfmGrid
+from ._base import UkfmGrid, setup_cache
 
 NAMES = ("attitude", "velocity", "position", "nees_attitude", "nees_position", "nees_position_ukfm")
 """The trial's series (:func:`series`)."""
@@ -335,13 +335,9 @@ class Setup:
     u_true: np.ndarray
 
 
+@setup_cache(rng="jax")
 def setup(config: InertialConfig) -> Setup:
     """The system, filter and truth of ``config`` (cached; the seed and the RNG do not enter)."""
-    return _setup(dataclasses.replace(config, seed=0, rng="jax"))
-
-
-@functools.lru_cache(maxsize=8)
-def _setup(config: InertialConfig) -> Setup:
     system = system_of(config)
     flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,
                               integrator=config.integrator, interpolation=config.interpolation)

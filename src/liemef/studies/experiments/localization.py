@@ -36,7 +36,6 @@ final sample, plus the filter status, ``vmap``-ed over keys by :func:`~liemef.st
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -58,7 +57,7 @@ from ...reports import figures, io
 from ...simulation import SensorLog, Truth
 from ...systems import planar_localization
 from .. import registry
-from ._base import Experiment, FigureSpec, Output, Reproduction, Result, TrialSpec, UkfmGrid, register
+from ._base import Experiment, FigureSpec, Output, Reproduction, Result, TrialSpec, UkfmGrid, register, setup_cache
 from ._evaluate import evaluate
 from ._montecarlo import MonteCarloResult, montecarlo
 
@@ -236,13 +235,9 @@ class Setup:
         return self.config.ts
 
 
+@setup_cache(rng="jax")
 def setup(config: LocalizationConfig) -> Setup:
     """The filter and truth of ``config`` (cached; the seed and the RNG do not enter)."""
-    return _setup(dataclasses.replace(config, seed=0, rng="jax"))
-
-
-@functools.lru_cache(maxsize=8)
-def _setup(config: LocalizationConfig) -> Setup:
     vx, vy, w = config.odometry_std
     system = planar_localization(odometry_std=(w, vx, vy), odometry_rate=1.0 / config.dt, gps_std=config.gps_std)
     flt = MinimumEnergyFilter(system, curvature="exact", error="left", connection=config.connection, order=config.order,

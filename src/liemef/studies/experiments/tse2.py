@@ -16,7 +16,6 @@ measurement per integration step. Experiments:
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass
 
@@ -32,7 +31,7 @@ from ...simulation import SensorLog, Truth, simulate, simulate_core
 from ...systems import PlanarRigidBody, tse2_state
 from ...systems.planar_rigid_body import SENSORS
 from .. import registry
-from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
+from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register, setup_cache
 from ._evaluate import evaluate, state_error_trial
 
 
@@ -133,13 +132,9 @@ class Setup:
     ts: np.ndarray
 
 
+@setup_cache()
 def setup(config: TSE2Config) -> Setup:
     """The system, filter, initial states and time grid of ``config`` (cached; see :class:`Setup`)."""
-    return _setup(dataclasses.replace(config, seed=0))
-
-
-@functools.lru_cache(maxsize=8)
-def _setup(config: TSE2Config) -> Setup:
     system = PlanarRigidBody(sensor=config.sensor)
     if config.weights == "consistent":
         system = PlanarRigidBody(sensor=config.sensor, Q=np.eye(system.output_dim), R=np.eye(system.B.shape[1]))

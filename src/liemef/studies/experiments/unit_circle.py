@@ -21,7 +21,6 @@ $\mathrm{diag}(2/K_1, 1/K_2)$ (``docs/errata.md``).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -37,7 +36,7 @@ from ...metrics import FULL, Window, state_error
 from ...simulation import SensorLog, Truth
 from ...systems.unit_circle import DEG, MEASUREMENTS, UnitCircleBias
 from .. import registry
-from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register
+from ._base import PAPER_SUBSTEPS, Experiment, FigureSpec, Result, RunConfig, TrialSpec, register, setup_cache
 from ._evaluate import evaluate, state_error_trial
 
 OMEGA_RATE = 0.25
@@ -141,13 +140,9 @@ class Setup:
     ts: np.ndarray
 
 
+@setup_cache()
 def setup(config: UnitCircleConfig) -> Setup:
     """The system, filter, initial state and time grid of ``config`` (cached)."""
-    return _setup(dataclasses.replace(config, seed=0))
-
-
-@functools.lru_cache(maxsize=8)
-def _setup(config: UnitCircleConfig) -> Setup:
     system = UnitCircleBias(measurement=config.measurement, B_omega=config.B_omega_deg * DEG,
                             B_b=config.B_b_deg * DEG,
                             D=config.noise_std * np.eye(2) if config.measurement == "vector" else None)
@@ -187,7 +182,7 @@ def trial(s: Setup, key) -> tuple[Truth, SensorLog, Trajectory]:
 
 @functools.lru_cache(maxsize=8)
 def _simulate_compiled(config: UnitCircleConfig):
-    s = _setup(config)
+    s = setup(config)
     return jax.jit(lambda key: simulate_circle(s, key))
 
 

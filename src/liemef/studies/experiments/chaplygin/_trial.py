@@ -5,8 +5,6 @@ run (:func:`run`), the Monte Carlo trial (:func:`trial`, :func:`trial_spec`) and
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 from dataclasses import dataclass
 
 import jax
@@ -18,7 +16,7 @@ from ....metrics import FULL
 from ....simulation import SensorLog, Truth, simulate, simulate_core
 from ....systems import ChaplyginSleigh
 from ....systems.chaplygin import se2r2_state
-from .._base import PAPER_SUBSTEPS, Result, TrialSpec, get_experiment
+from .._base import PAPER_SUBSTEPS, Result, TrialSpec, get_experiment, setup_cache
 from .._evaluate import evaluate, state_error_trial
 from ._paper import PAPER_DTS, ChaplyginConfig, paper_input
 
@@ -75,13 +73,9 @@ def make_system(config: ChaplyginConfig) -> ChaplyginSleigh:
     return system
 
 
+@setup_cache(maxsize=16, table_dts=PAPER_DTS, alternatives=True)
 def setup(config: ChaplyginConfig) -> Setup:
     """The system, filter, initial states and time grid of ``config`` (cached; see :class:`Setup`)."""
-    return _setup(dataclasses.replace(config, seed=0, table_dts=PAPER_DTS, alternatives=True))
-
-
-@functools.lru_cache(maxsize=16)
-def _setup(config: ChaplyginConfig) -> Setup:
     system = make_system(config)
     cls = PrintedWeightsFilter if config.weights == "printed" else MinimumEnergyFilter
     options = {} if cls is PrintedWeightsFilter else {"curvature": "exact"}  # the wrapper sets its own
