@@ -32,8 +32,10 @@ from _provenance import source_version  # noqa: E402  (benchmarks/ is on sys.pat
 
 from liemef.engines import kernel  # noqa: E402
 from liemef.filters import MinimumEnergyFilter  # noqa: E402
+from liemef.metrics import attitude_error  # noqa: E402
 from liemef.studies import datasets  # noqa: E402
 from liemef.systems import attitude_bias as ab  # noqa: E402
+from liemef.systems import imu_rest  # noqa: E402
 
 K0 = np.diag([0.05**2] * 3 + [0.01**2] * 3)
 
@@ -43,7 +45,7 @@ def broad_errors(trial, traj) -> tuple[float, float]:
     ok = trial.movement & ~np.isnan(trial.quat_true).any(axis=1)
     R_true = np.asarray(ab.quaternion_to_tso3(trial.quat_true[ok]).factors[0].as_matrix())
     R_hat = np.asarray(traj.g_hat.factors[0].as_matrix())[ok]
-    total = ab.attitude_error(R_true, R_hat)
+    total = attitude_error(R_true, R_hat)
     incl = np.arccos(np.clip(np.einsum("ni,ni->n", R_hat[:, 2, :], R_true[:, 2, :]), -1.0, 1.0))
     return (float(np.degrees(np.sqrt(np.mean(total**2)))), float(np.degrees(np.sqrt(np.mean(incl**2)))))
 
@@ -78,11 +80,11 @@ def main():
     if args.trial not in found:
         sys.exit(f"BROAD trial {args.trial} not found (set {datasets.ENV_VAR})")
     trial = datasets.broad(found[args.trial]).head(args.seconds)
-    k = ab.initial_rest(trial.gyr, trial.acc, trial.rate)  # the initial rest, from the IMU alone
-    dip = ab.magnetic_dip(trial.acc[:k], trial.mag[:k])
+    k = imu_rest.initial_rest(trial.gyr, trial.acc, trial.rate)  # the initial rest, from the IMU alone
+    dip = imu_rest.magnetic_dip(trial.acc[:k], trial.mag[:k])
     log = datasets.broad_to_log(trial)
     system = ab.attitude_gyro_bias(dip=dip)
-    g0 = ab.initial_estimate(trial.acc[:50], trial.mag[:50])
+    g0 = imu_rest.initial_estimate(trial.acc[:50], trial.mag[:50])
     out = {"trial": args.trial, "seconds": args.seconds, "samples": int(log.ts.shape[0]), "results": {}}
     n = log.ts.shape[0] - 1
     for engine in args.engines.split(","):
