@@ -61,7 +61,8 @@ from ._cache import Library, cache_dir
 from ._export import compiler, quick_compiler, run_compiler
 from ._fast import FALLBACK
 from ._primitives import HELPERS, UnsupportedPrimitive, ctype, helpers_used
-from ._scalar_c import ScalarTranslator, lane_type, lane_typedefs, scalar_jaxpr_to_c, structural_zero
+from ._scalar_c import ScalarTranslator, scalar_jaxpr_to_c, structural_zero
+from ._scalar_nodes import lane_type, lane_typedefs
 
 NATIVE = ("-march=native", "-mno-fma", "-mno-avx512f") \
     if platform.machine().lower() in ("x86_64", "amd64", "i386", "i686") else ("-march=native",)
@@ -214,8 +215,8 @@ def _all_consts(closed) -> list:
 def _generator_hash() -> bytes:
     here = Path(__file__).parent
     h = hashlib.sha256()
-    for name in ("_kernel.py", "_scalar_c.py", "_jaxpr_c.py", "_primitives.py", "_export.py"):
-        h.update((here / name).read_bytes())
+    for path in sorted(here.glob("*.py")):  # every module of the translators and of the kernel's build
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
     return h.digest()
 
 
