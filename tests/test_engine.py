@@ -308,7 +308,9 @@ def no_kernel(monkeypatch):
     def broken(flt):
         raise codegen.UnsupportedPrimitive("primitive 'fft' has no C here")
 
-    monkeypatch.setattr(_kernel, "kernel_for", broken)
+    from liemef.engines import _select
+
+    monkeypatch.setattr(_select, "kernel_for", broken)  # where the engines look it up
     flt = liemef.MinimumEnergyFilter(_drift_system(0.3, [0.1, 0.2]))
     return flt, flt.init(Rn[2](jnp.zeros(2)), np.eye(2))
 

@@ -220,6 +220,18 @@ def test_nothing_below_the_engines_names_them():
     assert named == []
 
 
+@pytest.mark.parametrize("package", ["liemef.codegen", "liemef.engines"])
+def test_no_module_outside_a_package_imports_its_private_modules(package):
+    """The compiler and the engines are components: the rest of the package reads their public
+    names (``liemef.codegen``'s: :func:`~liemef.codegen.kernel_for`, ...), never a private module of theirs."""
+    graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
+    depth = package.count(".") + 1
+    private = {(a, b) for a in graph.modules if not a.startswith(package)
+               for b in graph.find_modules_directly_imported_by(a)
+               if b.startswith(package + ".") and any(part.startswith("_") for part in b.split(".")[depth:])}
+    assert private == set()
+
+
 def test_the_layers_above_read_only_the_filters_public_names():
     """No module outside ``liemef.filters`` imports a private module of it (``liemef.filters._base``, ...) or
     calls a private method of a filter: the filters' contract is their public names."""

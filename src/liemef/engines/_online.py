@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..codegen import _fast
+from ..codegen import fast_step_module
 from ..filters import AbstractFilter, FilterState
 from ._select import fast_ctl, kernel, theta_address
 
@@ -37,7 +37,7 @@ class OnlineFilter:
         kern = self._kern
         self._theta_address = theta_address(flt)
         self._ctl = fast_ctl(flt)
-        self._step = _fast.module().step if self._ctl is not None else None
+        self._step = fast_step_module().step if self._ctl is not None else None
         # two buffers of a packed state and its samples (S + 2 (m + p) doubles), swapped at each step
         width = kern.n_state + max(1, 2 * (self.m + self.p))
         self._bufs = (np.zeros(width), np.zeros(width))

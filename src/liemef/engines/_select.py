@@ -11,9 +11,7 @@ import jax
 
 from .. import _side
 from .._frames import is_users
-from ..codegen import _kernel as kmod
-from ..codegen._cache import EngineWarning
-from ..codegen._export import compiler
+from ..codegen import EngineWarning, compiler, kernel_for
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
@@ -94,7 +92,7 @@ def _entry(flt, engine: str | None, check=None, args=()) -> tuple:
     try:
         if engine == "auto" and _no_compiler():
             raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
-        kern = kmod.kernel_for(flt)
+        kern = kernel_for(flt)
     except Exception as err:  # noqa: BLE001 - auto falls back to XLA, saying why; "c" raises
         if engine == "c":
             raise
