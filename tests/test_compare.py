@@ -402,7 +402,7 @@ def _ignores_the_gps(system):
 def test_a_filter_built_to_ignore_a_sensor_cannot_win_the_localization_comparison(tmp_path, monkeypatch):
     from liemef.studies.compare import _common
 
-    monkeypatch.setitem(_common.FILTERS, "ignores-gps", ("ignores the GPS, trusts its odometry", _ignores_the_gps, {}))
+    monkeypatch.setitem(_common.FILTERS, "ignores-gps", ("ignores the GPS, trusts its odometry", _ignores_the_gps))
     out = tmp_path / "cmp"
     res = CliRunner().invoke(cli.cli, ["compare", "localization", "--runs", "3", "--set", "duration=4", "--set",
                                        "steady=2", "--filters", "iekf,ignores-gps", "--set", "batch_size=3",

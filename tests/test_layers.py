@@ -241,8 +241,8 @@ def test_the_layers_above_read_only_the_filters_public_names():
                if b.startswith("liemef.filters.") and any(part.startswith("_") for part in b.split(".")[2:])}
     assert private == set()
     calls = []
-    for layer in ("engines", "codegen", "smoothers"):
-        for path in (SRC / layer).rglob("*.py"):
+    for path in SRC.rglob("*.py"):
+        if path.relative_to(SRC).parts[0] != "filters":
             for node in ast.walk(ast.parse(path.read_text())):
                 if isinstance(node, ast.Attribute) and node.attr in PRIVATE_FILTER_METHODS:
                     calls.append(f"{path.relative_to(SRC)}:{node.lineno} .{node.attr}")
@@ -257,3 +257,22 @@ def _private_filter_methods() -> frozenset[str]:
 
 
 PRIVATE_FILTER_METHODS = _private_filter_methods()
+
+
+def test_the_root_gives_the_filters_the_engines(monkeypatch):
+    """The slot the filters call holds the engines the root gave (loaded once); an empty slot, or a provider
+    that is not callable, is an error that says so."""
+    import liemef
+    import liemef.engines
+    from liemef import _runner
+
+    assert _runner.engines() is liemef.engines is _runner.engines()
+    monkeypatch.setattr(_runner, "_PROVIDER", [])
+    monkeypatch.setattr(_runner, "_LOADED", [])
+    with pytest.raises(RuntimeError, match="no engines were given"):
+        _runner.engines()
+    with pytest.raises(ValueError, match="provider: expected a callable"):
+        _runner.provide("liemef.engines")
+    calls = []
+    _runner.provide(lambda: calls.append(1) or liemef.engines)
+    assert _runner.engines() is _runner.engines() is liemef.engines and calls == [1]

@@ -20,6 +20,11 @@ import importlib
 
 import jax
 
+INTERNALS = {"backends_started": ("xla_bridge", "backends_are_initialized"),
+             "eager_context": ("core", "eval_context"),
+             "dce_jaxpr": ("interpreters.partial_eval", "dce_jaxpr")}
+"""The one table of the internals: per function of this module, ``jax._src.<module>`` and the name it reads."""
+
 
 def _internal(module: str, name: str):
     """``jax._src.<module>.<name>``, or None where this JAX has no such thing."""
@@ -31,20 +36,20 @@ def _internal(module: str, name: str):
 
 def backends_started() -> bool:
     """Whether any XLA backend has started (then ``XLA_FLAGS`` is no longer read)."""
-    started = _internal("xla_bridge", "backends_are_initialized")
+    started = _internal(*INTERNALS["backends_started"])
     return bool(started()) if started is not None else False
 
 
 def eager_context():
     """A context in which JAX computes eagerly, also when asked from inside an outer trace."""
-    context = _internal("core", "eval_context")
+    context = _internal(*INTERNALS["eager_context"])
     return context() if context is not None else jax.ensure_compile_time_eval()
 
 
 def dce_jaxpr(closed):
     """``(closed, used)``: the closed jaxpr without the equations no output needs, every input kept (``used``:
     one flag per input, all True), by JAX's own pass; the jaxpr unchanged without it."""
-    dce = _internal("interpreters.partial_eval", "dce_jaxpr")
+    dce = _internal(*INTERNALS["dce_jaxpr"])
     try:
         jaxpr, used = dce(closed.jaxpr, [True] * len(closed.jaxpr.outvars), instantiate=True)
     except Exception:  # noqa: BLE001 - an internal API (None, or a new signature): the C compiler removes the code

@@ -4,7 +4,7 @@ Every command's help, arguments and options are declared once, as data, in :mod:
 choices from :mod:`liemef.studies.registry` and :mod:`liemef._names`), which loads without JAX, so ``liemef --help``
 answers at once and bad arguments are reported before JAX is imported; what a command prints after its work is
 its result's ``messages()`` (and ``error``, for exit status 1). The work is the
-library's: :meth:`~liemef.studies.experiments.Experiment.reproduce`, :func:`~liemef.studies.experiments.montecarlo`,
+library's: :func:`~liemef.studies.experiments.reproduce_experiment`, :func:`~liemef.studies.experiments.montecarlo`,
 :func:`liemef.studies.logs.filter_log_to`, :func:`liemef.codegen.export_c`, :func:`liemef.studies.datasets.convert`,
 the comparisons of :mod:`liemef.studies.compare` and :func:`liemef.studies.campaign.run_campaign`.
 

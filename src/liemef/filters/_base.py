@@ -251,12 +251,14 @@ class AbstractFilter(eqx.Module):
         dense = mask & jnp.isfinite(y1) & ~sample
         y0 = jnp.where(mask, y0, 0.0)
         y1 = jnp.where(dense, y1, y0)
-        Wy = self._adapted(information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal), y0)
+        Wy = self.adapted(information_in_force(self.weights.Wy, sample, mask, dt, diagonal=self.diagonal), y0)
         return IntervalSamples(u0, u1, u_ok, y0, y1, mask, Wy, is_gap)
 
-    def _adapted(self, Wy, y0):
+    def adapted(self, Wy, y0):
         """The information ``Wy`` for the sample ``y0`` (zeros where missing): for sensors marked ``adaptive``, a
-        heteroscedastic sensor's own noise, Sigma(y) = T^-1 Sigma T^-T, so W(y) = T^T W T; else ``Wy``."""
+        heteroscedastic sensor's own noise, Sigma(y) = T^-1 Sigma T^-T, so W(y) = T^T W T; else ``Wy``. Part of
+        :meth:`samples`; public for the layers that read a sample's information as the filter does (the
+        innovation monitor). Traceable."""
         if not any(b.adaptive for b in self.blocks):
             return Wy
         T = self.system.sample_transform(y0)
@@ -359,7 +361,7 @@ class AbstractFilter(eqx.Module):
         sample = jnp.asarray(self.sample, dtype=bool)
         mask = jnp.isfinite(y) & sample  # a density sensor has no per-sample information (update refuses it)
         y0 = jnp.where(mask, y, 0.0)
-        W = self._adapted(information_in_force(self.weights.Wy, sample, mask, 1.0, diagonal=self.diagonal), y0)
+        W = self.adapted(information_in_force(self.weights.Wy, sample, mask, 1.0, diagonal=self.diagonal), y0)
         prior = self._prior_output(state, t, y0)
         h0, HKH = prior[0], prior[1]
         nu = y0 - h0

@@ -313,9 +313,9 @@ class MinimumEnergyFilter(AbstractFilter):
         if self.updates == "discrete" and any(self.sample):
             # the samples' information, per sample, for the update at t; the density sensors' over the interval
             sample = jnp.asarray(self.sample, dtype=bool)
-            W_sample = self._adapted(
+            W_sample = self.adapted(
                 information_in_force(self.weights.Wy, sample, mask & sample, 1.0, diagonal=self.diagonal), y0)
-            Wy = self._adapted(
+            Wy = self.adapted(
                 information_in_force(self.weights.Wy, sample, mask & ~sample, dt, diagonal=self.diagonal), y0)
         if not self._screens_samples:
             return Wy, W_sample, st.rejected, st.consecutive
@@ -355,7 +355,7 @@ class MinimumEnergyFilter(AbstractFilter):
             # broken system, is a failure ("K not symmetric"), checked at each interval's start
             big = jnp.maximum(1.0, jnp.max(jnp.abs(tm.E)))
             skew = self.symmetric & (jnp.max(jnp.abs(tm.E - tm.E.T)) > SYMMETRY_TOL * big)
-            return (xi, self._riccati(tm, KK)), rate, skew
+            return (xi, self._riccati(tm, KK)), jnp.where(jnp.isfinite(rate), rate, 0.0), skew
         return f, field_and_rate
 
 

@@ -29,12 +29,11 @@ r"""Sub-step budget per unit of stiffness (docs/weights.md): $\|K E\| h$, $\|A\|
 
 def stiffness_rate(E, A, K, xi):
     r"""The stiffness rate $\rho = \max(\|E K\|/b_{KE}, \|A\|/b_A, \|\xi\|/b_\xi)$ (Frobenius norms, the budgets
-    :data:`KE_BUDGET`, ...), so that a step $h = 1/\rho$ keeps each product within its budget; 0 where not finite
-    (the health check then fails the interval). $\|K E\|$ is taken as $\|E K\|$: equal for a symmetric K and E,
-    and E K is the Riccati term's own product."""
+    :data:`KE_BUDGET`, ...), so that a step $h = 1/\rho$ keeps each product within its budget. Not finite where
+    the terms are not: the caller gives the controller 0 there (the health check then fails the interval).
+    $\|K E\|$ is taken as $\|E K\|$: equal for a symmetric K and E, and E K is the Riccati term's own product."""
     fro = lambda M: jnp.sqrt(jnp.sum(M * M))  # noqa: E731
-    rate = jnp.maximum(jnp.maximum(fro(mm(E, K)) / KE_BUDGET, fro(A) / A_BUDGET), jnp.linalg.norm(xi) / XI_BUDGET)
-    return jnp.where(jnp.isfinite(rate), rate, 0.0)
+    return jnp.maximum(jnp.maximum(fro(mm(E, K)) / KE_BUDGET, fro(A) / A_BUDGET), jnp.linalg.norm(xi) / XI_BUDGET)
 
 
 class AbstractSubsteps(eqx.Module):

@@ -79,7 +79,7 @@ def _nis_one(flt, g, K, t, dt, y, leak):
     y0 = jnp.where(mask, y, 0.0)
     sample = jnp.asarray(flt.sample, dtype=bool)
     # the information in force and the sample's own noise as the filter's gates read them (filters._base)
-    Wy = flt._adapted(information_in_force(flt.weights.Wy, sample, mask, dt, diagonal=flt.diagonal), y0)
+    Wy = flt.adapted(information_in_force(flt.weights.Wy, sample, mask, dt, diagonal=flt.diagonal), y0)
     # forward over forward (not jax.hessian's reverse inside): an output linear in the coordinates gets a leak of
     # exactly 0
     seen = lambda xi: system.output_seen_from(y0, g.rplus(xi), t)  # noqa: E731

@@ -203,7 +203,7 @@ class _AhrsFilter(eqx.Module):
     def init(self, g0: LieGroup, K0: ArrayLike | None = None) -> FilterState:
         """Initial state ``g_hat = g0`` (on TSO3: the initial gyro bias too). ``K0`` is checked for its shape and
         otherwise ignored: K is zeros (no covariance)."""
-        self._check_element("g0", g0)
+        self.check_element("g0", g0)
         n = self.n
         if K0 is not None:
             _validate.square("K0", K0, n)
@@ -215,7 +215,7 @@ class _AhrsFilter(eqx.Module):
         """Advance one sample interval ``[t, t + dt]`` with the gyro ``u`` (finite) and the sample ``y`` (NaN =
         missing). On a failure the returned state is the input state with a failed ``status``, and later steps
         leave it unchanged."""
-        self._check_state(state)
+        self.check_state(state)
         u = _validate.array("u", u, (3,))
         y = _validate.array("y", y, (self.system.output_dim,), missing=True)
         t, dt = check_time(t, dt)
@@ -244,8 +244,8 @@ class _AhrsFilter(eqx.Module):
         are NaN and ``final`` is the last good state (module docstring). State k + 1 has seen samples up to k;
         with ``broad_indexing`` it has seen sample k + 1 (the update of the interval ``[ts[k], ts[k+1]]`` takes
         the sample at its end)."""
-        self._check_state(state)
-        self._check_element("state.g_hat", state.g_hat)
+        self.check_state(state)
+        self.check_element("state.g_hat", state.g_hat)
         ts, us, ys, _ = check_log(self, ts, us, ys, gap=math.inf, keep_every=keep_every, missing_inputs=False)
         N = ts.shape[0]
         n, st = self.n, state.status
@@ -292,14 +292,17 @@ class _AhrsFilter(eqx.Module):
                           status=status, final=final)
 
     # --- checks -------------------------------------------------------------------------------------------
-    def _check_state(self, state):
+    def check_state(self, state):
+        """``state`` is a :class:`FilterState` of this filter's group (a ValueError naming ``state`` otherwise)."""
         if not isinstance(state, FilterState):
             raise ValueError(f"state: expected a FilterState (from init or step), got {type(state).__name__}")
         G = self.system.group
         if type(state.g_hat) is not G:
             raise ValueError(f"state: expected g_hat in {G.__name__}, got {type(state.g_hat).__name__}")
 
-    def _check_element(self, name, g):
+    def check_element(self, name, g):
+        """``g`` is a finite element of this filter's group with a non-zero quaternion (a ValueError naming
+        ``name`` otherwise)."""
         G = self.system.group
         check_element(G, name, g)
         q = np.asarray(g.factors[0].wxyz if G is TSO3 else g.wxyz)

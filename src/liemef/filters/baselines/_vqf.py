@@ -96,8 +96,8 @@ class _WholeLogFilter(_AhrsFilter):
         """Filter a whole log on a uniform clock (one sample time ``ts[1] - ts[0]``): ``us`` (N, 3) the gyro,
         ``ys`` (N, p). State k + 1 is the filter after sample k, state 0 the given state (module docstring); with
         ``broad_indexing`` state k is the filter after sample k."""
-        self._check_state(state)
-        self._check_element("state.g_hat", state.g_hat)
+        self.check_state(state)
+        self.check_element("state.g_hat", state.g_hat)
         ts = _validate.sorted_times("ts", ts)
         N = ts.shape[0]
         if N < 2:

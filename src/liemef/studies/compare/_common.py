@@ -28,19 +28,24 @@ _CONSTRUCTORS = {
     "ukf-right": (ukf_m, {"error": "right"}),
     "ukf-local": (ukf_m, {"error": "local"}),
 }
-FILTERS = {name: (description, *_CONSTRUCTORS[name]) for name, description in registry.FILTERS.items()}
+def _factory(constructor, own: dict):
+    def factory(system, **options):
+        return constructor(system, **{**own, **options})
+    return factory
+
+
+FILTERS = {name: (description, _factory(*_CONSTRUCTORS[name])) for name, description in registry.FILTERS.items()}
 """The one table of the comparisons' filters: per name a description (declared in
-:data:`liemef.studies.registry.FILTERS`), a constructor from a system and the options it takes them with. A study's
-own rows (``compare broad``'s ``mef-vel``, ...) are these filters on the study's system with more options
-(:func:`make_filter`)."""
+:data:`liemef.studies.registry.FILTERS`) and a factory ``factory(system, **options)``, the table's constructor
+with its own options under ``options``. A study's own rows (``compare broad``'s ``mef-vel``, ...) are these
+filters on the study's system with more options (:func:`make_filter`)."""
 
 
 def make_filter(name: str, system, **options) -> AbstractFilter:
     """The filter ``name`` (:data:`FILTERS`) on ``system``, with ``options`` over the table's own (e.g.
     ``updates="discrete"``)."""
     _validate.choice("filter", name, set(FILTERS))
-    _, constructor, own = FILTERS[name]
-    return constructor(system, **{**own, **options})
+    return FILTERS[name][1](system, **options)
 
 
 def parse_names(what: str, names: str | Sequence[str] | None, options, default: Sequence[str]) -> tuple[str, ...]:
