@@ -60,7 +60,8 @@ def test_dead_code_goes_and_every_input_stays():
     assert float(jax.core.eval_jaxpr(out.jaxpr, out.consts, 3.0, 5.0)[0]) == 6.0
 
 
-def test_eager_context_computes_concretely_inside_a_trace():
+def _computed_inside_a_trace():
+    """What ``jnp.ones(2) * 3`` is inside :func:`liemef._jax.eager_context` within a jitted function's trace."""
     seen = []
 
     @jax.jit
@@ -70,8 +71,13 @@ def test_eager_context_computes_concretely_inside_a_trace():
         return x
 
     f(1.0)
-    assert isinstance(seen[0], jax.Array) and not isinstance(seen[0], jax.core.Tracer)
-    np.testing.assert_array_equal(np.asarray(seen[0]), [3.0, 3.0])
+    return seen[0]
+
+
+def test_eager_context_computes_concretely_inside_a_trace():
+    value = _computed_inside_a_trace()
+    assert isinstance(value, jax.Array) and not isinstance(value, jax.core.Tracer)
+    np.testing.assert_array_equal(np.asarray(value), [3.0, 3.0])
 
 
 def test_backends_started_after_a_computation():
@@ -85,16 +91,9 @@ def test_each_fallback_works_without_its_internal(monkeypatch):
     out, used = adapter.dce_jaxpr(closed)
     assert out is closed and list(used) == [True, True]
     assert adapter.backends_started() is False
-    seen = []
-
-    @jax.jit
-    def f(x):
-        with adapter.eager_context():
-            seen.append(jnp.ones(2) * 3.0)
-        return x
-
-    f(1.0)
-    assert not isinstance(seen[0], jax.core.Tracer)
+    value = _computed_inside_a_trace()  # by the public ensure_compile_time_eval
+    assert not isinstance(value, jax.core.Tracer)
+    np.testing.assert_array_equal(np.asarray(value), [3.0, 3.0])
 
 
 def test_the_adapter_finds_what_it_needs():
