@@ -293,14 +293,21 @@ def test_a_killed_worker_changes_nothing(tmp_path, client):
     exp = experiment_of(None, c.experiment_source(), str(EXAMPLE))
     undisturbed = [montecarlo(exp, config_of(exp, False, s.overrides), runs=c.seeds, seed=c.seed,
                               batch_size=c.batch_size, progress=False) for s in c.points()]
-    killed = []
+    killed, done = [], []
 
     def kill_a_busy_worker(task, entry, cl):
-        busy = [addr for addr, keys in cl.processing().items() if keys]
-        if busy and not killed:
-            pids = cl.run(os.getpid, workers=busy[:1])
-            os.kill(pids[busy[0]], signal.SIGKILL)
-            killed.append(busy[0])
+        # the scheduler hands the next task to a worker shortly after a result comes (under load, later than the
+        # client reads it): wait for a busy worker, a few seconds at most, while tasks remain
+        deadline = time.monotonic() + 10.0
+        while not killed and time.monotonic() < deadline and len(done) + 1 < len(c.tasks()):
+            busy = [addr for addr, keys in cl.processing().items() if keys]
+            if busy:
+                pids = cl.run(os.getpid, workers=busy[:1])
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed.append(busy[0])
+            else:
+                time.sleep(0.05)
+        done.append(task.id)
 
     result = run_campaign(c, client=client, progress=False, on_task=kill_a_busy_worker)
     assert killed, "no worker was busy after a task: the fault was not injected"
