@@ -31,7 +31,6 @@ import jax
 import numpy as np
 from jax.extend import core as jcore
 
-from .._frames import eqn_frames
 from ._jaxpr_ops import ArrayElementwise, ArrayLinearAlgebra
 from ._primitives import (
     BINARY,
@@ -55,6 +54,7 @@ from ._primitives import (
     own_precision,
     refuse_choice,
     subjaxprs,
+    translating,
 )
 
 
@@ -192,14 +192,10 @@ class Translator(ArrayElementwise, ArrayLinearAlgebra):
                 and eqn.primitive.name != "custom_linear_solve"
             if leaf:
                 self.begin()
-            self.within.append(eqn)
             try:
-                outs = self.equation(eqn, ins)
-            except UnsupportedPrimitive as e:
-                e.frames.extend(eqn_frames(eqn))
-                raise
+                with translating(self.within, eqn):
+                    outs = self.equation(eqn, ins)
             finally:
-                self.within.pop()
                 if leaf:
                     self.end()
             for var, o in zip(eqn.outvars, outs, strict=True):

@@ -5,6 +5,7 @@ read them from here, so neither reaches into the other's private names."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 from dataclasses import dataclass
@@ -35,6 +36,21 @@ class UnsupportedPrimitive(NotImplementedError):
 
     def __reduce__(self):
         return (type(self), (self.message, self.frames))
+
+
+@contextlib.contextmanager
+def translating(within: list, eqn):
+    """Both translators' frame around one equation: ``eqn`` is on ``within`` (the equations being translated,
+    outermost first) while it is translated, and an :class:`UnsupportedPrimitive` raised inside gains its frames
+    as it rises, so that its text names the user's line."""
+    within.append(eqn)
+    try:
+        yield
+    except UnsupportedPrimitive as e:
+        e.frames.extend(eqn_frames(eqn))
+        raise
+    finally:
+        within.pop()
 
 
 

@@ -9,7 +9,6 @@ import struct
 import numpy as np
 from jax.extend import core as jcore
 
-from .._frames import eqn_frames
 from ._primitives import (
     BINARY,
     BOOL_BINARY,
@@ -28,6 +27,7 @@ from ._primitives import (
     np_eval,
     saturated,
     shift_left,
+    translating,
 )
 
 SCALAR_FOLD = {"neg", "add", "add_any", "sub", "mul", "div", "max", "min", "sin", "cos", "sqrt", "abs",
@@ -338,14 +338,8 @@ class ScalarNodes:
             env[var] = a
         for eqn in jaxpr.eqns:
             ins = [read(a) for a in eqn.invars]
-            self.within.append(eqn)
-            try:
+            with translating(self.within, eqn):
                 outs = self.equation(eqn, ins)
-            except UnsupportedPrimitive as e:
-                e.frames.extend(eqn_frames(eqn))
-                raise
-            finally:
-                self.within.pop()
             for var, o in zip(eqn.outvars, outs, strict=True):
                 env[var] = np.asarray(o, dtype=object).reshape(var.aval.shape)
             self._note_pred(eqn, ins, env)
