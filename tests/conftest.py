@@ -38,14 +38,19 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file's tests as written
 
 
-@pytest.fixture(autouse=True)
-def _no_background_optimized_builds(monkeypatch):
+@pytest.fixture(autouse=True, scope="session")
+def _no_background_optimized_builds():
     """No -O2 kernel build starts by the engine's rule (liemef.codegen._kernel.OPTIMIZE_AFTER_S: once a quick
     build has served 2 s of C calls) in the tests' own processes. A test's few runs of a large system reach that
     rule and start a build the test never uses (the -O2 build computes the quick build's bits,
     test_quick_and_optimized_builds_agree_bit_for_bit): up to 45 s of compiler CPU beside the tests for a
     9.6 MB kernel, on cores the other worker needs. ``Kernel.wait()`` and online filters still build it; the
-    tests of the rule itself (tests/test_engine.py) set the threshold they check; CLI subprocesses keep the rule."""
+    tests of the rule itself (tests/test_engine.py) set the threshold they check; CLI subprocesses keep the rule.
+    Session-scoped: pytest sets up fixtures of wider scope first, so a function-scoped patch came after every
+    module fixture, and those that run filters (the pinned figures, the tutorial, the second-order suite) started
+    the builds it is meant to stop (tests/test_fixtures.py checks that one sees the patch)."""
     from liemef.codegen import _kernel
 
-    monkeypatch.setattr(_kernel, "OPTIMIZE_AFTER_S", math.inf)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(_kernel, "OPTIMIZE_AFTER_S", math.inf)
+        yield
