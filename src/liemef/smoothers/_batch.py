@@ -278,17 +278,6 @@ def marginal_covariances(D, C):
     return jnp.concatenate([Sig, Sinv[-1:]])
 
 
-def _lm_step(system, integ, screens, prob, xs, mu):
-    """One damped Gauss-Newton step from ``xs``: the candidate, its cost, the cost at ``xs``, the largest
-    gradient component and the step's largest component."""
-    n = type(prob.g0).tangent_dim
-    D, C, gr, f = _linearize(system, integ, screens, prob, xs)
-    Dd = D + mu * jnp.einsum("kii->ki", D)[..., None] * jnp.eye(n)  # Marquardt's damping
-    delta = solve_tridiagonal(Dd, C, -gr)
-    cand = xs.rplus(delta)
-    return cand, _cost(system, integ, screens, prob, cand), f, jnp.max(jnp.abs(gr)), jnp.max(jnp.abs(delta))
-
-
 _RUNNING, _CODES = -1, {"converged": 0, "max-iterations": 1, "stalled": 2, "failed": 3}
 
 
@@ -296,20 +285,29 @@ _RUNNING, _CODES = -1, {"converged": 0, "max-iterations": 1, "stalled": 2, "fail
 def _solve(system, integ, screens, prob, xs, max_iterations, tol):
     """Levenberg-Marquardt from ``xs`` in one compiled loop (:func:`minimize`): the trajectory, the marginal
     covariances, the cost there and at ``xs``, the largest gradient component, the iterations and the status's
-    code (:data:`_CODES`)."""
+    code (:data:`_CODES`).
+
+    Each pass linearizes at the current trajectory; the pass after the last step only keeps that linearization
+    (for the covariances, the cost and the gradient) and takes no step. So the model's Jacobians are traced and
+    compiled once, in the loop's body: a second ``_linearize`` after the loop doubled the compile of a smoother's
+    first call."""
+    n = type(prob.g0).tangent_dim
+    M = prob.ts.shape[0]
 
     def cond(c):
-        return (c[3] == _RUNNING) & (c[2] < max_iterations)
+        return ~c[5]
 
-    def body(c):
-        xs, mu, it, _, f0 = c
-        cand, fc, f, _, step = _lm_step(system, integ, screens, prob, xs, mu)
+    def step(xs, mu, it, f0, D, C, gr, f):
+        Dd = D + mu * jnp.einsum("kii->ki", D)[..., None] * jnp.eye(n)  # Marquardt's damping
+        delta = solve_tridiagonal(Dd, C, -gr)
+        cand = xs.rplus(delta)
+        fc = _cost(system, integ, screens, prob, cand)
         f0 = jnp.where(it == 0, f, f0)
         failed = ~jnp.isfinite(f0)
         lower = jnp.isfinite(fc) & (fc <= f + ROUNDOFF * (1.0 + jnp.abs(f)))
         # a step below the tolerance: xs is the minimizer to it, whether or not the cost, at its round-off, can
         # tell the candidate from xs (a sum of stiff terms rounds far above eps |J|)
-        small = (step < tol) & (mu < _CONVERGED_DAMPING)
+        small = (jnp.max(jnp.abs(delta)) < tol) & (mu < _CONVERGED_DAMPING)
         mu1 = jnp.where(lower, mu / 10.0, jnp.maximum(10.0 * mu, 1e-8))
         status = jnp.where(failed, _CODES["failed"], jnp.where(small, _CODES["converged"], jnp.where(
             ~lower & (mu1 > _MAX_DAMPING), _CODES["stalled"], _RUNNING)))
@@ -317,10 +315,19 @@ def _solve(system, integ, screens, prob, xs, max_iterations, tol):
         xs = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), cand, xs)
         return xs, mu1, it + 1, status, f0
 
-    start = (xs, jnp.asarray(0.0), jnp.asarray(0), jnp.asarray(_RUNNING), jnp.asarray(jnp.nan))
-    xs, _, it, status, f0 = jax.lax.while_loop(cond, body, start)
+    def body(c):
+        xs, mu, it, status, f0, _, _ = c
+        lin = _linearize(system, integ, screens, prob, xs)
+        final = (status != _RUNNING) | (it >= max_iterations)
+        xs, mu, it, status, f0 = jax.lax.cond(final, lambda *a: (xs, mu, it, status, f0), step,
+                                              xs, mu, it, f0, *lin)
+        return xs, mu, it, status, f0, final, lin
+
+    lin0 = (jnp.zeros((M, n, n)), jnp.zeros((M - 1, n, n)), jnp.zeros((M, n)), jnp.asarray(0.0))
+    start = (xs, jnp.asarray(0.0), jnp.asarray(0), jnp.asarray(_RUNNING), jnp.asarray(jnp.nan), jnp.asarray(False),
+             lin0)
+    xs, _, it, status, f0, _, (D, C, gr, f) = jax.lax.while_loop(cond, body, start)
     status = jnp.where(status == _RUNNING, _CODES["max-iterations"], status)
-    D, C, gr, f = _linearize(system, integ, screens, prob, xs)
     return xs, marginal_covariances(D, C), f, f0, jnp.max(jnp.abs(gr)), it, status
 
 
