@@ -79,6 +79,10 @@ def whole_log(n: int, repeats: int) -> dict:
             "iterations": sm.iterations}
 
 
+MIN_WINDOWS = 20
+"""The fewest fixed-lag windows a lag is timed over (the first tenth, which compile, are not counted)."""
+
+
 def fixed_lag(lag: int, n: int) -> dict:
     flt, state, ts, us, ys = scenario(n)
     fl = liemef.smoothers.FixedLagSmoother(flt, state, lag)
@@ -151,10 +155,15 @@ def main() -> None:
         json.dump(one_long_log(a.one_long, a.chunk or None, a.overlap), sys.stdout)
         return
     lengths = [int(v) for v in a.lengths.split(",") if v]
+    lag_list = [int(v) for v in a.lags.split(",") if v]
+    short = [lag for lag in lag_list if a.lag_samples < lag + MIN_WINDOWS]
+    if short:  # no window, or too few to time after the first ones (which compile)
+        ap.error(f"--lag-samples: expected at least lag + {MIN_WINDOWS} samples for every lag of --lags (the "
+                 f"first window comes after lag + 1 samples), got {a.lag_samples} for lag(s) {short}")
     rows = [whole_log(n, a.repeats) for n in lengths]
     for r in rows:
         r["per_sample_over_shortest"] = r["smoother_us_per_sample"] / rows[0]["smoother_us_per_sample"]
-    lags = [fixed_lag(int(v), a.lag_samples) for v in a.lags.split(",") if v]
+    lags = [fixed_lag(lag, a.lag_samples) for lag in lag_list]
     long = long_logs([float(v) for v in a.minutes.split(",")], a.chunk, a.overlap) if a.minutes else []
     json.dump({"benchmark": "smoother", "source": source_version(), "machine": {
         "cpu": cpu_model(), "loadavg": os.getloadavg(), "python": sys.version.split()[0]},
