@@ -477,10 +477,41 @@ def test_a_short_log_whose_every_window_is_out_is_inconsistent():
     w = _verdict("s", 2, ts, outlier, 50, 0.999, None)
     assert w.fraction_out > 0.3 and not w.sustained
     assert _verdict("s", 2, ts, calm, 50, 0.999, None).longest is None
+    assert v.judged and w.judged and v.extent == pytest.approx(5.0)
     short = _verdict("s", 2, ts[:90], fault[:90], 50, 0.999, None)
     assert short.sustain == pytest.approx(7.5) and not short.sustained
+    assert not short.judged and short.extent == pytest.approx(4.0)  # its windows cannot hold 7.5 s
     given = _verdict("s", 2, ts, fault, 50, 0.999, 7.5)  # a sustain given is the user's rule, kept
-    assert given.sustain == 7.5 and not given.sustained
+    assert given.sustain == 7.5 and not given.sustained and not given.judged
+
+
+def test_a_log_shorter_than_two_windows_is_not_judged():
+    """800 samples at 100 Hz (the sensors from t = 0.01 s): their full windows of 500 samples end from t = 5 s to
+    7.99 s, 2.99 s apart, and an excursion must last 7.5 s. A gross outlier at t = 4 s sits in every window and
+    puts them all out of band; such a run was called consistent. Now no sensor is judged, and the run is not
+    applicable, saying why."""
+    ts, us, ys, _, g0 = simulate_attitude(0, duration=7.99)
+    ys = np.array(ys)
+    ys[400, :3] += 50.0
+    traj = GOOD.run(GOOD.init(g0, ATT_K0), ts, us, ys, engine="c")
+    r = innovation_monitor(GOOD, traj, ts, us, ys)
+    assert r.status == "not applicable" and "too short to judge" in r.message(), r.message()
+    assert [(s.windows, s.judged) for s in r.sensors] == [(300, False), (300, False)]
+    assert r.sensors[0].extent == pytest.approx(2.99) and r.sensors[0].fraction_out == 1.0
+    d = r.as_dict()["sensors"][0]
+    assert d["judged"] is False and d["windows_extent_s"] == pytest.approx(2.99)
+
+
+def test_a_consistent_run_names_the_sensors_it_could_not_judge():
+    from liemef.metrics import InnovationReport, SensorVerdict
+
+    acc = SensorVerdict("acc", 2, 3000, window=100, span=1.0, band=(0.8, 1.2), windows=2901, fraction_out=0.0,
+                        sustain=1.5, mean_nis=2.0, extent=29.0)
+    gps = SensorVerdict("gps", 2, 30, window=20, span=20.0, band=(0.5, 1.7), windows=11, fraction_out=0.8,
+                        sustain=30.0, mean_nis=9.0, extent=10.0)
+    msg = InnovationReport("consistent", (acc, gps)).message()
+    assert "acc: 100.0 % of 2901 windows" in msg and "gps: not judged, its windows span 10 s of the 30 s" in msg
+    assert "gps: 20.0 %" not in msg
 
 
 def test_a_covariate_sensor_is_not_judged():

@@ -44,7 +44,8 @@ SUSTAIN_WINDOWS = 1.5
 hold it out of band for one span, a burst of them for the burst's length more: with 1.5, a burst shorter than half a
 window is not enough, a fault that lasts is (for as long as half a window past its first window out). In a log too
 short for that, the time from its first window to its last, where those two share no sample: no single sample can
-put every window out, and a log whose every window is out says so."""
+put every window out, and a log whose every window is out says so. A log too short for two disjoint windows is not
+judged at all: a single sample could put every window out, and no run of windows could last the sustain time."""
 LEAK_LIMIT = 1.0
 r"""The default limit of a window's linearization leak $\sum \ell_k$ over a sensor's window: at 1, the samples of one
 window can, by their linearization at the estimate, give a direction they do not observe up to twice the information
@@ -256,6 +257,9 @@ class SensorVerdict:
     longest: tuple[float, float, str] | None = None
     sustain: float | None = None
     mean_nis: float | None = None
+    extent: float | None = None
+    """The time from the first full window to the last (s): an excursion can last at most this long (None: not
+    known, and the sensor is judged)."""
     leak_limit: float | None = None
     """The limit of a window's leak (None: the leak was not computed)."""
     leak_peak: float | None = None
@@ -272,6 +276,13 @@ class SensorVerdict:
         return self.longest is not None and self.longest[1] - self.longest[0] >= self.sustain
 
     @property
+    def judged(self) -> bool:
+        """Whether an excursion could have lasted the sustain time: the full windows span at least that long. A
+        sensor whose windows span less (its log too short for two disjoint windows, with the default sustain) is
+        not judged, neither consistent nor inconsistent."""
+        return self.windows > 0 and (self.extent is None or self.extent >= self.sustain)
+
+    @property
     def nonlinear(self) -> bool:
         """Whether the windows' leak stayed at or above its limit for at least the sustain time."""
         return self.leak_longest is not None and self.leak_longest[1] - self.leak_longest[0] >= self.sustain
@@ -285,7 +296,8 @@ class SensorVerdict:
                 "longest_excursion": None if self.longest is None else {
                     "start": self.longest[0], "end": self.longest[1], "side": self.longest[2],
                     "sustained": self.sustained},
-                "sustain_s": self.sustain, "inconsistent": self.sustained,
+                "sustain_s": self.sustain, "windows_extent_s": self.extent, "judged": self.judged,
+                "inconsistent": self.sustained,
                 "leak": None if self.leak_limit is None else {
                     "limit": self.leak_limit, "peak": self.leak_peak, "median": self.leak_median,
                     "longest": None if self.leak_longest is None else {
@@ -331,11 +343,13 @@ class InnovationReport:
         """One line: the status and, where inconsistent or nonlinear, which sensor, when and on which side."""
         if self.status == "not applicable":
             return f"Innovation monitor: not applicable ({self.reason})"
-        judged = [s for s in self.sensors if s.windows]
+        judged = [s for s in self.sensors if s.judged]
         if self.status == "consistent":
             return ("Innovation monitor: consistent (" + "; ".join(
-                f"{s.name}: {100 * (1 - s.fraction_out):.1f} % of {s.windows} windows of {s.window} samples in "
-                f"the {100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}]" for s in judged) + ")")
+                [f"{s.name}: {100 * (1 - s.fraction_out):.1f} % of {s.windows} windows of {s.window} samples in "
+                 f"the {100 * self.prob:g} % band [{s.band[0]:.3g}, {s.band[1]:.3g}]" for s in judged]
+                + [f"{s.name}: not judged, its windows span {s.extent:.3g} s of the {s.sustain:.3g} s an excursion "
+                   f"must last" for s in self.sensors if s.windows and not s.judged]) + ")")
         said = []
         for s in (s for s in judged if s.sustained):
             start, end, side = s.longest
@@ -421,7 +435,7 @@ def _verdict(name, dof, ts, q, window, prob, sustain, ell=None, limit=LEAK_LIMIT
                  "leak_longest": None if run is None else (float(tw[run[0]]), float(tw[run[1]]))}
     return SensorVerdict(name, dof, int(t.size), window=N, span=float(span), band=(lo, hi), windows=int(mean.size),
                          fraction_out=float(out.mean()), first_out=first, longest=longest, sustain=float(hold),
-                         mean_nis=float(q.mean()), **leaks)
+                         mean_nis=float(q.mean()), extent=float(tw[-1] - tw[0]), **leaks)
 
 
 def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: ArrayLike, *, window: int | None = None,
@@ -439,10 +453,13 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
     linearization leak (:func:`linearization_leak`) over the same windows stays at or above ``leak`` for the
     sustain time on some sensor, the status is "nonlinear": the innovations do not contradict K, but the
     output's curvature over K's spread can make K understate the errors along directions that sensor does not
-    observe, which no innovation shows (``leak=math.inf`` turns this off). Else "consistent". "not applicable" where
-    K is not a covariance (:func:`gain_is_covariance`) or no sensor has a full window. States that are NaN
-    after a failure are skipped (the run's status speaks for them), and so are the sensors whose output does not
-    depend on the state (:attr:`~liemef.systems.Sensor.covariate`: another sensor's covariates, no innovation).
+    observe, which no innovation shows (``leak=math.inf`` turns this off). Else "consistent". A sensor whose full
+    windows span less than its sustain time (a log with fewer than two disjoint windows of it, at the default
+    sustain) is not judged: no excursion could last long enough. "not applicable" where K is not a covariance
+    (:func:`gain_is_covariance`), no sensor has a full window, or none is judged (the reason says so). States
+    that are NaN after a failure are skipped (the run's status speaks for them), and so are the sensors whose output
+    does not depend on the state (:attr:`~liemef.systems.Sensor.covariate`: another sensor's covariates, no
+    innovation).
     Works on a run of either engine, with ``keep_every`` (only the samples with a state kept are judged), for
     every filter of the library. ValueError naming the argument for bad input."""
     if window is not None and not (isinstance(window, int | np.integer) and not isinstance(window, bool)
@@ -482,6 +499,11 @@ def innovation_monitor(flt, traj, ts: ArrayLike, us: ArrayLike | None, ys: Array
         return InnovationReport("not applicable", sensors, reason="no sensor has a full window of samples "
                                 f"({', '.join(f'{s.name} {s.samples}' for s in sensors)} present)", nis=nis,
                                 leaks=ell, t0=float(t[0]), **rules)
+    if not any(s.judged for s in sensors):
+        return InnovationReport("not applicable", sensors, reason="the log is too short to judge: no sensor's full "
+                                "windows span its sustain time (" + ", ".join(
+                                    f"{s.name}: {s.extent:.3g} s of {s.sustain:.3g} s" for s in sensors if s.windows)
+                                + ")", nis=nis, leaks=ell, t0=float(t[0]), **rules)
     status = ("inconsistent" if any(s.sustained for s in sensors) else
               "nonlinear" if any(s.nonlinear for s in sensors) else "consistent")
     return InnovationReport(status, sensors, nis=nis, leaks=ell, t0=float(t[0]), **rules)
