@@ -220,10 +220,11 @@ def test_nothing_below_the_engines_names_them():
     assert named == []
 
 
-@pytest.mark.parametrize("package", ["liemef.codegen", "liemef.engines"])
+@pytest.mark.parametrize("package", ["liemef.codegen", "liemef.engines", "liemef.smoothers"])
 def test_no_module_outside_a_package_imports_its_private_modules(package):
-    """The compiler and the engines are components: the rest of the package reads their public
-    names (``liemef.codegen``'s: :func:`~liemef.codegen.kernel_for`, ...), never a private module of theirs."""
+    """The compiler, the engines and the smoothers are components: the rest of the package reads their public
+    names (``liemef.codegen``'s: :func:`~liemef.codegen.kernel_for`, ...; the batch MAP of
+    ``liemef.studies.optimum``: :func:`~liemef.smoothers.solve`), never a private module of theirs."""
     graph = grimp.build_graph("liemef", exclude_type_checking_imports=True)
     depth = package.count(".") + 1
     private = {(a, b) for a in graph.modules if not a.startswith(package)

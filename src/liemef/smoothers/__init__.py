@@ -9,9 +9,10 @@ the last samples, for estimates delayed by that window. docs/smoothing.md states
 it was checked against.
 """
 
-from ._batch import FLOOR_STD, STATUSES, Smoothed
+from ._batch import FLOOR_STD, STATUSES, Smoothed, dead_reckoning, floor_eigenvalues, sample_information, solve
 from ._chunks import smooth, smooth_chunks
 from ._lag import FixedLagSmoother
 from ._offline import OfflineSmoother
 
-__all__ = ["smooth", "smooth_chunks", "Smoothed", "FixedLagSmoother", "OfflineSmoother", "STATUSES", "FLOOR_STD"]
+__all__ = ["smooth", "smooth_chunks", "Smoothed", "FixedLagSmoother", "OfflineSmoother", "STATUSES", "FLOOR_STD",
+           "solve", "dead_reckoning", "sample_information", "floor_eigenvalues"]

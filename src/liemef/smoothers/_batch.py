@@ -333,6 +333,10 @@ def _solve(system, integ, screens, prob, xs, max_iterations, tol):
 
 @eqx.filter_jit
 def dead_reckoning(system, integ, x0, ts, us):
+    """The trajectory from ``x0`` at ``ts[0]`` by the process model alone (``integ``'s step over each interval,
+    the input ``us[k]`` held over ``[ts[k], ts[k+1])``): batch (N,), ``x0`` first. A start for :func:`solve`
+    with no filter to run."""
+
     def body(g, x):
         t, u, dt = x
         nxt = _flow(system, integ, g, u, t, dt)
@@ -347,7 +351,7 @@ def _process_noise(system, BRB, xs, us, ts):
     return jax.vmap(lambda x, u, t: system.process_noise_at(x, BRB, u, t))(xs, us, ts)
 
 
-def floor(P, std: float) -> np.ndarray:
+def floor_eigenvalues(P, std: float) -> np.ndarray:
     """``P`` (symmetric, optional leading batch axes) with its eigenvalues raised to ``std**2``."""
     P = np.asarray(P, dtype=np.float64)
     lam, V = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
@@ -439,8 +443,8 @@ def problem(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, 
         Qd = np.asarray(BRB)[None] * dts[:, None, None]
     else:
         Qd = np.asarray(_process_noise(system, BRB, init[:-1], usj[:-1], tsj[:-1])) * dts[:, None, None]
-    Qinv = np.linalg.inv(floor(Qd, floor_std))
-    prob = Problem(g0=g0, P0inv=jnp.asarray(np.linalg.inv(floor(P0, floor_std))), ts=tsj, us=usj,
+    Qinv = np.linalg.inv(floor_eigenvalues(Qd, floor_std))
+    prob = Problem(g0=g0, P0inv=jnp.asarray(np.linalg.inv(floor_eigenvalues(P0, floor_std))), ts=tsj, us=usj,
                    ys=jnp.asarray(yz), present=jnp.asarray(present), dts=jnp.asarray(dts), Qinv=jnp.asarray(Qinv),
                    W=W)
     return prob, init
@@ -479,6 +483,29 @@ def minimize(system: AbstractSystem, integ: AbstractIntegrator, screens: tuple, 
                    "max-iterations": f"not converged: {it} iteration(s) taken, no step below {tol:g}",
                    "stalled": f"stalled after {it} iteration(s): no step lowered the cost"}[status]
     return g, P, f, f0, gn, it, status, message
+
+
+def solve(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, P0, init: LieGroup, *,
+          integ: AbstractIntegrator, screens: tuple = (), gap: float = math.inf, last_sample: bool = True,
+          floor_std: float = FLOOR_STD, max_iterations: int = 50, tol: float = 1e-9) -> Smoothed:
+    """The minimizer of the cost (module docstring) over one log, from the start ``init``: the one solve behind
+    :func:`~liemef.smoothers.smooth` (a whole log, or each window of ``chunk=``), the fixed-lag windows and
+    :func:`liemef.studies.optimum.batch_map`.
+
+    ``ts`` (N,), ``us`` (N, m) with missing inputs already held, ``ys`` (N, p) with NaN where missing; the prior
+    ``g0`` and its covariance ``P0`` (left error); ``init`` (batch (N,)) the start (a filter's run, or
+    :func:`dead_reckoning`); ``weights`` the system's (:class:`~liemef.filters.Weights`); ``integ`` the process
+    model's step; ``screens`` the gated or robust sensors as ``(start, stop, gate, robust, scale)`` (none: every
+    loss Gaussian); ``gap``: an interval longer than this holds no density sample; ``last_sample=False``: the
+    last row's samples do not enter; ``floor_std``: the floor of the prior's and the process noise's stds.
+    Returns the :class:`Smoothed` of the N states (a failure as a value: status ``"failed"``, NaN estimates and
+    covariances)."""
+    prob, xs = problem(system, weights, ts, us, ys, g0, P0, init=init, integ=integ, gap=gap,
+                       last_sample=last_sample, floor_std=floor_std)
+    g, P, f, f0, gn, it, status, message = minimize(system, integ, screens, prob, xs, ts.shape[0],
+                                                    max_iterations=max_iterations, tol=tol)
+    return Smoothed(ts=jnp.asarray(ts), g=g, P=P, cost=f, cost_init=f0, gradient_norm=gn, iterations=it,
+                    status=status, message=message)
 
 
 def _filled(system, integ, g: LieGroup, ts, us) -> LieGroup:
@@ -551,9 +578,6 @@ def smooth_whole(flt: AbstractFilter, state: FilterState, su: Setup, init: LieGr
     if init is None:
         init = flt.run(state, ts, su.us, su.ys, gap=su.gap).g_hat
     init = _filled(system, integ, init, ts, su.held)
-    prob, xs = problem(system, flt.weights, ts, su.held, su.ys, state.g_hat, su.P0, init=init,
-                       integ=integ, gap=su.gap, floor_std=su.floor_std)
-    g, P, f, f0, gn, it, status, message = minimize(system, integ, su.screens, prob, xs, ts.shape[0],
-                                                    max_iterations=su.max_iterations, tol=su.tol)
-    return Smoothed(ts=jnp.asarray(ts), g=g, P=P, cost=f, cost_init=f0, gradient_norm=gn, iterations=it,
-                    status=status, message=message)
+    return solve(system, flt.weights, ts, su.held, su.ys, state.g_hat, su.P0, init, integ=integ,
+                 screens=su.screens, gap=su.gap, floor_std=su.floor_std, max_iterations=su.max_iterations,
+                 tol=su.tol)

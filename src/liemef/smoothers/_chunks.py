@@ -184,15 +184,12 @@ def _pieces(flt, state, su: _batch.Setup, init, chunk: int, before: int, after: 
         else:
             start = init[s:e + 1]
         start = _batch._filled(system, integ, start, ts[w], held[w])
-        prob, xs = _batch.problem(system, flt.weights, ts[w], held[w], ys[w], prior.g_hat,
-                                  np.asarray(prior.K, dtype=np.float64), init=start, integ=integ, gap=su.gap,
-                                  floor_std=su.floor_std)
-        g, P, f, f0, gn, it, status, message = _batch.minimize(system, integ, su.screens, prob, xs, e - s + 1,
-                                                               max_iterations=su.max_iterations, tol=su.tol)
+        sm = _batch.solve(system, flt.weights, ts[w], held[w], ys[w], prior.g_hat,
+                          np.asarray(prior.K, dtype=np.float64), start, integ=integ, screens=su.screens, gap=su.gap,
+                          floor_std=su.floor_std, max_iterations=su.max_iterations, tol=su.tol)
         k = slice(a - s, b - s)
-        yield _Piece(a, b, Smoothed(ts=jnp.asarray(ts[a:b]), g=g[k], P=P[k], cost=f, cost_init=f0,
-                                    gradient_norm=gn, iterations=it, status=status, message=f"{where}: {message}"),
-                     start[k])
+        yield _Piece(a, b, dataclasses.replace(sm, ts=sm.ts[k], g=sm.g[k], P=sm.P[k],
+                                               message=f"{where}: {sm.message}"), start[k])
 
 
 @eqx.filter_jit

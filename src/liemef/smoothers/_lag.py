@@ -98,7 +98,6 @@ class FixedLagSmoother:
         us = np.stack([b[1] for b in self._buffer]) if system.input_dim else np.zeros((ts.size, 0))
         ys = np.stack([b[2] for b in self._buffer])
         us = _batch._held(us, np.asarray(first.u_last, dtype=np.float64))
-        N = ts.size
         if self._last is None:
             init = jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]),
                                           *[b[3].g_hat for b in self._buffer])
@@ -107,10 +106,8 @@ class FixedLagSmoother:
             step = _batch.dead_reckoning(system, self.integ, prev[-1], jnp.asarray(ts[-2:]), jnp.asarray(us[-2:]))
             init = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[1:], b[1:]]), prev, step)
         P0 = np.asarray(first.K, dtype=np.float64)
-        prob, xs = _batch.problem(system, flt.weights, ts, us, ys, first.g_hat, P0, init=init,
-                                  integ=self.integ, gap=self.gap, floor_std=self.floor_std)
-        g, P, f, f0, gn, it, status, message = _batch.minimize(system, self.integ, self.screens, prob, xs, N,
-                                                               max_iterations=self.max_iterations, tol=self.tol)
-        self._last = g if status != "failed" else None
-        return _batch.Smoothed(ts=jnp.asarray(ts), g=g, P=P, cost=f, cost_init=f0, gradient_norm=gn,
-                               iterations=it, status=status, message=message)
+        sm = _batch.solve(system, flt.weights, ts, us, ys, first.g_hat, P0, init, integ=self.integ,
+                          screens=self.screens, gap=self.gap, floor_std=self.floor_std,
+                          max_iterations=self.max_iterations, tol=self.tol)
+        self._last = sm.g if sm.status != "failed" else None
+        return sm

@@ -66,14 +66,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .. import _validate
+from .. import _validate, smoothers
 from ..filters import Weights
 from ..groups import R3, SE2, SO3, TSO3, LieGroup
 from ..integrators import LieEuler
-from ..smoothers import _batch as _smoothers
 from ..systems import AbstractSystem
 
-FLOOR_STD = _smoothers.FLOOR_STD
+FLOOR_STD = smoothers.FLOOR_STD
 """The smallest std of the prior and of the process noise per interval (:data:`liemef.smoothers.FLOOR_STD`)."""
 SOLVERS = ("isam2", "isam2-dogleg", "jax")
 """The solvers of :func:`map_estimates`: iSAM2 with Gauss-Newton or Powell's dogleg steps, or :func:`batch_map`
@@ -113,13 +112,13 @@ def _check_log(system: AbstractSystem, ts, us, ys, g0, P0, floor_std):
 
 def _weights(system: AbstractSystem, ts, ys, floor_std):
     """Per interval k < K: dt_k, Q_k (the process noise over dt_k, floored) and the measurement information W_k
-    (the smoother's, :func:`liemef.smoothers._batch.sample_information`, with the last row left out)."""
+    (the smoother's, :func:`liemef.smoothers.sample_information`, with the last row left out)."""
     weights = Weights.of(system)
     ys = np.array(ys, dtype=np.float64)
     ys[-1] = np.nan
-    _, _, W = _smoothers.sample_information(system, weights, ts, ys)
+    _, _, W = smoothers.sample_information(system, weights, ts, ys)
     dts = np.diff(ts)
-    Qd = _smoothers.floor(np.asarray(weights.BRB)[None] * dts[:, None, None], floor_std)
+    Qd = smoothers.floor_eigenvalues(np.asarray(weights.BRB)[None] * dts[:, None, None], floor_std)
     return dts, Qd, np.asarray(W[:-1])
 
 
@@ -186,13 +185,11 @@ def batch_map(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[Arra
                          f"{type(init).__name__} {getattr(init, 'batch_shape', None)}")
     integ = LieEuler()
     if init is None:
-        init = _smoothers.dead_reckoning(system, integ, g0, jnp.asarray(ts), jnp.asarray(us))
-    prob, xs = _smoothers.problem(system, Weights.of(system), ts, us, ys, g0, P0, init=init, integ=integ,
-                                  last_sample=False, floor_std=floor_std)
-    g, P, f, _, gn, it, status, _ = _smoothers.minimize(system, integ, (), prob, xs, N,
-                                                        max_iterations=max_iterations, tol=tol)
-    return BatchMAP(ts=jnp.asarray(ts), g=g, P_last=P[-1], cost=f, gradient_norm=gn, iterations=jnp.asarray(it),
-                    converged=jnp.asarray(status == "converged"))
+        init = smoothers.dead_reckoning(system, integ, g0, jnp.asarray(ts), jnp.asarray(us))
+    sm = smoothers.solve(system, Weights.of(system), ts, us, ys, g0, P0, init, integ=integ, last_sample=False,
+                         floor_std=floor_std, max_iterations=max_iterations, tol=tol)
+    return BatchMAP(ts=sm.ts, g=sm.g, P_last=sm.P[-1], cost=sm.cost, gradient_norm=sm.gradient_norm,
+                    iterations=jnp.asarray(sm.iterations), converged=jnp.asarray(sm.status == "converged"))
 
 
 # --- per-step MAP with GTSAM's iSAM2 --------------------------------------------------------------------------
@@ -497,7 +494,7 @@ def map_estimates(system: AbstractSystem, ts: Float[ArrayLike, " N"], us: Float[
         import gtsam
 
         _, Qd, W = _weights(system, ts, ys, floor_std)
-        P0f = _smoothers.floor(P0, floor_std)
+        P0f = smoothers.floor_eigenvalues(P0, floor_std)
         run = _localization if kind == "localization" else _attitude
         g, smoothed, updates = run(gtsam, system, ts, us, ys, g0, P0f, Qd, W, solver, thr, max_updates, every,
                                    progress)
