@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -15,26 +16,20 @@ from ...filters.baselines import ExtendedKalmanFilter, invariant_ekf, local_ekf,
 from ...metrics._stats import json_number
 from .. import registry
 
-_CONSTRUCTORS = {
-    "mef": (MinimumEnergyFilter, {"curvature": "exact", "error": "left"}),
-    "mef-safe": (MinimumEnergyFilter, {"curvature": "safe", "error": "left"}),
-    "mef-minus": (MinimumEnergyFilter, {"connection": "minus", "curvature": "exact", "error": "left"}),
-    "mef-plus": (MinimumEnergyFilter, {"connection": "plus", "curvature": "exact", "error": "left"}),
-    "mef-first": (MinimumEnergyFilter, {"order": "first", "error": "left"}),
-    "iekf": (invariant_ekf, {}),
-    "iekf-right": (ExtendedKalmanFilter, {"error": "right"}),
-    "ekf": (local_ekf, {}),
-    "ukf-left": (ukf_m, {}),
-    "ukf-right": (ukf_m, {"error": "right"}),
-    "ukf-local": (ukf_m, {"error": "local"}),
+_FACTORIES = {
+    "mef": partial(MinimumEnergyFilter, curvature="exact", error="left"),
+    "mef-safe": partial(MinimumEnergyFilter, curvature="safe", error="left"),
+    "mef-minus": partial(MinimumEnergyFilter, connection="minus", curvature="exact", error="left"),
+    "mef-plus": partial(MinimumEnergyFilter, connection="plus", curvature="exact", error="left"),
+    "mef-first": partial(MinimumEnergyFilter, order="first", error="left"),
+    "iekf": partial(invariant_ekf),
+    "iekf-right": partial(ExtendedKalmanFilter, error="right"),
+    "ekf": partial(local_ekf),
+    "ukf-left": partial(ukf_m),
+    "ukf-right": partial(ukf_m, error="right"),
+    "ukf-local": partial(ukf_m, error="local"),
 }
-def _factory(constructor, own: dict):
-    def factory(system, **options):
-        return constructor(system, **{**own, **options})
-    return factory
-
-
-FILTERS = {name: (description, _factory(*_CONSTRUCTORS[name])) for name, description in registry.FILTERS.items()}
+FILTERS = {name: (description, _FACTORIES[name]) for name, description in registry.FILTERS.items()}
 """The one table of the comparisons' filters: per name a description (declared in
 :data:`liemef.studies.registry.FILTERS`) and a factory ``factory(system, **options)``, the table's constructor
 with its own options under ``options``. A study's own rows (``compare broad``'s ``mef-vel``, ...) are these
