@@ -3,6 +3,7 @@ step, and logs of different lengths compile once per length bucket (``liemef.fil
 padding a log to its bucket and keeping every M-th state change nothing. These are the XLA engine's
 (``engine="xla"``); the C engine's kernel reuse is tests/test_engine.py's."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,8 +11,19 @@ import numpy as np
 import liemef
 from liemef.engines import bucket
 from liemef.filters import TRACES
-from liemef.groups import SE2, Rn
-from liemef.systems import Noise, Sensor, SensorSystem, planar_localization
+from liemef.groups import SE2, TSO3, Rn
+from liemef.systems import (
+    Noise,
+    Sensor,
+    SensorSystem,
+    attitude_field,
+    attitude_gyro_bias,
+    attitude_imu,
+    attitude_velocity,
+    inertial_navigation,
+    planar_localization,
+    ukfm_attitude,
+)
 from localization_scenario import K0, localization_log
 
 
@@ -128,3 +140,48 @@ def test_step_compiles_once_for_two_weight_sets():
     print("step traces for two weight sets:", TRACES["step"] - before)
     assert TRACES["step"] - before <= 1
     assert np.abs(states[0] - states[1]).max() > 1e-3
+
+
+def _structure(system):
+    """What every compiled program of a filter of ``system`` is keyed by: its static part and its leaves' tree."""
+    dyn, static = eqx.partition(liemef.MinimumEnergyFilter(system), eqx.is_array)
+    return jax.tree_util.tree_structure(dyn), static
+
+
+def test_a_recordings_constants_are_data():
+    """Dip, gravity, field norm, landmarks and time constants are array leaves of the ready systems: two
+    recordings' values are one structure (one XLA program, one C kernel), and they do change the outputs."""
+    pairs = [(attitude_gyro_bias(dip=1.1), attitude_gyro_bias(dip=1.2)),
+             (attitude_imu(dip=1.1, gravity=9.80, field=48.0), attitude_imu(dip=1.2, gravity=9.81, field=50.0)),
+             (attitude_velocity(dip=1.1, gravity=9.80, field=48.0),
+              attitude_velocity(dip=1.2, gravity=9.81, field=50.0)),
+             (attitude_field(dip=1.1, gravity=9.80, field=48.0, world_tau=2.0),
+              attitude_field(dip=1.2, gravity=9.81, field=50.0, world_tau=3.0)),
+             (inertial_navigation(landmarks=[[1.0, 2.0, 3.0]], mag_std=0.05, dip=1.1, gravity=9.80),
+              inertial_navigation(landmarks=[[4.0, 5.0, 6.0]], mag_std=0.05, dip=1.2, gravity=9.81)),
+             (ukfm_attitude(gravity=9.80, field=(0.3, 0.0, -0.9)), ukfm_attitude(gravity=9.82, field=(0.4, 0.1, -0.9)))]
+    for a, b in pairs:
+        assert _structure(a) == _structure(b)
+        g = a.group.exp(0.1 * jnp.arange(1.0, a.group.tangent_dim + 1.0))
+        assert np.abs(np.asarray(a.output(g, 0.0)) - np.asarray(b.output(g, 0.0))).max() > 1e-3
+    # the bounded-velocity dynamics read their gravity
+    a, b = pairs[2]
+    g, u = a.group.identity(), jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, 9.81])
+    np.testing.assert_allclose(np.asarray(b.dynamics(g, u, 0.0))[6:], 0.0, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(a.dynamics(g, u, 0.0))[6:], [0.0, 0.0, 0.01], atol=1e-12)
+
+
+def test_two_dips_compile_once():
+    """Two recordings' dips through the XLA engine: at most one trace of run, and different estimates."""
+    ts = 0.01 * np.arange(50)
+    us = 0.1 * np.ones((50, 3))
+    ys = np.tile([0.0, 0.1, 0.99, 0.0, 0.4, -0.9], (50, 1))
+    before = TRACES["run"]
+    finals = []
+    for dip in (1.1, 1.2):
+        flt = liemef.MinimumEnergyFilter(attitude_gyro_bias(dip=dip))
+        traj = flt.run(flt.init(TSO3.identity(), 0.1 * np.eye(6)), ts, us, ys, engine="xla")
+        assert traj.status.ok
+        finals.append(np.asarray(traj.coords()[-1]))
+    assert TRACES["run"] - before <= 1
+    assert np.abs(finals[0] - finals[1]).max() > 1e-4

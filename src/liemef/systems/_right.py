@@ -53,9 +53,8 @@ def _inverted_noise(h, BRB):
     return _congruence(h.inverse().Ad(), BRB)
 
 
-@dataclasses.dataclass(frozen=True)
-class _AtInverse:
-    """``fn(h^-1, t)``: a sensor's output at the inverted state (hashable: equal wrappers compile once)."""
+class _AtInverse(eqx.Module):
+    """``fn(h^-1, t)``: a sensor's output at the inverted state (``fn``'s array fields stay leaves)."""
 
     fn: Callable
 
@@ -63,8 +62,7 @@ class _AtInverse:
         return self.fn(h.inverse(), t)
 
 
-@dataclasses.dataclass(frozen=True)
-class _InverseDynamics:
+class _InverseDynamics(eqx.Module):
     """$h^{-1}\\dot h = -\\mathrm{Ad}_{h^{-1}}\\lambda(h^{-1}, u, t)$."""
 
     fn: Callable
@@ -253,7 +251,7 @@ def natural_error(system) -> str:
         return "left"
     # the verdict depends on the group and the output functions only: kept per (group, functions), as a new
     # weight set of the same system must not measure again
-    key = (system.group, tuple((s.name, s.fn, s.residual) for s in system.sensors))
+    key = (system.group, tuple((s.name, _hashable(s.fn), s.residual) for s in system.sensors))
     try:
         cached = _NATURAL.get(key)
     except TypeError:  # an output function that cannot be hashed: measured each time
@@ -266,6 +264,16 @@ def natural_error(system) -> str:
                 _NATURAL.pop(next(iter(_NATURAL)))
             _NATURAL[key] = cached
     return cached
+
+
+def _hashable(fn):
+    """A key of an output function: the function itself, or for a parameterized one (an ``eqx.Module`` with array
+    fields) its structure and its arrays' bytes (the verdict may depend on a direction's value)."""
+    arrays, rest = eqx.partition(fn, eqx.is_array)
+    leaves = jax.tree_util.tree_leaves(arrays)
+    if not leaves:
+        return fn
+    return rest, tuple((np.asarray(x).tobytes(), np.shape(x)) for x in leaves)
 
 
 _NATURAL: dict = {}

@@ -21,7 +21,6 @@ components and per sample for sample components; with the process noise ``g^-1 g
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from typing import Literal
@@ -92,16 +91,22 @@ class Noise(eqx.Module):
         return self.std / math.sqrt(self.rate)
 
 
-@dataclasses.dataclass(frozen=True)
-class ConstantOutput:
+def parameter(value) -> Array:
+    """A model's constant as a float64 array: the converter of the fields of a parameterized function (an
+    ``eqx.Module`` output map, noise model or dynamics), which makes them leaves (see :class:`Sensor`)."""
+    return jnp.asarray(value, dtype=jnp.float64)
+
+
+class ConstantOutput(eqx.Module):
     r"""$h(g) = c$: an output that does not depend on the state. Such a sensor is a *covariate*: its samples
     ride in the log for another sensor's noise model (``scale``), add nothing to the residual or to E, and carry
-    no innovation (:attr:`Sensor.covariate`); e.g. the norms of :func:`~liemef.systems.attitude_imu`."""
+    no innovation (:attr:`Sensor.covariate`); e.g. the norms of :func:`~liemef.systems.attitude_imu`. ``c`` is a
+    leaf."""
 
-    c: tuple[float, ...]
+    c: Float[Array, " k"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
-        return jnp.asarray(self.c)
+        return self.c
 
 
 class Sensor(eqx.Module):
@@ -109,7 +114,10 @@ class Sensor(eqx.Module):
 
     Args:
         name: the sensor's name (log columns are ``{name}_{component}``).
-        fn: the output map ``h(g, t)`` of this sensor, a pure JAX function returning shape (k,).
+        fn: the output map ``h(g, t)`` of this sensor, a pure JAX function returning shape (k,). A callable
+            ``eqx.Module`` is a *parameterized* map: its array fields (a direction, a field's norm, landmarks) are
+            leaves, so a new value is data, as a weight is (one compiled structure for every recording), and its
+            other fields are structure.
         noise: its :class:`Noise` (k stds, or one for all components).
         components: k component names (default ``0..k-1``); ``units`` k units.
         gate: a chi-square probability (e.g. 0.999): a sample whose innovation
@@ -123,7 +131,7 @@ class Sensor(eqx.Module):
             sensors' components, zeros where missing), the sensor's noise ``std`` and ``params``, returns a factor
             f in $(0, 1]$ on the sensor's information (its std becomes ``std / sqrt(f)``) or a k x k matrix T
             (its information becomes $T^\top W T$). A hashable object (e.g. a frozen dataclass), so that equal
-            models are one compiled structure.
+            models are one compiled structure, or a parameterized ``eqx.Module`` (as ``fn``).
         scale_params: the parameters of ``scale``, an array leaf (tuning them never recompiles).
         angles: the components that are angles (names or indices, or True for all): their residual is the
             difference wrapped into [-pi, pi) (a bearing reported in (-pi, pi] against a prediction that is not).
@@ -135,7 +143,7 @@ class Sensor(eqx.Module):
     """
 
     name: str = eqx.field(static=True)
-    fn: Callable = eqx.field(static=True)
+    fn: Callable
     noise: Noise
     components: tuple[str, ...] = eqx.field(static=True)
     units: tuple[str, ...] = eqx.field(static=True)
@@ -144,7 +152,7 @@ class Sensor(eqx.Module):
     robust_scale: float = eqx.field(static=True, default=2.0)
     max_rejections: int | None = eqx.field(static=True, default=None)
     weight_fn: Callable | None = eqx.field(static=True, default=None)
-    scale: Callable | None = eqx.field(static=True, default=None)
+    scale: Callable | None = None
     scale_params: Float[Array, " q"] | None = None
     residual: Callable | None = eqx.field(static=True, default=None)
 
@@ -258,7 +266,8 @@ class SensorSystem(AbstractSystem):
 
     Args:
         group: the Lie group of the state.
-        dynamics: ``lambda(g, u, t)``, a pure JAX function returning an n-vector.
+        dynamics: ``lambda(g, u, t)``, a pure JAX function returning an n-vector (a callable ``eqx.Module``
+            has its array fields as leaves, as a :class:`Sensor`'s ``fn``).
         sensors: the sensors, in log-column order.
         process_noise: :class:`Noise` with d stds (algebra units per second, e.g. rad/s, m/s) of the model error
             $B\delta$; a sample std needs its ``rate``.
@@ -273,7 +282,7 @@ class SensorSystem(AbstractSystem):
     """
 
     group_type: type[LieGroup] = eqx.field(static=True)
-    dynamics_fn: Callable = eqx.field(static=True)
+    dynamics_fn: Callable
     sensors: tuple[Sensor, ...]
     process_noise: Noise
     noise_map: Float[Array, "n d"] = eqx.field(converter=matrix)

@@ -18,9 +18,9 @@ Sensors (unitless directions in the body frame, each a 3-vector of norm 1):
 The default noise levels are a MEMS IMU's at the BROAD rate (285.714 Hz), each a std per sample at ``imu_rate``
 (a density is std / sqrt(rate)) or a density where named so; the direction stds are above the sensors' own noise,
 because their errors in motion (linear acceleration, magnetic disturbances) are not white, and set the filter's
-correction bandwidth, the role of Madgwick's beta or Mahony's Kp (docs/imu.md). The magnetic dip is a static
-parameter (a sensor's output map is structure): a new dip compiles the filter anew; new noise levels do not
-(:meth:`~liemef.systems.SensorSystem.with_noise`). Each sensor may have a gate, a robust loss and
+correction bandwidth, the role of Madgwick's beta or Mahony's Kp (docs/imu.md). The magnetic dip and the noise
+levels are array leaves (:class:`BodyDirection`, :meth:`~liemef.systems.SensorSystem.with_noise`): a new dip, a
+recording's, never compiles the filter anew. Each sensor may have a gate, a robust loss and
 ``max_rejections`` (:class:`~liemef.systems.Sensor`).
 
 Fast rotation: a ``Noise.sample`` direction is held over the interval that follows it, against an estimate that
@@ -37,17 +37,17 @@ frame, then the bias error in rad/s (:data:`K0_GYRO_BIAS` from a TRIAD estimate 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, TSO3
-from ._sensors import Noise, Sensor, SensorSystem
+from ._sensors import Noise, Sensor, SensorSystem, parameter
 from .imu_rest import _unit_rows, triad
 
 IMU_RATE = 285.714
@@ -77,16 +77,15 @@ def gyro_bias_dynamics(g, u, t):
     return jnp.concatenate([u - b, jnp.zeros(3)])
 
 
-@dataclass(frozen=True)
-class BodyDirection:
-    r"""$h(g) = R^\top v$: the fixed world direction ``v`` (a tuple, so that equal directions are one compiled
-    structure) seen in the body frame."""
+class BodyDirection(eqx.Module):
+    r"""$h(g) = R^\top v$: the fixed world direction ``v`` seen in the body frame. ``v`` is a leaf: every
+    direction (a recording's dip) is one compiled structure."""
 
-    v: tuple[float, float, float]
+    v: Float[Array, "3"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
         R = g.factors[0].as_matrix()
-        return mv(jnp.swapaxes(R, -1, -2), jnp.asarray(self.v))
+        return mv(jnp.swapaxes(R, -1, -2), self.v)
 
 
 def magnetic_reference(dip: float) -> tuple[float, float, float]:

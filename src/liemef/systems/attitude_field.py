@@ -50,16 +50,15 @@ $\mu^\top B R^{-1} B^\top\mu$, whose derivatives in $g$ vanish with the costate 
 evaluate it at their estimate (:meth:`~liemef.systems.AbstractSystem.process_noise_at`), exactly.
 
 The log is :func:`imu_field_log`'s: ``us`` = (gyro, accelerometer) (N, 6), ``ys`` = (accelerometer direction,
-magnetometer in uT, zero velocity) (N, 9). The undisturbed field's norm $B$ and dip $\delta$ and gravity are
-structure: measure them over the log's initial rest (:func:`~liemef.systems.imu_rest.rest_constants`).
-The noise levels, $q_w$, $q_c$, $k_w$, $k_c$ and $e_0$ are array leaves: a new set never recompiles; $\tau_w$ and
-$\tau_c$ are structure.
+magnetometer in uT, zero velocity) (N, 9). Measure the undisturbed field's norm $B$ and dip $\delta$ and gravity
+over the log's initial rest (:func:`~liemef.systems.imu_rest.rest_constants`). They, the noise levels, $q_w$,
+$q_c$, $k_w$, $k_c$, $e_0$, $\tau_w$ and $\tau_c$ are array leaves: a new set never recompiles.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -69,7 +68,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, Product
-from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
+from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem, parameter
 from .attitude_bias import DIP, E_UP, IMU_RATE, magnetic_reference
 from .bounded_velocity import ACC_DENSITY, VELOCITY_GYRO_STD, VELOCITY_STD, imu_velocity_log
 from .imu_noise import FIELD, GRAVITY, IMU_BIAS_WALK
@@ -114,33 +113,32 @@ by degrees indoors (1 deg is 0.75 uT at 43 uT)."""
 NORM_STD = 5.0
 """Default extra std (uT) of a magnetometer sample along its norm (:class:`FieldNoise`)."""
 
-@dataclass(frozen=True)
-class FieldDynamics:
-    r"""$\lambda = (u_\omega - b,\ 0,\ R u_a - g\,e_{up},\ -w/\tau_w,\ -c/\tau_c)$."""
+class FieldDynamics(eqx.Module):
+    r"""$\lambda = (u_\omega - b,\ 0,\ R u_a - g\,e_{up},\ -w/\tau_w,\ -c/\tau_c)$; every constant a leaf."""
 
-    gravity: float
-    tau_w: float
-    tau_c: float
+    gravity: Float[Array, ""] = eqx.field(converter=parameter)
+    tau_w: Float[Array, ""] = eqx.field(converter=parameter)
+    tau_c: Float[Array, ""] = eqx.field(converter=parameter)
 
     def __call__(self, g, u, t):
         R = g.factors[0].as_matrix()
         b, w, c = g.factors[1].x, g.factors[3].x, g.factors[4].x
-        return jnp.concatenate([u[:3] - b, jnp.zeros(3), mv(R, u[3:6]) - jnp.asarray((0.0, 0.0, self.gravity)),
-                                -w / self.tau_w, -c / self.tau_c])
+        f = mv(R, u[3:6])
+        return jnp.concatenate([u[:3] - b, jnp.zeros(3), f[:2], f[2:] - self.gravity, -w / self.tau_w,
+                                -c / self.tau_c])
 
 
-@dataclass(frozen=True)
-class DisturbedField:
-    r"""$h = R^\top(B\,m_{ref} + w) + c$ (uT), ``field`` the undisturbed $B\,m_{ref}$ in ENU."""
+class DisturbedField(eqx.Module):
+    r"""$h = R^\top(B\,m_{ref} + w) + c$ (uT), ``field`` the undisturbed $B\,m_{ref}$ in ENU (a leaf)."""
 
-    field: tuple[float, float, float]
+    field: Float[Array, "3"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
         R = g.factors[0].as_matrix()
-        return mv(jnp.swapaxes(R, -1, -2), jnp.asarray(self.field) + g.factors[3].x) + g.factors[4].x
+        return mv(jnp.swapaxes(R, -1, -2), self.field + g.factors[3].x) + g.factors[4].x
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class FieldNoise:
     r"""The magnetometer's noise given the sample: heading first. A field sample $m$ (uT) with the accelerometer's
     up direction $\bar u$ in the same row has three directions: $t_1 = \bar u\times\bar m/|\cdot|$, along which
@@ -176,25 +174,25 @@ class FieldSystem(SensorSystem):
     r"""A :class:`~liemef.systems.SensorSystem` on :data:`FieldGroup` whose disturbances' process noise grows
     with the part of the disturbance no attitude explains (:meth:`process_noise_at`). ``gains`` = $(k_w, k_c,
     e_0)$ (1/sqrt(s), 1/sqrt(s), uT), array leaves (:meth:`with_gains`); ``reference`` = $B\,m_{ref}$ (uT, ENU),
-    structure."""
+    a leaf."""
 
     gains: Float[Array, "3"]
-    reference: tuple[float, float, float] = eqx.field(static=True)
+    reference: Float[Array, "3"]
 
     def __init__(self, base: SensorSystem, gains, reference):
         super().__init__(base.group, base.dynamics_fn, base.sensors, base.process_noise, base.noise_map,
                          inputs=base.inputs, input_units=base.input_units, state_names=base.coord_names,
                          state_units=base.coord_units)
         self.gains = jnp.asarray(gains, dtype=float)
-        self.reference = tuple(float(x) for x in reference)
+        self.reference = parameter(reference)
 
     def process_noise_at(self, g, BRB, u, t):
         r"""$B R^{-1} B^\top$ with the world block's variance plus $k_w^2 e^2 x/(1 + x)$ and the body block's plus
         $k_c^2 e^2 x/(1 + x)$, $x = (e/e_0)^4$: $e$ the disturbance's heading-invariant size, the norm and the
         vertical part of the estimated field's departure from the reference (module docstring)."""
         R = g.factors[0].as_matrix()
-        f = jnp.asarray(self.reference) + g.factors[3].x + mv(R, g.factors[4].x)
-        B = jnp.sqrt(jnp.asarray(self.reference) @ jnp.asarray(self.reference))
+        f = self.reference + g.factors[3].x + mv(R, g.factors[4].x)
+        B = jnp.sqrt(self.reference @ self.reference)
         e2 = (jnp.sqrt(f @ f) - B) ** 2 + (f[2] - self.reference[2]) ** 2
         x2 = (e2 / self.gains[2] ** 2) ** 2
         e2 = e2 * x2 / (1.0 + x2)
@@ -224,9 +222,9 @@ def attitude_field(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE
         imu_rate: the IMU rate (Hz) the gyro std refers to.
         bias_walk: the gyro bias random walk density (rad/s/sqrt(s)).
         field_std: the std of one magnetometer sample (uT; one value or 3).
-        dip: the undisturbed field's dip (rad, positive down): structure.
-        gravity: $g$ (m/s^2), the accelerometer's norm at rest: structure.
-        field: $B$ (uT), the undisturbed field's norm: structure.
+        dip: the undisturbed field's dip (rad, positive down).
+        gravity: $g$ (m/s^2), the accelerometer's norm at rest.
+        field: $B$ (uT), the undisturbed field's norm.
         acc_density: the accelerometer's noise density (m/s^2/sqrt(Hz)).
         velocity_std: the zero-velocity pseudo measurement's density (m/s sqrt(s)).
         world_density: $q_w$ (uT/sqrt(s); one value, or east, north and up), the world disturbance's process
@@ -234,7 +232,7 @@ def attitude_field(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_RATE
         body_density: $q_c$ (uT/sqrt(s)), the body disturbance's.
         world_gain, body_gain: $k_w$, $k_c$ (1/sqrt(s), >= 0), their growth with the disturbance $e$.
         disturbance: $e_0$ (uT), the size of $e$ from which the growth sets in.
-        world_tau, body_tau: $\tau_w$, $\tau_c$ (s), their relaxation times: structure.
+        world_tau, body_tau: $\tau_w$, $\tau_c$ (s), their relaxation times.
         dip_std, norm_std: the magnetometer's extra stds (uT) along its dip and its norm (:class:`FieldNoise`),
             leaves (``with_scale_params(mag=...)``).
 

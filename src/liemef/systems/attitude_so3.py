@@ -21,8 +21,8 @@ Sensors (body frame; each sample carries its information once, ``Noise.sample``)
 Default noise levels are those of ukfm's benchmark, per sample at ``IMU_RATE`` = 100 Hz: gyro ``GYRO_STD`` = 5 deg/s
 = 0.0873 rad/s (a density of 0.00873 rad/s/sqrt(Hz), 0.5 deg/s/sqrt(Hz)), accelerometer ``ACC_STD`` = 0.4 m/s^2 and
 magnetometer ``MAG_STD`` = 0.3 per component (ukfm's tutorial example uses 0.2 for the magnetometer). Gravity
-``GRAVITY`` = 9.82 m/s^2 and the field ``FIELD`` are ukfm's too; they are part of the model's structure (a new
-value compiles the filter anew), the noise levels are not (:meth:`~liemef.systems.SensorSystem.with_noise`).
+``GRAVITY`` = 9.82 m/s^2 and the field ``FIELD`` are ukfm's too. They and the noise levels are array leaves
+(:meth:`~liemef.systems.SensorSystem.with_noise`): a new value never compiles the filter anew.
 
 K0 guidance: K is the covariance of the left error $\xi$ with $C = \hat C \exp\xi$, three small rotation angles
 about the body axes (rad). ukfm's benchmark starts with 10 deg per axis: ``K0 = (0.1745 rad)^2 I3``. From a first
@@ -34,16 +34,16 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mv
 from ..groups import SO3
-from ._sensors import Noise, Sensor, SensorSystem
+from ._sensors import Noise, Sensor, SensorSystem, parameter
 from .imu_rest import triad
 
 IMU_RATE = 100.0
@@ -69,15 +69,14 @@ def gyro_dynamics(g, u, t):
     return u
 
 
-@dataclass(frozen=True)
-class BodyVector:
-    r"""$h(C) = C^\top v$: the fixed world vector ``v`` (a tuple, so that equal vectors are one compiled structure)
-    seen in the body frame of a plain SO(3) state."""
+class BodyVector(eqx.Module):
+    r"""$h(C) = C^\top v$: the fixed world vector ``v`` (a leaf: every vector is one compiled structure) seen in
+    the body frame of a plain SO(3) state."""
 
-    v: tuple[float, float, float]
+    v: Float[Array, "3"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
-        return mv(jnp.swapaxes(g.as_matrix(), -1, -2), jnp.asarray(self.v))
+        return mv(jnp.swapaxes(g.as_matrix(), -1, -2), self.v)
 
 
 def _vector(name: str, value) -> tuple[float, float, float]:

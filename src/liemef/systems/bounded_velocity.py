@@ -7,18 +7,18 @@ sensor, with a zero-velocity pseudo-measurement that bounds the velocity of a ha
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, TSO3, Product
 from ._gyro_scale import GyroScaleSystem
-from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
+from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem, parameter
 from .attitude_bias import (
     DIP,
     E_UP,
@@ -66,18 +66,18 @@ VELOCITY_STATE_UNITS = STATE_UNITS + ("m/s",) * 3
 VELOCITY_INPUT_NAMES = INPUT_NAMES + ("force_x", "force_y", "force_z")
 
 
-@dataclass(frozen=True)
-class VelocityDynamics:
+class VelocityDynamics(eqx.Module):
     r"""$\lambda(g, u) = (u_\omega - b,\ 0,\ R u_a - g\,e_{up})$ on SO(3) x R^3 x R^3: the attitude turns with
     the gyro less its bias, the bias is constant, the world velocity integrates the specific force rotated to the
     world less gravity ``gravity`` (m/s^2)."""
 
-    gravity: float
+    gravity: Float[Array, ""] = eqx.field(converter=parameter)
 
     def __call__(self, g, u, t):
         R = g.factors[0].as_matrix()
         b = g.factors[1].x
-        return jnp.concatenate([u[:3] - b, jnp.zeros(3), mv(R, u[3:6]) - jnp.asarray((0.0, 0.0, self.gravity))])
+        f = mv(R, u[3:6])
+        return jnp.concatenate([u[:3] - b, jnp.zeros(3), f[:2], f[2:] - self.gravity])
 
 
 def _velocity(g, t):
@@ -114,9 +114,9 @@ def attitude_velocity(gyro_std=VELOCITY_GYRO_STD, imu_rate: float | None = IMU_R
         imu_rate: the IMU rate (Hz) the gyro std refers to (None: ``gyro_std`` is a density).
         bias_walk: the gyro bias random walk density (rad/s/sqrt(s)).
         mag_std: the magnetometer direction's std per sample (unitless); default :data:`VELOCITY_MAG_STD`.
-        dip: the magnetic dip (rad): structure.
-        gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`): structure.
-        field: $B$ (uT), the undisturbed field's norm: structure.
+        dip: the magnetic dip (rad): a leaf, as every constant here.
+        gravity: $g$ (m/s^2), the accelerometer's norm at rest (:func:`rest_norms`).
+        field: $B$ (uT), the undisturbed field's norm.
         acc_density: the accelerometer's noise density (m/s^2/sqrt(Hz); one value or 3).
         velocity_std: the zero-velocity pseudo measurement's density (m/s sqrt(s); one value or 3).
         mag_adapt: $c_m \ge 0$ of :class:`MagneticNoise`, as :func:`attitude_imu`'s.

@@ -4,21 +4,23 @@ noise: :func:`attitude_imu`, the heteroscedastic extension of :func:`~liemef.sys
 A sample's own norm says how far it is from the model: the accelerometer's noise grows with its norm's distance
 from gravity (linear acceleration, :class:`AccelerationNoise`), the magnetometer's with its norm's and dip's
 distance from the field's (disturbances, :class:`MagneticNoise`), and a ``norm`` sensor carries the raw norms.
-Gravity, field and dip are structure, measured at rest from the samples alone
-(:func:`~liemef.systems.imu_rest.rest_constants`).
+Gravity, field and dip are measured at rest from the samples alone
+(:func:`~liemef.systems.imu_rest.rest_constants`); they are array leaves, so a recording's values never compile
+the filter anew.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Literal
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ..groups import TSO3
-from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem
+from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem, parameter
 from .attitude_bias import (
     ACC_STD,
     DIP,
@@ -58,8 +60,7 @@ NORM_STD = (0.1, 1.0)
 BROAD's (0.03 m/s^2, 0.3 uT). They do not depend on the attitude, so they move neither the estimate nor K."""
 
 
-@dataclass(frozen=True)
-class AccelerationNoise:
+class AccelerationNoise(eqx.Module):
     r"""The accelerometer direction's noise given the sample. A linear acceleration $a_{lin}$ (world frame)
     tilts the measured direction and changes the norm: with $e = (|a| - g)/g$,
 
@@ -81,8 +82,8 @@ class AccelerationNoise:
     ``norm`` sensor of :func:`attitude_imu`).
     """
 
-    norm: int
-    gravity: float
+    norm: int = eqx.field(static=True)
+    gravity: Float[Array, ""] = eqx.field(converter=parameter)
 
     def __call__(self, std, params, y):
         e = (y[self.norm] - self.gravity) / self.gravity
@@ -90,8 +91,7 @@ class AccelerationNoise:
         return s2 / (s2 + params[0] ** 2 * e * e / (jnp.abs(e) + params[1]))
 
 
-@dataclass(frozen=True)
-class MagneticNoise:
+class MagneticNoise(eqx.Module):
     r"""The magnetometer direction's noise given the sample: anisotropic (the field's dip is local), and larger
     when the field is disturbed.
 
@@ -116,16 +116,16 @@ class MagneticNoise:
     the transform $T$ with $T^\top T = \sigma_m^2 \Sigma(y)^{-1}$.
     """
 
-    acc: int
-    mag: int
-    norm: int
-    field: float
-    dip: float
+    acc: int = eqx.field(static=True)
+    mag: int = eqx.field(static=True)
+    norm: int = eqx.field(static=True)
+    field: Float[Array, ""] = eqx.field(converter=parameter)
+    dip: Float[Array, ""] = eqx.field(converter=parameter)
 
     def __call__(self, std, params, y):
         a, m = y[self.acc:self.acc + 3], y[self.mag:self.mag + 3]
         e_norm = (y[self.norm] - self.field) / self.field
-        e_dip = (-(a @ m) - math.sin(self.dip)) / math.cos(self.dip)
+        e_dip = (-(a @ m) - jnp.sin(self.dip)) / jnp.cos(self.dip)
         s2 = std[0] ** 2
         f = s2 / (s2 + params[0] ** 2 * (e_norm ** 2 + e_dip ** 2))
         t1 = jnp.cross(a, m)
@@ -164,9 +164,8 @@ def attitude_imu(gyro_std=GYRO_STD, imu_rate: float | None = IMU_RATE, bias_walk
         dip_std: $\sigma_{dip} \ge 0$ (rad), the magnetometer's extra std along the dip.
         norm_std: the norms' per-sample stds (2 values).
 
-    ``gravity``, ``field`` and ``dip`` are structure (a new value compiles anew); the stds and $c_a$, $c_m$
-    are leaves (:meth:`~liemef.systems.SensorSystem.with_noise`,
-    :meth:`~liemef.systems.SensorSystem.with_scale_params`).
+    ``gravity``, ``field`` and ``dip``, the stds and $c_a$, $c_m$ are leaves: a new value never compiles anew
+    (:meth:`~liemef.systems.SensorSystem.with_noise`, :meth:`~liemef.systems.SensorSystem.with_scale_params`).
     """
     for name, v in (("gravity", gravity), ("field", field)):
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):

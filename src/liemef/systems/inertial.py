@@ -46,9 +46,10 @@ m/s^2/sqrt(s) (densities; a MEMS IMU's biases drift by about 0.05 deg/s and 0.00
 ``GNSS_STD`` = 1 m per axis; a landmark ``LANDMARK_STD`` = 0.1 m per axis (ukfm's); a magnetometer sample
 ``MAG_STD`` = 0.05 (unitless, as in :func:`~liemef.systems.attitude_gyro_bias`); a barometer sample
 ``BARO_STD`` = 0.5 m. A consumer MEMS IMU at 100-400 Hz is noisier: gyro about 0.003-0.01 rad/s and
-accelerometer 0.02-0.1 m/s^2 per sample. Gravity ``GRAVITY`` = 9.81 m/s^2 (ukfm uses 9.82); gravity, the
-landmarks and the dip are part of the model's structure: a new value compiles the filter anew, new noise levels
-do not (:meth:`~liemef.systems.SensorSystem.with_noise`).
+accelerometer 0.02-0.1 m/s^2 per sample. Gravity ``GRAVITY`` = 9.81 m/s^2 (ukfm uses 9.82). Gravity, the
+landmarks, the field's direction and the noise levels are array leaves (data): a new value never compiles the
+filter anew (:meth:`~liemef.systems.SensorSystem.with_noise`); which sensors there are, and which biases and
+calibration errors the state holds, are structure.
 
 K0 guidance: K is the covariance of the left error $\xi$ with $g = \hat g \exp\xi$, in the body frame:
 rotation (rad), then velocity and position (m/s, m, for small errors $\hat R^\top(v - \hat v)$ and
@@ -62,16 +63,17 @@ attitude varies; a magnetometer or landmarks make the attitude observable at res
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from .. import _validate
 from .._linalg import mv, solve3
 from ..groups import SE23, Product, Rn
 from ._gyro_scale import GyroScaleSystem
-from ._sensors import Noise, Sensor, SensorSystem
+from ._sensors import Noise, Sensor, SensorSystem, parameter
 from .attitude_bias import DIP, magnetic_reference
 
 IMU_RATE = 100.0
@@ -116,18 +118,17 @@ def _pose(g) -> SE23:
     return g.factors[0] if isinstance(g, Product) else g
 
 
-@dataclass(frozen=True)
-class ImuDynamics:
+class ImuDynamics(eqx.Module):
     r"""$\lambda(g, u) = ((I + M)^{-1}(\tilde\omega - b_g),\ \tilde a - b_a + R^\top g,\ R^\top v\ (;\ 0))$ for
     gravity ``(0, 0, -gravity)``. The vector factor holds the biases at its start when ``biases`` (else they are
     zero) and the gyro's calibration errors $M$ from ``gyro_at`` on, of the kind ``gyro`` (``"scale"``: the
     diagonal; ``"matrix"``: the whole matrix row by row; None: $M = 0$); every component of it (biases, lever arm,
     calibration) is constant."""
 
-    gravity: float
-    biases: bool = True
-    gyro: str | None = None
-    gyro_at: int = 0
+    gravity: Float[Array, ""] = eqx.field(converter=parameter)
+    biases: bool = eqx.field(static=True, default=True)
+    gyro: str | None = eqx.field(static=True, default=None)
+    gyro_at: int = eqx.field(static=True, default=0)
 
     def __call__(self, g, u, t):
         x = _pose(g)
@@ -152,12 +153,11 @@ def gnss_position(g, t):
     return _pose(g).position()
 
 
-@dataclass(frozen=True)
-class MountedPosition:
+class MountedPosition(eqx.Module):
     r"""$h = p + R r$: the world position (m) of the point at the lever arm $r$ (body frame), the vector factor's
     components ``start`` to ``start + 3``."""
 
-    start: int
+    start: int = eqx.field(static=True)
 
     def __call__(self, g, t):
         x = _pose(g)
@@ -170,29 +170,27 @@ def barometric_altitude(g, t):
     return _pose(g).position()[2:3]
 
 
-@dataclass(frozen=True)
-class BodyLandmarks:
-    r"""$h_i = R^\top(\ell_i - p)$ for the known world points ``points`` (a tuple of 3-tuples, so that equal
-    landmarks are one compiled structure), concatenated."""
+class BodyLandmarks(eqx.Module):
+    r"""$h_i = R^\top(\ell_i - p)$ for the known world points ``points`` (L x 3, a leaf: other landmarks are
+    data), concatenated."""
 
-    points: tuple[tuple[float, float, float], ...]
+    points: Float[Array, "L 3"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
         x = _pose(g)
         Rt = jnp.swapaxes(x.rotation().as_matrix(), -1, -2)
-        rel = jnp.asarray(self.points) - x.position()
+        rel = self.points - x.position()
         return jnp.sum(Rt[None, :, :] * rel[:, None, :], axis=-1).reshape(-1)
 
 
-@dataclass(frozen=True)
-class BodyField:
-    r"""$h = R^\top m$: the fixed world direction ``m`` seen in the body frame (the magnetometer)."""
+class BodyField(eqx.Module):
+    r"""$h = R^\top m$: the fixed world direction ``m`` (a leaf) seen in the body frame (the magnetometer)."""
 
-    m: tuple[float, float, float]
+    m: Float[Array, "3"] = eqx.field(converter=parameter)
 
     def __call__(self, g, t):
         Rt = jnp.swapaxes(_pose(g).rotation().as_matrix(), -1, -2)
-        return mv(Rt, jnp.asarray(self.m))
+        return mv(Rt, self.m)
 
 
 def _imu_noise(name, std, rate):
