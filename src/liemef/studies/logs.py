@@ -18,6 +18,7 @@ and ``estimate.png``, or for a failed run ``failure.json`` alone.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import warnings
@@ -358,6 +359,50 @@ def _rotation_blocks(G, offset: int = 0) -> list[tuple[int, tuple[int, ...]]]:
     return []
 
 
+@functools.cache
+def _programs():
+    """The compiled programs of a run's reports, made once per process. Each is ``eqx.filter_jit``: one program
+    per system structure and log shape (the system's arrays, a recording's constants among them, are traced), so
+    that a second run in the process, a test's or a notebook's, compiles nothing."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from ..filters import left_jacobian
+    from ..groups import SO3
+
+    @eqx.filter_jit
+    def innovations(system, ys, g, ts):
+        return jax.vmap(system.residual)(ys, jax.vmap(system.output)(g, ts), ts)
+
+    @eqx.filter_jit
+    def output_jacobians(system, g, ys, ts):
+        return jax.vmap(lambda gg, y, t: left_jacobian(lambda x: system.output_seen_from(y, x, t), gg)[1])(g, ys, ts)
+
+    @eqx.filter_jit
+    def bands(G, blocks, g_hat, K):
+        """The plotted components of each state (rotations as roll, pitch, yaw) and their stds from K."""
+        def rotation(g, path):
+            for i in path:
+                g = g.factors[i]
+            return g if isinstance(g, SO3) else g.rotation()
+
+        def plotted(g):
+            c = g.coords()
+            for off, path in blocks:
+                c = c.at[off:off + 3].set(rotation(g, path).as_rpy())
+            return c
+
+        def one(g, KK):
+            J = jax.jacfwd(lambda xi: plotted(g.rplus(xi)))(jnp.zeros(G.tangent_dim))
+            return plotted(g), jnp.sqrt(jnp.clip(jnp.einsum("ij,jk,ik->i", J, 0.5 * (KK + KK.T), J), 0.0))
+
+        # one compiled program: an eager vmap of jacfwd dispatches (and compiles) each primitive on its own
+        return jax.vmap(one)(g_hat, K)
+
+    return innovations, output_jacobians, bands
+
+
 def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     """The state components that ``liemef run``'s figure plots, with their standard deviations from K.
 
@@ -371,7 +416,6 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     Returns ``names``, ``units``, ``values`` (N, c), ``std`` (N, c), ``measured`` (N, c, when given) and, for a
     pose group, ``path`` (N, 2): the estimate's x-y position (``path_measured`` from ``measured`` when it has x
     and y)."""
-    import jax
     import jax.numpy as jnp
 
     from ..groups import SE2, SEK3, SO3, Product
@@ -381,29 +425,11 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
     names, units = list(system.state_names), list(system.state_units)
     angles = list(angle_mask(G))
     blocks = _rotation_blocks(G)
-
-    def rotation(g, path):
-        for i in path:
-            g = g.factors[i]
-        return g if isinstance(g, SO3) else g.rotation()
-
-    def plotted(g):
-        c = g.coords()
-        for off, path in blocks:
-            c = c.at[off:off + 3].set(rotation(g, path).as_rpy())
-        return c
-
     for j, (off, _) in enumerate(blocks):
         names[off:off + 3] = [n + (f"_{j + 1}" if j else "") for n in ("roll", "pitch", "yaw")]
         units[off:off + 3] = ["rad"] * 3
         angles[off:off + 3] = [True, False, True]
-
-    def one(g, KK):
-        J = jax.jacfwd(lambda xi: plotted(g.rplus(xi)))(jnp.zeros(G.tangent_dim))
-        return plotted(g), jnp.sqrt(jnp.clip(jnp.einsum("ij,jk,ik->i", J, 0.5 * (KK + KK.T), J), 0.0))
-
-    # one compiled program: an eager vmap of jacfwd dispatches (and compiles) each primitive on its own
-    values, std = (np.asarray(a) for a in jax.jit(jax.vmap(one))(g_hat, jnp.asarray(K)))
+    values, std = (np.asarray(a) for a in _programs()[2](G, tuple(blocks), g_hat, jnp.asarray(K)))
     values = continuous_angles(values, angles)
     out = {"names": np.array(names), "units": np.array(units), "values": values, "std": std}
     if measured is not None:
@@ -431,7 +457,6 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
     import jax
     from scipy.stats import chi2
 
-    from ..filters import left_jacobian
 
     system, ts = flt.system, log.ts
     ys = np.asarray(log.ys, dtype=np.float64)
@@ -443,9 +468,7 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
         return out
     y0 = np.where(present[rows], ys[rows], 0.0)
     g = jax.tree_util.tree_map(lambda a: a[rows], traj.g_hat)
-    H = np.asarray(jax.jit(jax.vmap(
-        lambda gg, y, t: left_jacobian(lambda x: system.output_seen_from(y, x, t), gg)[1]))(
-        g, y0, ts[rows]))
+    H = np.asarray(_programs()[1](system, g, y0, ts[rows]))
     K = np.asarray(traj.K)[rows]
     dt = np.diff(ts, append=np.nan)[rows]
     finite_K = np.isfinite(K).all(axis=(1, 2))
@@ -740,7 +763,6 @@ def _smoothed(flt, state, log, traj, gap: float, options: dict):
 
 def _good_run(common, flt, system, source, log, traj, names, units, connection, order, alpha, interpolation,
               updates, substeps, angle_mask, continuous_angles, gain_stats, smoothed: bool = False) -> LogRun:
-    import jax
 
     from ..metrics import gain_is_covariance
 
@@ -748,8 +770,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     filt = continuous_angles(np.asarray(traj.coords()), angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(jax.jit(lambda ys, g, ts: jax.vmap(system.residual)(ys, jax.vmap(system.output)(g, ts), ts))(
-        log.ys, traj.g_hat, log.ts))
+    innov = np.asarray(_programs()[0](system, log.ys, traj.g_hat, log.ts))
     onames, ounits = system.output_names, system.output_units
     text, table = innovation_table(innov, onames, ounits)
     # the outlier test is of innovations against K; a smoother's residuals have another covariance (the filter's
