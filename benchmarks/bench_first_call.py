@@ -1,8 +1,9 @@
 """What a user waits for on a ready system's first call, and what the process spends: every ready system's
 default ``MinimumEnergyFilter`` on the C engine, each in a fresh process into an empty kernel cache (and no JAX
-persistent cache), on one core.
+persistent cache of the user's), on one core; then twice more with the caches that process left: the kernel
+alone (``warm``), and the kernel with XLA's programs (``warm_xla``, as a second ``liemef`` command runs).
 
-Per system it prints, as one JSON document:
+Per system and process it prints, as one JSON document:
 
 * ``first_result_s``: from the filter's construction to its first ``run``'s result on a log of ``--samples``
   samples around a random state (trace, translation to C, the quick ``-O0`` build and the run);
@@ -58,11 +59,8 @@ def one(name: str, samples: int) -> dict:
     return {"first_result_s": round(time.perf_counter() - t0, 3), "ok": bool(traj.ok)}
 
 
-def measure(name: str, samples: int) -> dict:
-    """A fresh process for ``name`` into an empty kernel cache: its own figures and the process's."""
-    cache = tempfile.mkdtemp(prefix="liemef-bench-first-")
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
-    env["LIEMEF_CACHE_DIR"] = cache
+def _process(name: str, samples: int, env: dict) -> dict:
+    """One child process for ``name`` with ``env``: its own figures, its wall and CPU time and the load."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -73,10 +71,25 @@ def measure(name: str, samples: int) -> dict:
     if proc.returncode != 0:
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     out = json.loads(proc.stdout.strip().splitlines()[-1])
-    built = len([f for f in os.listdir(cache) if f.startswith("kernel_") and f.endswith(".so")])
     return {**out, "process_s": round(wall, 3),
             "cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 3),
-            "optimized_builds": built, "loadavg_1min": [round(load, 2), round(os.getloadavg()[0], 2)]}
+            "loadavg_1min": [round(load, 2), round(os.getloadavg()[0], 2)]}
+
+
+def measure(name: str, samples: int) -> dict:
+    """``name`` in three fresh processes sharing one cache folder, empty at first: ``cold`` (no kernel, no XLA
+    program on disk; as the command line runs, it keeps XLA's programs), then ``warm`` (the kernel on disk, XLA's
+    program cache off: each eager operation compiled again) and ``warm_xla`` (the kernel and XLA's programs on
+    disk, as a second ``liemef`` command finds them)."""
+    cache = tempfile.mkdtemp(prefix="liemef-bench-first-")
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["LIEMEF_CACHE_DIR"] = cache
+    cold = _process(name, samples, {**env, "LIEMEF_XLA_CACHE": "1"})
+    if "error" in cold:
+        return cold
+    cold["optimized_builds"] = len([f for f in os.listdir(cache) if f.startswith("kernel_") and f.endswith(".so")])
+    return {"cold": cold, "warm": _process(name, samples, {**env, "LIEMEF_XLA_CACHE": "0"}),
+            "warm_xla": _process(name, samples, {**env, "LIEMEF_XLA_CACHE": "1"})}
 
 
 def main(argv=None) -> None:

@@ -39,7 +39,7 @@ def test_only_the_adapter_imports_jax_internals():
 
 def test_every_internal_exists_on_this_jax():
     """Each lookup of the adapter's one table finds its internal here, so no fallback is taken silently."""
-    assert set(adapter.INTERNALS) == {"backends_started", "eager_context", "dce_jaxpr"}
+    assert set(adapter.INTERNALS) == {"backends_started", "eager_context", "dce_jaxpr", "keep_programs"}
     for function, (module, name) in adapter.INTERNALS.items():
         assert callable(adapter._internal(module, name)), (function, module, name)
 
@@ -100,3 +100,12 @@ def test_the_adapter_finds_what_it_needs():
     assert adapter._internal("core", "eval_context") is not None
     assert adapter._internal("core", "no_such_thing") is None
     assert adapter._internal("no_such_module", "x") is None
+
+
+def test_the_compilation_cache_state_keep_programs_sets_exists():
+    """keep_programs installs a cache by the module state of jax._src.compilation_cache: each name is there."""
+    import importlib
+
+    module = importlib.import_module("jax._src.compilation_cache")
+    for name in ("_cache", "_cache_initialized", "_cache_checked", "_cache_initialized_mutex"):
+        assert hasattr(module, name), name

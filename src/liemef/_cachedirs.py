@@ -1,5 +1,5 @@
-"""The user's cache folders: where liemef keeps what it builds (the C engine's kernels), and the check that a
-folder is private before anything built there is loaded.
+"""The user's cache folders: where liemef keeps what it builds (the C engine's kernels, XLA's compiled programs),
+and the check that a folder is private before anything built there is loaded.
 
 A cache of native code is trusted code: whoever can write to it can make the user's process run anything. So
 :func:`refusal` accepts a folder only if it is the user's own, writable by nobody else, and not inside a folder
@@ -9,8 +9,12 @@ library only: the CLI's process reads it before JAX is imported.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
+import tempfile
+import threading
+import time
 from pathlib import Path
 
 
@@ -72,4 +76,107 @@ def _create(path: Path) -> None:
         os.chmod(p, 0o700)
 
 
-__all__ = ["cache_dir", "refusal"]
+def xla_dir() -> Path:
+    """Where XLA's compiled programs are kept for the command line (:class:`ProgramCache`): ``xla`` in
+    :func:`cache_dir`."""
+    return cache_dir() / "xla"
+
+
+PROGRAM_CACHE_BYTES = 256 << 20
+"""The most the XLA program cache holds (256 MiB; a ready system's programs take about 1 MB): past it, the
+entries read or written longest ago go until it holds three quarters of it."""
+
+
+class ProgramCache:
+    """XLA's compiled programs on disk, for JAX's persistent compilation cache (:func:`liemef._jax.keep_programs`),
+    in a folder :func:`refusal` accepts.
+
+    JAX's own file cache writes an entry in place and never replaces one: a process killed while writing leaves a
+    truncated program that every later process fails to read, with a warning, and compiles again. Here an entry
+    is the SHA-256 of the program followed by the program, written to a temporary file in the folder and renamed
+    into place, so that a reader sees a whole entry or none. An entry whose digest does not match (a disk error)
+    is removed and read as absent, and the program is compiled and written again. A read marks its entry used
+    (its modification time); past :data:`PROGRAM_CACHE_BYTES`, the entries used longest ago are removed, and so
+    are temporary files an hour old (a write cut short)."""
+
+    SUFFIX = ".xla"
+
+    def __init__(self, path: Path, max_bytes: int = PROGRAM_CACHE_BYTES):
+        self._path = Path(path)
+        self.max_bytes = int(max_bytes)
+        self.hits = self.misses = self.writes = 0
+        self._lock = threading.Lock()
+
+    def _file(self, key: str) -> Path:
+        if not key or "/" in key or key.startswith("."):
+            raise ValueError(f"key: expected a file name, got {key!r}")
+        return self._path / f"{key}{self.SUFFIX}"
+
+    def get(self, key: str) -> bytes | None:
+        """The program kept under ``key``, or None (absent, or damaged and now removed)."""
+        f = self._file(key)
+        try:
+            data = f.read_bytes()
+        except OSError:
+            self.misses += 1
+            return None
+        digest, value = data[:32], data[32:]
+        if len(data) < 32 or hashlib.sha256(value).digest() != digest:
+            f.unlink(missing_ok=True)
+            self.misses += 1
+            return None
+        try:
+            os.utime(f)
+        except OSError:
+            pass
+        self.hits += 1
+        return value
+
+    def put(self, key: str, value: bytes) -> None:
+        """Keep ``value`` under ``key``, whole or not at all (an entry already there stays)."""
+        f = self._file(key)
+        if f.exists():
+            return
+        fd, tmp = tempfile.mkstemp(dir=self._path, prefix=".tmp-")
+        try:
+            with os.fdopen(fd, "wb") as out:
+                out.write(hashlib.sha256(value).digest())
+                out.write(value)
+            os.replace(tmp, f)
+        except OSError:
+            Path(tmp).unlink(missing_ok=True)
+            return
+        self.writes += 1
+        self._bound()
+
+    def _bound(self) -> None:
+        with self._lock:
+            entries = []
+            stale = time.time() - 3600.0
+            for e in os.scandir(self._path):
+                if e.name.startswith(".tmp-"):  # a write cut short an hour ago or more
+                    try:
+                        if e.stat(follow_symlinks=False).st_mtime < stale:
+                            os.unlink(e.path)
+                    except OSError:
+                        pass
+                elif e.name.endswith(self.SUFFIX):
+                    try:
+                        st = e.stat(follow_symlinks=False)
+                    except OSError:
+                        continue
+                    entries.append((st.st_mtime_ns, st.st_size, e.path))
+            total = sum(size for _, size, _ in entries)
+            if total <= self.max_bytes:
+                return
+            for _, size, path in sorted(entries):
+                if total <= 3 * self.max_bytes // 4:
+                    break
+                try:
+                    os.unlink(path)
+                    total -= size
+                except OSError:
+                    continue
+
+
+__all__ = ["PROGRAM_CACHE_BYTES", "ProgramCache", "cache_dir", "refusal", "xla_dir"]

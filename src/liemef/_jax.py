@@ -9,7 +9,10 @@ weaker guarantee), and ``tests/test_jax_adapter.py`` fails loudly on a JAX where
   (``core.eval_context``; fallback: the public ``ensure_compile_time_eval``, which also folds constants);
 * :func:`dce_jaxpr`: dead-code elimination of a closed jaxpr keeping every input
   (``interpreters.partial_eval.dce_jaxpr``; fallback: the jaxpr as it is, and the C compiler removes the dead
-  code).
+  code);
+* :func:`keep_programs`: a persistent compilation cache of liemef's own (``compilation_cache``'s module state,
+  which JAX's public configuration can only point at a folder of JAX's own file cache; fallback: no persistent
+  cache, every program compiled in each process).
 
 The supported JAX versions are the range of ``pyproject.toml``, the versions these APIs were checked on.
 """
@@ -22,7 +25,8 @@ import jax
 
 INTERNALS = {"backends_started": ("xla_bridge", "backends_are_initialized"),
              "eager_context": ("core", "eval_context"),
-             "dce_jaxpr": ("interpreters.partial_eval", "dce_jaxpr")}
+             "dce_jaxpr": ("interpreters.partial_eval", "dce_jaxpr"),
+             "keep_programs": ("compilation_cache", "_initialize_cache")}
 """The one table of the internals: per function of this module, ``jax._src.<module>`` and the name it reads."""
 
 
@@ -55,3 +59,22 @@ def dce_jaxpr(closed):
     except Exception:  # noqa: BLE001 - an internal API (None, or a new signature): the C compiler removes the code
         return closed, [True] * len(closed.jaxpr.invars)
     return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
+
+
+def keep_programs(cache) -> bool:
+    """Make ``cache`` (``get(key) -> bytes | None``, ``put(key, bytes)``: :class:`liemef._cachedirs.ProgramCache`)
+    JAX's persistent compilation cache for this process, for every program however quick to compile. True if
+    it is; False where this JAX has no such internal, or where this process already has a cache or has already
+    compiled a program (JAX decides once whether it uses one)."""
+    try:
+        module = importlib.import_module("jax._src.compilation_cache")
+        lock = module._cache_initialized_mutex
+        with lock:
+            if module._cache is not None or module._cache_initialized or module._cache_checked:
+                return False
+            module._cache, module._cache_initialized = cache, True
+    except (ImportError, AttributeError):
+        return False
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    return True
+

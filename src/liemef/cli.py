@@ -19,6 +19,7 @@ interrupted (Ctrl-C or SIGTERM).
 from __future__ import annotations
 
 import math
+import os
 import signal
 from pathlib import Path
 
@@ -293,7 +294,9 @@ def campaign_status(file, out):
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point (``liemef``, ``python -m liemef``)."""
+    """Console entry point (``liemef``, ``python -m liemef``). Its process keeps XLA's compiled programs on disk
+    (``LIEMEF_XLA_CACHE=1``, unless set otherwise: :mod:`liemef._config`), so that the next command compiles less."""
+    os.environ.setdefault("LIEMEF_XLA_CACHE", "1")
     cli.main(args=argv, prog_name="liemef")
 
 
