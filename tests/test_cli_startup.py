@@ -103,8 +103,9 @@ def test_the_registry_is_what_the_library_registers():
         fields = {f.name for f in dataclasses.fields(STUDIES[name].settings)}
         assert set(study.settings) <= fields - {"seed", "runs", "filters"}, name  # --set's help names real keys
     assert sorted(registry.SYSTEMS) == sorted(SYSTEMS)
-    for name, description in registry.SYSTEMS.items():
-        assert SYSTEMS[name].description == description
+    for name, declared in registry.SYSTEMS.items():
+        assert SYSTEMS[name].name == name and SYSTEMS[name].description == declared.description
+        assert SYSTEMS[name].run_options == dict(declared.run_options)
     assert registry.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
 
 
@@ -234,7 +235,25 @@ def test_the_tune_choices_are_the_library_s():
     params = {p.name: p for p in cli.cli.commands["tune"].params}
     assert list(params["data"].type.choices) == list(registry.TUNE_DATA) == ["broad"]
     assert list(params["objective"].type.choices) == list(tune.OBJECTIVES) == list(registry.TUNE_OBJECTIVES)
-    assert list(params["system_name"].type.choices) == list(tune.SYSTEMS) == list(registry.TUNE_SYSTEMS)
+    assert list(params["system_name"].type.choices) == list(tune.SYSTEMS) == list(registry.tune_systems()) == [
+        "attitude-imu", "attitude-velocity"]
+    for name in registry.tune_systems():  # what a tuning file may set is tunable, with bounds; the defaults among it
+        declared = registry.SYSTEMS[name]
+        assert set(declared.tune_defaults) <= set(declared.tunable) <= set(tune.PARAMETERS), name
+
+
+def test_each_dataset_s_systems_are_ready_ones_the_best_first():
+    """`liemef dataset KIND --system`'s choices come from the one table of ready systems: every recording kind
+    has its own, ranked without ties, the best model of its comparison first."""
+    for kind in registry.DATASETS:
+        ranked = registry.dataset_systems(kind)
+        ranks = [r for s in ranked for k, r in registry.SYSTEMS[s].datasets if k == kind]
+        assert ranked and len(set(ranks)) == len(ranks) and set(ranked) <= set(registry.SYSTEMS), kind
+    assert registry.dataset_systems("broad") == ("attitude-velocity", "attitude-imu", "attitude-bias")
+    assert registry.dataset_systems("wifibot") == ("localization",)
+    params = {p.name: p for p in cli.cli.commands["dataset"].params}
+    assert sorted(params["system_name"].type.choices) == ["attitude-bias", "attitude-imu", "attitude-velocity",
+                                                          "localization"]
 
 
 def test_reproduce_all_refuses_config_options_before_jax(tmp_path):

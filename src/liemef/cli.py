@@ -230,7 +230,7 @@ def dataset(kind, path, out, truth, seconds, gps_std, system_name, norms):
     click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
                f"{', '.join(str(p) for p in written)}")
     click.echo(f"Filter it with: liemef run --system {system} --log {out} --out DIR")
-    best = registry.DATASET_SYSTEMS[kind][0]
+    best = registry.dataset_systems(kind)[0]
     if system != best:
         click.echo(f"The best model of `liemef compare broad` is {best}: liemef dataset {kind} {path} --system {best} "
                    f"--out LOG, then liemef run --system {best} --log LOG --out DIR")

@@ -93,8 +93,9 @@ ERROR = option("--error", type=choice(_names.ERROR_SIDES), default="auto", show_
 
 def _run_defaults(key: str) -> str:
     """The ready systems that run with their own value of the filter option ``key``, as "NAME: VALUE" (read
-    without JAX from :data:`liemef.studies.registry.RUN_OPTIONS`)."""
-    return ", ".join(f"{name}: {options[key]}" for name, options in registry.RUN_OPTIONS.items() if key in options)
+    without JAX from :data:`liemef.studies.registry.SYSTEMS`)."""
+    return ", ".join(f"{name}: {dict(s.run_options)[key]}" for name, s in registry.SYSTEMS.items()
+                     if key in dict(s.run_options))
 
 
 def system(text: str) -> Param:
@@ -184,7 +185,7 @@ RUN = Command(
         option("--chunk", type=at_least(16), default=65536, show_default=True,
                help="Samples per compiled chunk (progress is shown between chunks)."),
         option("--params", "params_file", type=PATH,
-               help="A tuning file of `liemef tune` (JSON) for --system " + " or ".join(registry.TUNE_SYSTEMS)
+               help="A tuning file of `liemef tune` (JSON) for --system " + " or ".join(registry.tune_systems())
                     + " (the file's system): its final parameter set (recorded in metrics.json with its SHA-256; "
                       "docs/imu.md)."),
         option("--set", "settings", multiple=True, metavar="KEY=VALUE",
@@ -257,10 +258,11 @@ DATASET = Command(
         option("--seconds", type=float, help="Only the first SECONDS of the recording."),
         option("--gps-std", type=float, default=0.1, show_default=True,
                help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0)."),
-        option("--system", "system_name", type=choice(sorted({s for v in registry.DATASET_SYSTEMS.values()
-                                                               for s in v})),
+        option("--system", "system_name", type=choice(sorted({s for k in registry.DATASETS
+                                                               for s in registry.dataset_systems(k)})),
                help="The ready system whose log to write: " + "; ".join(
-                   f"{k}: {', '.join(v)} (default {v[0]})" for k, v in registry.DATASET_SYSTEMS.items()) + "."),
+                   f"{k}: {', '.join(v)} (default {v[0]})" for k, v in
+                   ((k, registry.dataset_systems(k)) for k in registry.DATASETS)) + "."),
         option("--norms", is_flag=True, help="broad: the log of attitude-imu (the same as --system attitude-imu).")))
 
 TUNE = Command(
@@ -285,9 +287,9 @@ TUNE = Command(
         option("--fold-maxfev", type=at_least(1),
                help="Points of each leave-one-out fold's own search, on the other trials only (default: --maxfev, "
                     "the final search's procedure). The tune runs about (trials + 1) searches."),
-        option("--system", "system_name", type=choice(registry.TUNE_SYSTEMS), default="attitude-imu",
-               show_default=True, help="The model: " + " or ".join(f"{k} ({v})" for k, v in
-                                                                   registry.TUNE_SYSTEMS.items()) + "."),
+        option("--system", "system_name", type=choice(registry.tune_systems()), default="attitude-imu",
+               show_default=True, help="The model: " + " or ".join(f"{k} ({registry.SYSTEMS[k].tune})" for k in
+                                                                   registry.tune_systems()) + "."),
         option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
                help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                     "ending at t_k), as compare broad's mef-imu-d."),

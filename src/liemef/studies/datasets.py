@@ -271,7 +271,7 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     """A real recording as a log for ``liemef run``: ``kind`` ``"broad"`` (a BROAD ``.mat`` trial) or
     ``"wifibot"`` (a Wifibot ``.txt`` run with synthetic GPS of ``gps_std`` m, system ``localization``), only its
     first ``seconds`` if given, written to ``out`` (``.csv`` or ``.npz``) and its ground truth to ``truth`` (CSV).
-    ``system``: the ready system whose log to write (:data:`liemef.studies.registry.DATASET_SYSTEMS`; default the
+    ``system``: the ready system whose log to write (:func:`liemef.studies.registry.dataset_systems`; default the
     first: for BROAD ``attitude-velocity``, the bounded-velocity model, whose log holds the gyro as the rate over
     the interval that ends at each sample, :func:`~liemef.systems.bounded_velocity.imu_velocity_log`;
     ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions). ``path``
@@ -283,7 +283,7 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
 
     if kind not in ("broad", "wifibot"):
         raise ValueError(f"kind: expected 'broad' or 'wifibot', got {kind!r}")
-    choices = registry.DATASET_SYSTEMS[kind]
+    choices = registry.dataset_systems(kind)
     if norms and system not in (None, "attitude-imu"):
         raise ValueError(f"system: --norms writes the log of attitude-imu, got --system {system} too")
     system = "attitude-imu" if norms else choices[0] if system is None else system

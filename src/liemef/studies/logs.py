@@ -936,8 +936,8 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
     if (system is None) == (system_file is None):
         raise ValueError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
                          f"own), got {'both' if system else 'neither'}")
-    if params is not None and system not in registry.TUNE_SYSTEMS:
-        raise _bad("--params", f"expected --system {' or '.join(registry.TUNE_SYSTEMS)} with a tuning file, got "
+    if params is not None and system not in registry.tune_systems():
+        raise _bad("--params", f"expected --system {' or '.join(registry.tune_systems())} with a tuning file, got "
                                f"{system!r}")
     settings = tuple(settings or ())
     if settings and params is not None:

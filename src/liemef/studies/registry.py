@@ -175,43 +175,99 @@ for _name, _title, _settings, _help in (
 ):
     declare(Study(_name, "comparison", _title, settings=_settings, help=_help))
 
-SYSTEMS: dict[str, str] = {
-    "tse2": "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)",
-    "tse2-velocity": "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)",
-    "attitude": "rigid-body attitude on TSO(3) (Saccon et al. 2016), two body-frame directions of e3 and e2; input "
-                "the torque (3); the weights of the paper's experiment",
-    "chaplygin": "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS (omega, v); input "
-                 "(u_omega, u_v); the weights of the paper's experiment",
-    "chaplygin-gps": "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS only (x1, y1, x2, y2); input "
-                     "(u_omega, u_v)",
-    "unit-circle": "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, "
-                   "-sin theta) with D = 0.4 I; input the gyro reading (1)",
-    "attitude-bias": "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, "
-                     "rad/s), normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default "
-                     "MEMS noise levels and a dip of 68 deg (liemef.systems.attitude_bias)",
-    "attitude-imu": "attitude and gyro bias on TSO(3) with the IMU noise model (linear acceleration, magnetic "
-                    "disturbance, heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and "
-                    "magnetometer directions and their raw norms (norm_acc m/s^2, norm_mag uT); defaults of "
-                    "liemef.systems.attitude_imu",
-    "attitude-velocity": "attitude, gyro bias and velocity on SO(3) x R^3 x R^3, the bounded-velocity model (linear "
-                         "acceleration as a velocity kept near zero, heading-only magnetometer), compare broad's "
-                         "best: input the gyro (3, rad/s, sample k over the interval ending at t_k) and the "
-                         "accelerometer (3, m/s^2), the accelerometer and magnetometer directions, their raw norms "
-                         "and a zero velocity (pseudo measurement); defaults of liemef.systems.attitude_velocity, run "
-                         "with samples at their own time",
-    "pose3d": "rigid body on SE(3): input the body twist (omega_x..z rad/s, v_x..z m/s), position fixes "
-              "(position_x..z, m) with NaN between fixes; the default noise levels (liemef.systems.pose3d)",
-    "inertial-navigation": "inertial navigation on SE_2(3): input the gyro (rad/s) and the accelerometer's specific "
-                           "force (m/s^2) at 100 Hz, GNSS position fixes (gnss_x..z, m) with NaN between fixes; the "
-                           "default noise levels (liemef.systems.inertial_navigation)",
-    "localization": "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
-                    "with NaN between fixes; the default noise levels (liemef.systems.localization)",
-    "ukfm-attitude": "attitude on SO(3) of ukfm's attitude benchmark: input the gyro (rad/s) at 100 Hz, the gravity "
-                     "vector (acc_x..z, m/s^2, pointing down) and the magnetic field (mag_x..z) in the body frame; "
-                     "ukfm's noise levels (liemef.systems.ukfm_attitude)",
+@dataclass(frozen=True)
+class ReadySystem:
+    """A ready system of the command line, declared without JAX (its factory is
+    :data:`liemef.studies.experiments.SYSTEMS`'s, under the same name).
+
+    ``description``: what ``--help`` and ``liemef schema`` say of it. ``run_options``: the filter options
+    ``liemef run`` runs it with unless the user gives them. ``datasets``: the recordings ``liemef dataset KIND``
+    converts into its log, best model first among each recording's (:func:`dataset_systems`). ``tune``: what
+    ``liemef tune --system`` says of it (None: not tunable); ``tunable``: the parameters a tuning file for it may
+    set, in the file's order; ``tune_defaults``: those ``liemef tune`` fits unless told which."""
+
+    description: str
+    run_options: tuple[tuple[str, str], ...] = ()
+    datasets: tuple[tuple[str, int], ...] = ()
+    tune: str | None = None
+    tunable: tuple[str, ...] = ()
+    tune_defaults: tuple[str, ...] = ()
+
+
+SYSTEMS: dict[str, ReadySystem] = {
+    "tse2": ReadySystem(
+        "planar rigid body on TSE(2), GPS (x1, y1, x2, y2) + IMU (omega, vx, vy); input (u_omega, u_v)"),
+    "tse2-velocity": ReadySystem(
+        "planar rigid body on TSE(2), IMU only (omega, vx, vy); input (u_omega, u_v)"),
+    "attitude": ReadySystem(
+        "rigid-body attitude on TSO(3) (Saccon et al. 2016), two body-frame directions of e3 and e2; input "
+        "the torque (3); the weights of the paper's experiment"),
+    "chaplygin": ReadySystem(
+        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS (x1, y1, x2, y2) + INS (omega, v); input "
+        "(u_omega, u_v); the weights of the paper's experiment"),
+    "chaplygin-gps": ReadySystem(
+        "Chaplygin sleigh on SE(2) x R^2 (Rigo et al. 2023), GPS only (x1, y1, x2, y2); input "
+        "(u_omega, u_v)"),
+    "unit-circle": ReadySystem(
+        "unit circle with a biased gyro on SO(2) x R (Zamani et al.), vector measurement (cos theta, "
+        "-sin theta) with D = 0.4 I; input the gyro reading (1)"),
+    "attitude-bias": ReadySystem(
+        "attitude and gyro bias on TSO(3) from an IMU at 285.714 Hz (BROAD's rate): input the gyro (3, "
+        "rad/s), normalized accelerometer and magnetometer directions (acc_x..z, mag_x..z); the default "
+        "MEMS noise levels and a dip of 68 deg (liemef.systems.attitude_bias)",
+        datasets=(("broad", 2),)),
+    "attitude-imu": ReadySystem(
+        "attitude and gyro bias on TSO(3) with the IMU noise model (linear acceleration, magnetic "
+        "disturbance, heading-only magnetometer): input the gyro (3, rad/s), the accelerometer and "
+        "magnetometer directions and their raw norms (norm_acc m/s^2, norm_mag uT); defaults of "
+        "liemef.systems.attitude_imu",
+        datasets=(("broad", 1),), tune="direction sensors with noise from their norms",
+        tunable=("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk", "gyro_std"),
+        tune_defaults=("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")),
+    "attitude-velocity": ReadySystem(
+        "attitude, gyro bias and velocity on SO(3) x R^3 x R^3, the bounded-velocity model (linear "
+        "acceleration as a velocity kept near zero, heading-only magnetometer), compare broad's "
+        "best: input the gyro (3, rad/s, sample k over the interval ending at t_k) and the "
+        "accelerometer (3, m/s^2), the accelerometer and magnetometer directions, their raw norms "
+        "and a zero velocity (pseudo measurement); defaults of liemef.systems.attitude_velocity, run "
+        "with samples at their own time",
+        # as compare broad's mef-vel: samples at their own time, Theorem 4.1's curvature, the left error
+        run_options=(("updates", "discrete"), ("curvature", "exact"), ("error", "left")),
+        datasets=(("broad", 0),), tune="linear acceleration as a bounded velocity; always with --updates discrete",
+        tunable=("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density", "velocity_std",
+                 "gyro_scale_std"),
+        tune_defaults=("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")),
+    "pose3d": ReadySystem(
+        "rigid body on SE(3): input the body twist (omega_x..z rad/s, v_x..z m/s), position fixes "
+        "(position_x..z, m) with NaN between fixes; the default noise levels (liemef.systems.pose3d)"),
+    "inertial-navigation": ReadySystem(
+        "inertial navigation on SE_2(3): input the gyro (rad/s) and the accelerometer's specific "
+        "force (m/s^2) at 100 Hz, GNSS position fixes (gnss_x..z, m) with NaN between fixes; the "
+        "default noise levels (liemef.systems.inertial_navigation)"),
+    "localization": ReadySystem(
+        "planar localization on SE(2): input the odometry (v_x, v_y, omega), GPS fixes (gps_x, gps_y) "
+        "with NaN between fixes; the default noise levels (liemef.systems.localization)",
+        datasets=(("wifibot", 0),)),
+    "ukfm-attitude": ReadySystem(
+        "attitude on SO(3) of ukfm's attitude benchmark: input the gyro (rad/s) at 100 Hz, the gravity "
+        "vector (acc_x..z, m/s^2, pointing down) and the magnetic field (mag_x..z) in the body frame; "
+        "ukfm's noise levels (liemef.systems.ukfm_attitude)"),
 }
-"""The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``) with their descriptions; each
-is built by :data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""
+"""The ready systems of ``liemef run --system NAME`` (and ``export-c``, ``schema``, ``dataset``, ``tune``): the one
+table of their names and what the command line says and does with each; each is built by
+:data:`liemef.studies.experiments.SYSTEMS` with the weights of its paper's experiment."""
+
+
+def dataset_systems(kind: str) -> tuple[str, ...]:
+    """The ready systems whose log ``liemef dataset KIND --system NAME`` writes, the default (the best model of
+    ``liemef compare``'s table for those recordings) first."""
+    ranked = sorted((rank, name) for name, s in SYSTEMS.items() for k, rank in s.datasets if k == kind)
+    return tuple(name for _, name in ranked)
+
+
+def tune_systems() -> tuple[str, ...]:
+    """The ready systems ``liemef tune --system`` fits, in :data:`SYSTEMS`' order."""
+    return tuple(name for name, s in SYSTEMS.items() if s.tune is not None)
 
 
 
@@ -244,22 +300,8 @@ FILTERS: dict[str, str] = {
 """The filters of the comparisons (``liemef compare --filters``) with their descriptions; each is built by
 :data:`liemef.studies.compare._common.FILTERS`."""
 
-RUN_OPTIONS: dict[str, dict[str, str]] = {
-    "attitude-velocity": {"updates": "discrete", "curvature": "exact", "error": "left"},
-}
-"""The filter options a ready system runs with in ``liemef run`` unless the user gives them: the bounded-velocity
-model as ``liemef compare broad``'s ``mef-vel`` (samples at their own time, Theorem 4.1's curvature, the left
-error); every other system takes the command's defaults."""
-
 DATASETS = ("broad", "wifibot")
 """The real recordings ``liemef dataset KIND`` converts into logs (:mod:`liemef.studies.datasets`)."""
-DATASET_SYSTEMS: dict[str, tuple[str, ...]] = {
-    "broad": ("attitude-velocity", "attitude-imu", "attitude-bias"),
-    "wifibot": ("localization",),
-}
-"""The ready systems whose log ``liemef dataset KIND --system NAME`` writes, the default first: for BROAD the
-bounded-velocity model, the best of ``liemef compare broad``'s table."""
-
 TUNE_DATA = ("broad",)
 """The recordings ``liemef tune DATA`` fits noise levels to (:func:`liemef.studies.tune.broad_recordings`)."""
 TUNE_OBJECTIVES: dict[str, str] = {
@@ -267,9 +309,3 @@ TUNE_OBJECTIVES: dict[str, str] = {
     "nll": "the innovations' negative log-likelihood (no truth)",
 }
 """The objectives of ``liemef tune --objective`` with their descriptions (:data:`liemef.studies.tune.OBJECTIVES`)."""
-TUNE_SYSTEMS: dict[str, str] = {
-    "attitude-imu": "direction sensors with noise from their norms",
-    "attitude-velocity": "linear acceleration as a bounded velocity; always with --updates discrete",
-}
-"""The models ``liemef tune --system`` fits, with their descriptions (the keys of
-:data:`liemef.studies.tune.SYSTEMS`)."""

@@ -310,7 +310,7 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
             names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int | None = None,
             system: str = "attitude-imu", updates: str = "hold", realdata: str | os.PathLike | None = None,
             start=None, force: bool = False, progress: bool = False, workers: int | None = None) -> SavedTune:
-    """Fit ``system``'s noise levels (:data:`liemef.studies.registry.TUNE_SYSTEMS`) to the recordings ``data``
+    """Fit ``system``'s noise levels (:func:`liemef.studies.registry.tune_systems`) to the recordings ``data``
     (:data:`~liemef.studies.registry.TUNE_DATA`: the BROAD ``trials`` present, each id a string; None: all) with
     nested leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first
     ``seconds``; 0 or None: whole trials; ``maxfev`` points for the final search and ``fold_maxfev``, default

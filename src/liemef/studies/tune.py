@@ -69,21 +69,14 @@ PARAMETERS = {
 ZERO_ALLOWED = ("acc_adapt", "mag_adapt", "dip_std", "gyro_scale_std")
 """The parameters that may be 0 in a tuning file (0 turns a noise model's term off); the others, standard
 deviations and ``acc_norm_tol``, must be > 0."""
-DEFAULT_PARAMETERS = ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk")
 SYSTEM = "attitude-imu"
 """The default system of a tuning file."""
-SYSTEMS = {
-    "attitude-imu": ("acc_std", "mag_std", "acc_adapt", "acc_norm_tol", "mag_adapt", "dip_std", "bias_walk",
-                     "gyro_std"),
-    "attitude-velocity": ("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density",
-                          "velocity_std", "gyro_scale_std"),
-}
+SYSTEMS = {name: registry.SYSTEMS[name].tunable for name in registry.tune_systems()}
 """The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
-:func:`liemef.systems.attitude_velocity`) and the parameters each takes; the same names, in the same order, as
-:data:`liemef.studies.registry.TUNE_SYSTEMS` (the command line's choices)."""
-DEFAULT_NAMES = {"attitude-imu": DEFAULT_PARAMETERS,
-                 "attitude-velocity": ("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")}
-"""The parameters :func:`tune` fits by default, per system."""
+:func:`liemef.systems.attitude_velocity`) and the parameters each takes: a view of
+:data:`liemef.studies.registry.SYSTEMS` (``tunable``), the command line's choices."""
+DEFAULT_NAMES = {name: registry.SYSTEMS[name].tune_defaults for name in registry.tune_systems()}
+"""The parameters :func:`tune` fits by default, per system (``tune_defaults`` of the registry)."""
 FORMAT = "liemef-tune-1"
 CROSS_VALIDATION = "nested"
 """A tuning file's ``cross_validation``: each fold's search ran on its training recordings only and never saw its

@@ -32,22 +32,30 @@ from .tse2 import measured_state
 class SystemSpec:
     """A ready system for filtering recorded logs (``liemef run --system NAME``).
 
+    Its name is one of :data:`liemef.studies.registry.SYSTEMS`, which declares its description and run options.
     ``make()`` builds the system; ``measured(ys)`` reads the state coordinates off measurements (N, p)
     (NaN where not measured); ``initial_guess(ys0)`` is the default initial estimate in coordinates from the
     first measurement (unmeasured coordinates 0). ``K0``: the default initial gain (None: the identity);
-    ``run_options``: the filter's options this system is run with unless the user gives them (``updates``,
-    ``curvature``, ``error``); ``constants(ts, us, ys)``: the factory's keyword arguments measured from the log
+    ``constants(ts, us, ys)``: the factory's keyword arguments measured from the log
     before the run (the IMU systems' dip, gravity and field over the rest found in the log,
     :func:`liemef.systems.imu_rest.log_rest_constants`), None for a system that takes none.
     """
 
     name: str
-    description: str
     make: Callable[..., AbstractSystem] = field(repr=False)
     measured: Callable[[np.ndarray], np.ndarray] = field(repr=False)
     K0: np.ndarray | None = field(default=None, repr=False)
-    run_options: dict = field(default_factory=dict)
     constants: Callable[..., dict] | None = field(default=None, repr=False)
+
+    @property
+    def description(self) -> str:
+        """What the command line says of it (:data:`liemef.studies.registry.SYSTEMS`)."""
+        return registry.SYSTEMS[self.name].description
+
+    @property
+    def run_options(self) -> dict:
+        """The filter options it runs with unless the user gives them (:data:`liemef.studies.registry.SYSTEMS`)."""
+        return dict(registry.SYSTEMS[self.name].run_options)
 
     def initial_guess(self, ys0) -> np.ndarray:
         """State coordinates read off the first measurement ``ys0`` (p,), 0 where not measured."""
@@ -74,46 +82,35 @@ def _position_fix_state(n_before: int):
 
 SYSTEMS: dict[str, SystemSpec] = {
     "tse2": SystemSpec(
-        "tse2", registry.SYSTEMS["tse2"],
-        lambda: PlanarRigidBody(sensor="gps_imu"), lambda ys: measured_state("gps_imu", ys)),
+        "tse2", lambda: PlanarRigidBody(sensor="gps_imu"), lambda ys: measured_state("gps_imu", ys)),
     "tse2-velocity": SystemSpec(
-        "tse2-velocity", registry.SYSTEMS["tse2-velocity"],
-        lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys)),
+        "tse2-velocity", lambda: PlanarRigidBody(sensor="velocity"), lambda ys: measured_state("velocity", ys)),
     "attitude": SystemSpec(
-        "attitude", registry.SYSTEMS["attitude"],
-        lambda: attitude.setup(attitude.AttitudeConfig()).system, attitude.measured_state),
+        "attitude", lambda: attitude.setup(attitude.AttitudeConfig()).system, attitude.measured_state),
     "chaplygin": SystemSpec(
-        "chaplygin", registry.SYSTEMS["chaplygin"],
+        "chaplygin",
         lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps_ins")),
         lambda ys: chaplygin.measured_state("gps_ins", ys)),
     "chaplygin-gps": SystemSpec(
-        "chaplygin-gps", registry.SYSTEMS["chaplygin-gps"],
+        "chaplygin-gps",
         lambda: chaplygin.make_system(chaplygin.ChaplyginConfig(sensor="gps")),
         lambda ys: chaplygin.measured_state("gps", ys)),
     "unit-circle": SystemSpec(
-        "unit-circle", registry.SYSTEMS["unit-circle"],
-        lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, unit_circle.measured_state),
-    "attitude-bias": SystemSpec(
-        "attitude-bias", registry.SYSTEMS["attitude-bias"],
-        attitude_gyro_bias, _attitude_bias.measured_state),
+        "unit-circle", lambda: unit_circle.setup(unit_circle.UnitCircleConfig()).system, unit_circle.measured_state),
+    "attitude-bias": SystemSpec("attitude-bias", attitude_gyro_bias, _attitude_bias.measured_state),
     "attitude-imu": SystemSpec(
-        "attitude-imu", registry.SYSTEMS["attitude-imu"], attitude_imu, _attitude_bias.measured_state,
+        "attitude-imu", attitude_imu, _attitude_bias.measured_state,
         constants=ab_rest.log_rest_constants),
     "attitude-velocity": SystemSpec(
-        "attitude-velocity", registry.SYSTEMS["attitude-velocity"], attitude_velocity,
-        ab_vel.velocity_measured_state, K0=ab_vel.K0_VELOCITY,
-        run_options=registry.RUN_OPTIONS["attitude-velocity"],
-        constants=ab_rest.log_rest_constants),
-    "pose3d": SystemSpec("pose3d", registry.SYSTEMS["pose3d"], pose3d, _position_fix_state(3)),
-    "inertial-navigation": SystemSpec(
-        "inertial-navigation", registry.SYSTEMS["inertial-navigation"], inertial_navigation, _position_fix_state(6)),
-    "localization": SystemSpec(
-        "localization", registry.SYSTEMS["localization"],
-        planar_localization, _gps_state),
-    "ukfm-attitude": SystemSpec(
-        "ukfm-attitude", registry.SYSTEMS["ukfm-attitude"], ukfm_attitude, _attitude_so3.measured_state),
+        "attitude-velocity", attitude_velocity,
+        ab_vel.velocity_measured_state, K0=ab_vel.K0_VELOCITY, constants=ab_rest.log_rest_constants),
+    "pose3d": SystemSpec("pose3d", pose3d, _position_fix_state(3)),
+    "inertial-navigation": SystemSpec("inertial-navigation", inertial_navigation, _position_fix_state(6)),
+    "localization": SystemSpec("localization", planar_localization, _gps_state),
+    "ukfm-attitude": SystemSpec("ukfm-attitude", ukfm_attitude, _attitude_so3.measured_state),
 }
-"""Systems available to ``liemef run``, by name: each built as in its paper's experiment."""
+"""How each ready system of :data:`liemef.studies.registry.SYSTEMS` is built (as in its paper's experiment) and read
+off its measurements, by the same names."""
 
 
 def get_system(name: str) -> SystemSpec:
