@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out/tse2
 MINUTES ?= 60
 
-.PHONY: venv demo test test-slow claims bench bench-smoother bench-soak bench-campaign bench-scaling lint docs clean
+.PHONY: venv demo test test-slow claims bench bench-imu bench-smoother bench-soak bench-campaign bench-scaling lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -64,6 +64,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_first_call.py
 	$(PY) benchmarks/bench_quick_build.py
 	$(PY) benchmarks/bench_side.py
+
+# compare broad's bounded-velocity filters per sample beside VQF's updateBatch on one whole BROAD trial, in one
+# process on one core (issue 36's ratio; needs the real recordings, LIEMEF_REALDATA; about a minute).
+bench-imu: $(STAMP)
+	$(PY) benchmarks/bench_imu.py
 
 # The whole-log smoother's cost per sample at 1k-16k samples and the fixed-lag smoother's per step, beside the
 # filter's, on ukfm's planar localization (a few minutes).
