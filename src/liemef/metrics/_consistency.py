@@ -14,6 +14,7 @@ import math
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._chi2 import quantile
 from ..groups import LieGroup
 
 
@@ -49,10 +50,8 @@ def run_nees(g_true: LieGroup, traj) -> Float[Array, " N"]:
 def chi2_bounds(dof: int, n_runs: int, prob: float = 0.95, *, per_dof: bool = False) -> tuple[float, float]:
     r"""Two-sided ``prob`` bounds for the average NEES of ``n_runs`` independent runs of a consistent filter:
     $(\chi^2_{nN}((1-p)/2),\ \chi^2_{nN}((1+p)/2)) / N$ with $n$ = ``dof``, $N$ = ``n_runs``
-    (quantiles of scipy.stats.chi2). ``per_dof``: divided by ``dof`` as well (bounds around 1, for a NEES
-    divided by its dimension)."""
-    from scipy.stats import chi2
-
+    (chi-square quantiles, :func:`liemef._chi2.quantile`). ``per_dof``: divided by ``dof`` as well (bounds around
+    1, for a NEES divided by its dimension)."""
     if isinstance(dof, bool) or int(dof) != dof or dof < 1:
         raise ValueError(f"dof: expected an integer >= 1, got {dof!r}")
     if isinstance(n_runs, bool) or int(n_runs) != n_runs or n_runs < 1:
@@ -61,7 +60,7 @@ def chi2_bounds(dof: int, n_runs: int, prob: float = 0.95, *, per_dof: bool = Fa
         raise ValueError(f"prob: expected a probability in (0, 1), got {prob!r}")
     k = int(dof) * int(n_runs)
     scale = int(n_runs) * (int(dof) if per_dof else 1)
-    return float(chi2.ppf((1.0 - prob) / 2.0, k)) / scale, float(chi2.ppf((1.0 + prob) / 2.0, k)) / scale
+    return quantile((1.0 - prob) / 2.0, k) / scale, quantile((1.0 + prob) / 2.0, k) / scale
 
 
 def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float | None, float | None]:

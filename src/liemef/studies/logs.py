@@ -455,7 +455,8 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
     Sigma`` (``Sigma`` one sample's noise covariance; for a density sensor its average over the interval): their
     count, and the largest in standard deviations (``sqrt(r^T S^-1 r)``) with its time. A JSON-ready dict."""
     import jax
-    from scipy.stats import chi2
+
+    from .._chi2 import quantile
 
 
     system, ts = flt.system, log.ts
@@ -493,7 +494,7 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
                             nis[j] = rj @ np.linalg.solve(Sj, rj)
                         except np.linalg.LinAlgError:
                             pass
-            nis[i] = np.where(nis[i] > chi2.ppf(1.0 - OUTLIER_PROB, idx.size), nis[i], np.nan)
+            nis[i] = np.where(nis[i] > quantile(1.0 - OUTLIER_PROB, int(idx.size)), nis[i], np.nan)
         sizes = np.sqrt(nis)
         hit = np.flatnonzero(np.isfinite(sizes))
         worst = hit[np.argmax(sizes[hit])] if hit.size else None

@@ -33,6 +33,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import _validate
+from .._chi2 import quantile
 from ..groups import LieGroup
 from ._base import AbstractSystem, Block, matrix
 from ._residuals import AngleResidual
@@ -249,12 +250,10 @@ def _own_residual(s: Sensor, y, h):
 
 
 def blocks_of(sensors) -> tuple[Block, ...]:
-    """The engine's static layout of ``sensors`` (chi-square thresholds from scipy)."""
-    from scipy.stats import chi2
-
+    """The engine's static layout of ``sensors`` (the gates' chi-square thresholds)."""
     out, start = [], 0
     for s in sensors:
-        thr = None if s.gate is None else float(chi2.ppf(s.gate, s.dim))
+        thr = None if s.gate is None else quantile(s.gate, s.dim)
         out.append(Block(s.name, start, start + s.dim, s.noise.meaning == "sample", thr, s.robust, s.robust_scale,
                          s.max_rejections, s.weight_fn, adaptive=s.scale is not None))
         start += s.dim
