@@ -15,6 +15,12 @@ if os.path.exists("/proc/cpuinfo"):
         if " avx2" in _f.read():
             os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
 
+# The command line keeps XLA's compiled programs in the user's cache folder (LIEMEF_XLA_CACHE=1, set by
+# liemef.cli.main unless set already). The tests call main() in this process and start CLI subprocesses: off
+# here, so that no test reads or writes ~/.cache/liemef; tests/test_program_cache.py turns it on for its own
+# processes, each in a temporary folder.
+os.environ.setdefault("LIEMEF_XLA_CACHE", "0")
+
 import pytest  # noqa: E402
 
 import liemef._config  # noqa: F401  (switches JAX to float64 before any test creates an array)

@@ -9,8 +9,10 @@ library only: the CLI's process reads it before JAX is imported.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import platform
 import stat
 import tempfile
 import threading
@@ -20,7 +22,7 @@ from pathlib import Path
 
 def cache_dir() -> Path:
     """Where built kernels are kept: ``$LIEMEF_CACHE_DIR``, else ``$XDG_CACHE_HOME/liemef/kernels``, else
-    ``~/.cache/liemef/kernels`` (as asked for: :func:`folder` checks it)."""
+    ``~/.cache/liemef/kernels`` (as asked for: :func:`refusal` checks it before use)."""
     if os.environ.get("LIEMEF_CACHE_DIR"):
         return Path(os.environ["LIEMEF_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
@@ -76,10 +78,23 @@ def _create(path: Path) -> None:
         os.chmod(p, 0o700)
 
 
+@functools.cache
+def host() -> str:
+    """What code built for this machine depends on: the machine and its CPU's features (``/proc/cpuinfo``)."""
+    flags = ""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = next((ln for ln in fh if ln.startswith(("flags", "Features"))), "")
+    except OSError:
+        pass
+    return f"{platform.machine()} {flags}"
+
+
 def xla_dir() -> Path:
-    """Where XLA's compiled programs are kept for the command line (:class:`ProgramCache`): ``xla`` in
-    :func:`cache_dir`."""
-    return cache_dir() / "xla"
+    """Where XLA's compiled programs are kept for the command line (:class:`ProgramCache`): ``xla-<host>`` in
+    :func:`cache_dir`, one folder per CPU (XLA compiles for the host's features, and JAX's key names only "cpu"),
+    so that a home folder shared by several machines never serves one the programs of another."""
+    return cache_dir() / f"xla-{hashlib.sha256(host().encode()).hexdigest()[:12]}"
 
 
 PROGRAM_CACHE_BYTES = 256 << 20
@@ -95,9 +110,11 @@ class ProgramCache:
     truncated program that every later process fails to read, with a warning, and compiles again. Here an entry
     is the SHA-256 of the program followed by the program, written to a temporary file in the folder and renamed
     into place, so that a reader sees a whole entry or none. An entry whose digest does not match (a disk error)
-    is removed and read as absent, and the program is compiled and written again. A read marks its entry used
-    (its modification time); past :data:`PROGRAM_CACHE_BYTES`, the entries used longest ago are removed, and so
-    are temporary files an hour old (a write cut short)."""
+    is removed and read as absent. JAX writes a program only after compiling it, that is when the entry was
+    absent or did not serve (a program this XLA cannot load): the write replaces it. A read marks its entry used
+    (its modification time). Past :data:`PROGRAM_CACHE_BYTES` (the folder's size counted once per process, then
+    kept up to date by this process's writes), the entries used longest ago are removed, and so are temporary
+    files an hour old (a write cut short)."""
 
     SUFFIX = ".xla"
 
@@ -105,7 +122,13 @@ class ProgramCache:
         self._path = Path(path)
         self.max_bytes = int(max_bytes)
         self.hits = self.misses = self.writes = 0
+        self._bytes: int | None = None  # the folder's size as this process knows it (None: not counted yet)
         self._lock = threading.Lock()
+        if hasattr(os, "register_at_fork"):
+            os.register_at_fork(after_in_child=self._after_fork)
+
+    def _after_fork(self) -> None:
+        self._lock = threading.Lock()  # a lock held by another thread at the fork is never released in the child
 
     def _file(self, key: str) -> Path:
         if not key or "/" in key or key.startswith("."):
@@ -133,10 +156,8 @@ class ProgramCache:
         return value
 
     def put(self, key: str, value: bytes) -> None:
-        """Keep ``value`` under ``key``, whole or not at all (an entry already there stays)."""
+        """Keep ``value`` under ``key``, whole or not at all, in place of what was there."""
         f = self._file(key)
-        if f.exists():
-            return
         fd, tmp = tempfile.mkstemp(dir=self._path, prefix=".tmp-")
         try:
             with os.fdopen(fd, "wb") as out:
@@ -147,28 +168,31 @@ class ProgramCache:
             Path(tmp).unlink(missing_ok=True)
             return
         self.writes += 1
-        self._bound()
-
-    def _bound(self) -> None:
         with self._lock:
-            entries = []
-            stale = time.time() - 3600.0
-            for e in os.scandir(self._path):
-                if e.name.startswith(".tmp-"):  # a write cut short an hour ago or more
-                    try:
-                        if e.stat(follow_symlinks=False).st_mtime < stale:
-                            os.unlink(e.path)
-                    except OSError:
-                        pass
-                elif e.name.endswith(self.SUFFIX):
-                    try:
-                        st = e.stat(follow_symlinks=False)
-                    except OSError:
-                        continue
-                    entries.append((st.st_mtime_ns, st.st_size, e.path))
-            total = sum(size for _, size, _ in entries)
-            if total <= self.max_bytes:
-                return
+            if self._bytes is None:
+                self._bytes = self._scan(evict=False)
+            else:
+                self._bytes += 32 + len(value)
+            if self._bytes > self.max_bytes:
+                self._bytes = self._scan(evict=True)
+
+    def _scan(self, evict: bool) -> int:
+        """The entries' total size; with ``evict``, after removing the least recently used down to three
+        quarters of the bound, and temporary files an hour old."""
+        entries = []
+        stale = time.time() - 3600.0
+        for e in os.scandir(self._path):
+            try:
+                st = e.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            if e.name.startswith(".tmp-"):
+                if evict and st.st_mtime < stale:  # a write cut short an hour ago or more
+                    Path(e.path).unlink(missing_ok=True)
+            elif e.name.endswith(self.SUFFIX):
+                entries.append((st.st_mtime_ns, st.st_size, e.path))
+        total = sum(size for _, size, _ in entries)
+        if evict and total > self.max_bytes:
             for _, size, path in sorted(entries):
                 if total <= 3 * self.max_bytes // 4:
                     break
@@ -177,6 +201,7 @@ class ProgramCache:
                     total -= size
                 except OSError:
                     continue
+        return total
 
 
-__all__ = ["PROGRAM_CACHE_BYTES", "ProgramCache", "cache_dir", "refusal", "xla_dir"]
+__all__ = ["PROGRAM_CACHE_BYTES", "ProgramCache", "cache_dir", "host", "refusal", "xla_dir"]

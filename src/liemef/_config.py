@@ -23,7 +23,8 @@ programs are kept on disk in :func:`liemef._cachedirs.xla_dir`, every one howeve
 process loads them instead of compiling again (:class:`liemef._cachedirs.ProgramCache`). Building a system and
 its filter runs some seventy small eager operations, each an XLA compile of its own on its first shapes: kept,
 a second ``liemef run`` on a recording takes about 40 % less time. Never over the user's own choice (a
-``JAX_COMPILATION_CACHE_DIR``), and not where the folder is not private (:func:`liemef._cachedirs.refusal`).
+persistent cache of theirs, or JAX's cache turned off), and not where the folder is not private
+(:func:`liemef._cachedirs.refusal`).
 """
 
 import os
@@ -53,13 +54,15 @@ XLA_CACHE = "LIEMEF_XLA_CACHE"
 
 
 def _keep_xla_programs() -> ProgramCache | None:
-    if os.environ.get(XLA_CACHE) != "1" or os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+    if os.environ.get(XLA_CACHE) != "1":
         return None
+    if jax.config.jax_compilation_cache_dir or not jax.config.jax_enable_compilation_cache:
+        return None  # the user's own persistent cache, or none by the user's choice
     path, _ = refusal(xla_dir())
     if path is None:  # a folder others could write to: no cache (the kernel cache's warning names the folder)
         return None
     cache = ProgramCache(path)
-    return cache if keep_programs(cache) else None
+    return cache if keep_programs(cache, path) else None
 
 
 PROGRAMS = _keep_xla_programs()

@@ -10,9 +10,9 @@ weaker guarantee), and ``tests/test_jax_adapter.py`` fails loudly on a JAX where
 * :func:`dce_jaxpr`: dead-code elimination of a closed jaxpr keeping every input
   (``interpreters.partial_eval.dce_jaxpr``; fallback: the jaxpr as it is, and the C compiler removes the dead
   code);
-* :func:`keep_programs`: a persistent compilation cache of liemef's own (``compilation_cache``'s module state,
-  which JAX's public configuration can only point at a folder of JAX's own file cache; fallback: no persistent
-  cache, every program compiled in each process).
+* :func:`keep_programs`: a persistent compilation cache of liemef's own (``compilation_cache.get_file_cache``,
+  where JAX opens its cache, and two flags of that module; JAX's public configuration can only point its own
+  file cache at a folder; fallback: no persistent cache, every program compiled in each process).
 
 The supported JAX versions are the range of ``pyproject.toml``, the versions these APIs were checked on.
 """
@@ -20,13 +20,14 @@ The supported JAX versions are the range of ``pyproject.toml``, the versions the
 from __future__ import annotations
 
 import importlib
+import os
 
 import jax
 
 INTERNALS = {"backends_started": ("xla_bridge", "backends_are_initialized"),
              "eager_context": ("core", "eval_context"),
              "dce_jaxpr": ("interpreters.partial_eval", "dce_jaxpr"),
-             "keep_programs": ("compilation_cache", "_initialize_cache")}
+             "keep_programs": ("compilation_cache", "get_file_cache")}
 """The one table of the internals: per function of this module, ``jax._src.<module>`` and the name it reads."""
 
 
@@ -61,20 +62,21 @@ def dce_jaxpr(closed):
     return jax.extend.core.ClosedJaxpr(jaxpr, closed.consts), used
 
 
-def keep_programs(cache) -> bool:
+def keep_programs(cache, path) -> bool:
     """Make ``cache`` (``get(key) -> bytes | None``, ``put(key, bytes)``: :class:`liemef._cachedirs.ProgramCache`)
-    JAX's persistent compilation cache for this process, for every program however quick to compile. True if
-    it is; False where this JAX has no such internal, or where this process already has a cache or has already
-    compiled a program (JAX decides once whether it uses one)."""
-    try:
-        module = importlib.import_module("jax._src.compilation_cache")
-        lock = module._cache_initialized_mutex
-        with lock:
-            if module._cache is not None or module._cache_initialized or module._cache_checked:
-                return False
-            module._cache, module._cache_initialized = cache, True
-    except (ImportError, AttributeError):
+    JAX's persistent compilation cache for this process, in the folder ``path``, for every program however quick
+    to compile (unless ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` says otherwise). JAX opens its cache at its
+    first compile, by ``compilation_cache.get_file_cache(path)``, which gives ``cache`` instead of JAX's own file
+    cache. True if done; False where this JAX has no such internal, or where this process has already opened a
+    cache or compiled a program (JAX decides once whether it uses one)."""
+    opener = _internal(*INTERNALS["keep_programs"])
+    if opener is None:
         return False
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    module = importlib.import_module("jax._src.compilation_cache")
+    if getattr(module, "_cache_initialized", True) or getattr(module, "_cache_checked", True):
+        return False
+    module.get_file_cache = lambda folder: (cache, folder)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return True
-

@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _side, _validate
+from .._cachedirs import host
 from .._jax import dce_jaxpr, eager_context
 from ..filters import TRACES, AbstractFilter, FilterState, check_samples, check_time
 from . import _cache, _elf, _fast
@@ -454,18 +455,6 @@ def _code_slot(tr: _Traced) -> Slot:
     return tr.sslots[[i for i, (path, _) in enumerate(paths) if jax.tree_util.keystr(path).endswith(".status.code")][0]]
 
 
-@functools.cache
-def _host() -> str:
-    """What a ``-march=native`` build depends on: the machine and its CPU's features."""
-    flags = ""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            flags = next((ln for ln in fh if ln.startswith(("flags", "Features"))), "")
-    except OSError:
-        pass
-    return f"{platform.machine()} {flags}"
-
-
 def _library(tr: _Traced, flags, kind: str, cc: str | None = None) -> Path:
     """Where the disk cache keeps the library of a traced interval built with ``flags`` (``kind``: "kernel",
     "quick" or "lanes") by ``cc`` (default :func:`_compiler_for` the kind): keyed by the jaxpr, the generator,
@@ -476,7 +465,7 @@ def _library(tr: _Traced, flags, kind: str, cc: str | None = None) -> Path:
         raise RuntimeError("no C compiler found ($CC, cc, gcc or clang)")
     _elf.host()  # a system whose libraries the cache cannot check: refused by name, before anything is built
     parts = [tr.key, cc, *flags] + (["lanes", str(LANES)] if kind == "lanes" else []) + \
-        ([_host()] if "-march=native" in flags else [])
+        ([host()] if "-march=native" in flags else [])
     return _cache.folder() / f"{kind}_{hashlib.sha256(chr(0).join(parts).encode()).hexdigest()[:24]}.so"
 
 
