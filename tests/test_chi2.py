@@ -5,10 +5,12 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from scipy.stats import chi2
 
 from liemef._chi2 import quantile
+from liemef.metrics import chi2_bounds
 from refusals import raises
 
 
@@ -24,6 +26,15 @@ def test_bad_arguments_are_refused_by_name():
     raises(lambda: quantile(float("nan"), 3), "p: expected a probability in [0, 1], got nan")
     raises(lambda: quantile(0.5, 0), "dof: expected an integer >= 1, got 0")
     raises(lambda: quantile(0.5, 2.5), "dof: expected an integer >= 1, got 2.5")
+    raises(lambda: quantile(True, 2), "p: expected a probability in [0, 1], got True")
+
+
+def test_numpy_numbers_are_numbers():
+    """A float32 probability or a NumPy integer (as chi2_bounds may pass on) is taken as its value."""
+    assert quantile(np.float32(0.95), np.int64(3)) == float(chi2.ppf(np.float32(0.95), 3))
+    p = np.float32(0.95)
+    scipy_s = (float(chi2.ppf((1.0 - p) / 2.0, 30)) / 10, float(chi2.ppf((1.0 + p) / 2.0, 30)) / 10)
+    assert chi2_bounds(3, 10, p) == scipy_s
 
 
 def test_a_gated_system_and_its_filter_import_no_scipy_stats():

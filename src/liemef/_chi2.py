@@ -9,6 +9,7 @@ which every process that builds a gated sensor, judges innovations or bounds a N
 from __future__ import annotations
 
 import math
+import numbers
 
 
 def quantile(p: float, dof: int) -> float:
@@ -16,13 +17,13 @@ def quantile(p: float, dof: int) -> float:
     ``dof >= 1``): ``scipy.stats.chi2.ppf(p, dof)``, the same float."""
     from scipy.special import gammaincinv
 
-    if not (isinstance(p, int | float) and 0.0 <= p <= 1.0):
+    if isinstance(p, bool) or not isinstance(p, numbers.Real) or not 0.0 <= float(p) <= 1.0:
         raise ValueError(f"p: expected a probability in [0, 1], got {p!r}")
-    if isinstance(dof, bool) or not isinstance(dof, int) or dof < 1:
+    if isinstance(dof, bool) or not isinstance(dof, numbers.Integral) or dof < 1:
         raise ValueError(f"dof: expected an integer >= 1, got {dof!r}")
-    if p == 1.0:
+    if float(p) == 1.0:
         return math.inf
-    return float(2.0 * gammaincinv(dof / 2.0, p))
+    return float(2.0 * gammaincinv(int(dof) / 2.0, float(p)))
 
 
 __all__ = ["quantile"]
