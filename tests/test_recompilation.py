@@ -150,7 +150,8 @@ def _structure(system):
 
 def test_a_recordings_constants_are_data():
     """Dip, gravity, field norm, landmarks and time constants are array leaves of the ready systems: two
-    recordings' values are one structure (one XLA program, one C kernel), and they do change the outputs."""
+    recordings' values are one structure (one XLA program; one C kernel where their exact zeros agree, as a
+    dip's always do), and they do change the outputs."""
     pairs = [(attitude_gyro_bias(dip=1.1), attitude_gyro_bias(dip=1.2)),
              (attitude_imu(dip=1.1, gravity=9.80, field=48.0), attitude_imu(dip=1.2, gravity=9.81, field=50.0)),
              (attitude_velocity(dip=1.1, gravity=9.80, field=48.0),

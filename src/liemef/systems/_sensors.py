@@ -117,8 +117,9 @@ class Sensor(eqx.Module):
         name: the sensor's name (log columns are ``{name}_{component}``).
         fn: the output map ``h(g, t)`` of this sensor, a pure JAX function returning shape (k,). A callable
             ``eqx.Module`` is a *parameterized* map: its array fields (a direction, a field's norm, landmarks) are
-            leaves, so a new value is data, as a weight is (one compiled structure for every recording), and its
-            other fields are structure.
+            leaves, so a new value is data, as a weight is (one compiled structure for every recording; the C
+            engine builds one more kernel for a value with new exact zeros, docs/engines.md), and its other
+            fields are structure.
         noise: its :class:`Noise` (k stds, or one for all components).
         components: k component names (default ``0..k-1``); ``units`` k units.
         gate: a chi-square probability (e.g. 0.999): a sample whose innovation

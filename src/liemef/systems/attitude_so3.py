@@ -22,7 +22,8 @@ Default noise levels are those of ukfm's benchmark, per sample at ``IMU_RATE`` =
 = 0.0873 rad/s (a density of 0.00873 rad/s/sqrt(Hz), 0.5 deg/s/sqrt(Hz)), accelerometer ``ACC_STD`` = 0.4 m/s^2 and
 magnetometer ``MAG_STD`` = 0.3 per component (ukfm's tutorial example uses 0.2 for the magnetometer). Gravity
 ``GRAVITY`` = 9.82 m/s^2 and the field ``FIELD`` are ukfm's too. They and the noise levels are array leaves
-(:meth:`~liemef.systems.SensorSystem.with_noise`): a new value never compiles the filter anew.
+(:meth:`~liemef.systems.SensorSystem.with_noise`): a new value never compiles the filter's XLA program anew,
+nor its C kernel unless the value has new exact zeros (a field with a zero component after one without).
 
 K0 guidance: K is the covariance of the left error $\xi$ with $C = \hat C \exp\xi$, three small rotation angles
 about the body axes (rad). ukfm's benchmark starts with 10 deg per axis: ``K0 = (0.1745 rad)^2 I3``. From a first
@@ -70,8 +71,7 @@ def gyro_dynamics(g, u, t):
 
 
 class BodyVector(eqx.Module):
-    r"""$h(C) = C^\top v$: the fixed world vector ``v`` (a leaf: every vector is one compiled structure) seen in
-    the body frame of a plain SO(3) state."""
+    r"""$h(C) = C^\top v$: the fixed world vector ``v`` (a leaf) seen in the body frame of a plain SO(3) state."""
 
     v: Float[Array, "3"] = eqx.field(converter=parameter)
 

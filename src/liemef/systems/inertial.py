@@ -48,8 +48,9 @@ m/s^2/sqrt(s) (densities; a MEMS IMU's biases drift by about 0.05 deg/s and 0.00
 ``BARO_STD`` = 0.5 m. A consumer MEMS IMU at 100-400 Hz is noisier: gyro about 0.003-0.01 rad/s and
 accelerometer 0.02-0.1 m/s^2 per sample. Gravity ``GRAVITY`` = 9.81 m/s^2 (ukfm uses 9.82). Gravity, the
 landmarks, the field's direction and the noise levels are array leaves (data): a new value never compiles the
-filter anew (:meth:`~liemef.systems.SensorSystem.with_noise`); which sensors there are, and which biases and
-calibration errors the state holds, are structure.
+filter's XLA program anew, nor its C kernel unless the value has new exact zeros (a landmark on the ground at
+z = 0 after one above it; :meth:`~liemef.systems.SensorSystem.with_noise`); which sensors there are, and which
+biases and calibration errors the state holds, are structure.
 
 K0 guidance: K is the covariance of the left error $\xi$ with $g = \hat g \exp\xi$, in the body frame:
 rotation (rad), then velocity and position (m/s, m, for small errors $\hat R^\top(v - \hat v)$ and
