@@ -318,6 +318,40 @@ def test_dataset_broad_writes_the_best_model_and_run_filters_it(tmp_path):
     assert res.exit_code == 2 and "--norms" in res.output
 
 
+def test_dataset_broad_writes_the_field_model_s_log_and_run_filters_it(tmp_path):
+    """The lasting-disturbance model, compare broad's mef-field, is a ready system too: `liemef dataset broad
+    --system attitude-field` writes its log (the field in uT) and `liemef run --system attitude-field` runs it
+    as mef-field (discrete updates, exact curvature, left error, its K0), with the dip, gravity and field
+    measured over the rest found in the log."""
+    from liemef.systems.attitude_field import K0_FIELD
+
+    R = broad_mat(tmp_path / "01_synthetic.mat")
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", "attitude-field", "--out",
+                 tmp_path / "log.csv")
+    assert res.exit_code == 0, res.output
+    assert "liemef run --system attitude-field" in res.output
+    assert "The best model of `liemef compare broad` is attitude-velocity" in res.output
+    header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
+    assert header[7:13] == ["acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"]
+    log = np.loadtxt(tmp_path / "log.csv", delimiter=",", skiprows=1)
+    assert np.linalg.norm(log[0, 10:13]) == pytest.approx(np.hypot(16.0, 40.0))  # the field in uT, not a direction
+    res = invoke("run", "--system", "attitude-field", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    config = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]
+    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
+    np.testing.assert_allclose(config["K0_diag"], np.diag(K0_FIELD))
+    rest = config["rest"]
+    assert rest["found"] and rest["measured"] == ["dip", "field", "gravity"]
+    assert rest["dip_deg"] == pytest.approx(68.2, abs=0.2) and rest["field"] == pytest.approx(43.08, abs=0.05)
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    from scipy.spatial.transform import Rotation
+
+    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
+    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
+    assert np.abs(est[-1, 10:16]).max() < 2.0  # no disturbance in an undisturbed field (uT)
+
+
 def test_run_says_when_a_log_has_no_initial_rest(tmp_path):
     """A log that starts in motion keeps the factory's dip and norms, and the run says so (a warning, and
     metrics.json's config.rest)."""

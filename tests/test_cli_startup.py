@@ -106,7 +106,8 @@ def test_the_registry_is_what_the_library_registers():
     for name, spec in SYSTEMS.items():  # each factory is the declared system of its name
         assert spec.name == name and callable(spec.make) and callable(spec.measured)
     assert SYSTEMS["attitude-velocity"].run_options == {"updates": "discrete", "curvature": "exact", "error": "left"}
-    assert all(not SYSTEMS[n].run_options for n in SYSTEMS if n != "attitude-velocity")
+    assert SYSTEMS["attitude-field"].run_options == SYSTEMS["attitude-velocity"].run_options  # compare broad's
+    assert all(not SYSTEMS[n].run_options for n in SYSTEMS if n not in ("attitude-velocity", "attitude-field"))
     assert registry.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
 
 
@@ -250,11 +251,12 @@ def test_each_dataset_s_systems_are_ready_ones_the_best_first():
         ranked = registry.dataset_systems(kind)
         ranks = [r for s in ranked for k, r in registry.SYSTEMS[s].datasets if k == kind]
         assert ranked and len(set(ranks)) == len(ranks) and set(ranked) <= set(registry.SYSTEMS), kind
-    assert registry.dataset_systems("broad") == ("attitude-velocity", "attitude-imu", "attitude-bias")
+    assert registry.dataset_systems("broad") == ("attitude-velocity", "attitude-imu", "attitude-bias",
+                                                 "attitude-field")
     assert registry.dataset_systems("wifibot") == ("localization",)
     params = {p.name: p for p in cli.cli.commands["dataset"].params}
-    assert sorted(params["system_name"].type.choices) == ["attitude-bias", "attitude-imu", "attitude-velocity",
-                                                          "localization"]
+    assert sorted(params["system_name"].type.choices) == ["attitude-bias", "attitude-field", "attitude-imu",
+                                                          "attitude-velocity", "localization"]
 
 
 def test_reproduce_all_refuses_config_options_before_jax(tmp_path):

@@ -47,6 +47,47 @@ SCHEMAS = {'attitude': {'blocks': [['y', 0, 6]],
                            '\n'
                            'CSV header: t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z\n'
                            'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
+ 'attitude-field': {'blocks': [['acc', 0, 3], ['mag', 3, 6], ['velocity', 6, 9]],
+                    'coords_dim': 15,
+                    'description': 'attitude, gyro bias, velocity and two lasting magnetic disturbances (a world '
+                                   'field near the path and a body field carried by the IMU, uT) on SO(3) x R^3 x '
+                                   "R^3 x R^3 x R^3, the bounded-velocity model with the magnetometer's field as "
+                                   'it is measured: input the gyro (3, rad/s, sample k over the interval ending at '
+                                   't_k) and the accelerometer (3, m/s^2), the accelerometer direction, the '
+                                   'magnetometer (mag_x..z, uT) and a zero velocity (pseudo measurement); defaults '
+                                   'of liemef.systems.attitude_field, run with samples at their own time',
+                    'inputs': ['gyro_x', 'gyro_y', 'gyro_z', 'force_x', 'force_y', 'force_z'],
+                    'outputs': ['acc_x',
+                                'acc_y',
+                                'acc_z',
+                                'mag_x',
+                                'mag_y',
+                                'mag_z',
+                                'velocity_x',
+                                'velocity_y',
+                                'velocity_z'],
+                    'tangent_dim': 15,
+                    'text': 'column      unit   role             noise\n'
+                            't           s      time\n'
+                            'gyro_x      rad/s  input\n'
+                            'gyro_y      rad/s  input\n'
+                            'gyro_z      rad/s  input\n'
+                            'force_x     m/s^2  input\n'
+                            'force_y     m/s^2  input\n'
+                            'force_z     m/s^2  input\n'
+                            'acc_x       1      sensor acc       std 1 1 per sample\n'
+                            'acc_y       1      sensor acc       std 1 1 per sample\n'
+                            'acc_z       1      sensor acc       std 1 1 per sample\n'
+                            'mag_x       uT     sensor mag       std 1 uT per sample\n'
+                            'mag_y       uT     sensor mag       std 1 uT per sample\n'
+                            'mag_z       uT     sensor mag       std 1 uT per sample\n'
+                            'velocity_x  m/s    sensor velocity  density 0.01 m/s/sqrt(Hz)\n'
+                            'velocity_y  m/s    sensor velocity  density 0.01 m/s/sqrt(Hz)\n'
+                            'velocity_z  m/s    sensor velocity  density 0.01 m/s/sqrt(Hz)\n'
+                            '\n'
+                            'CSV header: '
+                            't,gyro_x,gyro_y,gyro_z,force_x,force_y,force_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,velocity_x,velocity_y,velocity_z\n'
+                            'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
  'attitude-imu': {'blocks': [['acc', 0, 3], ['mag', 3, 6], ['norm', 6, 8]],
                   'coords_dim': 6,
                   'description': 'attitude and gyro bias on TSO(3) with the IMU noise model (linear acceleration, '

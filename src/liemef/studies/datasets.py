@@ -274,9 +274,11 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     ``system``: the ready system whose log to write (:func:`liemef.studies.registry.dataset_systems`; default the
     first: for BROAD ``attitude-velocity``, the bounded-velocity model, whose log holds the gyro as the rate over
     the interval that ends at each sample, :func:`~liemef.systems.bounded_velocity.imu_velocity_log`;
-    ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions). ``path``
+    ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions;
+    ``attitude-field``: :func:`~liemef.systems.attitude_field.imu_field_log`, the field in uT). ``path``
     may also be the id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`,
     :func:`wifibot_runs`). Returns the log, the ready system's name and the files written."""
+    from ..systems.attitude_field import imu_field_log
     from ..systems.bounded_velocity import imu_velocity_log
     from . import registry
     from .experiments import get_system
@@ -300,6 +302,9 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
         if system == "attitude-velocity":
             log = io.RecordedLog(*imu_velocity_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
                                                    gyro="backward"))
+        elif system == "attitude-field":
+            log = io.RecordedLog(*imu_field_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
+                                                gyro="backward"))
         else:
             log = broad_to_log(rec, norms=system == "attitude-imu")
         header = ["t", "q_w", "q_x", "q_y", "q_z", "movement"]

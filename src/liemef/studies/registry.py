@@ -237,6 +237,15 @@ SYSTEMS: dict[str, ReadySystem] = {
         tunable=("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density", "velocity_std",
                  "gyro_scale_std"),
         tune_defaults=("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")),
+    "attitude-field": ReadySystem(
+        "attitude, gyro bias, velocity and two lasting magnetic disturbances (a world field near the path and a "
+        "body field carried by the IMU, uT) on SO(3) x R^3 x R^3 x R^3 x R^3, the bounded-velocity model with the "
+        "magnetometer's field as it is measured: input the gyro (3, rad/s, sample k over the interval ending at "
+        "t_k) and the accelerometer (3, m/s^2), the accelerometer direction, the magnetometer (mag_x..z, uT) and "
+        "a zero velocity (pseudo measurement); defaults of liemef.systems.attitude_field, run with samples at "
+        "their own time",
+        run_options=(("updates", "discrete"), ("curvature", "exact"), ("error", "left")),
+        datasets=(("broad", 3),)),
     "pose3d": ReadySystem(
         "rigid body on SE(3): input the body twist (omega_x..z rad/s, v_x..z m/s), position fixes "
         "(position_x..z, m) with NaN between fixes; the default noise levels (liemef.systems.pose3d)"),

@@ -69,9 +69,10 @@ from .. import _validate
 from .._linalg import mv
 from ..groups import R3, SO3, Product
 from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem, parameter
-from .attitude_bias import DIP, E_UP, IMU_RATE, magnetic_reference
+from .attitude_bias import DIP, E_UP, IMU_RATE, magnetic_reference, measured_state
 from .bounded_velocity import ACC_DENSITY, VELOCITY_GYRO_STD, VELOCITY_STD, imu_velocity_log
 from .imu_noise import FIELD, GRAVITY, IMU_BIAS_WALK
+from .imu_rest import rest_constants
 
 FieldGroup = Product[SO3, R3, R3, R3, R3]
 """SO(3) x R^3 x R^3 x R^3 x R^3: attitude, gyro bias, velocity, world and body disturbance."""
@@ -286,6 +287,32 @@ K0_FIELD = np.diag([0.05**2] * 3 + [0.01**2] * 3 + [0.1**2] * 3 + [0.1**2] * 6)
 """A K0 for :func:`attitude_field` from a TRIAD estimate at rest:
 :data:`~liemef.systems.bounded_velocity.K0_VELOCITY`'s blocks and (0.1 uT)^2 on each disturbance (the reference
 is the field measured over the initial rest, where the run starts); ``liemef compare broad``'s."""
+
+
+def field_measured_state(ys: Float[ArrayLike, "N 9"]) -> Float[np.ndarray, "N 15"]:
+    """State coordinates of :func:`attitude_field` read off its log's ``ys`` (:func:`imu_field_log`): the TRIAD
+    attitude of the accelerometer direction and the field (uT) where both are present; the bias, the velocity and
+    the disturbances are not measured (NaN)."""
+    ys = np.asarray(ys, dtype=np.float64)
+    return np.concatenate([measured_state(ys[:, :6]), np.full((ys.shape[0], 9), np.nan)], axis=1)
+
+
+def field_log_rest_constants(ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N 6"], ys: Float[ArrayLike, "N 9"],
+                             **tolerances) -> dict:
+    """:func:`~liemef.systems.imu_rest.rest_constants` of an :func:`imu_field_log` log: the gyro and the
+    accelerometer are ``us``, the field (uT) is ``ys[:, 3:6]``, the rate the inverse of the median interval of
+    ``ts``. A ValueError naming ``us``, ``ys`` or ``ts`` for a log without these columns."""
+    ts = _validate.array("ts", np.asarray(ts, dtype=np.float64), (None,))
+    us = _validate.array("us", np.asarray(us, dtype=np.float64), (ts.shape[0], None), missing=True)
+    ys = _validate.array("ys", np.asarray(ys, dtype=np.float64), (ts.shape[0], None), missing=True)
+    if us.shape[1] < 6 or ys.shape[1] < 6:
+        raise ValueError(f"us, ys: expected the gyro and the accelerometer in us[:, :6] and the field in ys[:, 3:6], "
+                         f"got {us.shape[1]} input and {ys.shape[1]} output columns")
+    dt = np.diff(ts)
+    if ts.shape[0] < 2 or not np.median(dt) > 0:
+        raise ValueError(f"ts: expected increasing times, got {ts.shape[0]} samples with median interval "
+                         f"{float(np.median(dt)) if dt.size else float('nan')}")
+    return rest_constants(us[:, :3], us[:, 3:6], ys[:, 3:6], 1.0 / float(np.median(dt)), **tolerances)
 
 
 def attitude_field_state(g, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0), c=(0.0, 0.0, 0.0)):

@@ -11,6 +11,7 @@ import numpy as np
 from ...systems import (
     AbstractSystem,
     PlanarRigidBody,
+    attitude_field,
     attitude_gyro_bias,
     attitude_imu,
     attitude_velocity,
@@ -23,6 +24,7 @@ from ...systems import attitude_bias as _attitude_bias
 from ...systems import attitude_so3 as _attitude_so3
 from ...systems import bounded_velocity as ab_vel
 from ...systems import imu_rest as ab_rest
+from ...systems.attitude_field import K0_FIELD, field_log_rest_constants, field_measured_state
 from .. import registry
 from . import attitude, chaplygin, unit_circle
 from .tse2 import measured_state
@@ -104,6 +106,8 @@ SYSTEMS: dict[str, SystemSpec] = {
     "attitude-velocity": SystemSpec(
         "attitude-velocity", attitude_velocity,
         ab_vel.velocity_measured_state, K0=ab_vel.K0_VELOCITY, constants=ab_rest.log_rest_constants),
+    "attitude-field": SystemSpec(
+        "attitude-field", attitude_field, field_measured_state, K0=K0_FIELD, constants=field_log_rest_constants),
     "pose3d": SystemSpec("pose3d", pose3d, _position_fix_state(3)),
     "inertial-navigation": SystemSpec("inertial-navigation", inertial_navigation, _position_fix_state(6)),
     "localization": SystemSpec("localization", planar_localization, _gps_state),
