@@ -72,7 +72,7 @@ from ._sensors import ConstantOutput, Noise, Sensor, SensorSystem, parameter
 from .attitude_bias import DIP, E_UP, IMU_RATE, magnetic_reference, measured_state
 from .bounded_velocity import ACC_DENSITY, VELOCITY_GYRO_STD, VELOCITY_STD, imu_velocity_log
 from .imu_noise import FIELD, GRAVITY, IMU_BIAS_WALK
-from .imu_rest import rest_constants
+from .imu_rest import log_arrays, rest_constants
 
 FieldGroup = Product[SO3, R3, R3, R3, R3]
 """SO(3) x R^3 x R^3 x R^3 x R^3: attitude, gyro bias, velocity, world and body disturbance."""
@@ -302,17 +302,9 @@ def field_log_rest_constants(ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N
     """:func:`~liemef.systems.imu_rest.rest_constants` of an :func:`imu_field_log` log: the gyro and the
     accelerometer are ``us``, the field (uT) is ``ys[:, 3:6]``, the rate the inverse of the median interval of
     ``ts``. A ValueError naming ``us``, ``ys`` or ``ts`` for a log without these columns."""
-    ts = _validate.array("ts", np.asarray(ts, dtype=np.float64), (None,))
-    us = _validate.array("us", np.asarray(us, dtype=np.float64), (ts.shape[0], None), missing=True)
-    ys = _validate.array("ys", np.asarray(ys, dtype=np.float64), (ts.shape[0], None), missing=True)
-    if us.shape[1] < 6 or ys.shape[1] < 6:
-        raise ValueError(f"us, ys: expected the gyro and the accelerometer in us[:, :6] and the field in ys[:, 3:6], "
-                         f"got {us.shape[1]} input and {ys.shape[1]} output columns")
-    dt = np.diff(ts)
-    if ts.shape[0] < 2 or not np.median(dt) > 0:
-        raise ValueError(f"ts: expected increasing times, got {ts.shape[0]} samples with median interval "
-                         f"{float(np.median(dt)) if dt.size else float('nan')}")
-    return rest_constants(us[:, :3], us[:, 3:6], ys[:, 3:6], 1.0 / float(np.median(dt)), **tolerances)
+    us, ys, rate = log_arrays(ts, us, ys, 6, 6, "the gyro and the accelerometer in us[:, :6] and the field in "
+                                                "ys[:, 3:6]")
+    return rest_constants(us[:, :3], us[:, 3:6], ys[:, 3:6], rate, **tolerances)
 
 
 def attitude_field_state(g, v=(0.0, 0.0, 0.0), w=(0.0, 0.0, 0.0), c=(0.0, 0.0, 0.0)):

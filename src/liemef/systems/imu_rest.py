@@ -117,24 +117,31 @@ def rest_constants(gyr: Float[ArrayLike, "N 3"], acc: Float[ArrayLike, "N 3"], m
             "rest_s": k / float(rate)}
 
 
+def log_arrays(ts, us, ys, inputs: int, outputs: int, expected: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """A filter log's ``us`` and ``ys`` as float arrays with at least ``inputs`` and ``outputs`` columns, and its
+    rate (the inverse of the median interval of ``ts``); a ValueError naming ``us``, ``ys`` (with ``expected``,
+    what those columns hold) or ``ts``."""
+    ts = _validate.array("ts", np.asarray(ts, dtype=np.float64), (None,))
+    us = _validate.array("us", np.asarray(us, dtype=np.float64), (ts.shape[0], None), missing=True)
+    ys = _validate.array("ys", np.asarray(ys, dtype=np.float64), (ts.shape[0], None), missing=True)
+    if us.shape[1] < inputs or ys.shape[1] < outputs:
+        raise ValueError(f"us, ys: expected {expected}, got {us.shape[1]} input and {ys.shape[1]} output columns")
+    dt = np.diff(ts)
+    if ts.shape[0] < 2 or not np.median(dt) > 0:
+        raise ValueError(f"ts: expected increasing times, got {ts.shape[0]} samples with median interval "
+                         f"{float(np.median(dt)) if dt.size else float('nan')}")
+    return us, ys, 1.0 / float(np.median(dt))
+
+
 def log_rest_constants(ts: Float[ArrayLike, " N"], us: Float[ArrayLike, "N m"], ys: Float[ArrayLike, "N p"],
                        **tolerances) -> dict:
     """:func:`rest_constants` of a filter log with the raw norms (:func:`imu_log` with ``norms=True``, for
     :func:`attitude_imu`, or :func:`imu_velocity_log`): the gyro is ``us[:, :3]``, the accelerometer and the
     magnetometer are their directions ``ys[:, 0:6]`` times their norms ``ys[:, 6:8]``, the rate is the inverse of
     the median interval of ``ts``. A ValueError naming ``us``, ``ys`` or ``ts`` for a log without these columns."""
-    ts = _validate.array("ts", np.asarray(ts, dtype=np.float64), (None,))
-    us = _validate.array("us", np.asarray(us, dtype=np.float64), (ts.shape[0], None), missing=True)
-    ys = _validate.array("ys", np.asarray(ys, dtype=np.float64), (ts.shape[0], None), missing=True)
-    if us.shape[1] < 3 or ys.shape[1] < 8:
-        raise ValueError(f"us, ys: expected the gyro in us[:, :3] and the directions and norms in ys[:, :8], got "
-                         f"{us.shape[1]} input and {ys.shape[1]} output columns")
-    dt = np.diff(ts)
-    if ts.shape[0] < 2 or not np.median(dt) > 0:
-        raise ValueError(f"ts: expected increasing times, got {ts.shape[0]} samples with median interval "
-                         f"{float(np.median(dt)) if dt.size else float('nan')}")
+    us, ys, rate = log_arrays(ts, us, ys, 3, 8, "the gyro in us[:, :3] and the directions and norms in ys[:, :8]")
     acc, mag = ys[:, 0:3] * ys[:, 6:7], ys[:, 3:6] * ys[:, 7:8]
-    return rest_constants(us[:, :3], acc, mag, 1.0 / float(np.median(dt)), **tolerances)
+    return rest_constants(us[:, :3], acc, mag, rate, **tolerances)
 
 
 def rest_norms(acc: Float[ArrayLike, "N 3"], mag: Float[ArrayLike, "N 3"]) -> tuple[float, float]:
