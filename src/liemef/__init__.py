@@ -33,9 +33,9 @@ _ATTRS = {
 _SUBMODULES = frozenset({"groups", "connections", "integrators", "systems", "simulation", "filters", "codegen",
                          "engines", "smoothers", "metrics", "studies", "reports"})
 # Modules (dotted below the package) that load without JAX: importing them does not run _config.
-_JAX_FREE = frozenset({"cli", "__main__", "_config", "_names", "_validate", "_runner", "studies", "studies.registry",
-                        "studies.commands", "studies.logs", "studies.runs", "studies.settings", "studies._schemas",
-                        "reports", "reports.outputs", "reports.io"})
+_JAX_FREE = frozenset({"cli", "__main__", "_config", "_cachedirs", "_names", "_validate", "_runner", "studies",
+                        "studies.registry", "studies.commands", "studies.logs", "studies.runs", "studies.settings",
+                        "studies._schemas", "reports", "reports.outputs", "reports.io"})
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and IDEs
     from . import (  # noqa: F401

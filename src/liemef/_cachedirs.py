@@ -19,6 +19,10 @@ import threading
 import time
 from pathlib import Path
 
+XLA_CACHE = "LIEMEF_XLA_CACHE"
+"""The environment variable that asks for the XLA program cache (``1``; the command line sets it, and
+:mod:`liemef._config` reads it)."""
+
 
 def cache_dir() -> Path:
     """Where built kernels are kept: ``$LIEMEF_CACHE_DIR``, else ``$XDG_CACHE_HOME/liemef/kernels``, else
@@ -204,4 +208,4 @@ class ProgramCache:
         return total
 
 
-__all__ = ["PROGRAM_CACHE_BYTES", "ProgramCache", "cache_dir", "host", "refusal", "xla_dir"]
+__all__ = ["PROGRAM_CACHE_BYTES", "XLA_CACHE", "ProgramCache", "cache_dir", "host", "refusal", "xla_dir"]

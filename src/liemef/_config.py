@@ -31,7 +31,7 @@ import os
 
 import jax
 
-from ._cachedirs import ProgramCache, refusal, xla_dir
+from ._cachedirs import XLA_CACHE, ProgramCache, refusal, xla_dir
 from ._jax import backends_started, keep_programs
 
 SCHEDULER = "xla_cpu_enable_concurrency_optimized_scheduler"
@@ -47,10 +47,6 @@ def _keep_xla_cpu_depth_first() -> None:
 
 _keep_xla_cpu_depth_first()
 jax.config.update("jax_enable_x64", True)
-
-
-XLA_CACHE = "LIEMEF_XLA_CACHE"
-"""The environment variable that asks for the XLA program cache (``1``)."""
 
 
 def _keep_xla_programs() -> ProgramCache | None:

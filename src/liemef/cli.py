@@ -26,6 +26,7 @@ from pathlib import Path
 import click
 
 from . import __version__
+from ._cachedirs import XLA_CACHE
 from .reports import outputs
 from .studies import commands, registry
 
@@ -296,7 +297,7 @@ def campaign_status(file, out):
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``liemef``, ``python -m liemef``). Its process keeps XLA's compiled programs on disk
     (``LIEMEF_XLA_CACHE=1``, unless set otherwise: :mod:`liemef._config`), so that the next command compiles less."""
-    os.environ.setdefault("LIEMEF_XLA_CACHE", "1")
+    os.environ.setdefault(XLA_CACHE, "1")
     cli.main(args=argv, prog_name="liemef")
 
 
