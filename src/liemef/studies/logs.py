@@ -21,6 +21,7 @@ import dataclasses
 import functools
 import math
 import os
+import types
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -400,7 +401,7 @@ def _programs():
         # one compiled program: an eager vmap of jacfwd dispatches (and compiles) each primitive on its own
         return jax.vmap(one)(g_hat, K)
 
-    return innovations, output_jacobians, bands
+    return types.SimpleNamespace(innovations=innovations, output_jacobians=output_jacobians, bands=bands)
 
 
 def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
@@ -429,7 +430,7 @@ def state_bands(system, g_hat, K, measured=None) -> dict[str, np.ndarray]:
         names[off:off + 3] = [n + (f"_{j + 1}" if j else "") for n in ("roll", "pitch", "yaw")]
         units[off:off + 3] = ["rad"] * 3
         angles[off:off + 3] = [True, False, True]
-    values, std = (np.asarray(a) for a in _programs()[2](G, tuple(blocks), g_hat, jnp.asarray(K)))
+    values, std = (np.asarray(a) for a in _programs().bands(G, tuple(blocks), g_hat, jnp.asarray(K)))
     values = continuous_angles(values, angles)
     out = {"names": np.array(names), "units": np.array(units), "values": values, "std": std}
     if measured is not None:
@@ -469,7 +470,7 @@ def innovation_outliers(flt, log, traj, innov) -> dict[str, dict]:
         return out
     y0 = np.where(present[rows], ys[rows], 0.0)
     g = jax.tree_util.tree_map(lambda a: a[rows], traj.g_hat)
-    H = np.asarray(_programs()[1](system, g, y0, ts[rows]))
+    H = np.asarray(_programs().output_jacobians(system, g, y0, ts[rows]))
     K = np.asarray(traj.K)[rows]
     dt = np.diff(ts, append=np.nan)[rows]
     finite_K = np.isfinite(K).all(axis=(1, 2))
@@ -771,7 +772,7 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
     filt = continuous_angles(np.asarray(traj.coords()), angles)
     K = np.asarray(traj.K)
     K_diag = np.diagonal(K, axis1=1, axis2=2)
-    innov = np.asarray(_programs()[0](system, log.ys, traj.g_hat, log.ts))
+    innov = np.asarray(_programs().innovations(system, log.ys, traj.g_hat, log.ts))
     onames, ounits = system.output_names, system.output_units
     text, table = innovation_table(innov, onames, ounits)
     # the outlier test is of innovations against K; a smoother's residuals have another covariance (the filter's
