@@ -124,9 +124,8 @@ class FieldDynamics(eqx.Module):
     def __call__(self, g, u, t):
         R = g.factors[0].as_matrix()
         b, w, c = g.factors[1].x, g.factors[3].x, g.factors[4].x
-        f = mv(R, u[3:6])
-        return jnp.concatenate([u[:3] - b, jnp.zeros(3), f[:2], f[2:] - self.gravity, -w / self.tau_w,
-                                -c / self.tau_c])
+        return jnp.concatenate([u[:3] - b, jnp.zeros(3), mv(R, u[3:6]) - jnp.asarray((0.0, 0.0, self.gravity)),
+                                -w / self.tau_w, -c / self.tau_c])
 
 
 class DisturbedField(eqx.Module):
