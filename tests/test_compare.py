@@ -211,6 +211,10 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     assert "vqf: none (its defaults on the raw readings)" in md and "detected from the IMU" in md
     w = meta["winners"]["07"]["total"]
     assert w["value"] == min(r["total"] for r in rows.values())
+    # 5 s of fast rotation: the magnetometer's median within a few degrees of the truth, its tail far beyond
+    field = meta["trials"]["07"]["field_vs_truth"]
+    assert abs(field["azimuth"]) < 5.0 and abs(field["dip"]) < 5.0 and field["azimuth_p90"] > abs(field["azimuth"])
+    assert "## The magnetometer against the optical truth" in md and f"| 07 | {field['azimuth']:.4g} |" in md
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--runs", "3", "--out", str(out)])
     assert res.exit_code == 2 and "runs" in res.output
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=99", "--out", str(out)])

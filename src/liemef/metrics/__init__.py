@@ -17,10 +17,17 @@ innovations are consistent with its K and its linearization sound (:func:`innova
 :func:`linearization_leak` per sample, :func:`gain_is_covariance` where the test applies). Trajectories:
 :func:`pose_parts` (a position and a quaternion off any pose-like state) and :func:`ape_rpe`, the absolute and
 relative pose errors by evo's library. Attitudes as BROAD scores them: :func:`attitude_rms` (total, heading,
-inclination), :func:`attitude_error_per_second` and :func:`attitude_error` per sample.
+inclination), :func:`attitude_error_per_second` and :func:`attitude_error` per sample; the magnetometer against
+the reference, :func:`field_against_reference`.
 """
 
-from ._attitude import ATTITUDE_METRICS, attitude_error, attitude_error_per_second, attitude_rms
+from ._attitude import (
+    ATTITUDE_METRICS,
+    attitude_error,
+    attitude_error_per_second,
+    attitude_rms,
+    field_against_reference,
+)
 from ._consistency import chi2_bounds, left_error, nees, run_nees, wilson_interval
 from ._errors import angle_mask, continuous_angles, coordinate_error, group_error, state_error, wrap_angle
 from ._gain import gain_stats
@@ -41,4 +48,4 @@ __all__ = ["wrap_angle", "angle_mask", "coordinate_error", "state_error", "group
            "continuous_angles", "gain_stats", "left_error", "nees", "run_nees", "chi2_bounds",
            "wilson_interval", "pose_parts", "ape_rpe", "innovation_monitor", "innovation_nis", "linearization_leak",
            "gain_is_covariance", "InnovationReport", "SensorVerdict", "attitude_rms", "attitude_error_per_second",
-           "attitude_error", "ATTITUDE_METRICS"]
+           "attitude_error", "ATTITUDE_METRICS", "field_against_reference"]

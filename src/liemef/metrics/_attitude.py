@@ -35,6 +35,36 @@ def attitude_rms(quat_est: np.ndarray, quat_ref: np.ndarray, mask: np.ndarray) -
                                                                           strict=True)}
 
 
+def field_against_reference(mag: np.ndarray, quat_ref: np.ndarray, rest: np.ndarray,
+                            moving: np.ndarray) -> dict[str, float | None]:
+    """The magnetometer read through the reference attitude: each sample ``mag`` (body frame) turned into the
+    world by ``quat_ref`` (w, x, y, z, body -> world), its azimuth about the vertical and its dip, in degrees,
+    against their medians over the ``rest`` samples. Returns, over the ``moving`` samples, the median azimuth and
+    dip offsets (``azimuth``, ``dip``) and the 90th percentile of the azimuth offset's size (``azimuth_p90``);
+    None for each where ``rest`` or ``moving`` has no sample with the reference.
+
+    A magnetometer that agrees with the reference gives zeros. An offset that lasts through the motion is what
+    the magnetometer tells every filter that trusts it, however long it averages: a field that changes along
+    the path, or a magnetometer whose calibration or alignment with the other sensors errs with the attitude.
+    For diagnosis and scoring only: it reads the reference."""
+    from scipy.spatial.transform import Rotation
+
+    mag, quat_ref = np.asarray(mag, dtype=np.float64), np.asarray(quat_ref, dtype=np.float64)
+    have = ~np.isnan(quat_ref).any(axis=1) & np.isfinite(mag).all(axis=1)
+    keys = ("azimuth", "azimuth_p90", "dip")
+    rest, moving = np.asarray(rest, dtype=bool) & have, np.asarray(moving, dtype=bool) & have
+    if not rest.any() or not moving.any():
+        return dict.fromkeys(keys)
+    sel = rest | moving
+    m = Rotation.from_quat(quat_ref[sel][:, [1, 2, 3, 0]]).apply(mag[sel])
+    az = np.degrees(np.arctan2(m[:, 1], m[:, 0]))
+    dip = np.degrees(np.arctan2(m[:, 2], np.hypot(m[:, 0], m[:, 1])))
+    r, v = rest[sel], moving[sel]
+    d_az = (az[v] - np.median(az[r]) + 180.0) % 360.0 - 180.0
+    return {"azimuth": float(np.median(d_az)), "azimuth_p90": float(np.percentile(np.abs(d_az), 90)),
+            "dip": float(np.median(dip[v]) - np.median(dip[r]))}
+
+
 def attitude_error_per_second(ts: np.ndarray, quat_est: np.ndarray, quat_ref: np.ndarray,
                               mask: np.ndarray) -> np.ndarray:
     """The total attitude error (deg) of :func:`attitude_rms` as its rms over each whole second from ``ts[0]``

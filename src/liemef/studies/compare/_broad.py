@@ -65,7 +65,7 @@ import numpy as np
 
 from ...filters.baselines import VQF, Fusion, Madgwick, Mahony
 from ...metrics import ATTITUDE_METRICS as METRICS
-from ...metrics import attitude_error_per_second, attitude_rms
+from ...metrics import attitude_error_per_second, attitude_rms, field_against_reference
 from ...reports import io
 from ...reports.figures import broad_error_figure as error_figure
 from ...smoothers import OfflineSmoother
@@ -280,6 +280,7 @@ def trial_context(trial: datasets.BroadTrial, params: dict | None = None, tuned_
     rest = rest_constants(trial.gyr, trial.acc, trial.mag, trial.rate)
     first = min(INITIAL_SAMPLES, rest["rest_samples"])
     return {"dip": rest["dip"], "gravity": rest["gravity"], "field": rest["field"], "rest_s": rest["rest_s"],
+            "rest_samples": rest["rest_samples"],
             "params": {} if params is None else params, "tuned_system": tuned_system,
             "g0": initial_estimate(trial.acc[:first], trial.mag[:first])}
 
@@ -391,6 +392,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                           "dip_deg": math.degrees(ctx["dip"]), "gravity": ctx["gravity"],
                           "field_uT": ctx["field"], "rest_s": ctx["rest_s"],
                           "imu_params": params, "filters": rows,
+                          "field_vs_truth": field_vs_truth(trial, ctx["rest_samples"]),
                           "published": PUBLISHED.get(tid) if st.seconds is None else None}
         winners[tid] = {}
         for m in METRICS:
@@ -424,6 +426,14 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                       f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"},
             "lags": lag, "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners,
             "arrays": arrays}
+
+
+def field_vs_truth(trial: datasets.BroadTrial, rest_samples: int) -> dict[str, float | None]:
+    """The trial's magnetometer read through the optical attitude (:func:`liemef.metrics.field_against_reference`):
+    its azimuth and dip over BROAD's movement mask against the initial rest found from the IMU (its first
+    ``rest_samples`` samples), in degrees. Scoring's diagnosis only: no filter sees it."""
+    rest = np.arange(trial.ts.size) < rest_samples
+    return field_against_reference(trial.mag, trial.quat_true, rest, trial.movement)
 
 
 def markdown(result: dict) -> str:
@@ -476,6 +486,18 @@ def markdown(result: dict) -> str:
                                                                          else "no")
             lines.append(f"| {t} | {m} | {w['winner']} | {w['value']:.3f} | {w['runner_up'] or '-'} | "
                          f"{fmt(w['lead'], 3)} | {beyond} |")
+    fields = {t: per.get("field_vs_truth") for t, per in result["trials"].items()}
+    if all(f is not None for f in fields.values()):
+        lines += ["", "## The magnetometer against the optical truth", "",
+                  "Each magnetometer sample turned into the world by the optical attitude, over the movement mask, "
+                  "against its direction over the initial rest: the median offset of its azimuth and of its dip, and "
+                  "the 90th percentile of the azimuth offset's size [deg]. Zero where the magnetometer agrees with "
+                  "the truth; an offset that lasts through the motion is a heading the magnetometer tells every "
+                  "filter that trusts it. Scoring's diagnosis only: no filter sees it.", "",
+                  "| trial | azimuth (median) | azimuth (90th percentile of the size) | dip (median) |",
+                  "|---|---:|---:|---:|"]
+        for t, f in fields.items():
+            lines.append(f"| {t} | {fmt(f['azimuth'])} | {fmt(f['azimuth_p90'])} | {fmt(f['dip'])} |")
     return "\n".join(lines + [""])
 
 
