@@ -228,6 +228,21 @@ def test_compare_broad_ins_on_a_short_slice(tmp_path):
     assert "## Attitude against the attitude-only filters" in md and "NaN" not in md
 
 
+@pytest.mark.slow  # about 2 min: the filter, then the smoother of its 27-dimensional model over 45 s at 286 Hz
+def test_the_smoother_row_beats_its_filter_and_has_no_monitor(tmp_path):
+    _broad_present("16")
+    out = tmp_path / "bins"
+    res = CliRunner().invoke(cli.cli, ["compare", "broad-ins", "--set", "trials=16", "--set", "seconds=45",
+                                       "--filters", "mef,mef-smooth", "--set", "attitude_filters=none",
+                                       "--set", "variants=recorded", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    rows = json.loads((out / "broad_ins.json").read_text())["per_trial"]["16"]["variants"]["recorded"]["filters"]
+    f, s = rows["mef"], rows["mef-smooth"]
+    assert f["ok"] and s["ok"] and f["monitor"] is not None and s["monitor"] is None and s["fix_nis"] is None
+    assert s["position"] < f["position"] and s["total"] < f["total"], (f, s)
+    assert math.isfinite(s["nees_pose"]) and "no monitor (acausal)" in (out / "broad_ins.md").read_text()
+
+
 def test_the_report_names_the_translation_trials_that_were_run():
     """The attitude section says which of the trials run are translation trials, from their files, not a fixed
     list."""
