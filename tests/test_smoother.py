@@ -209,8 +209,13 @@ def test_localization_smoother_is_scipy_least_squares_on_the_group(localization)
     z0 = np.asarray(sm.g.coords()).ravel() + 1e-3  # off the smoother's minimizer
     res = optimize.least_squares(lambda z: np.asarray(residuals(z)), z0, jac=lambda z: np.asarray(jacobian(z)),
                                  method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    print(f"smoother against least squares: {np.max(np.abs(res.x.reshape(N, 3) - np.asarray(sm.g.coords()))):.2e}")
-    np.testing.assert_allclose(res.x.reshape(N, 3), np.asarray(sm.g.coords()), atol=LSQ)
+    # scipy's LM stops where its own tests say, up to 1e-8 off along the flattest direction (the Jacobian's
+    # condition number is about 2500): three Gauss-Newton steps by numpy's lstsq finish its minimization
+    z = res.x
+    for _ in range(3):
+        z = z - np.linalg.lstsq(np.asarray(jacobian(z)), np.asarray(residuals(z)), rcond=None)[0]
+    print(f"smoother against least squares: {np.max(np.abs(z.reshape(N, 3) - np.asarray(sm.g.coords()))):.2e}")
+    np.testing.assert_allclose(z.reshape(N, 3), np.asarray(sm.g.coords()), atol=LSQ)
     np.testing.assert_allclose(0.5 * np.sum(res.fun**2), float(sm.cost), rtol=1e-10)
 
 

@@ -107,7 +107,7 @@ class Problem(eqx.Module):
     """The cost's data, padded to a length bucket (every array a leaf, so a new log of the same bucket or a new
     weight set reuses the compiled solver): the prior, the times, the held inputs, the samples (zeros where
     missing), the present components, the intervals, the process information per interval and the measurement
-    information per state."""
+    information per state, and which states are the padding's."""
 
     g0: LieGroup
     P0inv: Float[Array, "n n"]
@@ -118,6 +118,7 @@ class Problem(eqx.Module):
     dts: Float[Array, " K"]
     Qinv: Float[Array, "K n n"]
     W: Float[Array, "M p p"]
+    padded: Any
 
 
 # --- the cost -------------------------------------------------------------------------------------------------
@@ -224,6 +225,7 @@ def _linearize(system, integ, screens, prob, xs):
     T = lambda A: jnp.swapaxes(A, -1, -2)  # noqa: E731
     QJa, QJb, WJm = prob.Qinv @ Ja, prob.Qinv @ Jb, Wg @ Jm
     D = T(Jm) @ Wh @ Jm
+    D = D + prob.padded[:, None, None] * jnp.eye(n)  # the padding's own curvature: no gradient, no cost (problem)
     D = D.at[0].add(J0.T @ prob.P0inv @ J0)
     D = D.at[:-1].add(T(Ja) @ QJa)
     D = D.at[1:].add(T(Jb) @ QJb)
@@ -430,8 +432,9 @@ def problem(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, 
             init: LieGroup, integ: AbstractIntegrator, gap: float = math.inf, last_sample: bool = True,
             floor_std: float = FLOOR_STD) -> tuple[Problem, LieGroup]:
     """The cost's data for a checked log (``us`` with missing inputs already held), padded to a length bucket,
-    and ``init`` extended over the padding by dead reckoning. The padded states carry no sample: they are free
-    extrapolations whose terms vanish at the minimum and leave the log's states and their marginals unchanged.
+    and ``init`` extended over the padding by dead reckoning. The padded states carry no sample and no link to
+    the log's: a chain of their own, of unit information, whose terms vanish, and which leaves the log's states
+    and their marginals as without it.
     ``last_sample=False``: the last row's samples do not enter (the filter's information set at ``ts[-1]``).
     The process noise is evaluated on ``init``."""
     N = ts.shape[0]
@@ -454,9 +457,19 @@ def problem(system: AbstractSystem, weights: Weights, ts, us, ys, g0: LieGroup, 
     else:
         Qd = np.asarray(_process_noise(system, BRB, init[:-1], usj[:-1], tsj[:-1])) * dts[:, None, None]
     Qinv = np.linalg.inv(floor_eigenvalues(Qd, floor_std))
+    # The padding is cut from the log: no weight on the link from the last state into it, unit information
+    # between padded states, and a unit curvature on each (``padded``, :func:`_linearize`), so that the log's
+    # states are solved as if there were no padding and the padded chain stays positive definite. With the
+    # model's weights on the padding, the last padded state's information was the difference of terms of
+    # 1/floor_std^2 (a constant coordinate, a position without noise), which round-off made indefinite after a
+    # long extrapolation (the 27-state inertial model of compare broad-ins over 30 s of padding: an eigenvalue
+    # of -0.08 beside 1e12, and NaN covariances).
+    Qinv[N - 1:] = np.eye(Qinv.shape[-1])
+    if pad:
+        Qinv[N - 1] = 0.0
     prob = Problem(g0=g0, P0inv=jnp.asarray(np.linalg.inv(floor_eigenvalues(P0, floor_std))), ts=tsj, us=usj,
                    ys=jnp.asarray(yz), present=jnp.asarray(present), dts=jnp.asarray(dts), Qinv=jnp.asarray(Qinv),
-                   W=W)
+                   W=W, padded=jnp.asarray(np.arange(tsp.shape[0]) >= N))
     return prob, init
 
 
