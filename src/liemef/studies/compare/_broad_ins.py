@@ -505,7 +505,14 @@ def _evo_summary(res: dict | None) -> dict | None:
 # --- the study --------------------------------------------------------------------------------------------------
 def run_ins(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, gyro_scale_std: float = 0.0):
     """The inertial filter ``name`` (:data:`INS_FILTERS`) on ``log`` from :func:`initial_state` and :data:`K0`."""
-    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std, gyro_scale_std))
+    return _run(_ins_filter(name, data, fix_std, gyro_scale_std), data, log)
+
+
+def _ins_filter(name: str, data: InsTrial, fix_std: float, gyro_scale_std: float):
+    return INS_FILTERS[name][1](system_of(data.trial.rate, fix_std, gyro_scale_std))
+
+
+def _run(flt, data: InsTrial, log: io.RecordedLog):
     return flt.run(flt.init(initial_state(data), K0), log.ts, log.us, log.ys)
 
 
@@ -516,13 +523,12 @@ def _calibration(traj) -> dict:
     return {"lever_arm_m": [float(c) for c in z[6:9]], "gyro_calibration": [float(c) for c in z[9:18]]}
 
 
-def _monitor(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, traj, gyro_scale_std: float) -> dict:
-    """The innovation monitor's verdict on the run (:func:`liemef.metrics.innovation_monitor`, no truth) and the
-    fixes' mean NIS per degree of freedom (1 for a consistent filter). None for a smoother: its residuals have
-    no innovation covariance to be judged against."""
+def _monitor(flt, log: io.RecordedLog, traj) -> dict:
+    """The innovation monitor's verdict on the run ``traj`` of ``flt`` (:func:`liemef.metrics.innovation_monitor`,
+    no truth) and the fixes' mean NIS per degree of freedom (1 for a consistent filter). None for a smoother: its
+    residuals have no innovation covariance to be judged against."""
     from ...metrics import innovation_monitor
 
-    flt = INS_FILTERS[name][1](system_of(data.trial.rate, fix_std, gyro_scale_std))
     if getattr(flt, "offline", False):
         return dict.fromkeys(MONITOR_KEYS)
     report = innovation_monitor(flt, traj, log.ts, log.us, log.ys)
@@ -552,14 +558,15 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                 if name.startswith("ukf") and (tid not in st.ukf_trials or variant not in st.ukf_variants):
                     continue
                 t0 = time.perf_counter()
-                traj = run_ins(name, data, log, fix_std, st.gyro_scale_std)
+                flt = _ins_filter(name, data, fix_std, st.gyro_scale_std)  # run and monitored: built once
+                traj = _run(flt, data, log)
                 ok = bool(int(traj.status.code) == 0)
                 run_s = time.perf_counter() - t0
                 if ok:
                     figs, per_s = errors(data, traj, truth=truth)
                     evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, truth=truth))
                     figs.update(_calibration(traj))
-                    figs.update(_monitor(name, data, log, fix_std, traj, st.gyro_scale_std))
+                    figs.update(_monitor(flt, log, traj))
                 else:
                     figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
                     figs.update(dict.fromkeys(NEES_KEYS + BAND_KEYS + CALIBRATION_KEYS + MONITOR_KEYS))
