@@ -161,7 +161,8 @@ class MinimumEnergyFilter(AbstractFilter):
         self.constant_E = constant_E
         self.blocks, self.sample, self.diagonal = sensor_layout(system, self.weights.Wy)
         # K stays symmetric when E is (first order, or a torsion-free connection) (docs/theorem.md).
-        torsion = np.asarray(self.connection.Gamma - jnp.swapaxes(self.connection.Gamma, 1, 2) - self.connection.C)
+        Gamma = np.asarray(self.connection.Gamma)  # NumPy: a check, not worth an XLA compile
+        torsion = Gamma - np.swapaxes(Gamma, 1, 2) - np.asarray(self.connection.C)
         self.symmetric = order == "first" or bool(np.allclose(torsion, 0.0, atol=1e-12))
 
     def __repr__(self) -> str:

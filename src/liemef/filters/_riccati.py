@@ -20,7 +20,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._linalg import mm, mv
+from .._linalg import array_module, mm, mv
 from ..connections import Connection
 from ..groups import LieGroup
 from ..systems import AbstractSystem
@@ -59,7 +59,10 @@ class Weights(eqx.Module):
     @staticmethod
     def of(system: AbstractSystem) -> Weights:
         """The system's nominal weights: every sample present, information per unit time or per sample."""
-        return Weights(Wy=system.information(), BRB=system.B @ jnp.linalg.solve(system.R, system.B.T))
+        B, R = system.B, system.R
+        xp = array_module(B, R)  # NumPy outside a trace: no XLA compile
+        B = xp.asarray(B)
+        return Weights(Wy=system.information(), BRB=B @ xp.linalg.solve(xp.asarray(R), B.T))
 
 
 def information_in_force(Wy, sample, mask, dt, *, diagonal: bool = False) -> Float[Array, "p p"]:

@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import _validate
+from .._linalg import array_module
 from ..groups import LieGroup
 from ._traced import at_state, check_finite, check_traced
 
@@ -143,8 +144,10 @@ class AbstractSystem(eqx.Module):
     def information(self) -> Float[Array, "p p"]:
         r"""Measurement information $D^{-\top} Q D^{-1}$: per unit time for density blocks, per sample for
         sample blocks (:mod:`liemef.systems._sensors`)."""
-        Dinv = jnp.linalg.inv(self.D)
-        return Dinv.T @ self.Q @ Dinv
+        D, Q = self.D, self.Q
+        xp = array_module(D, Q)  # NumPy outside a trace: no XLA compile
+        Dinv = xp.linalg.inv(xp.asarray(D))
+        return Dinv.T @ xp.asarray(Q) @ Dinv
 
     @property
     def output_names(self) -> tuple[str, ...]:

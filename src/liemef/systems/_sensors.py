@@ -34,6 +34,7 @@ from jaxtyping import Array, Float
 
 from .. import _validate
 from .._chi2 import quantile
+from .._linalg import array_module
 from ..groups import LieGroup
 from ._base import AbstractSystem, Block, matrix
 from ._residuals import AngleResidual
@@ -89,7 +90,7 @@ class Noise(eqx.Module):
         if self.rate is None:
             raise ValueError(f"{what}: a sample std held as an input needs its rate; expected "
                              "Noise.sample(std, rate=HZ), got rate=None")
-        return self.std / math.sqrt(self.rate)
+        return array_module(self.std).asarray(self.std) / math.sqrt(self.rate)
 
 
 def parameter(value) -> Array:
@@ -328,25 +329,30 @@ class SensorSystem(AbstractSystem):
         self.coord_units = None if state_units is None else tuple(state_units)
 
     # --- the theorem's matrices, derived from the noise levels ------------------------------------------------
+    # NumPy where no leaf is traced (liemef.systems._traced.array_module): the same values, no XLA compile.
     @property
     def B(self) -> Float[Array, "n d"]:
         """``noise_map diag(density std)`` of the process noise."""
-        return self.noise_map * self.process_noise.density_std("process_noise")[None, :]
+        std = self.process_noise.density_std("process_noise")
+        xp = array_module(self.noise_map, std)
+        return xp.asarray(self.noise_map) * xp.asarray(std)[None, :]
 
     @property
     def R(self) -> Float[Array, "d d"]:
         """The identity: the stds are in B."""
-        return jnp.eye(self.process_noise.dim)
+        return np.eye(self.process_noise.dim)
 
     @property
     def D(self) -> Float[Array, "p p"]:
         """``diag(std)`` of the sensors, in output order."""
-        return jnp.diag(jnp.concatenate([s.noise.std for s in self.sensors]))
+        stds = [s.noise.std for s in self.sensors]
+        xp = array_module(stds)
+        return xp.diag(xp.concatenate([xp.asarray(s) for s in stds]))
 
     @property
     def Q(self) -> Float[Array, "p p"]:
         """The identity: the stds are in D."""
-        return jnp.eye(self.output_dim)
+        return np.eye(self.output_dim)
 
     @property
     def output_dim(self) -> int:
