@@ -243,6 +243,23 @@ def test_the_smoother_row_beats_its_filter_and_has_no_monitor(tmp_path):
     assert math.isfinite(s["nees_pose"]) and "no monitor (acausal)" in (out / "broad_ins.md").read_text()
 
 
+@pytest.mark.slow  # about 2 min: one SE_2(3) x R^18 filter at two gyro scale values on 20 s of two trials
+def test_the_grid_chooses_each_trial_s_gyro_scale_from_the_other_trial(tmp_path):
+    _broad_present("10")
+    _broad_present("16")
+    st = B.BroadInsComparison(trials="10,16", seconds=20.0, filters="mef", attitude_filters="none",
+                              variants="recorded", gyro_scale_grid="0,0.05")
+    result = B.compare_broad_ins(st, progress=False)
+    grid = result["grid"]["recorded"]["mef"]
+    for held, other in (("10", "16"), ("16", "10")):
+        r = result["per_trial"][held]["variants"]["recorded"]["filters"]["mef"]
+        best = min((0.0, 0.05), key=lambda g: (grid[f"{g:g}"][other]["loss"], g))
+        assert r["gyro_scale_std"] == best and r["training_loss"] == grid[f"{best:g}"][other]["loss"]
+        assert r["total"] == grid[f"{best:g}"][held]["total"] and r["ok"]
+    assert "gyro_scale_std chosen per trial" in result["study"]["weights"]
+    assert "## gyro_scale_std by leave-one-out, fixes recorded" in B.markdown(result)
+
+
 def test_the_report_names_the_translation_trials_that_were_run():
     """The attitude section says which of the trials run are translation trials, from their files, not a fixed
     list."""
@@ -262,3 +279,70 @@ def test_the_band_fraction_is_095_for_consistent_nees_and_falls_for_overconfiden
     np.testing.assert_allclose(B.in_band(values), 0.95, atol=0.003)
     assert np.all(B.in_band(4.0 * values) < 0.6)  # errors twice the stated spread
     assert np.all(B.in_band(0.1 * values) < 0.6)  # an underconfident filter leaves the band too
+
+
+def test_the_consistency_loss_is_zero_when_consistent_and_counts_each_factor_of_e():
+    row = {"ok": True, "nees_attitude": 1.0, "nees_velocity": 1.0, "nees_position": 1.0, "nees_pose": 1.0}
+    assert B.consistency_loss(row) == 0.0
+    assert B.consistency_loss({**row, "nees_attitude": math.e}) == pytest.approx(1.0)  # too confident
+    assert B.consistency_loss({**row, "nees_position": math.exp(-2.0)}) == pytest.approx(2.0)  # too cautious
+    for bad in ({**row, "ok": False}, {**row, "nees_velocity": None}, {**row, "nees_attitude": math.nan},
+                {**row, "nees_position": 0.0}):
+        assert B.consistency_loss(bad) == math.inf
+
+
+def test_the_leave_one_out_choice_never_reads_the_held_out_trial():
+    rng = np.random.default_rng(3)
+    grid = (0.0, 0.01, 0.02, 0.05)
+    losses = {t: dict(zip(grid, rng.uniform(0, 5, len(grid)), strict=True)) for t in ("01", "07", "10", "16")}
+    choice = B.held_out_choice(losses)
+    for held in losses:
+        others = [t for t in losses if t != held]
+        means = {g: np.mean([losses[t][g] for t in others]) for g in grid}
+        best = min(grid, key=lambda g: means[g])
+        assert choice[held] == {"value": best, "training": pytest.approx(means[best])}
+        # the held-out trial's own losses, however they change, do not move its choice
+        moved = {**losses, held: {g: (0.0 if g != best else 99.0) for g in grid}}
+        assert B.held_out_choice(moved)[held] == choice[held]
+    # a failed run (infinite loss) on a training trial rules its value out; a tie goes to the smaller value
+    tied = {"a": {0.0: 1.0, 0.1: 1.0}, "b": {0.0: math.inf, 0.1: 2.0}, "c": {0.0: 2.0, 0.1: 2.0}}
+    assert B.held_out_choice(tied)["a"]["value"] == 0.1 and B.held_out_choice(tied)["b"]["value"] == 0.0
+    assert B.held_out_choice({"a": {0.0: 1.0}}) == {}  # no other trial: no choice
+
+
+def test_the_grid_setting_is_checked_and_names_its_argument(tmp_path):
+    import scipy.io
+
+    (tmp_path / "broad").mkdir()
+    for tid in ("10", "16"):  # the settings read only which trials a folder holds: two files with BROAD's names
+        scipy.io.savemat(tmp_path / "broad" / f"{tid}_stub.mat", dict.fromkeys(datasets.BROAD_VARIABLES, 0.0))
+    study = lambda **kw: B.BroadInsComparison(realdata=str(tmp_path), **kw)  # noqa: E731
+    st = study(trials="10,16", gyro_scale_grid="0.02,0,0.01")
+    assert st.trials == ("10", "16") and st.gyro_scale_grid == (0.0, 0.01, 0.02)
+    assert study(gyro_scale_grid=(0.05, 0)).gyro_scale_grid == (0.0, 0.05) and study().gyro_scale_grid is None
+    for bad in ("0.01", "0,x", "0,0", "0,-0.1", 0.02, "0,nan", (True, 0.0)):
+        with pytest.raises(ValueError, match="^gyro_scale_grid: expected at least two distinct numbers >= 0"):
+            study(gyro_scale_grid=bad)
+    with pytest.raises(ValueError, match="^gyro_scale_std: expected its default 0 when gyro_scale_grid"):
+        study(gyro_scale_grid="0,0.01", gyro_scale_std=0.01)
+    with pytest.raises(ValueError, match="^trials: expected at least two for gyro_scale_grid"):
+        study(trials="16", gyro_scale_grid="0,0.01")
+
+
+def test_the_grid_tables_give_each_fold_s_choice_and_each_value_s_means():
+    def row(total, nees, s, training=None):
+        r = {"ok": True, "total": total, "inclination": 0.1, "velocity": 0.01, "position": 0.001,
+             "nees_attitude": nees, "nees_velocity": 1.0, "nees_position": 1.0, "gyro_scale_std": s}
+        return r if training is None else {**r, "training_loss": training}
+
+    grid = {"0": {"10": B._grid_cell(row(1.0, 4.0, 0.0)), "16": B._grid_cell(row(2.0, math.e, 0.0))},
+            "0.02": {"10": B._grid_cell(row(0.5, 1.0, 0.02)), "16": B._grid_cell(row(1.0, 1.0, 0.02))}}
+    assert grid["0"]["16"]["loss"] == pytest.approx(1.0) and grid["0.02"]["10"]["loss"] == 0.0
+    result = {"grid": {"recorded": {"mef": grid}}, "study": {"filters": ("mef",)},
+              "per_trial": {t: {"variants": {"recorded": {"filters": {"mef": row(0.5, 1.0, 0.02, 0.0)}}}}
+                            for t in ("10", "16")}}
+    lines = B._grid_lines(result, ["10", "16"])
+    assert "| mef | 0.02 (0) | 0.02 (0) |" in lines
+    assert "| mef | 0 | 2 | 1.5 | 3.36 | 1 | 1 | 1.19 |" in lines  # (4 + e) / 2, (ln 4 + 1) / 2
+    assert "| mef | 0.02 | 2 | 0.75 | 1 | 1 | 1 | 0 |" in lines
+    assert B._grid_lines({"per_trial": {}}, []) == []

@@ -180,7 +180,10 @@ class BroadInsComparison:
     ``ukf_variants``: the trials and variants the UKF-M filters run on (default all; the UKF-M costs about ten
     times the EKF here, so a slow machine may limit it, e.g. to ``10,16`` and ``recorded``), and ``gyro_scale_std``
     (unitless, default 0: off): the gyro's noise grows with the rate it measures, every inertial filter alike
-    (:func:`system_of`)."""
+    (:func:`system_of`). ``gyro_scale_grid`` (a comma-separated list of at least two values >= 0, or None: off)
+    chooses ``gyro_scale_std`` per trial instead, by leave-one-out (:func:`held_out_choice`): each filter runs at
+    every value on every trial, and a trial's row is the run at the value whose :func:`consistency_loss` is lowest
+    on the mean over the other trials; ``gyro_scale_std`` must then keep its default."""
 
     trials: tuple[str, ...] | str | None = None
     seconds: float | None = None
@@ -194,6 +197,7 @@ class BroadInsComparison:
     ukf_trials: tuple[str, ...] | str | None = None
     ukf_variants: tuple[str, ...] | str | None = None
     gyro_scale_std: float = 0.0
+    gyro_scale_grid: tuple[float, ...] | str | None = None
 
     def __post_init__(self):
         from ._broad import BROAD_FILTERS
@@ -212,6 +216,24 @@ class BroadInsComparison:
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a number > 0, got {v!r}")
         g = float(gyro_scale_value("gyro_scale_std", self.gyro_scale_std))
+        grid = self.gyro_scale_grid
+        if grid is not None:
+            items = grid.split(",") if isinstance(grid, str) else list(grid) if isinstance(grid, tuple | list) \
+                else [grid]
+            try:
+                grid = tuple(sorted(float(gyro_scale_value("gyro_scale_grid", float(v) if isinstance(v, str) else v))
+                                    for v in items))
+            except ValueError as exc:
+                raise ValueError(f"gyro_scale_grid: expected at least two distinct numbers >= 0, got "
+                                 f"{self.gyro_scale_grid!r}") from exc
+            if len(set(grid)) != len(grid) or len(grid) < 2:
+                raise ValueError(f"gyro_scale_grid: expected at least two distinct numbers >= 0, got "
+                                 f"{self.gyro_scale_grid!r}")
+            if g != 0.0:
+                raise ValueError(f"gyro_scale_std: expected its default 0 when gyro_scale_grid chooses it, got "
+                                 f"{self.gyro_scale_std!r}")
+            if len(trials) < 2:
+                raise ValueError(f"trials: expected at least two for gyro_scale_grid's leave-one-out, got {trials!r}")
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
@@ -220,7 +242,8 @@ class BroadInsComparison:
         for key, v in (("trials", trials), ("ukf_trials", ukf), ("ukf_variants", ukf_variants), ("filters", names),
                        ("attitude_filters", att),
                        ("variants", variants), ("realdata", str(folder)), ("fix_rate", float(self.fix_rate)),
-                       ("noise_std", float(self.noise_std)), ("gyro_scale_std", float(g))):
+                       ("noise_std", float(self.noise_std)), ("gyro_scale_std", float(g)),
+                       ("gyro_scale_grid", grid)):
             object.__setattr__(self, key, v)
 
 
@@ -536,11 +559,62 @@ def _monitor(flt, log: io.RecordedLog, traj) -> dict:
     return {"monitor": report.status, "fix_nis": None if gnss.mean_nis is None else gnss.mean_nis / gnss.dof}
 
 
+def _score(name: str, data: InsTrial, log: io.RecordedLog, fix_std: float, gyro_scale_std: float, truth,
+           fix_rate: float) -> tuple[dict, np.ndarray | None]:
+    """One run of the inertial filter ``name``, scored: its row of figures and its attitude error per second."""
+    t0 = time.perf_counter()
+    flt = _ins_filter(name, data, fix_std, gyro_scale_std)  # run and monitored: built once
+    traj = _run(flt, data, log)
+    ok = bool(int(traj.status.code) == 0)
+    run_s = time.perf_counter() - t0
+    if ok:
+        figs, per_s = errors(data, traj, truth=truth)
+        evo_res = _evo_summary(trajectory_errors(data, traj, fix_rate, truth=truth))
+        figs.update(_calibration(traj))
+        figs.update(_monitor(flt, log, traj))
+    else:
+        figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
+        figs.update(dict.fromkeys(NEES_KEYS + BAND_KEYS + CALIBRATION_KEYS + MONITOR_KEYS))
+    return ({"filter": INS_FILTERS[name][0], "ok": ok, "status": "ok" if ok else traj.status.message(log.ts), **figs,
+             "evo": evo_res, "gyro_scale_std": float(gyro_scale_std), "run_s": run_s,
+             "elapsed_s": time.perf_counter() - t0}, per_s)
+
+
+def consistency_loss(row: dict) -> float:
+    r"""How far a scored run's covariance is from its errors: $\sum_b |\ln \bar\epsilon_b|$ over the attitude,
+    velocity and position blocks, $\bar\epsilon_b$ the block's NEES per degree of freedom averaged over the
+    scored samples (0 for a filter whose covariance matches its errors on the average; a factor of e too
+    confident or too cautious in one block costs 1). Infinite for a run that failed or has no NEES."""
+    values = [row.get(k) for k in NEES_KEYS[:3]]
+    if not row.get("ok") or any(v is None or not math.isfinite(v) or v <= 0 for v in values):
+        return math.inf
+    return float(sum(abs(math.log(v)) for v in values))
+
+
+def held_out_choice(losses: dict[str, dict[float, float]]) -> dict[str, dict]:
+    """Leave-one-out over trials: ``losses[trial][value]`` is a run's loss at each grid value. For each trial, the
+    value whose mean loss over the *other* trials is lowest (the smallest value on a tie), with that training mean
+    (``{"value", "training"}``): the held-out trial's own losses never enter its choice. A trial with no other
+    trial gets no choice (KeyError is not raised: it is left out)."""
+    out = {}
+    for held in losses:
+        others = [t for t in losses if t != held]
+        if not others:
+            continue
+        grid = sorted(losses[held])
+        mean = {v: float(np.mean([losses[t].get(v, math.inf) for t in others])) for v in grid}
+        best = min(grid, key=lambda v: (mean[v], v))
+        out[held] = {"value": best, "training": mean[best]}
+    return out
+
+
 def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool = True) -> dict:
-    """Run the study; returns ``{"study", "per_trial", "means", "attitude_only", "arrays"}``."""
+    """Run the study; returns ``{"study", "per_trial", "means", "attitude_only", "arrays"}``, and ``"grid"``
+    where ``gyro_scale_grid`` chose ``gyro_scale_std`` per trial (each grid value's rows, every trial)."""
     st = BroadInsComparison() if study is None else study
+    grid = st.gyro_scale_grid or (st.gyro_scale_std,)
     paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
-    per_trial, arrays = {}, {}
+    per_trial, runs = {}, {}
     for tid in st.trials:
         data = load_trial(paths[tid], st.seconds)
         r, before, after = lever_arm(data)
@@ -553,54 +627,77 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
             noise = None if variant == "recorded" else st.noise_std
             fix_std = RECORDED_FIX_STD if noise is None else math.hypot(RECORDED_FIX_STD, noise)
             log = ins_log(data, fixes(data, tid, st.fix_rate, noise, st.seed))
-            rows = {}
             for name in st.filters:
                 if name.startswith("ukf") and (tid not in st.ukf_trials or variant not in st.ukf_variants):
                     continue
-                t0 = time.perf_counter()
-                flt = _ins_filter(name, data, fix_std, st.gyro_scale_std)  # run and monitored: built once
-                traj = _run(flt, data, log)
-                ok = bool(int(traj.status.code) == 0)
-                run_s = time.perf_counter() - t0
-                if ok:
-                    figs, per_s = errors(data, traj, truth=truth)
-                    evo_res = _evo_summary(trajectory_errors(data, traj, st.fix_rate, truth=truth))
-                    figs.update(_calibration(traj))
-                    figs.update(_monitor(flt, log, traj))
-                else:
-                    figs, per_s, evo_res = {k: None for k, _, _ in METRICS}, None, None
-                    figs.update(dict.fromkeys(NEES_KEYS + BAND_KEYS + CALIBRATION_KEYS + MONITOR_KEYS))
-                rows[name] = {"filter": INS_FILTERS[name][0], "ok": ok,
-                              "status": "ok" if ok else traj.status.message(log.ts), **figs, "evo": evo_res,
-                              "run_s": run_s, "elapsed_s": time.perf_counter() - t0}
-                if per_s is not None:
-                    arrays[f"{tid}/{variant}/{name}/error_1s"] = per_s
-                if progress:
-                    f = rows[name]
-                    print(f"  trial {tid} {variant:8s} {name:10s} attitude {fmt(f['total'])} (incl. "
-                          f"{fmt(f['inclination'])}) deg, velocity {fmt(f['velocity'])} m/s, position "
-                          f"{fmt(f['position'])} m, NEES {fmt(f['nees_pose'], 3)}, {f.get('monitor')}; run "
-                          f"{f['run_s']:.1f} s, with the scoring {f['elapsed_s']:.1f} s",
-                          file=sys.stderr, flush=True)
-            entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": rows}
+                for g in grid:
+                    row, per_s = runs[tid, variant, name, g] = _score(name, data, log, fix_std, g, truth,
+                                                                      st.fix_rate)
+                    if progress:
+                        at = f" at gyro_scale_std {g:g}" if st.gyro_scale_grid else ""
+                        print(f"  trial {tid} {variant:8s} {name:10s}{at} attitude {fmt(row['total'])} (incl. "
+                              f"{fmt(row['inclination'])}) deg, velocity {fmt(row['velocity'])} m/s, position "
+                              f"{fmt(row['position'])} m, NEES {fmt(row['nees_pose'], 3)}, {row.get('monitor')}; "
+                              f"run {row['run_s']:.1f} s, with the scoring {row['elapsed_s']:.1f} s",
+                              file=sys.stderr, flush=True)
+            entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": {}}
         per_trial[tid] = entry
+    arrays, grid_rows = {}, {}
+    for variant in st.variants:
+        for name in st.filters:
+            ran = [t for t in st.trials if (t, variant, name, grid[0]) in runs]
+            if st.gyro_scale_grid:
+                choice = held_out_choice({t: {g: consistency_loss(runs[t, variant, name, g][0]) for g in grid}
+                                          for t in ran})
+                grid_rows.setdefault(variant, {})[name] = {
+                    f"{g:g}": {t: _grid_cell(runs[t, variant, name, g][0]) for t in ran} for g in grid}
+            else:
+                choice = {t: {"value": grid[0], "training": None} for t in ran}
+            for t in ran:
+                if t not in choice:  # a filter run on one trial only (the UKF-M's subset): no fold to choose it
+                    continue
+                row, per_s = runs[t, variant, name, choice[t]["value"]]
+                if st.gyro_scale_grid:
+                    row = {**row, "training_loss": _finite(choice[t]["training"])}
+                per_trial[t]["variants"][variant]["filters"][name] = row
+                if per_s is not None:
+                    arrays[f"{t}/{variant}/{name}/error_1s"] = per_s
     attitude_only = _attitude_only(st, progress)
     system = "inertial_navigation(biases=True, lever_arm=True, gyro_calibration='matrix')"
     return {"study": {**dataclasses.asdict(st), "system": system,
                       "weights": f"gyro {GYRO_STD} rad/s per sample"
                                  + (f" plus {st.gyro_scale_std:g} times the rate it measures" if st.gyro_scale_std
                                     else "")
+                                 + (" plus gyro_scale_std times the rate it measures, gyro_scale_std chosen per "
+                                    "trial and filter from {" + ", ".join(f"{g:g}" for g in grid) + "} by "
+                                    "leave-one-out (the lowest mean consistency loss over the other trials: the sum "
+                                    "over attitude, velocity and position of |ln NEES per dof|; the trial's own runs "
+                                    "never enter its choice)" if st.gyro_scale_grid else "")
                                  + f", accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
-                                 "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors, one set "
-                                 "for all trials", "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
-                                                   f"{LEVER_ARM_STD}^2 I3, gyro calibration {GYRO_SCALE_STD}^2 on the "
-                                                   f"diagonal and {GYRO_CROSS_STD}^2 off it)",
+                                 "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors"
+                                 + (" (gyro_scale_std apart)" if st.gyro_scale_grid else "")
+                                 + ", one set for all trials",
+                      "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
+                            f"{LEVER_ARM_STD}^2 I3, gyro calibration {GYRO_SCALE_STD}^2 on the "
+                            f"diagonal and {GYRO_CROSS_STD}^2 off it)",
                       "initial": "from the IMU alone at the file's first sample: TRIAD over the initial rest "
                                  "detected from the IMU, zero velocity, the origin, gyro bias = mean gyro over that "
                                  "rest, zero accelerometer bias, lever arm and gyro calibration errors",
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
-            "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only, "arrays": arrays}
+            "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only,
+            **({"grid": grid_rows} if st.gyro_scale_grid else {}), "arrays": arrays}
+
+
+def _grid_cell(row: dict) -> dict:
+    """A grid run's figures for the grid table: attitude total, the NEES per block and the loss."""
+    return {**{k: row[k] for k in ("ok", "total", "inclination", "velocity", "position") + NEES_KEYS[:3]},
+            "loss": _finite(consistency_loss(row))}
+
+
+def _finite(v: float) -> float | None:
+    """``v``, or None where it is infinite (a failed run's loss; JSON has no infinity)."""
+    return v if math.isfinite(v) else None
 
 
 def _attitude_only(st: BroadInsComparison, progress: bool) -> dict:
@@ -707,6 +804,7 @@ def markdown(result: dict) -> str:
             lines.append(f"| {t} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += _consistency_lines(result, trials)
+    lines += _grid_lines(result, trials)
     variant = "recorded" if "recorded" in st["variants"] else st["variants"][0]
     vec = lambda v, k: "-" if v is None else "(" + ", ".join(f"{k * c:.2f}" for c in v) + ")"  # noqa: E731
     lines += ["## Lever arm and gyro calibration", "", "The least-squares lever arm of the IMU from the optical "
@@ -763,6 +861,35 @@ def _consistency_lines(result: dict, trials) -> list[str]:
                   "degree of freedom and the innovation monitor's verdict (no truth).", "",
                   "| filter | " + " | ".join(trials) + " |", "|---|" + "---|" * len(trials)]
         lines += _trial_rows(result, variant, trials, _consistency_cell)
+        lines.append("")
+    return lines
+
+
+def _grid_lines(result: dict, trials) -> list[str]:
+    """Where ``gyro_scale_grid`` chose ``gyro_scale_std``: per variant, each trial's choice with its training
+    loss, then each grid value's means over every trial (in-sample, for reading: no choice uses them)."""
+    grid = result.get("grid")
+    if not grid:
+        return []
+    lines = []
+    for variant, per_filter in grid.items():
+        lines += [f"## gyro_scale_std by leave-one-out, fixes {variant}", "",
+                  "Per trial: the value chosen without it (the lowest mean consistency loss over the other trials) "
+                  "and that training loss; the trial's rows above are its runs at that value, held out.", "",
+                  "| filter | " + " | ".join(trials) + " |", "|---|" + "---:|" * len(trials)]
+        lines += _trial_rows(result, variant, trials,
+                             lambda r: f"{r['gyro_scale_std']:g} ({fmt(r.get('training_loss'), 3)})")
+        lines += ["", f"Each value on every trial (fixes {variant}; in-sample, for reading): means of the attitude "
+                  "total [deg], of the NEES per dof of the attitude / velocity / position and of the consistency "
+                  "loss.", "", "| filter | gyro_scale_std | trials | attitude [deg] | NEES att. | NEES vel. | NEES "
+                  "pos. | loss |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for name, per_value in per_filter.items():
+            for value, cells in per_value.items():
+                rows = list(cells.values())
+                mean = {k: None if any(r[k] is None for r in rows) else float(np.mean([r[k] for r in rows]))
+                        for k in ("total",) + NEES_KEYS[:3] + ("loss",)}
+                lines.append(f"| {name} | {value} | {len(rows)} | {fmt(mean['total'])} | "
+                             + " | ".join(fmt(mean[k], 3) for k in NEES_KEYS[:3]) + f" | {fmt(mean['loss'], 3)} |")
         lines.append("")
     return lines
 
