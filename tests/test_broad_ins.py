@@ -256,6 +256,9 @@ def test_the_grid_chooses_each_trial_s_gyro_scale_from_the_other_trial(tmp_path)
         best = min((0.0, 0.05), key=lambda g: (grid[f"{g:g}"][other]["loss"], g))
         assert r["gyro_scale_std"] == best and r["training_loss"] == grid[f"{best:g}"][other]["loss"]
         assert r["total"] == grid[f"{best:g}"][held]["total"] and r["ok"]
+    header, rows = B.csv_rows(result)
+    assert [r[header.index("gyro_scale_std")] for r in rows] == [
+        result["per_trial"][t]["variants"]["recorded"]["filters"]["mef"]["gyro_scale_std"] for t in ("10", "16")]
     assert "gyro_scale_std chosen per trial" in result["study"]["weights"]
     assert "## gyro_scale_std by leave-one-out, fixes recorded" in B.markdown(result)
 
