@@ -7,9 +7,7 @@ several times faster (benchmarks/bench_tse2.py). Above ``_FUSE_MAX`` the ordinar
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 _FUSE_MAX = 16
 
@@ -36,12 +34,3 @@ def solve3(a, b):
     x = jnp.stack([jnp.sum(b * jnp.cross(c1, c2), axis=-1), jnp.sum(c0 * jnp.cross(b, c2), axis=-1),
                    jnp.sum(c0 * jnp.cross(c1, b), axis=-1)], axis=-1)
     return x / det[..., None]
-
-
-def array_module(*trees):
-    """NumPy where every leaf of ``trees`` is concrete, jax.numpy where one is traced (under ``jit``, ``vmap`` or
-    ``grad``). A system's constant matrices are read by its construction's checks and by each filter's: outside a
-    trace, each jax.numpy operation on a new shape is an XLA compile of its own (about 40 ms of CPU each), which
-    NumPy computes with the same values."""
-    traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
-    return jnp if traced else np

@@ -7,11 +7,10 @@ import os
 import sys
 import warnings
 
-import jax
-
 from .. import _side
 from .._frames import is_users
 from ..codegen import EngineWarning, compiler, kernel_for
+from ..systems._traced import is_traced
 
 ENGINES = ("auto", "c", "xla")
 """How :meth:`~AbstractFilter.run` and :meth:`~AbstractFilter.step` compute: ``"c"`` (a compiled C kernel of
@@ -100,7 +99,7 @@ def _entry(flt, engine: str | None, check=None, args=()) -> tuple:
                       f"{str(err).splitlines()[0] if str(err) else ''}); running with XLA", EngineWarning,
                       stacklevel=_users_level())
         kern, error = None, err
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(flt)):
+    if is_traced(flt):
         return (kern, None, None, None, None)  # a traced filter (scan under a transformation): parameters as data
     if kern is None:
         entry = (None, None, None, error, None)

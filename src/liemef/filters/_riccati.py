@@ -20,10 +20,11 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._linalg import array_module, mm, mv
+from .._linalg import mm, mv
 from ..connections import Connection
 from ..groups import LieGroup
 from ..systems import AbstractSystem
+from ..systems._traced import array_module
 from ._curvature import safe_curvature
 from ._derivatives import left_hessian, left_jacobian
 

@@ -11,9 +11,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import _validate
-from .._linalg import array_module
 from ..groups import LieGroup
-from ._traced import at_state, check_finite, check_traced
+from ._traced import array_module, at_state, check_finite, check_traced
 
 
 def matrix(x) -> Array:

@@ -34,12 +34,11 @@ from jaxtyping import Array, Float
 
 from .. import _validate
 from .._chi2 import quantile
-from .._linalg import array_module
 from ..groups import LieGroup
 from ._base import AbstractSystem, Block, matrix
 from ._residuals import AngleResidual
+from ._traced import array_module, check_finite, check_traced
 from ._traced import at_state as _at
-from ._traced import check_finite, check_traced
 
 Meaning = Literal["density", "sample"]
 MEANINGS = ("density", "sample")
@@ -329,7 +328,7 @@ class SensorSystem(AbstractSystem):
         self.coord_units = None if state_units is None else tuple(state_units)
 
     # --- the theorem's matrices, derived from the noise levels ------------------------------------------------
-    # NumPy where no leaf is traced (liemef.systems._traced.array_module): the same values, no XLA compile.
+    # NumPy where no leaf is traced (._traced.array_module): the same values, no XLA compile.
     @property
     def B(self) -> Float[Array, "n d"]:
         """``noise_map diag(density std)`` of the process noise."""

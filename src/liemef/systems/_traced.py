@@ -95,6 +95,14 @@ def is_traced(tree) -> bool:
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(tree))
 
 
+def array_module(*trees):
+    """NumPy where no leaf of ``trees`` is traced (:func:`is_traced`), jax.numpy where one is (under ``jit``,
+    ``vmap`` or ``grad``). A system's constant matrices are read by its construction's checks and by each
+    filter's: outside a trace, each jax.numpy operation on a new shape is an XLA compile of its own (about 40 ms
+    of CPU each), which NumPy computes with the same values."""
+    return jnp if is_traced(trees) else np
+
+
 def at_state(state: str, t) -> str:
     """Where a value was evaluated, for a message: ``"at the initial state"``, with its time unless 0."""
     return f"at {state}" + (f" (t = {float(t):g})" if float(t) else "")
