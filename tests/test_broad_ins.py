@@ -243,14 +243,18 @@ def test_the_smoother_row_beats_its_filter_and_has_no_monitor(tmp_path):
     assert math.isfinite(s["nees_pose"]) and "no monitor (acausal)" in (out / "broad_ins.md").read_text()
 
 
-@pytest.mark.slow  # about 2 min: one SE_2(3) x R^18 filter at two gyro scale values on 20 s of two trials
+@pytest.mark.slow  # about 2 min: one SE_2(3) x R^18 filter at two gyro scale values on 50 s of two trials
 def test_the_grid_chooses_each_trial_s_gyro_scale_from_the_other_trial(tmp_path):
     _broad_present("10")
     _broad_present("16")
-    st = B.BroadInsComparison(trials="10,16", seconds=20.0, filters="mef", attitude_filters="none",
+    # 50 s: both trials rest for their first 35-37 s, where nothing is scored
+    st = B.BroadInsComparison(trials="10,16", seconds=50.0, filters="mef", attitude_filters="none",
                               variants="recorded", gyro_scale_grid="0,0.05")
     result = B.compare_broad_ins(st, progress=False)
     grid = result["grid"]["recorded"]["mef"]
+    losses = {(g, t): grid[g][t]["loss"] for g in ("0", "0.05") for t in ("10", "16")}
+    assert all(v is not None and math.isfinite(v) for v in losses.values()), losses  # every run scored
+    assert losses["0", "10"] != losses["0.05", "10"] and losses["0", "16"] != losses["0.05", "16"]
     for held, other in (("10", "16"), ("16", "10")):
         r = result["per_trial"][held]["variants"]["recorded"]["filters"]["mef"]
         best = min((0.0, 0.05), key=lambda g: (grid[f"{g:g}"][other]["loss"], g))
