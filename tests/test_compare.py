@@ -433,3 +433,50 @@ def test_a_piped_comparison_says_how_far_it_is_on_stderr(tmp_path):
     assert [line.split()[0] for line in lines] == ["iekf", "ekf"] and "heading" in lines[0]
     assert not any(line.strip().startswith(("iekf ", "ekf ")) for line in res.stdout.splitlines())
     assert "Wrote" in res.stdout
+
+
+def test_a_broad_slice_with_nothing_scored_says_so_and_is_not_usable(tmp_path):
+    """A slice that ends before BROAD's movement starts scores nothing: the report names the trial and when the
+    movement starts, and with no scored trial the comparison is not usable (exit 1), however ok its runs; run
+    past the movement's start, the same trial is scored and nothing is said."""
+    from test_cli_run import broad_mat
+
+    (tmp_path / "broad").mkdir()
+    broad_mat(tmp_path / "broad" / "01_synthetic.mat", rest_s=2.0, seconds=5.0)  # movement from 3.0 s
+    out = tmp_path / "short"
+    res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", f"realdata={tmp_path}", "--set", "seconds=2.5",
+                                       "--filters", "vqf", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 1, res.output
+    why = "trial 01: no sample is scored (its 2.5 s end before BROAD's movement starts at 3.0 s)"
+    assert f"WARNING: {why}" in res.output and "no usable trial" in res.output
+    meta = json.loads((out / "broad.json").read_text())["trials"]["01"]
+    assert meta["filters"]["vqf"]["ok"] and meta["filters"]["vqf"]["total"] is None
+    assert (meta["scored_samples"], meta["movement_s"]) == (0, 3.0)
+    assert f"**Not scored.** {why}" in (out / "broad.md").read_text()
+    res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", f"realdata={tmp_path}", "--filters", "vqf",
+                                       "--out", str(tmp_path / "whole"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "whole" / "broad.json").read_text())["trials"]["01"]
+    assert meta["scored_samples"] == 200 and meta["filters"]["vqf"]["total"] > 0
+    assert "no sample is scored" not in res.output and "Not scored" not in (tmp_path / "whole" / "broad.md").read_text()
+
+
+def test_an_inertial_trial_with_nothing_scored_counts_as_unusable():
+    """compare broad-ins' trials carry the same count: a trial with no scored sample makes each of its runs
+    unusable in :func:`failures`, and its report names it; a scored one is left alone."""
+    from liemef.studies.compare import failures
+    from liemef.studies.compare._common import unscored_lines
+
+    row = {"ok": True, "status": "ok"}
+    result = {"per_trial": {
+        "10": {"scored_samples": 0, "ends_s": 20.0, "movement_s": 36.6,
+               "variants": {"recorded": {"filters": {"mef": row, "iekf-right": row}}}},
+        "16": {"scored_samples": 900, "ends_s": 50.0, "movement_s": 35.0,
+               "variants": {"recorded": {"filters": {"mef": row, "iekf-right": row}}}}}}
+    lines, failed, total = failures(result)
+    assert (failed, total) == (2, 4)
+    assert lines == ["trial 10: no sample is scored (its 20.0 s end before BROAD's movement starts at 36.6 s); "
+                     "its figures are '-'"]
+    assert unscored_lines(result["per_trial"])[0].startswith(f"**Not scored.** {lines[0]}.")
+    result["per_trial"]["10"]["movement_s"] = 5.0  # moving, but the optical truth is absent there
+    assert "no sample of it where the optical truth is present" in failures(result)[0][0]

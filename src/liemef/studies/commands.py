@@ -303,8 +303,9 @@ COMPARE = Command(
     "\b\nFilters (--filters; each study's default set is in its tables):\n"
     + "\n".join(f"  {name:<11} {description}" for name, description in registry.FILTERS.items()) + "\n\n"
     + "\n\n".join(f"{s.name}: {s.help}" for s in registry.STUDIES["comparison"].values())
-    + "\n\nTrials where a filter fails are counted and named, and left out of the statistics. Exit status 1 when "
-    "no trial of any filter is usable.", (
+    + "\n\nTrials where a filter fails are counted and named, and left out of the statistics; so is a BROAD trial "
+    "with no scored sample (a slice that ends before its movement). Exit status 1 when no trial of any filter is "
+    "usable.", (
         argument("study", type=choice(COMPARISONS)), OUT,
         option("--runs", type=at_least(1), help="Trials (the same for every filter; default: the study's)."),
         option("--seed", type=at_least(0), default=0, show_default=True,

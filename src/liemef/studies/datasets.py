@@ -139,6 +139,12 @@ class BroadTrial:
     rate: float
     name: str
 
+    def movement_start(self) -> float | None:
+        """When BROAD's movement mask first holds (s from the first sample; None: never): the scoring starts
+        there. For the reports only (no filter sees the mask)."""
+        k = np.flatnonzero(self.movement)
+        return float(self.ts[k[0]] - self.ts[0]) if k.size else None
+
     def head(self, seconds: float) -> BroadTrial:
         """The first ``seconds`` of the trial."""
         if not (math.isfinite(seconds) and seconds > 0):

@@ -406,7 +406,7 @@ class SavedComparison:
 
     @property
     def usable(self) -> bool:
-        """False when every trial of every filter failed."""
+        """False when every trial of every filter failed or has nothing scored."""
         return not (self.total and self.failed == self.total)
 
     def messages(self) -> list[tuple[str, bool]]:
@@ -417,7 +417,8 @@ class SavedComparison:
     @property
     def error(self) -> str | None:
         """Why ``liemef compare`` exits with status 1 (no usable trial), or None."""
-        return None if self.usable else f"no usable trial: every filter failed in all {self.total} trials"
+        return None if self.usable else (f"no usable trial: every filter failed, or was not scored, in all "
+                                         f"{self.total} trials")
 
 
 def compare_to(out: str | os.PathLike, study: str, *, runs: int | None = None, seed: int = 0,

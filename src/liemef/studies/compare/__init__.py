@@ -41,7 +41,7 @@ from ._attitude_basin import AttitudeBasin, compare_attitude_basin
 from ._basins import HeadingBasin, compare_heading_basin
 from ._broad import BroadComparison, compare_broad
 from ._broad_ins import BroadInsComparison, compare_broad_ins
-from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters
+from ._common import FILTERS, bootstrap_interval, make_filter, paired_comparison, parse_filters, unscored
 from ._inertial import InertialComparison, compare_inertial
 from ._inertial_basin import InertialBasin, compare_inertial_basin
 from ._localization import DEFAULT_FILTERS as LOCALIZATION_FILTERS
@@ -101,14 +101,20 @@ def failures(result: dict) -> tuple[list[str], int, int]:
                 lines.append(f"recording {rid}: {name} failed on {e['failed']} of {e['runs']} seeds; left out of "
                              "the statistics")
     for tid, per in result.get("trials", {}).items():
+        why = unscored(tid, per)  # a run with nothing scored is of no use either, however ok
+        if why is not None:
+            lines.append(why)
         for name, r in per["filters"].items():
-            failed, total = failed + (not r["ok"]), total + 1
+            failed, total = failed + (not r["ok"] or why is not None), total + 1
             if not r["ok"]:
                 lines.append(f"trial {tid}: {name} failed: {r['status']}; its errors are of the states before")
     for tid, per in result.get("per_trial", {}).items():
+        why = unscored(tid, per)
+        if why is not None:
+            lines.append(why)
         for variant, ve in per["variants"].items():
             for name, r in ve["filters"].items():
-                failed, total = failed + (not r["ok"]), total + 1
+                failed, total = failed + (not r["ok"] or why is not None), total + 1
                 if not r["ok"]:
                     lines.append(f"trial {tid} ({variant}): {name} failed: {r['status']}; no figures")
     for name, e in result.get("filters", {}).items():

@@ -75,7 +75,7 @@ from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_stat
 from ...systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
 from ...systems.imu_rest import initial_estimate, rest_constants
 from .. import datasets
-from ._common import fmt, make_filter, parse_names, realdata_present
+from ._common import fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
 
 SCHEMA = "liemef.compare.broad/1"
 """Version tag of ``broad.json``."""
@@ -363,6 +363,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
     per_trial, winners, arrays, lag = {}, {}, {}, {}
     for tid in st.trials:
         trial = datasets.broad(paths[tid])
+        movement_s = trial.movement_start()
         if st.seconds is not None:
             trial = trial.head(st.seconds)
         params = {} if tuned is None else params_for(tuned, tid)
@@ -393,7 +394,9 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                           "field_uT": ctx["field"], "rest_s": ctx["rest_s"],
                           "imu_params": params, "filters": rows,
                           "field_vs_truth": field_vs_truth(trial, ctx["rest_samples"]),
-                          "published": PUBLISHED.get(tid) if st.seconds is None else None}
+                          "published": PUBLISHED.get(tid) if st.seconds is None else None,
+                          **scoring(trial.movement & np.isfinite(trial.quat_true).all(axis=1),
+                                    trial.ts[-1] - trial.ts[0], movement_s)}
         winners[tid] = {}
         for m in METRICS:
             ranked = sorted((r[m], n) for n, r in rows.items() if r["ok"] and r[m] is not None)
@@ -447,6 +450,7 @@ def markdown(result: dict) -> str:
              f"{REFERENCE_ACCURACY_DEG} deg. Lag: by how many samples the estimate at t_k trails the newest gyro / "
              "accelerometer / magnetometer sample that reaches it (0: sample k; acausal: it has seen the samples "
              "after k).", ""]
+    lines += unscored_lines(result["trials"])
     names = st["filters"]
     lag = result.get("lags", {})
     if "given" in st:

@@ -114,7 +114,7 @@ from ...systems import inertial_navigation
 from ...systems._gyro_scale import gyro_scale_value
 from .. import datasets
 from ._broad import SMOOTH_TOL, trial_ids
-from ._common import FILTERS, fmt, make_filter, parse_names, realdata_present
+from ._common import FILTERS, fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
 
 SCHEMA = "liemef.compare.broad-ins/1"
 """Version tag of ``broad_ins.json``."""
@@ -263,6 +263,8 @@ class InsTrial:
 
     trial: datasets.BroadTrial
     pos: np.ndarray
+    movement_s: float | None = None
+    """When the whole trial's movement starts (:meth:`~liemef.studies.datasets.BroadTrial.movement_start`)."""
 
 
 def load_trial(path, seconds: float | None = None) -> InsTrial:
@@ -278,7 +280,7 @@ def load_trial(path, seconds: float | None = None) -> InsTrial:
     if pos.shape != (N, 3):
         raise ValueError(f"path: {str(path)!r}: expected opt_pos of shape ({N}, 3), got {pos.shape}")
     cut = tr if seconds is None else tr.head(seconds)
-    return InsTrial(cut, pos[:cut.ts.shape[0]])
+    return InsTrial(cut, pos[:cut.ts.shape[0]], tr.movement_start())
 
 
 def truth_velocity(pos: np.ndarray, rate: float, half_window: float = VELOCITY_HALF_WINDOW) -> np.ndarray:
@@ -630,7 +632,8 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
         entry = {"file": data.trial.name,
                  "seconds": float(data.trial.ts[-1] - data.trial.ts[0]),
                  "lever_arm_m": [float(c) for c in r], "lever_arm_residual": [before, after],
-                 "fixes": int(fix_indices(data.trial.ts, st.fix_rate).size), "variants": {}}
+                 "fixes": int(fix_indices(data.trial.ts, st.fix_rate).size), "variants": {},
+                 **scoring(scored(data), data.trial.ts[-1] - data.trial.ts[0], data.movement_s)}
         for variant in st.variants:
             noise = None if variant == "recorded" else st.noise_std
             fix_std = RECORDED_FIX_STD if noise is None else math.hypot(RECORDED_FIX_STD, noise)
@@ -772,7 +775,7 @@ def markdown(result: dict) -> str:
              f"BROAD (total, heading, inclination rms), velocity against the {st['velocity_truth']} of the optical "
              "positions, position; NEES of the left error on SE_2(3) under K (per block / 3, pose / 9); APE and RPE "
              f"by evo on the {st['fix_rate']:g} Hz subsample (RPE over {st['rpe_delta_pairs']} pairs). One "
-             "recording per trial: no Monte Carlo spread.", ""]
+             "recording per trial: no Monte Carlo spread.", "", *unscored_lines(result["per_trial"])]
     for variant in st["variants"]:
         means = result["means"][variant]
         lines += [f"## Fixes {variant}: means over the trials", "",

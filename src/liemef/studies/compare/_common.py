@@ -228,6 +228,33 @@ def pooled_rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
+def scoring(scored: np.ndarray, ends_s: float, movement_s: float | None) -> dict:
+    """How much of a BROAD trial's slice is scored, as a result entry's keys: ``scored_samples`` (the samples
+    the mask ``scored`` marks), the slice's end ``ends_s`` and the start of the whole trial's movement
+    ``movement_s`` (:meth:`~liemef.studies.datasets.BroadTrial.movement_start`), both from the first sample. A
+    slice with no scored sample has no figures (``-``); :func:`unscored` says why."""
+    return {"scored_samples": int(np.count_nonzero(scored)), "ends_s": float(ends_s), "movement_s": movement_s}
+
+
+def unscored(tid: str, per: Mapping) -> str | None:
+    """Why trial ``tid`` (its result entry ``per``, with :func:`scoring`'s keys) has no figures, or None where a
+    sample is scored (or the entry predates the count)."""
+    if per.get("scored_samples", 1):
+        return None
+    moves = per.get("movement_s")
+    where = (f"its {per['ends_s']:.1f} s end before BROAD's movement starts at {moves:.1f} s"
+             if moves is not None and moves > per["ends_s"]
+             else "BROAD's movement mask holds no sample of it where the optical truth is present")
+    return f"trial {tid}: no sample is scored ({where}); its figures are '-'"
+
+
+def unscored_lines(trials: Mapping[str, Mapping]) -> list[str]:
+    """A report's paragraph naming the trials with no scored sample (:func:`unscored`), or nothing."""
+    why = [w for t, per in trials.items() if (w := unscored(t, per)) is not None]
+    return [f"**Not scored.** {'; '.join(why)}. Run past the movement's start (--set seconds) to score them.", ""] \
+        if why else []
+
+
 def fmt(v, digits: int = 4) -> str:
     """A table cell: ``-`` for None or NaN."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
