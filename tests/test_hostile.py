@@ -341,10 +341,10 @@ def _hostile_log(path, outlier=True, N=600):
     return ts[keep], p[keep]
 
 
-def _filter(path, **kw):
+def _filter(path, updates="discrete", **kw):
     from liemef.studies import logs
 
-    return logs.filter_log("localization", path, x0=np.zeros(3), updates="discrete", **kw)
+    return logs.filter_log("localization", path, x0=np.zeros(3), updates=updates, **kw)
 
 
 def test_a_nan_input_and_a_gap_are_filtered_through_and_said(tmp_path):
@@ -369,6 +369,21 @@ def test_an_outlier_the_filter_used_is_reported(tmp_path):
     assert out["largest_t"] == 2.0 and out["largest_sigmas"] > 1e3 and out["count"] >= 1
     assert any(w.startswith(f"gps: {out['count']} sample(s) lay beyond the chi-square 0.999999 bound") and
                "at t = 2 s" in w and "gate" in w for w in run.warnings())
+
+
+def test_an_interval_forced_past_the_sub_step_cap_is_said(tmp_path):
+    """Held over its interval (updates="hold"), the 1e4 m fix makes the interval so stiff that its integration hits
+    the sub-step cap: the run stays ok (the count is in the report), and its warnings say the estimate after such
+    an interval may be far off, and how to avoid it; the discrete update of the test above hits no cap and says
+    nothing of it."""
+    _hostile_log(tmp_path / "log.csv")
+    held = _filter(tmp_path / "log.csv", updates="hold", K0=0.1)
+    assert held.ok and held.report["substeps_capped"] >= 1
+    said = [w for w in held.warnings() if "sub-step cap" in w]
+    assert len(said) == 1 and said[0].startswith(f"{held.report['substeps_capped']} interval(s) hit the sub-step "
+                                                 "cap (256 steps)") and "--updates discrete" in said[0]
+    discrete = _filter(tmp_path / "log.csv", K0=1.0)
+    assert discrete.report["substeps_capped"] == 0 and not any("sub-step cap" in w for w in discrete.warnings())
 
 
 def test_a_huge_k0_fails_as_a_value_that_says_why(tmp_path):

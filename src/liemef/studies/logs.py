@@ -571,8 +571,9 @@ class LogRun:
         return self.failure is None
 
     def warnings(self) -> list[str]:
-        """What the run did that a user should know: gaps predicted through, inputs held, outliers used (their
-        times relative to the log's start, :func:`liemef._times.time_said`)."""
+        """What the run did that a user should know: gaps predicted through, inputs held, intervals integrated
+        past the sub-step cap, outliers used (their times relative to the log's start,
+        :func:`liemef._times.time_said`)."""
         from .._times import time_said
 
         out = []
@@ -586,6 +587,12 @@ class LogRun:
                        f"{self.report['longest_gap']:.4g} s) were predicted through")
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
+        if self.report.get("substeps_capped"):
+            out.append(f"{self.report['substeps_capped']} interval(s) hit the sub-step cap ({self.report['substeps_max']}"
+                       " steps): their last step was forced past the integrator's stability budget, and the "
+                       "estimate after them may be far off though the run is ok (a sample far outside its noise, "
+                       "held over the interval, does this: a gate rejects it, and --updates discrete takes each "
+                       "sample as one safeguarded update)")
         for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
             if o["count"]:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
