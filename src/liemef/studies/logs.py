@@ -588,11 +588,11 @@ class LogRun:
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
         if self.report.get("substeps_capped"):
-            out.append(f"{self.report['substeps_capped']} interval(s) hit the sub-step cap ({self.report['substeps_max']}"
-                       " steps): their last step was forced past the integrator's stability budget, and the "
-                       "estimate after them may be far off though the run is ok (a sample far outside its noise, "
-                       "held over the interval, does this: a gate rejects it, and --updates discrete takes each "
-                       "sample as one safeguarded update)")
+            out.append(f"{self.report['substeps_capped']} interval(s) hit the sub-step cap "
+                       f"({self.report['substeps_max']} steps): their last step was forced past the integrator's "
+                       "stability budget, and the estimate after them may be far off though the run is ok (a sample "
+                       "far outside its noise, held over the interval, does this: a gate rejects it, and --updates "
+                       "discrete takes each sample as one safeguarded update)")
         for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
             if o["count"]:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
