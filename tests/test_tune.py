@@ -6,8 +6,10 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from scipy.optimize import minimize
 
+from liemef import cli
 from liemef.groups import R3, SO3, TSO3
 from liemef.studies import tune as T
 from liemef.systems import attitude_bias as ab
@@ -238,3 +240,31 @@ def test_the_gyro_scale_is_a_velocity_parameter_that_starts_above_zero():
     assert float(system.gyro_scale) == 0.01
     with pytest.raises(ValueError, match="^params.gyro_scale_std: unknown parameter of attitude-imu"):
         T.check_params({"gyro_scale_std": 0.01})
+
+
+def test_a_start_beyond_the_bounds_is_refused_not_moved():
+    """The search keeps to each parameter's bounds (PARAMETERS); a start beyond them was clipped without a word
+    and the file recorded the clipped value as if it were the start. It is refused, naming the bounds; a start
+    at a bound is the search's own edge and is taken."""
+    recs = [T.Recording(f"v{i}", np.arange(3) / 100.0, np.zeros((3, 6)), np.zeros((3, 11)), {}, None, np.eye(9),
+                        system="attitude-velocity") for i in range(2)]
+    with pytest.raises(ValueError, match=r"^start: expected each searched parameter within its bounds, velocity_std "
+                                         r"in \[0.01, 10\], got \{'velocity_std': 0.001\}"):
+        T.tune(recs, names=("velocity_std",), start={"velocity_std": 1e-3}, progress=False)
+
+
+def test_a_trial_given_twice_is_refused(tmp_path):
+    """--trials 16,16: the fold "without" 16 would have trained on 16, and its held-out error would be in-sample. It
+    is refused by name, as is a single trial (no leave-one-out)."""
+    import scipy.io
+
+    from liemef.studies import datasets
+
+    (tmp_path / "broad").mkdir()
+    for tid in ("16", "24"):
+        scipy.io.savemat(tmp_path / "broad" / f"{tid}_stub.mat", dict.fromkeys(datasets.BROAD_VARIABLES, 0.0))
+    with pytest.raises(ValueError, match=r"^trials: expected each trial once, got \['16', '16'\]"):
+        T.broad_recordings(["16", "16"], realdata=str(tmp_path))
+    res = CliRunner().invoke(cli.cli, ["tune", "broad", "--trials", "16", "--realdata", str(tmp_path), "--out",
+                                       str(tmp_path / "t")])
+    assert res.exit_code == 2 and "--trials" in res.output and "two or more" in res.output, res.output

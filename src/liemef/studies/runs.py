@@ -324,11 +324,15 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
     empty ``--trials ''`` is not every trial)."""
     from .registry import TUNE_DATA
+    from .settings import OptionError
 
     trials, names = (_entries(v, option, what) for v, option, what in (
         (trials, "--trials", "BROAD trial ids"), (names, "--params", "parameter names")))
     if data not in TUNE_DATA:
         raise ValueError(f"data: expected one of {list(TUNE_DATA)}, got {data!r}")
+    if trials is not None and len(trials) < 2:
+        raise OptionError(f"expected two or more BROAD trial ids for the leave-one-out, got {','.join(trials)!r}",
+                          "--trials")
     start = _start(start, system)
     if system == "attitude-velocity" and updates != "discrete":
         raise ValueError("--updates: expected discrete with --system attitude-velocity (as compare broad's "

@@ -141,6 +141,8 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     missing = [t for t in ids if t not in found]
     if not ids or missing:
         raise ValueError(f"trials: expected BROAD trials present from {list(found)}, got {ids}")
+    if len(set(ids)) != len(ids):  # a fold "without" a trial given twice would train on it
+        raise ValueError(f"trials: expected each trial once, got {ids}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds: expected a window > 0 s or None, got {seconds!r}")
     out = []
@@ -411,6 +413,11 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     if zero:  # the search is in log space
         raise ValueError(f"start: expected a value > 0 to start the search in log space for {zero} (their default "
                          f"0 turns the term off), got {[first[n] for n in zero]}")
+    outside = {n: first[n] for n in names if not PARAMETERS[n][0] <= first[n] <= PARAMETERS[n][1]}
+    if outside:  # the search keeps to its bounds: a start beyond them would be moved without a word
+        raise ValueError("start: expected each searched parameter within its bounds, "
+                         + ", ".join(f"{n} in [{PARAMETERS[n][0]:g}, {PARAMETERS[n][1]:g}]" for n in outside)
+                         + f", got {outside}")
     x0 = np.array([math.log10(first[n]) for n in names])
     fixed = {k: float(np.atleast_1d(v)[0]) for k, v in base.items() if k not in names}
     R = len(recs)
