@@ -328,3 +328,20 @@ def test_reproduce_all_reports_a_failing_experiment_and_keeps_going(tiny_registr
     assert "custom done" in res.output
     index = (tmp_path / "index.md").read_text()
     assert "**Failed**: `RuntimeError: boom`" in index and "[t.md](custom/t.md): Table 1" in index
+
+
+def test_a_setting_given_twice_is_refused_not_overwritten(tmp_path):
+    """--set KEY twice, or --set KEY beside the option for KEY, or montecarlo's --set seed (its trials are seeded by
+    --seed): one of the two would silently win (a run recorded seed 5 and ran seed 0). Each exits 2 naming --set
+    and the key, before anything is written."""
+    cases = [(["montecarlo", "unit-circle", "--quick", "--runs", "2", "--set", "seed=5"], "seed: expected no --set"),
+             (["montecarlo", "unit-circle", "--quick", "--runs", "2", "--duration", "5", "--set", "duration=50"],
+              "duration: given both by --duration and by --set"),
+             (["montecarlo", "unit-circle", "--quick", "--runs", "2", "--set", "duration=5", "--set", "duration=6"],
+              "duration: expected each key once"),
+             (["compare", "localization", "--runs", "2", "--set", "duration=4", "--set", "duration=5"],
+              "duration: expected each key once")]
+    for i, (args, said) in enumerate(cases):
+        res = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / str(i)), "--no-progress"])
+        assert res.exit_code == 2 and "'--set'" in res.output and said in res.output, (args, res.output)
+        assert not (tmp_path / str(i)).exists()

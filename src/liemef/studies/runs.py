@@ -78,7 +78,8 @@ def montecarlo_to(out: str | os.PathLike | None, experiment: str, runs: int = 10
     if exp.trial_fn is None:
         with_trials = sorted(e.name for e in EXPERIMENTS.values() if e.trial_fn is not None)
         raise ValueError(f"experiment {exp.name!r} has no Monte Carlo trial; expected one of {with_trials}")
-    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True)
+    config = experiment_config(exp, quick, {"duration": duration}, settings, windows_follow=True,
+                               own={"seed": "the trials are seeded by --seed (the config's seed is a single run's)"})
     target = outputs.claim(out, "montecarlo", force) if out is not None else None
     result = montecarlo(exp, config, runs, seed=seed, batch_size=batch_size or DEFAULT_BATCH_SIZE,
                         progress=progress)

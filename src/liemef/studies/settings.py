@@ -58,14 +58,18 @@ def parse_settings(items: Sequence[str], base: Any) -> dict:
             raise OptionError(f"expected KEY=VALUE, got {item!r}", "--set")
         if key not in fields:
             raise OptionError(f"unknown config option {key!r}; expected one of {sorted(fields)}", "--set")
+        if key in out:  # the later would silently win
+            raise OptionError(f"{key}: expected each key once, got it twice", "--set")
         out[key] = parse_value(text.strip(), fields[key], key)
     return out
 
 
 def experiment_config(experiment, quick: bool = False, options: dict | None = None, items: Sequence[str] = (),
-                      windows_follow: bool = False):
+                      windows_follow: bool = False, own: dict[str, str] | None = None):
     """The config of ``experiment`` (its reduced one when ``quick``) with ``options`` (None values left out) and
-    the ``KEY=VALUE`` ``items`` replaced; ValueError from the config's own checks.
+    the ``KEY=VALUE`` ``items`` replaced; ValueError from the config's own checks. A key both given by an option
+    and set in ``items``, or set in ``items`` where the command takes it from an option of its own (``own``: key
+    -> why), is refused naming ``--set``: one would silently win.
 
     With ``windows_follow`` (``liemef montecarlo``), a new ``duration`` T moves the statistics windows that would
     start at or after it (:data:`liemef.studies.registry.DURATION_RULE`, ``RunConfig.window_changes``): their
@@ -73,7 +77,13 @@ def experiment_config(experiment, quick: bool = False, options: dict | None = No
     duration nothing changes."""
     base = experiment.quick() if quick else experiment.default_config
     overrides = {k: v for k, v in (options or {}).items() if v is not None}
-    overrides.update(parse_settings(items, base))
+    settings = parse_settings(items, base)
+    for key in settings:
+        if key in overrides:
+            raise OptionError(f"{key}: given both by --{key} and by --set; expected it once", "--set")
+        if key in (own or {}):
+            raise OptionError(f"{key}: expected no --set {key}: {own[key]}", "--set")
+    overrides.update(settings)
     if windows_follow and "duration" in overrides and hasattr(base, "window_changes"):
         changes = base.window_changes(overrides["duration"])
         overrides = {**{k: v for k, v in changes.items() if k not in overrides}, **overrides}
@@ -95,11 +105,15 @@ def comparison_settings(study: str, settings: type, runs: int | None = None, see
             if key not in fields:
                 raise OptionError(f"{study} has no {key} (a recording, not trials)", f"--{key}")
             kwargs[key] = value
+    given = set()
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or key not in fields or key in TRIAL_OPTIONS:
             allowed = sorted(k for k in fields if k not in TRIAL_OPTIONS)
             raise OptionError(f"expected KEY=VALUE with KEY one of {allowed}, got {item!r}", "--set")
+        if key in given:  # the later would silently win
+            raise OptionError(f"{key}: expected each key once, got it twice", "--set")
+        given.add(key)
         try:
             parsed = json.loads(f"[{value}]") if key == "angles_deg" else json.loads(value)
         except json.JSONDecodeError:
