@@ -345,3 +345,16 @@ def test_a_setting_given_twice_is_refused_not_overwritten(tmp_path):
         res = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / str(i)), "--no-progress"])
         assert res.exit_code == 2 and "'--set'" in res.output and said in res.output, (args, res.output)
         assert not (tmp_path / str(i)).exists()
+
+
+def test_one_trial_s_spread_is_an_empty_cell_in_every_output(tmp_path):
+    """One trial has no spread: the JSON's null and the Markdown's '-' are an empty CSV cell, not 'nan' (a value a
+    reader would parse as one)."""
+    import csv
+
+    res = CliRunner().invoke(cli, ["montecarlo", "unit-circle", "--quick", "--runs", "1", "--out",
+                                   str(tmp_path / "mc"), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader((tmp_path / "mc" / "montecarlo.csv").open()))
+    assert rows and all(r["spread"] == "" and r["mean"] not in ("", "nan") for r in rows)
+    assert "nan" not in (tmp_path / "mc" / "montecarlo.csv").read_text()

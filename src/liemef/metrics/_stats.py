@@ -73,9 +73,9 @@ def json_number(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def format_number(x: float) -> str:
-    """``x`` for a printed or Markdown table: ``1.234e-02``, or ``-`` if it is NaN or infinite."""
-    return f"{x:.3e}" if math.isfinite(x) else "-"
+def format_number(x: float | None) -> str:
+    """``x`` for a printed or Markdown table: ``1.234e-02``, or ``-`` if it is None, NaN or infinite."""
+    return f"{x:.3e}" if x is not None and math.isfinite(x) else "-"
 
 
 @dataclass(frozen=True)

@@ -44,14 +44,15 @@ def trial_list(idx: np.ndarray, limit: int = 10) -> str:
 # --- tables ------------------------------------------------------------------------------------------------
 def table_rows(result) -> list[tuple]:
     """One row per (window, component, statistic): the names, then mean, spread and percentiles across trials
-    (:data:`TABLE_HEADER`)."""
+    (:data:`TABLE_HEADER`); None (an empty CSV cell) where a value does not exist, as JSON's null and the
+    Markdown's ``-`` (the spread of one trial)."""
     mean, spread, pct = result.mean, result.spread, result.percentiles
     rows = []
     for w, label in enumerate(result.window_labels):
         for c, (name, unit) in enumerate(zip(result.names, result.units, strict=True)):
             for k, stat in enumerate(STATS):
-                rows.append((label, name, unit, stat, float(mean[w, c, k]), float(spread[w, c, k]),
-                             *(float(v) for v in pct[:, w, c, k])))
+                rows.append((label, name, unit, stat, json_number(mean[w, c, k]), json_number(spread[w, c, k]),
+                             *(json_number(v) for v in pct[:, w, c, k])))
     return rows
 
 

@@ -422,8 +422,8 @@ class SavedComparison:
     @property
     def error(self) -> str | None:
         """Why ``liemef compare`` exits with status 1 (no usable trial), or None."""
-        return None if self.usable else (f"no usable trial: every filter failed, or was not scored, in all "
-                                         f"{self.total} trials")
+        return None if self.usable else (f"no usable trial: each of the {self.total} runs (a filter on a trial) "
+                                         "failed or scored nothing")
 
 
 def compare_to(out: str | os.PathLike, study: str, *, runs: int | None = None, seed: int = 0,
