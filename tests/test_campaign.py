@@ -133,6 +133,7 @@ def test_the_example_campaign_is_the_documented_one_and_is_valid():
     ({"grid": {"order": []}}, "grid.order: expected a non-empty list"),
     ({"grid": {"order": ["first", "first"]}}, "grid.order: expected distinct values"),
     ({"settings": [{"meas_std": 0.1}]}, "grid/settings: expected each field in one of them"),
+    ({"base": {**SMALL["base"], "meas_std": 0.3}}, "base/grid: expected each field in one of them, got ['meas_std']"),
     ({"base": {"alpha": float("nan")}}, "base.alpha: expected a finite number"),
     ({"quick": "yes"}, "quick: expected true or false"),
 ])

@@ -408,3 +408,14 @@ def test_the_printed_command_runs_a_broad_head(tmp_path):
     truth = np.loadtxt(tmp_path / "truth.csv", delimiter=",", skiprows=1)
     q = Rotation.from_rotvec(est[:, 1:4]).as_quat()[:, [3, 0, 1, 2]]
     assert attitude_rms(q, truth[:, 1:5], truth[:, 5] > 0)["total"] < 3.0
+
+
+def test_dataset_refuses_an_output_liemef_run_cannot_read_and_names_each_option(tmp_path):
+    """`liemef dataset` wrote w.txt (CSV inside) and then printed a `liemef run --log w.txt` that refuses it: the
+    suffix is checked first, naming --out; a bad --seconds names --seconds, not PATH. Nothing is written."""
+    broad_mat(tmp_path / "01_synthetic.mat")
+    for args, said in ((["--out", tmp_path / "w.txt"], "Invalid value for '--out': out: expected a .csv or .npz"),
+                       (["--out", tmp_path / "w.csv", "--seconds", -1], "Invalid value for '--seconds'")):
+        res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", *args)
+        assert res.exit_code == 2 and said in res.output, res.output
+    assert not (tmp_path / "w.txt").exists() and not (tmp_path / "w.csv").exists()

@@ -89,7 +89,10 @@ def test_a_smoother_that_does_not_converge_says_so_and_exits_5(tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [(("--max-iterations", 0), "--max-iterations"),
-                                         (("--tol", -1.0), "--tol"), (("--smooth-chunk", 0), "--smooth-chunk"),
+                                         (("--tol", -1.0), "--tol"), (("--tol", 0.0), "tol: expected a finite "
+                                                                                     "number > 0, got 0.0"),
+                                         (("--gap", 0.0), "gap: expected a finite number > 0, got 0.0"),
+                                         (("--smooth-chunk", 0), "--smooth-chunk"),
                                          (("--smooth-overlap", 3), "'--smooth-overlap': only with --smooth-chunk")])
 def test_bad_smoother_options_are_refused_by_name(tmp_path, args, words):
     localization_log(tmp_path / "log.csv", N=200)

@@ -226,7 +226,9 @@ def dataset(kind, path, out, truth, seconds, gps_std, system_name, norms):
         log, system, written = datasets.convert(kind, path, out, truth=truth, seconds=seconds, gps_std=gps_std,
                                                 norms=norms, system=system_name)
     except ValueError as err:
-        hint = "'--system'" if str(err).startswith("system:") else "'PATH'"
+        said = str(err).split(":", 1)[0]
+        hint = {"system": "'--system'", "out": "'--out'", "seconds": "'--seconds'", "std": "'--gps-std'",
+                "gps_std": "'--gps-std'"}.get(said, "'PATH'")
         raise click.BadParameter(str(err), param_hint=hint) from err
     click.echo(f"{kind} {path}: {log.ts.shape[0]} samples over {log.ts[-1] - log.ts[0]:.1f} s; wrote "
                f"{', '.join(str(p) for p in written)}")

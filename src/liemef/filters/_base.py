@@ -616,5 +616,5 @@ def check_log(flt, ts, us, ys, lead=(), gap=None, keep_every=1, *, threads=None,
     if gap is None:
         gap = 10.0 * float(np.median(np.diff(ts)))
     elif not (isinstance(gap, int | float | np.number) and gap == math.inf):  # inf: no gaps, as in step()
-        gap = float(_validate.nonnegative("gap", gap))
+        gap = float(_validate.positive("gap", gap))  # 0 would make every interval a gap: no sample held
     return ts, us, ys, gap

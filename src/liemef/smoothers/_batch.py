@@ -550,7 +550,7 @@ def _check_options(max_iterations, tol, floor_std) -> float:
     """The solver's options, checked (ValueError naming each); returns ``tol`` as a float."""
     _validate.integer("max_iterations", max_iterations, low=1)
     _validate.positive("floor_std", floor_std)
-    return _validate.nonnegative("tol", tol)
+    return _validate.positive("tol", tol)  # converged when a step is below it: 0 never is
 
 
 @dataclasses.dataclass(frozen=True)

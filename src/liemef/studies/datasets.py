@@ -298,6 +298,8 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     if system not in choices:
         raise ValueError(f"system: expected a system whose log a {kind} recording gives, one of {list(choices)}, got "
                          f"{system!r}")
+    if Path(out).suffix.lower() not in (".csv", ".npz"):  # liemef run reads these two only
+        raise ValueError(f"out: expected a .csv or .npz file, got {str(out)!r}")
     if not Path(path).exists():  # an id of a recording present, found by reading the files
         found = (broad_trials if kind == "broad" else wifibot_runs)()
         key = f"{int(str(path)):02d}" if kind == "broad" and str(path).isdigit() else str(path)

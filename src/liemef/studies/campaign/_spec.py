@@ -189,6 +189,9 @@ class Campaign:
         both = sorted(set(grid) & {k for s in self.settings for k in s})
         if both:
             raise CampaignError(f"grid/settings: expected each field in one of them, got {both} in both")
+        dead = sorted(set(grid) & set(self.base))
+        if dead:  # the grid's values replace it at every point: base's value would be recorded, never run
+            raise CampaignError(f"base/grid: expected each field in one of them, got {dead} in both")
         set_("seeds", _int("seeds", self.seeds, 1))
         _int("seed", self.seed, -(2**63))
         set_("batch_size", min(_int("batch_size", self.batch_size, 1), self.seeds))
