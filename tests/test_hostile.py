@@ -1176,6 +1176,14 @@ def test_run_records_the_tuning_file_and_every_value_it_used(tmp_path):
     assert record["values"]["acc_std"] == 0.05 and record["values"]["gyro_std"] > 0  # a default, recorded
     description = metrics["system"]["description"]
     assert "defaults of" not in description and str(p) in description and record["sha256"][:12] in description
+    assert record["updates"] == "hold" and "was tuned with updates" not in res.output  # as the run
+    # a file tuned with discrete updates, run held: said, with the option that runs it as it was tuned
+    p = _write_json(tmp_path / "discrete.json", _tuning_file(updates="discrete", params__acc_std=0.05, **changes))
+    res = _cli("run", "--system", "attitude-imu", "--params", p, "--log", tmp_path / "log.csv", "--out",
+               tmp_path / "o2", "--no-progress", "--no-monitor")
+    assert res.exit_code == 0, res.output
+    assert f"WARNING: the tuning file {p} was tuned with updates='discrete' and this run used 'hold'" in res.output
+    assert "--updates discrete runs as it was tuned" in res.output
 
 
 # A user's SE(2) system (planar GPS): what its functions get wrong, by the function.

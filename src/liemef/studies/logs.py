@@ -587,6 +587,12 @@ class LogRun:
                        f"{self.report['longest_gap']:.4g} s) were predicted through")
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
+        tuned = self.source.params or {}
+        run_updates = self.metrics.get("config", {}).get("updates")
+        if tuned.get("updates") and run_updates and tuned["updates"] != run_updates:
+            out.append(f"the tuning file {tuned['file']} was tuned with updates={tuned['updates']!r} and this run "
+                       f"used {run_updates!r}: its noise levels were fitted for the other scheme (--updates "
+                       f"{tuned['updates']} runs as it was tuned)")
         if self.report.get("substeps_capped"):
             out.append(f"{self.report['substeps_capped']} interval(s) hit the sub-step cap "
                        f"({self.report['substeps_max']} steps): their last step was forced past the integrator's "
@@ -1106,7 +1112,8 @@ def _tuned(source: LogSystem, params) -> LogSystem:
     base = source.description.split("; defaults of ")[0]
     return dataclasses.replace(
         source, system=system, params={"file": str(params), "sha256": tuned.sha256, "system": tuned.system,
-                                       "from_file": sorted(chosen), "values": values},
+                                       "from_file": sorted(chosen), "values": values,
+                                       "updates": tuned.data.get("updates")},
         description=f"{base}; the final parameter set of the tuning file {params} (sha256 {tuned.sha256[:12]}; "
                     "every value in metrics.json's config.params)")
 
