@@ -144,7 +144,7 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     if len(set(ids)) != len(ids):  # a fold "without" a trial given twice would train on it
         raise ValueError(f"trials: expected each trial once, got {ids}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"seconds: expected a window > 0 s or None, got {seconds!r}")
+        raise ValueError(f"seconds: expected a window > 0 s (0 or none: whole trials), got {seconds!r}")
     out = []
     for tid in ids:
         tr = datasets.broad(found[tid])
@@ -399,7 +399,9 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     names = DEFAULT_NAMES[sysname] if names is None else tuple(names)
     bad = [n for n in names if n not in allowed]
     if not names or bad or len(set(names)) != len(names):
-        raise ValueError(f"names: expected distinct parameter names from {sorted(allowed)}, got {list(names)}")
+        why = f"unknown {bad}" if bad else "a name twice" if names else "none"
+        raise ValueError(f"names: expected distinct parameter names from {sorted(allowed)}, got {list(names)} "
+                         f"({why})")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective: expected one of {list(OBJECTIVES)}, got {objective!r}")
     maxfev = _validate.integer("maxfev", maxfev, 1)
