@@ -415,7 +415,8 @@ def test_dataset_refuses_an_output_liemef_run_cannot_read_and_names_each_option(
     suffix is checked first, naming --out; a bad --seconds names --seconds, not PATH. Nothing is written."""
     broad_mat(tmp_path / "01_synthetic.mat")
     for args, said in ((["--out", tmp_path / "w.txt"], "Invalid value for '--out': out: expected a .csv or .npz"),
-                       (["--out", tmp_path / "w.csv", "--seconds", -1], "Invalid value for '--seconds'")):
+                       (["--out", tmp_path / "w.csv", "--seconds", -1], "Invalid value for '--seconds'"),
+                       (["--out", tmp_path / "w.csv", "--seconds", 0], "expected a duration > 0 (none: the whole")):
         res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", *args)
         assert res.exit_code == 2 and said in res.output, res.output
     assert not (tmp_path / "w.txt").exists() and not (tmp_path / "w.csv").exists()

@@ -255,7 +255,7 @@ DATASET = Command(
         option("--out", required=True, type=PATH,
                help="The log to write (.csv, or .npz), in the columns of the matching ready system."),
         option("--truth", type=PATH, help="Also write the ground truth here (CSV)."),
-        option("--seconds", type=float, help="Only the first SECONDS of the recording."),
+        option("--seconds", type=float, help="Only the first SECONDS (> 0) of the recording, at least two samples."),
         option("--gps-std", type=float, default=0.1, show_default=True,
                help="wifibot: std (m) of the synthetic 1 Hz GPS (ground truth + noise, numpy seed 0)."),
         option("--system", "system_name", type=choice(sorted({s for k in registry.DATASETS

@@ -298,6 +298,8 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     if system not in choices:
         raise ValueError(f"system: expected a system whose log a {kind} recording gives, one of {list(choices)}, got "
                          f"{system!r}")
+    if seconds is not None and not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds: expected a duration > 0 (none: the whole recording), got {seconds!r}")
     if Path(out).suffix.lower() not in (".csv", ".npz"):  # liemef run reads these two only
         raise ValueError(f"out: expected a .csv or .npz file, got {str(out)!r}")
     if not Path(path).exists():  # an id of a recording present, found by reading the files
@@ -306,7 +308,7 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
         path = found.get(key, path)
     if kind == "broad":
         rec = broad(path)
-        rec = rec.head(seconds) if seconds else rec
+        rec = rec.head(seconds) if seconds is not None else rec
         if system == "attitude-velocity":
             log = io.RecordedLog(*imu_velocity_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
                                                    gyro="backward"))
@@ -319,7 +321,7 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
         columns = [rec.ts, *rec.quat_true.T, rec.movement.astype(np.float64)]
     else:
         rec = wifibot(path)
-        if seconds:
+        if seconds is not None:
             k = max(2, int(np.searchsorted(rec.ts, rec.ts[0] + seconds)))
             rec = WifibotRun(rec.ts[:k], rec.v[:k], rec.omega[:k], rec.truth[:k], rec.name)
         log = wifibot_to_log(rec, gps_std=gps_std)
