@@ -12,8 +12,9 @@ Output folders are complete or absent (:mod:`liemef.reports.outputs`): written b
 place with a ``manifest.json``; a folder holding another command's files is refused unless ``--force``.
 Exit status: 0 ok, 1 a failed run (or a Monte Carlo or comparison with no usable trial, or a full disk),
 2 bad input, 3 a run of ``liemef run`` whose innovations are inconsistent with its K, 4 one whose innovations
-are consistent but whose linearization the monitor calls nonlinear (outputs written whole in both), 130
-interrupted (Ctrl-C or SIGTERM).
+are consistent but whose linearization the monitor calls nonlinear (outputs written whole in both), 5 a
+``liemef smooth`` whose smoother did not converge (its last accepted estimates written), 130 interrupted (Ctrl-C
+or SIGTERM).
 """
 
 from __future__ import annotations

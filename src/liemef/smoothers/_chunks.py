@@ -234,7 +234,8 @@ def _joined(flt, state, su: _batch.Setup, pieces: list[_Piece], chunk: int, befo
     worst = max(pieces, key=lambda p: _WORST.index(p.smoothed.status)).smoothed
     iterations = sum(p.smoothed.iterations for p in pieces)
     gn = jnp.max(jnp.stack([p.smoothed.gradient_norm for p in pieces]))
-    said = f"{len(pieces)} windows of {chunk} states with overlaps {before} before and {after} after"
+    said = (f"{len(pieces)} windows of {chunk} states with overlaps {before} before and {after} after"
+            if len(pieces) > 1 else f"one window of the whole log ({chunk} states asked per window)")
     if worst.status == "failed":
         return _batch.failed(su.ts, state.g_hat, f"failed: {said}; the first that failed: {worst.message}",
                              iterations)

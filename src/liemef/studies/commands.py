@@ -105,7 +105,9 @@ def system(text: str) -> Param:
 
 CLI = Command("""Second-order-optimal minimum-energy filtering on matrix Lie groups.
 
-    Exit status: 0 ok, 1 a failed run (or no usable trial, or a full disk), 2 bad input, 130 interrupted.""")
+    Exit status: 0 ok, 1 a failed run (or no usable trial, or a full disk), 2 bad input, 3 a run whose
+    innovations are inconsistent with its K, 4 one whose linearization the monitor calls nonlinear, 5 a
+    smoother that did not converge (3-5: `run` and `smooth`, their outputs written whole), 130 interrupted.""")
 
 REPRODUCE = Command(
     "Run a paper EXPERIMENT and write metrics.json, arrays.npz, its figures and error tables to --out, then print "
@@ -278,7 +280,8 @@ TUNE = Command(
         option("--trials", metavar="A,B,...", help="BROAD trial ids (default: every trial present)."),
         option("--params", "names", metavar="A,B,...", help="Parameters to tune (default: liemef.studies.tune's)."),
         option("--seconds", type=float, default=90.0, show_default=True,
-               help="Tune on the first SECONDS of each trial (0: whole trials); evaluate with `compare broad`."),
+               help="Tune on a window of each trial: 5 s before the end of the rest found in the IMU, then SECONDS "
+                    "of motion (0: whole trials); evaluate with `compare broad`."),
         option("--start", metavar="A=X,B=Y,...",
                help="Starting values of every search (default: the model's defaults, which for attitude-velocity "
                     "were tuned on the shared trials: start elsewhere for an honest held-out error)."),
