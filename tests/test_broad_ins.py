@@ -334,6 +334,20 @@ def test_the_grid_setting_is_checked_and_names_its_argument(tmp_path):
         study(gyro_scale_grid="0,0.01", gyro_scale_std=0.01)
     with pytest.raises(ValueError, match="^trials: expected at least two for gyro_scale_grid"):
         study(trials="16", gyro_scale_grid="0,0.01")
+    # the recorded fix's std, alone or jointly: every pair is a point, the tables name both where it is searched
+    st = study(trials="10,16", gyro_scale_grid="0.02,0.01", fix_std_grid="0.01,0.003")
+    assert st.fix_std_grid == (0.003, 0.01) and st.searched
+    assert st.points == [(0.01, 0.003), (0.01, 0.01), (0.02, 0.003), (0.02, 0.01)]
+    assert B._point_label(st, (0.02, 0.003)) == "0.02, 0.003"
+    alone = study(fix_std_grid="0.005,0.01")
+    assert alone.points == [(0.0, 0.005), (0.0, 0.01)] and alone.searched
+    assert study().points == [(0.0, B.RECORDED_FIX_STD)] and not study().searched
+    assert B._point_label(study(gyro_scale_grid="0,0.01"), (0.01, B.RECORDED_FIX_STD)) == "0.01"  # as before
+    for bad in ("0.01", "0,0.01", "0.01,x", "0.01,0.01", "0.01,-1", "0.01,inf", (True, 0.5)):
+        with pytest.raises(ValueError, match="^fix_std_grid: expected at least two distinct numbers > 0"):
+            study(fix_std_grid=bad)
+    with pytest.raises(ValueError, match="^trials: expected at least two for fix_std_grid"):
+        study(trials="16", fix_std_grid="0.003,0.01")
 
 
 def test_the_grid_tables_give_each_fold_s_choice_and_each_value_s_means():

@@ -152,7 +152,7 @@ for _name, _title, _settings, _help in (
      "run with the fold tuned without it); writes broad.md, broad.csv, broad.json and arrays.npz."),
     ("broad-ins", "inertial navigation on SE_2(3) with BROAD's real IMU and optical position fixes at 10 Hz",
      ("trials", "seconds", "attitude_filters", "variants", "fix_rate", "noise_std", "realdata", "ukf_trials",
-      "ukf_variants", "gyro_scale_std", "gyro_scale_grid"),
+      "ukf_variants", "gyro_scale_std", "gyro_scale_grid", "fix_std_grid"),
      "inertial navigation on SE_2(3) with gyro and accelerometer biases, driven by the real IMU of the BROAD "
      "recordings, with the optical positions at 10 Hz as position fixes, as recorded and with added white noise "
      "(noise_std m, --seed): the MEF (both orders), the right-invariant EKF, the EKF and the UKF-M (left, right), "

@@ -191,7 +191,9 @@ class BroadInsComparison:
     (:func:`system_of`). ``gyro_scale_grid`` (a comma-separated list of at least two values >= 0, or None: off)
     chooses ``gyro_scale_std`` per trial instead, by leave-one-out (:func:`held_out_choice`): each filter runs at
     every value on every trial, and a trial's row is the run at the value whose :func:`consistency_loss` is lowest
-    on the mean over the other trials; ``gyro_scale_std`` must then keep its default."""
+    on the mean over the other trials; ``gyro_scale_std`` must then keep its default. ``fix_std_grid`` (at least two
+    values > 0, m, or None: :data:`RECORDED_FIX_STD`) chooses the recorded fix's weight the same way, jointly with
+    ``gyro_scale_grid`` where both are given (every pair is a grid point; a noisy fix adds its noise to it)."""
 
     trials: tuple[str, ...] | str | None = None
     seconds: float | None = None
@@ -206,6 +208,7 @@ class BroadInsComparison:
     ukf_variants: tuple[str, ...] | str | None = None
     gyro_scale_std: float = 0.0
     gyro_scale_grid: tuple[float, ...] | str | None = None
+    fix_std_grid: tuple[float, ...] | str | None = None
 
     def __post_init__(self):
         from ._broad import BROAD_FILTERS
@@ -242,6 +245,9 @@ class BroadInsComparison:
                                  f"{self.gyro_scale_std!r}")
             if len(trials) < 2:
                 raise ValueError(f"trials: expected at least two for gyro_scale_grid's leave-one-out, got {trials!r}")
+        fixes = _grid_values("fix_std_grid", self.fix_std_grid, lambda v: v > 0, "> 0")
+        if fixes is not None and len(trials) < 2:
+            raise ValueError(f"trials: expected at least two for fix_std_grid's leave-one-out, got {trials!r}")
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
@@ -251,8 +257,35 @@ class BroadInsComparison:
                        ("attitude_filters", att),
                        ("variants", variants), ("realdata", str(folder)), ("fix_rate", float(self.fix_rate)),
                        ("noise_std", float(self.noise_std)), ("gyro_scale_std", float(g)),
-                       ("gyro_scale_grid", grid)):
+                       ("gyro_scale_grid", grid), ("fix_std_grid", fixes)):
             object.__setattr__(self, key, v)
+
+    @property
+    def points(self) -> list[tuple[float, float]]:
+        """The runs of each filter on each trial: (gyro_scale_std, the recorded fix's std) for every pair of the
+        grids (a setting's own value where it has none)."""
+        return [(g, f) for g in (self.gyro_scale_grid or (self.gyro_scale_std,))
+                for f in (self.fix_std_grid or (RECORDED_FIX_STD,))]
+
+    @property
+    def searched(self) -> bool:
+        """Whether a grid chooses each trial's run by leave-one-out."""
+        return bool(self.gyro_scale_grid or self.fix_std_grid)
+
+
+def _grid_values(name: str, grid, ok, floor: str) -> tuple[float, ...] | None:
+    """A grid setting (a comma-separated list, a sequence or None) as sorted distinct floats, at least two, each
+    finite and ``ok``; a ValueError naming ``name`` otherwise."""
+    if grid is None:
+        return None
+    items = grid.split(",") if isinstance(grid, str) else list(grid) if isinstance(grid, tuple | list) else [grid]
+    try:
+        values = [] if any(isinstance(v, bool) for v in items) else sorted(float(v) for v in items)
+    except (TypeError, ValueError):
+        values = []
+    if len(values) < 2 or len(set(values)) != len(values) or not all(math.isfinite(v) and ok(v) for v in values):
+        raise ValueError(f"{name}: expected at least two distinct numbers {floor}, got {grid!r}")
+    return tuple(values)
 
 
 # --- the data ---------------------------------------------------------------------------------------------------
@@ -622,7 +655,7 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
     """Run the study; returns ``{"study", "per_trial", "means", "attitude_only", "arrays"}``, and ``"grid"``
     where ``gyro_scale_grid`` chose ``gyro_scale_std`` per trial (each grid value's rows, every trial)."""
     st = BroadInsComparison() if study is None else study
-    grid = st.gyro_scale_grid or (st.gyro_scale_std,)
+    grid = st.points
     paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
     per_trial, runs = {}, {}
     for tid in st.trials:
@@ -636,39 +669,44 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                  **scoring(scored(data), data.trial.ts[-1] - data.trial.ts[0], data.movement_s)}
         for variant in st.variants:
             noise = None if variant == "recorded" else st.noise_std
-            fix_std = RECORDED_FIX_STD if noise is None else math.hypot(RECORDED_FIX_STD, noise)
             log = ins_log(data, fixes(data, tid, st.fix_rate, noise, st.seed))
             for name in st.filters:
                 if name.startswith("ukf") and (tid not in st.ukf_trials or variant not in st.ukf_variants):
                     continue
-                for g in grid:
-                    row, per_s = runs[tid, variant, name, g] = _score(name, data, log, fix_std, g, truth,
-                                                                      st.fix_rate)
+                for point in grid:
+                    g, recorded = point
+                    fix_std = recorded if noise is None else math.hypot(recorded, noise)
+                    row, per_s = runs[tid, variant, name, point] = _score(name, data, log, fix_std, g, truth,
+                                                                          st.fix_rate)
+                    row["fix_std_m"] = fix_std
+                    if st.searched:
+                        row["grid_point"] = _point_label(st, point)
                     if progress:
-                        at = f" at gyro_scale_std {g:g}" if st.gyro_scale_grid else ""
+                        at = f" at {_point_label(st, point)}" if st.searched else ""
                         print(f"  trial {tid} {variant:8s} {name:10s}{at} attitude {fmt(row['total'])} (incl. "
                               f"{fmt(row['inclination'])}) deg, velocity {fmt(row['velocity'])} m/s, position "
                               f"{fmt(row['position'])} m, NEES {fmt(row['nees_pose'], 3)}, {row.get('monitor')}; "
                               f"run {row['run_s']:.1f} s, with the scoring {row['elapsed_s']:.1f} s",
                               file=sys.stderr, flush=True)
-            entry["variants"][variant] = {"fix_std_m": fix_std, "added_noise_m": noise, "filters": {}}
+            entry["variants"][variant] = {"fix_std_m": RECORDED_FIX_STD if noise is None else
+                                          math.hypot(RECORDED_FIX_STD, noise), "added_noise_m": noise, "filters": {}}
         per_trial[tid] = entry
     arrays, grid_rows = {}, {}
     for variant in st.variants:
         for name in st.filters:
             ran = [t for t in st.trials if (t, variant, name, grid[0]) in runs]
-            if st.gyro_scale_grid:
-                choice = held_out_choice({t: {g: consistency_loss(runs[t, variant, name, g][0]) for g in grid}
+            if st.searched:
+                choice = held_out_choice({t: {p: consistency_loss(runs[t, variant, name, p][0]) for p in grid}
                                           for t in ran})
                 grid_rows.setdefault(variant, {})[name] = {
-                    f"{g:g}": {t: _grid_cell(runs[t, variant, name, g][0]) for t in ran} for g in grid}
+                    _point_label(st, p): {t: _grid_cell(runs[t, variant, name, p][0]) for t in ran} for p in grid}
             else:
                 choice = {t: {"value": grid[0], "training": None} for t in ran}
             for t in ran:
                 if t not in choice:  # a filter run on one trial only (the UKF-M's subset): no fold to choose it
                     continue
                 row, per_s = runs[t, variant, name, choice[t]["value"]]
-                if st.gyro_scale_grid:
+                if st.searched:
                     row = {**row, "training_loss": _finite(choice[t]["training"])}
                 per_trial[t]["variants"][variant]["filters"][name] = row
                 if per_s is not None:
@@ -679,14 +717,19 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                       "weights": f"gyro {GYRO_STD} rad/s per sample"
                                  + (f" plus {st.gyro_scale_std:g} times the rate it measures" if st.gyro_scale_std
                                     else "")
-                                 + (" plus gyro_scale_std times the rate it measures, gyro_scale_std chosen per "
-                                    "trial and filter from {" + ", ".join(f"{g:g}" for g in grid) + "} by "
-                                    "leave-one-out (the lowest mean consistency loss over the other trials: the sum "
-                                    "over attitude, velocity and position of |ln NEES per dof|; the trial's own runs "
-                                    "never enter its choice)" if st.gyro_scale_grid else "")
+                                 + (" plus gyro_scale_std times the rate it measures" if st.gyro_scale_grid
+                                    else "")
+                                 + (", the recorded fix's std" if st.fix_std_grid else "")
+                                 + (" (" + " and ".join(f"{k} from {{{', '.join(f'{v:g}' for v in vs)}}}"
+                                                        for k, vs in (("gyro_scale_std", st.gyro_scale_grid),
+                                                                      ("the fix's std [m]", st.fix_std_grid)) if vs)
+                                    + ") chosen per trial and filter by leave-one-out (the lowest mean consistency "
+                                    "loss over the other trials: the sum over attitude, velocity and position of "
+                                    "|ln NEES per dof|; the trial's own runs never enter its choice)"
+                                    if st.searched else "")
                                  + f", accelerometer {ACC_DENSITY} m/s^2/sqrt(Hz), "
                                  "bias walks inertial_navigation()'s defaults, gravity 9.81: stated priors"
-                                 + (" (gyro_scale_std apart)" if st.gyro_scale_grid else "")
+                                 + (" (the grid apart)" if st.searched else "")
                                  + ", one set for all trials",
                       "K0": "diag(0.05^2 I3, 0.01^2 I3, 2^2 I3, 0.002^2 I3, 0.1^2 I3, "
                             f"{LEVER_ARM_STD}^2 I3, gyro calibration {GYRO_SCALE_STD}^2 on the "
@@ -697,7 +740,14 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                       "fix_std_recorded_m": RECORDED_FIX_STD, "velocity_truth": f"central difference over +-"
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only,
-            **({"grid": grid_rows} if st.gyro_scale_grid else {}), "arrays": arrays}
+            **({"grid": grid_rows} if st.searched else {}), "arrays": arrays}
+
+
+def _point_label(st: BroadInsComparison, point: tuple[float, float]) -> str:
+    """A grid point as the grid's tables name it: its gyro_scale_std (and the recorded fix's std in m, where
+    ``fix_std_grid`` is searched)."""
+    g, f = point
+    return f"{g:g}, {f:g}" if st.fix_std_grid else f"{g:g}"
 
 
 def _grid_cell(row: dict) -> dict:
@@ -770,7 +820,8 @@ def markdown(result: dict) -> str:
     lines = ["# Inertial navigation on BROAD's real IMU (Laidig et al. 2021, CC BY 4.0)", "",
              f"System: {st['system']}; weights: {st['weights']}; K0 = {st['K0']}; initial: {st['initial']}. "
              f"Position fixes at {st['fix_rate']:g} Hz from the optical positions (recorded: weighted "
-             f"{st['fix_std_recorded_m']} m; noisy: plus white noise of {st['noise_std']:g} m per axis, seed "
+             + ("with the std the grid chose" if st.get("fix_std_grid") else f"{st['fix_std_recorded_m']} m")
+             + f"; noisy: plus white noise of {st['noise_std']:g} m per axis, seed "
              f"{st['seed']}). Errors over BROAD's movement mask where the optical truth is present: attitude as "
              f"BROAD (total, heading, inclination rms), velocity against the {st['velocity_truth']} of the optical "
              "positions, position; NEES of the left error on SE_2(3) under K (per block / 3, pose / 9); APE and RPE "
@@ -877,22 +928,25 @@ def _consistency_lines(result: dict, trials) -> list[str]:
 
 
 def _grid_lines(result: dict, trials) -> list[str]:
-    """Where ``gyro_scale_grid`` chose ``gyro_scale_std``: per variant, each trial's choice with its training
-    loss, then each grid value's means over every trial (in-sample, for reading: no choice uses them)."""
+    """Where a grid chose ``gyro_scale_std`` (and the recorded fix's std): per variant, each trial's choice with its
+    training loss, then each grid point's means over every trial (in-sample, for reading: no choice uses them)."""
     grid = result.get("grid")
     if not grid:
         return []
     lines = []
+    both = bool(result["study"].get("fix_std_grid"))
+    what = "gyro_scale_std and the recorded fix's std" if both else "gyro_scale_std"
+    column = "gyro_scale_std, fix std [m]" if both else "gyro_scale_std"
     for variant, per_filter in grid.items():
-        lines += [f"## gyro_scale_std by leave-one-out, fixes {variant}", "",
+        lines += [f"## {what} by leave-one-out, fixes {variant}", "",
                   "Per trial: the value chosen without it (the lowest mean consistency loss over the other trials) "
                   "and that training loss; the trial's rows above are its runs at that value, held out.", "",
                   "| filter | " + " | ".join(trials) + " |", "|---|" + "---:|" * len(trials)]
         lines += _trial_rows(result, variant, trials,
-                             lambda r: f"{r['gyro_scale_std']:g} ({fmt(r.get('training_loss'), 3)})")
+                             lambda r: f"{r.get('grid_point', r['gyro_scale_std'])} ({fmt(r.get('training_loss'), 3)})")
         lines += ["", f"Each value on every trial (fixes {variant}; in-sample, for reading): means of the attitude "
                   "total [deg], of the NEES per dof of the attitude / velocity / position and of the consistency "
-                  "loss.", "", "| filter | gyro_scale_std | trials | attitude [deg] | NEES att. | NEES vel. | NEES "
+                  f"loss.", "", f"| filter | {column} | trials | attitude [deg] | NEES att. | NEES vel. | NEES "
                   "pos. | loss |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for name, per_value in per_filter.items():
             for value, cells in per_value.items():
@@ -910,7 +964,7 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
     and attitude-only filter."""
     evo_keys = ("ape_translation_rmse", "ape_rotation_rmse", "rpe_translation_rmse", "rpe_rotation_rmse")
     header = (["trial", "variant", "filter", "ok"] + [k for k, _, _ in METRICS] + list(NEES_KEYS) + list(BAND_KEYS)
-              + ["fix_nis", "monitor"] + list(evo_keys) + ["gyro_scale_std", "elapsed_s"])
+              + ["fix_nis", "monitor"] + list(evo_keys) + ["gyro_scale_std", "elapsed_s", "fix_std_m"])
     rows = []
     for t, e in result["per_trial"].items():
         for v, ve in e["variants"].items():
@@ -918,7 +972,7 @@ def csv_rows(result: dict) -> tuple[list[str], list[list]]:
                 ev = r["evo"] or {}
                 rows.append([t, v, n, r["ok"], *(r[k] for k, _, _ in METRICS), *(r[k] for k in NEES_KEYS),
                              *(r[k] for k in BAND_KEYS), r["fix_nis"], r["monitor"], *(ev.get(k) for k in evo_keys),
-                             r.get("gyro_scale_std"), r["elapsed_s"]])
+                             r.get("gyro_scale_std"), r["elapsed_s"], r.get("fix_std_m")])
     for t, per in (result.get("attitude_only") or {}).items():
         for n, r in per.items():
             rows.append([t, "attitude-only", n, r["ok"], r["total"], r["heading"], r["inclination"]]
