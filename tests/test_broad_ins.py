@@ -348,6 +348,8 @@ def test_the_grid_setting_is_checked_and_names_its_argument(tmp_path):
             study(fix_std_grid=bad)
     with pytest.raises(ValueError, match="^trials: expected at least two for fix_std_grid"):
         study(trials="16", fix_std_grid="0.003,0.01")
+    with pytest.raises(ValueError, match=r"^seconds: expected at least one rest-detection window \(0.5 s\)"):
+        study(seconds=0.1)  # the rest is found in windows: a shorter slice failed naming gyr and acc
 
 
 def test_the_grid_tables_give_each_fold_s_choice_and_each_value_s_means():

@@ -73,7 +73,7 @@ from ...systems import attitude_field, attitude_gyro_bias
 from ...systems.attitude_bias import K0_GYRO_BIAS as K0
 from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_state, imu_field_log
 from ...systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
-from ...systems.imu_rest import initial_estimate, rest_constants
+from ...systems.imu_rest import REST_WINDOW, initial_estimate, rest_constants
 from .. import datasets
 from ._common import fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
 
@@ -266,6 +266,9 @@ class BroadComparison:
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
+        if self.seconds is not None and self.seconds < REST_WINDOW:  # the rest is found in windows of the IMU
+            raise ValueError(f"seconds: expected at least one rest-detection window ({REST_WINDOW} s), got "
+                             f"{self.seconds!r}")
         object.__setattr__(self, "trials", tuple(trials))
         object.__setattr__(self, "filters", names)
         object.__setattr__(self, "realdata", str(folder))

@@ -112,6 +112,7 @@ from ...reports import io
 from ...smoothers import OfflineSmoother
 from ...systems import inertial_navigation
 from ...systems._gyro_scale import gyro_scale_value
+from ...systems.imu_rest import REST_WINDOW
 from .. import datasets
 from ._broad import SMOOTH_TOL, trial_ids
 from ._common import FILTERS, fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
@@ -251,6 +252,9 @@ class BroadInsComparison:
         if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
                                              and self.seconds > 0):
             raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
+        if self.seconds is not None and self.seconds < REST_WINDOW:  # the rest is found in windows of the IMU
+            raise ValueError(f"seconds: expected at least one rest-detection window ({REST_WINDOW} s), got "
+                             f"{self.seconds!r}")
         if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
             raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
         for key, v in (("trials", trials), ("ukf_trials", ukf), ("ukf_variants", ukf_variants), ("filters", names),
