@@ -160,8 +160,8 @@ def invertible(name: str, value, n: int) -> np.ndarray:
     scale = max(1.0, float(np.abs(a).max()))
     s = np.linalg.svd(a / scale, compute_uv=False)
     if s.min() <= 1e-12 * max(1.0, s.max()):
-        raise ValueError(f"{name}: expected an invertible matrix (D D^T positive definite), "
-                         f"got smallest singular value {s.min() * scale:.3g}")
+        raise ValueError(f"{name}: expected an invertible matrix (D D^T positive definite, condition number below "
+                         f"1e12), got singular values from {s.min() * scale:.3g} to {s.max() * scale:.3g}")
     return a
 
 
