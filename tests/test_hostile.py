@@ -399,6 +399,7 @@ def test_a_huge_k0_fails_as_a_value_that_says_why(tmp_path):
                                    str(tmp_path / "o"), "--x0", "0,0,0", "--k0", "1e12", "--updates", "discrete",
                                    "--no-progress"])
     assert res.exit_code == 1 and isinstance(res.exception, SystemExit) and "Traceback" not in res.output, res.output
+    assert res.output.startswith("Failed to filter ") and "Filtered" not in res.output
     assert "filter failed over the sample interval 50 ([0.5, 0.51] s): the gain K lost positive definiteness" in \
         res.output and "condition number of" in res.output and "gps 0." in res.output
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["failure.json"]

@@ -884,7 +884,8 @@ class SavedRun:
     def messages(self) -> list[tuple[str, bool]]:
         """What ``liemef run`` prints, in order: each line with True where it goes to stderr (a warning)."""
         run = self.run
-        lines = [(f"Filtered {self.log.ts.shape[0]} samples of {run.log_file} with {run.source.label} "
+        verb = "Filtered" if run.ok else "Failed to filter"  # a failed run's message says where it stopped
+        lines = [(f"{verb} {self.log.ts.shape[0]} samples of {run.log_file} with {run.source.label} "
                   f"({run.filter})", False)]
         rest = run.source.rest
         if rest is not None and rest["found"] and rest["measured"]:
