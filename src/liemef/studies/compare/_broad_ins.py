@@ -49,7 +49,9 @@ rate, the temperature or the axis turned about) the white gyro noise covers only
 $s$ adds $s^2|\omega|^2/f$ to it (:class:`~liemef.systems._gyro_scale.GyroScaleSystem`). With a grid of values,
 each filter runs at every value on every trial, and a trial's row is its run at the value chosen on the *other*
 trials (:func:`held_out_choice`): the lowest mean :func:`consistency_loss`, how far the attitude, velocity and
-position NEES are from 1. The choice reads no accuracy figure, and never the held-out trial's.
+position NEES are from 1. The choice reads no accuracy figure, and never the held-out trial's. ``fix_std_grid``
+chooses the recorded fix's weight (a stated 1 cm otherwise) the same way, jointly with the gyro's where both are
+given.
 
 **Initial state, from the IMU alone, the same for every filter** (:func:`initial_state`): the run starts at the
 file's first sample, as ``compare broad``'s. The attitude is TRIAD of the accelerometer and magnetometer over the
