@@ -243,28 +243,36 @@ def test_the_smoother_row_beats_its_filter_and_has_no_monitor(tmp_path):
     assert math.isfinite(s["nees_pose"]) and "no monitor (acausal)" in (out / "broad_ins.md").read_text()
 
 
-@pytest.mark.slow  # about 2 min: one SE_2(3) x R^18 filter at two gyro scale values on 50 s of two trials
-def test_the_grid_chooses_each_trial_s_gyro_scale_from_the_other_trial(tmp_path):
+@pytest.mark.slow  # 2 and 4 min: one SE_2(3) x R^18 filter at each grid point on 50 s of two trials
+@pytest.mark.parametrize("fix_grid", [None, "0.003,0.01"])
+def test_the_grid_chooses_each_trial_s_point_from_the_other_trial(tmp_path, fix_grid):
+    """Each trial's row is its run at the grid point (gyro_scale_std, and the fix's std where fix_std_grid is
+    given) whose loss on the other trial is lowest; the CSV and the report say which."""
     _broad_present("10")
     _broad_present("16")
     # 50 s: both trials rest for their first 35-37 s, where nothing is scored
     st = B.BroadInsComparison(trials="10,16", seconds=50.0, filters="mef", attitude_filters="none",
-                              variants="recorded", gyro_scale_grid="0,0.05")
+                              variants="recorded", gyro_scale_grid="0,0.05", fix_std_grid=fix_grid)
     result = B.compare_broad_ins(st, progress=False)
     grid = result["grid"]["recorded"]["mef"]
-    losses = {(g, t): grid[g][t]["loss"] for g in ("0", "0.05") for t in ("10", "16")}
-    assert all(v is not None and math.isfinite(v) for v in losses.values()), losses  # every run scored
-    assert losses["0", "10"] != losses["0.05", "10"] and losses["0", "16"] != losses["0.05", "16"]
+    points = st.points
+    assert len(points) == (2 if fix_grid is None else 4) and sorted(grid) == sorted(B._point_label(st, p)
+                                                                                  for p in points)
+    loss = {(p, t): grid[B._point_label(st, p)][t]["loss"] for p in points for t in ("10", "16")}
+    assert all(v is not None and math.isfinite(v) for v in loss.values()), loss  # every run scored
+    assert len({loss[p, "10"] for p in points}) == len(points)  # the grid's points differ
     for held, other in (("10", "16"), ("16", "10")):
         r = result["per_trial"][held]["variants"]["recorded"]["filters"]["mef"]
-        best = min((0.0, 0.05), key=lambda g: (grid[f"{g:g}"][other]["loss"], g))
-        assert r["gyro_scale_std"] == best and r["training_loss"] == grid[f"{best:g}"][other]["loss"]
-        assert r["total"] == grid[f"{best:g}"][held]["total"] and r["ok"]
+        best = min(points, key=lambda p: (loss[p, other], p))
+        assert (r["gyro_scale_std"], r["fix_std_m"]) == best and r["training_loss"] == loss[best, other]
+        assert r["total"] == grid[B._point_label(st, best)][held]["total"] and r["ok"]
     header, rows = B.csv_rows(result)
-    assert [r[header.index("gyro_scale_std")] for r in rows] == [
-        result["per_trial"][t]["variants"]["recorded"]["filters"]["mef"]["gyro_scale_std"] for t in ("10", "16")]
-    assert "gyro_scale_std chosen per trial" in result["study"]["weights"]
-    assert "## gyro_scale_std by leave-one-out, fixes recorded" in B.markdown(result)
+    assert [(r[header.index("gyro_scale_std")], r[header.index("fix_std_m")]) for r in rows] == [
+        (result["per_trial"][t]["variants"]["recorded"]["filters"]["mef"]["gyro_scale_std"],
+         result["per_trial"][t]["variants"]["recorded"]["filters"]["mef"]["fix_std_m"]) for t in ("10", "16")]
+    assert "chosen per trial and filter by leave-one-out" in result["study"]["weights"]
+    what = "gyro_scale_std" if fix_grid is None else "gyro_scale_std and the recorded fix's std"
+    assert f"## {what} by leave-one-out, fixes recorded" in B.markdown(result)
 
 
 def test_the_report_names_the_translation_trials_that_were_run():
