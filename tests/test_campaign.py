@@ -225,6 +225,15 @@ def test_another_campaign_in_the_same_folder_is_refused(tmp_path):
     with pytest.raises(CampaignError, match=r"holds another campaign \(seeds: 24 -> 48\)"):
         Store.open(small(tmp_path / "out", seeds=48))
     assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == before
+    # on the command line it is bad input (exit 2, as a description that cannot be read), not a failed run (1)
+    from click.testing import CliRunner
+
+    from liemef.cli import cli
+
+    (tmp_path / "c.toml").write_text(toml_text(tmp_path / "out", seeds=48))
+    res = CliRunner().invoke(cli, ["campaign", "run", str(tmp_path / "c.toml"), "--workers", "1", "--no-progress"])
+    assert res.exit_code == 2 and "holds another campaign (seeds: 24 -> 48)" in res.output, res.output
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*")) == before
 
 
 # --- on a cluster ------------------------------------------------------------------------------------------

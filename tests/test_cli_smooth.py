@@ -91,7 +91,9 @@ def test_a_smoother_that_does_not_converge_says_so_and_exits_5(tmp_path):
 @pytest.mark.parametrize("args, words", [(("--max-iterations", 0), "--max-iterations"),
                                          (("--tol", -1.0), "--tol"), (("--tol", 0.0), "tol: expected a finite "
                                                                                      "number > 0, got 0.0"),
-                                         (("--gap", 0.0), "gap: expected a finite number > 0, got 0.0"),
+                                         (("--gap", 0.0), "'--gap': expected a finite number > 0 (s), got 0.0"),
+                                         (("--alpha", "nan"), "'--alpha': expected a finite number >= 0, got nan"),
+                                         (("--k0-diag", "1,-2,1"), "'--k0-diag': expected finite numbers >= 0"),
                                          (("--smooth-chunk", 0), "--smooth-chunk"),
                                          (("--smooth-overlap", 3), "'--smooth-overlap': only with --smooth-chunk")])
 def test_bad_smoother_options_are_refused_by_name(tmp_path, args, words):

@@ -276,11 +276,13 @@ def _load_campaign(path: Path, out: Path | None):
 
 @_command(campaign_group, "campaign run")
 def campaign_run(file, out, scheduler, workers, progress):
-    from .studies.campaign import CampaignError, run_campaign
+    from .studies.campaign import CampaignError, CampaignInputError, run_campaign
 
     c = _load_campaign(file, out)
     try:
         result = run_campaign(c, scheduler=scheduler, workers=workers, progress=progress)
+    except CampaignInputError as err:  # bad input (exit 2), as _load_campaign's
+        raise click.BadParameter(str(err), param_hint="'FILE'") from err
     except CampaignError as err:
         raise click.ClickException(str(err)) from err
     _echo(result)

@@ -15,7 +15,17 @@ resumes without recomputing its finished tasks (:class:`Store`).
 """
 
 from ._run import DEFAULT_WORKERS, CampaignResult, Progress, run_campaign
-from ._spec import KEYS, RESULT_SCHEMA, SCHEMA, TASK_SCHEMA, Campaign, CampaignError, Setting, Task
+from ._spec import (
+    KEYS,
+    RESULT_SCHEMA,
+    SCHEMA,
+    TASK_SCHEMA,
+    Campaign,
+    CampaignError,
+    CampaignInputError,
+    Setting,
+    Task,
+)
 from ._store import (
     CAMPAIGN_FILE,
     LOCK_FILE,
@@ -29,7 +39,7 @@ from ._store import (
 )
 from ._task import TaskInput, TaskOutput, run_task
 
-__all__ = ["Campaign", "CampaignError", "CampaignResult", "Setting", "Task", "Progress", "run_campaign", "Store",
-           "Entry", "CampaignLock", "TaskInput", "TaskOutput", "run_task", "sha256_file", "KEYS", "SCHEMA",
-           "TASK_SCHEMA", "RESULT_SCHEMA", "DEFAULT_WORKERS", "status_lines", "CAMPAIGN_FILE", "LOCK_FILE",
-           "MANIFEST_FILE", "RESULT_FILE"]
+__all__ = ["Campaign", "CampaignError", "CampaignInputError", "CampaignResult", "Setting", "Task", "Progress",
+           "run_campaign", "Store", "Entry", "CampaignLock", "TaskInput", "TaskOutput", "run_task", "sha256_file",
+           "KEYS", "SCHEMA", "TASK_SCHEMA", "RESULT_SCHEMA", "DEFAULT_WORKERS", "status_lines", "CAMPAIGN_FILE",
+           "LOCK_FILE", "MANIFEST_FILE", "RESULT_FILE"]

@@ -36,6 +36,11 @@ class CampaignError(ValueError):
     """A campaign that cannot run as described, or a task that failed; the message names the key or task."""
 
 
+class CampaignInputError(CampaignError):
+    """A campaign that cannot start as given (its out folder holds another campaign or cannot be made): bad input,
+    which the command line reports with exit status 2, not a failure of its run."""
+
+
 def _int(where: str, value: Any, minimum: int) -> int:
     if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
         raise CampaignError(f"{where}: expected an integer >= {minimum}, got {value!r}")

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ...reports import io
-from ._spec import SCHEMA, TASK_SCHEMA, Campaign, CampaignError, Task
+from ._spec import SCHEMA, TASK_SCHEMA, Campaign, CampaignError, CampaignInputError, Task
 
 CAMPAIGN_FILE = "campaign.json"
 MANIFEST_FILE = "manifest.jsonl"
@@ -103,22 +103,22 @@ class Store:
         try:
             io.ensure_dir(store.out)
         except ValueError as err:
-            raise CampaignError(str(err)) from None
+            raise CampaignInputError(str(err)) from None
         path = store.out / CAMPAIGN_FILE
         fp = campaign.fingerprint()
         if path.exists():
             try:
                 old = io.read_json(path, "campaign")
             except ValueError as err:
-                raise CampaignError(f"out: {str(path)!r} is unreadable ({err}); expected the campaign.json of a "
+                raise CampaignInputError(f"out: {str(path)!r} is unreadable ({err}); expected the campaign.json of a "
                                     "campaign: use another out folder") from None
             if not isinstance(old, dict) or old.get("schema") != SCHEMA:
-                raise CampaignError(f"out: {str(store.out)!r} holds a campaign.json of another layout "
+                raise CampaignInputError(f"out: {str(store.out)!r} holds a campaign.json of another layout "
                                     f"(schema {old.get('schema') if isinstance(old, dict) else None!r}, expected "
                                     f"{SCHEMA!r}); use another out folder")
             if old.get("fingerprint") != fp:
                 changed = _differences(old.get("description", {}), campaign.description())
-                raise CampaignError(f"out: {str(store.out)!r} holds another campaign ({'; '.join(changed)}); "
+                raise CampaignInputError(f"out: {str(store.out)!r} holds another campaign ({'; '.join(changed)}); "
                                     "its results are kept: use another out folder, or the description it was "
                                     "run with")
         else:
