@@ -225,6 +225,16 @@ def given(flt) -> tuple[str, ...]:
     return tuple(out)
 
 
+def check_seconds(seconds: float | None) -> None:
+    """A BROAD study's ``seconds`` (the head of each trial; None: whole trials): a duration of at least one
+    rest-detection window (:data:`~liemef.systems.imu_rest.REST_WINDOW`), in which the initial rest is found; a
+    ValueError naming ``seconds`` otherwise."""
+    if seconds is not None and not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds: expected a duration > 0 or None, got {seconds!r}")
+    if seconds is not None and seconds < REST_WINDOW:
+        raise ValueError(f"seconds: expected at least one rest-detection window ({REST_WINDOW} s), got {seconds!r}")
+
+
 def trial_ids(what: str, trials, present, folder) -> tuple[str, ...]:
     """The BROAD trial ids of the setting ``what``: every trial ``present`` when ``trials`` is None, else the
     ones given (a tuple, or a comma-separated string); ids are two digits ("07"), and a number (7, 24) means the
@@ -263,12 +273,7 @@ class BroadComparison:
             from ..tune import load
 
             load(self.params)  # checked before any run
-        if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
-                                             and self.seconds > 0):
-            raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
-        if self.seconds is not None and self.seconds < REST_WINDOW:  # the rest is found in windows of the IMU
-            raise ValueError(f"seconds: expected at least one rest-detection window ({REST_WINDOW} s), got "
-                             f"{self.seconds!r}")
+        check_seconds(self.seconds)
         object.__setattr__(self, "trials", tuple(trials))
         object.__setattr__(self, "filters", names)
         object.__setattr__(self, "realdata", str(folder))

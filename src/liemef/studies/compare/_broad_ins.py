@@ -114,9 +114,8 @@ from ...reports import io
 from ...smoothers import OfflineSmoother
 from ...systems import inertial_navigation
 from ...systems._gyro_scale import gyro_scale_value
-from ...systems.imu_rest import REST_WINDOW
 from .. import datasets
-from ._broad import SMOOTH_TOL, trial_ids
+from ._broad import SMOOTH_TOL, check_seconds, trial_ids
 from ._common import FILTERS, fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
 
 SCHEMA = "liemef.compare.broad-ins/1"
@@ -230,33 +229,15 @@ class BroadInsComparison:
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{key}: expected a number > 0, got {v!r}")
         g = float(gyro_scale_value("gyro_scale_std", self.gyro_scale_std))
-        grid = self.gyro_scale_grid
-        if grid is not None:
-            items = grid.split(",") if isinstance(grid, str) else list(grid) if isinstance(grid, tuple | list) \
-                else [grid]
-            try:
-                grid = tuple(sorted(float(gyro_scale_value("gyro_scale_grid", float(v) if isinstance(v, str) else v))
-                                    for v in items))
-            except ValueError as exc:
-                raise ValueError(f"gyro_scale_grid: expected at least two distinct numbers >= 0, got "
-                                 f"{self.gyro_scale_grid!r}") from exc
-            if len(set(grid)) != len(grid) or len(grid) < 2:
-                raise ValueError(f"gyro_scale_grid: expected at least two distinct numbers >= 0, got "
-                                 f"{self.gyro_scale_grid!r}")
-            if g != 0.0:
-                raise ValueError(f"gyro_scale_std: expected its default 0 when gyro_scale_grid chooses it, got "
-                                 f"{self.gyro_scale_std!r}")
-            if len(trials) < 2:
-                raise ValueError(f"trials: expected at least two for gyro_scale_grid's leave-one-out, got {trials!r}")
+        grid = _grid_values("gyro_scale_grid", self.gyro_scale_grid, lambda v: v >= 0, ">= 0")
         fixes = _grid_values("fix_std_grid", self.fix_std_grid, lambda v: v > 0, "> 0")
-        if fixes is not None and len(trials) < 2:
-            raise ValueError(f"trials: expected at least two for fix_std_grid's leave-one-out, got {trials!r}")
-        if self.seconds is not None and not (isinstance(self.seconds, int | float) and math.isfinite(self.seconds)
-                                             and self.seconds > 0):
-            raise ValueError(f"seconds: expected a duration > 0 or None, got {self.seconds!r}")
-        if self.seconds is not None and self.seconds < REST_WINDOW:  # the rest is found in windows of the IMU
-            raise ValueError(f"seconds: expected at least one rest-detection window ({REST_WINDOW} s), got "
-                             f"{self.seconds!r}")
+        if grid is not None and g != 0.0:
+            raise ValueError(f"gyro_scale_std: expected its default 0 when gyro_scale_grid chooses it, got "
+                             f"{self.gyro_scale_std!r}")
+        for key, values in (("gyro_scale_grid", grid), ("fix_std_grid", fixes)):
+            if values is not None and len(trials) < 2:
+                raise ValueError(f"trials: expected at least two for {key}'s leave-one-out, got {trials!r}")
+        check_seconds(self.seconds)
         if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and self.seed >= 0):
             raise ValueError(f"seed: expected an integer >= 0, got {self.seed!r}")
         for key, v in (("trials", trials), ("ukf_trials", ukf), ("ukf_variants", ukf_variants), ("filters", names),
@@ -681,7 +662,7 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                     continue
                 for point in grid:
                     g, recorded = point
-                    fix_std = recorded if noise is None else math.hypot(recorded, noise)
+                    fix_std = _fix_weight(recorded, noise)
                     row, per_s = runs[tid, variant, name, point] = _score(name, data, log, fix_std, g, truth,
                                                                           st.fix_rate)
                     row["fix_std_m"] = fix_std
@@ -694,8 +675,8 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                               f"{fmt(row['position'])} m, NEES {fmt(row['nees_pose'], 3)}, {row.get('monitor')}; "
                               f"run {row['run_s']:.1f} s, with the scoring {row['elapsed_s']:.1f} s",
                               file=sys.stderr, flush=True)
-            entry["variants"][variant] = {"fix_std_m": RECORDED_FIX_STD if noise is None else
-                                          math.hypot(RECORDED_FIX_STD, noise), "added_noise_m": noise, "filters": {}}
+            entry["variants"][variant] = {"fix_std_m": _fix_weight(RECORDED_FIX_STD, noise),
+                                          "added_noise_m": noise, "filters": {}}
         per_trial[tid] = entry
     arrays, grid_rows = {}, {}
     for variant in st.variants:
@@ -747,6 +728,11 @@ def compare_broad_ins(study: BroadInsComparison | None = None, *, progress: bool
                       f"{VELOCITY_HALF_WINDOW * 1e3:g} ms", "rpe_delta_pairs": RPE_DELTA},
             "per_trial": per_trial, "means": _means(st, per_trial), "attitude_only": attitude_only,
             **({"grid": grid_rows} if st.searched else {}), "arrays": arrays}
+
+
+def _fix_weight(recorded: float, noise: float | None) -> float:
+    """The std (m) a fix is weighted with: the recorded fix's, with the added white ``noise`` (None: none)."""
+    return recorded if noise is None else math.hypot(recorded, noise)
 
 
 def _point_label(st: BroadInsComparison, point: tuple[float, float]) -> str:
