@@ -110,17 +110,17 @@ class Store:
             try:
                 old = io.read_json(path, "campaign")
             except ValueError as err:
-                raise CampaignInputError(f"out: {str(path)!r} is unreadable ({err}); expected the campaign.json of a "
-                                    "campaign: use another out folder") from None
+                raise CampaignInputError(f"out: {str(path)!r} is unreadable ({err}); expected the campaign.json "
+                                         "of a campaign: use another out folder") from None
             if not isinstance(old, dict) or old.get("schema") != SCHEMA:
                 raise CampaignInputError(f"out: {str(store.out)!r} holds a campaign.json of another layout "
-                                    f"(schema {old.get('schema') if isinstance(old, dict) else None!r}, expected "
-                                    f"{SCHEMA!r}); use another out folder")
+                                         f"(schema {old.get('schema') if isinstance(old, dict) else None!r}, "
+                                         f"expected {SCHEMA!r}); use another out folder")
             if old.get("fingerprint") != fp:
                 changed = _differences(old.get("description", {}), campaign.description())
-                raise CampaignInputError(f"out: {str(store.out)!r} holds another campaign ({'; '.join(changed)}); "
-                                    "its results are kept: use another out folder, or the description it was "
-                                    "run with")
+                raise CampaignInputError(f"out: {str(store.out)!r} holds another campaign "
+                                         f"({'; '.join(changed)}); its results are kept: use another out folder, "
+                                         "or the description it was run with")
         else:
             io.write_json(path, {"schema": SCHEMA, "name": campaign.name, "fingerprint": fp,
                                  "description": campaign.description(), "campaign": campaign.to_dict(),
