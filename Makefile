@@ -31,16 +31,17 @@ JAX_CACHE := JAX_COMPILATION_CACHE_DIR=$(CURDIR)/.cache/jax LIEMEF_CACHE_DIR=$(C
 # test_cli, test_montecarlo and test_campaign (run alone) make 559 XLA compiles, at least 318 of them such
 # single operations (metrics/_stats.py, the key indexing of studies/experiments/_montecarlo.py, the groups);
 # collecting the tests compiles about 75 more in each xdist worker (~2.6 s of CPU). `liemef run`'s report
-# arrays are jitted (1eb9b01). Measured and left out, because they
-# change the numbers or save nothing cold: --xla_backend_optimization_level=0 and
-# --xla_cpu_use_fusion_emitters=false (28 % less CPU on an XLA filter run, but other bits),
-# --xla_llvm_disable_expensive_passes (no gain), jax_persistent_cache_min_compile_time_secs=0 (the two workers
-# compile the same small programs at the same time: no gain cold). Measured and kept: each kernel's -O2 build
-# only once its quick build has served 2 s of calls (262 -O2 builds in a cold run before, the bulk of the
-# C compiler's time; test_engine.py alone 198 s -> 149 s), and --dist loadfile (a file's tests in one worker,
-# the heaviest files first: tests/conftest.py) instead of worksteal, which split a file's tests and compiled
-# their programs in both workers: a cold run from 1064 s to 838-903 s. `make test-slow` runs only the
-# `@pytest.mark.slow` tests: the full-size studies and the heaviest variants of fast tests.
+# arrays are jitted (1eb9b01). Measured and kept: the tests' processes compile every XLA program without
+# XLA's expensive optimisations (tests/fast_compile.py: no fast-math, every tolerance holds, the last bits move,
+# so the pinned figures are computed in a process with XLA's defaults), a cold run from 1050 s to 678 s
+# (LIEMEF_TEST_XLA_DEFAULTS=1 runs the suite with XLA's defaults, as users' runs are compiled); each kernel's
+# -O2 build only once its quick build has served 2 s of calls (262 -O2 builds in a cold run before, the bulk of
+# the C compiler's time; test_engine.py alone 198 s -> 149 s); and --dist loadfile (a file's tests in one
+# worker, the heaviest files first: tests/conftest.py) instead of worksteal, which split a file's tests and
+# compiled their programs in both workers: a cold run from 1064 s to 838-903 s. Measured and left out:
+# jax_persistent_cache_min_compile_time_secs=0 (the two workers compile the same small programs at the same
+# time: no gain cold). `make test-slow` runs only the `@pytest.mark.slow` tests: the full-size studies and the
+# heaviest variants of fast tests.
 # --max-worker-restart=0: under --dist loadfile pytest-xdist does not replace a crashed worker cleanly (it then
 # waits forever, as a CI run did until its limit after a worker's SIGABRT), so a crash ends the run at once,
 # with the test it happened in named.

@@ -21,6 +21,14 @@ if os.path.exists("/proc/cpuinfo"):
 # processes, each in a temporary folder.
 os.environ.setdefault("LIEMEF_XLA_CACHE", "0")
 
+# XLA compiles the suite's programs without its expensive optimisations, in this process and in the CLI processes
+# the tests start (tests/fast_compile.py says why, what it saves and which check keeps XLA's defaults); before
+# JAX starts its CPU backend, which reads XLA_FLAGS once. LIEMEF_TEST_XLA_DEFAULTS=1 keeps XLA's defaults.
+import fast_compile  # noqa: E402  (imports nothing)
+
+if os.environ.get(fast_compile.OPT_OUT) != "1":
+    os.environ["XLA_FLAGS"] = fast_compile.added(os.environ.get("XLA_FLAGS", ""))
+
 import pytest  # noqa: E402
 
 import liemef._config  # noqa: F401  (switches JAX to float64 before any test creates an array)
@@ -29,14 +37,13 @@ import liemef._config  # noqa: F401  (switches JAX to float64 before any test cr
 # compiles the programs its tests share once (split across two workers, each compiled them). The workers take
 # files in collection order (xdist's own reorder, by number of tests, is off), so the heaviest come first and the
 # last file to start is a short one: neither worker idles while the other finishes a long file. Seconds of each
-# in one cold run (2 workers on 2 cores, December 2026); a file not named here keeps its place after them.
-# Refresh the list from `--durations=0` when a file grows past these.
-HEAVY_FIRST = ("test_engine.py", "test_smoother.py", "test_export_c.py", "test_right_error.py",  # 389-121 s
-               "test_predict_update.py", "test_second_order_suite.py", "test_innovations.py",  # 117-97 s
-               "test_groups.py", "test_hostile.py", "test_inertial_calibration.py", "test_pinned_figures.py",  # 88-79
-               "test_cli_run.py", "test_compare.py", "test_sample_update.py", "test_ukfm_attitude.py",  # 77-59 s
-               "test_chaplygin.py", "test_attitude_field.py", "test_cli.py", "test_campaign.py",  # 56-44 s
-               "test_kernel_cache.py", "test_optimum.py", "test_jaxpr_c_primitives.py")  # 43-41 s
+# in one cold run (2 workers on 2 cores, December 2026, tests/fast_compile.py's flags); a file not named here
+# keeps its place after them. Refresh the list from `--durations=0` when a file grows past these.
+HEAVY_FIRST = ("test_engine.py", "test_groups.py", "test_pinned_figures.py", "test_export_c.py",  # 127-65 s
+               "test_smoother.py", "test_hostile.py", "test_second_order_suite.py", "test_predict_update.py",  # 62-48
+               "test_right_error.py", "test_cli_run.py", "test_sample_update.py", "test_innovations.py",  # 44-37 s
+               "test_kernel_cache.py", "test_campaign.py", "test_cli.py", "test_compare.py",  # 31-29 s
+               "test_jaxpr_c_primitives.py", "test_ukfm_attitude.py", "test_tutorial.py", "test_systems_3d.py")  # 28-19
 
 
 def pytest_collection_modifyitems(config, items):

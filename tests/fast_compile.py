@@ -1,28 +1,35 @@
-"""XLA options for the suite's own compiled test functions: small programs compiled once and run once, whose
-results are checked against tolerances, never bit for bit.
+"""XLA's compile options for the test suite: every program a test compiles (the library's, the tests' own, those
+of the CLI processes a test starts) is compiled without XLA's expensive optimisations.
 
-Compile time is most of these tests' run time. This option set skips XLA's expensive optimisations and its
-fusion emitters and compiles such programs about 3x faster. It enables no fast-math, so every tolerance holds
-unchanged; the bits may differ from a default compile in the last place, which is why the library's own
-programs (and every bit-for-bit comparison of the suite) keep XLA's defaults.
+Compiling is most of the suite's time: programs compiled once and run a few times on small logs. These flags
+skip LLVM's expensive passes and XLA's fusion emitters, and compile such programs about 3x faster; a cold
+``make test`` on 2 idle cores went from 1050 s to 678 s with them (December 2026). They enable no fast-math:
+no operation changes its meaning, and every tolerance of the suite holds unchanged (the whole suite passes with
+and without them). They do change the last bits of some results, so the one bit-for-bit check of XLA's numbers
+against a stored file, ``tests/test_pinned_figures.py``, computes its figures in a process with XLA's defaults
+(:func:`removed`), as a user's run has them. ``LIEMEF_TEST_XLA_DEFAULTS=1`` runs the whole suite with XLA's
+defaults, as the library runs for its users.
+
+``tests/conftest.py`` adds the flags to ``XLA_FLAGS`` before JAX starts its CPU backend. This module imports
+nothing (it must load before NumPy, see tests/conftest.py).
 """
 
-import jax
-import numpy as np
-
-FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
-                "xla_cpu_use_fusion_emitters": False, "xla_cpu_parallel_codegen_split_count": 1}
+OPT_OUT = "LIEMEF_TEST_XLA_DEFAULTS"
+FLAGS = ("--xla_backend_optimization_level=0", "--xla_llvm_disable_expensive_passes=true",
+         "--xla_cpu_use_fusion_emitters=false", "--xla_cpu_parallel_codegen_split_count=1")
 
 
-def fast_jit(f):
-    """``jax.jit(f)``, compiled (once per argument structure and shapes) with :data:`FAST_COMPILE`."""
-    jitted, compiled = jax.jit(f), {}
+def _name(flag: str) -> str:
+    return flag.split("=", 1)[0]
 
-    def call(*args):
-        leaves, tree = jax.tree_util.tree_flatten(args)
-        key = (tree, tuple((np.shape(x), str(np.asarray(x).dtype)) for x in leaves))
-        if key not in compiled:
-            compiled[key] = jitted.lower(*args).compile(compiler_options=FAST_COMPILE)
-        return compiled[key](*args)
 
-    return call
+def added(flags: str) -> str:
+    """``flags`` (an ``XLA_FLAGS`` value) with each of :data:`FLAGS` that it does not name already: a setting
+    the user chose is kept."""
+    named = {_name(f) for f in flags.split()}
+    return " ".join([*flags.split(), *(f for f in FLAGS if _name(f) not in named)])
+
+
+def removed(flags: str) -> str:
+    """``flags`` without :data:`FLAGS`: XLA's defaults for what they set, everything else kept."""
+    return " ".join(f for f in flags.split() if f not in FLAGS)

@@ -56,9 +56,14 @@ def figures() -> dict[str, list[str]]:
 
 if __name__ == "__main__":
     import contextlib
+    import math
 
     import liemef._config  # noqa: F401
+    from liemef.codegen import _kernel
 
+    # no background -O2 build (tests/conftest.py's _no_background_optimized_builds): it computes the quick
+    # build's bits, and would only take a core from the suite's other worker
+    _kernel.OPTIMIZE_AFTER_S = math.inf
     with contextlib.redirect_stdout(sys.stderr):  # the studies print their progress
         pinned = figures()
     json.dump(pinned, sys.stdout, indent=1, sort_keys=True)

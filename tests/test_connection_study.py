@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fast_compile import FAST_COMPILE
 from liemef import MinimumEnergyFilter
 from liemef.groups import SE2, TSE2
 from liemef.studies.experiments.localization import LocalizationConfig, jax_draws, setup, trial
@@ -111,7 +110,7 @@ def _run(connection: str, duration: float = 10.0):
     config = LocalizationConfig(duration=duration, connection=connection, steady=duration / 2)
     s = setup(config)
     draws = jax_draws(config, jax.random.key(3))._replace(theta0=jnp.asarray(THETA0))
-    run = jax.jit(lambda d: trial(s, d)).lower(draws).compile(compiler_options=FAST_COMPILE)
+    run = jax.jit(lambda d: trial(s, d)).lower(draws).compile()
     truth, log, traj = run(draws)
     assert bool(traj.ok)
     return config, truth, log, traj
@@ -204,7 +203,7 @@ def _compiled(filters, g, K, u, y):
         return exact_rates(flt.system, flt.weights, g, X0, u, y, 0.0), theorem
 
     X0 = jnp.asarray(np.linalg.inv(K))
-    fn = jax.jit(both).lower(g, X0, jnp.asarray(u), jnp.asarray(y)).compile(compiler_options=FAST_COMPILE)
+    fn = jax.jit(both).lower(g, X0, jnp.asarray(u), jnp.asarray(y)).compile()
     return lambda y: jax.tree_util.tree_map(np.asarray, fn(g, X0, jnp.asarray(u), jnp.asarray(y)))
 
 

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from fast_compile import fast_jit
 from liemef.groups import (
     R1,
     R2,
@@ -379,13 +378,13 @@ def _exp_matrix(G):
 def _exp_first_derivatives(G):
     """Batched (jacfwd, central differences) of ``xi -> exp(xi).as_matrix()`` (reverse mode: see Hessian)."""
     f = _exp_matrix(G)
-    return fast_jit(jax.vmap(lambda xi: (jax.jacfwd(f)(xi), _central_fd(f, xi, FD_STEP))))
+    return jax.jit(jax.vmap(lambda xi: (jax.jacfwd(f)(xi), _central_fd(f, xi, FD_STEP))))
 
 
 @functools.cache
 def _exp_hessian(G):
     """Batched ``jax.hessian`` (forward over reverse) of ``xi -> exp(xi).as_matrix()``."""
-    return fast_jit(jax.vmap(jax.hessian(_exp_matrix(G))))
+    return jax.jit(jax.vmap(jax.hessian(_exp_matrix(G))))
 
 
 def _exp_jacobian_fd(G, xi):
@@ -405,7 +404,7 @@ def _log_first_derivatives(G):
         zero = jnp.zeros(G.tangent_dim)
         return jax.jacfwd(F)(zero), _central_fd(F, zero, h)
 
-    return fast_jit(jax.vmap(one, in_axes=(0, None)))
+    return jax.jit(jax.vmap(one, in_axes=(0, None)))
 
 
 @group_param
@@ -494,13 +493,13 @@ def _ops(G, a, b, xi):
 @functools.cache
 def _jit_ops(G):
     """The operations, compiled: on single elements (the loop reference) and on 2-D batches."""
-    return fast_jit(functools.partial(_ops, G))
+    return jax.jit(functools.partial(_ops, G))
 
 
 @functools.cache
 def _jit_vmap_ops(G):
     """The operations vmapped over single elements, compiled."""
-    return fast_jit(jax.vmap(functools.partial(_ops, G)))
+    return jax.jit(jax.vmap(functools.partial(_ops, G)))
 
 
 def _assert_ops_close(actual, desired, label):
@@ -780,7 +779,7 @@ def _so3_exp_autodiff_left_jacobian():
         dR = jax.jacfwd(R)(w)  # (3, 3, 3)
         return jnp.stack([SO3.vee(dR[..., j] @ R(w).T) for j in range(3)], axis=-1)
 
-    return fast_jit(jax.vmap(J))
+    return jax.jit(jax.vmap(J))
 
 
 @functools.cache
@@ -790,7 +789,7 @@ def _sek3_coefficient_hessians():
 
     coeffs = lambda x: jnp.stack([*_sek3.left_jacobian_coefficients(x),  # noqa: E731
                                   _sek3.inverse_left_jacobian_coefficient(x)])
-    return fast_jit(jax.vmap(jax.hessian(coeffs)))
+    return jax.jit(jax.vmap(jax.hessian(coeffs)))
 
 
 @pytest.mark.parametrize("where", ["zero", "near_identity", "random", "pi-1e-3", "pi-1e-6"])
@@ -850,7 +849,7 @@ def test_matrix_group_agrees_with_the_closed_forms(G, rng):
     assert (M.tangent_dim, M.matrix_dim) == (G.tangent_dim, G.matrix_dim)
     xi = np.concatenate(list(_xi_cases(G, rng).values()))
     a, b = random_elements(G, rng, (xi.shape[0],)), random_elements(G, rng, (xi.shape[0],))
-    out = fast_jit(functools.partial(_agreement_ops, G, M))(xi, a, b)
+    out = jax.jit(functools.partial(_agreement_ops, G, M))(xi, a, b)
     for name, (got, want) in out.items():
         assert_close(got, want, ROUNDOFF, err_msg=name)
 
@@ -872,9 +871,9 @@ def test_matrix_group_log_on_the_cut_locus(G, rng):
     # The principal logarithm is undefined for a rotation by exactly pi (eigenvalues -1). Round-off may still
     # lead the square roots to a preimage; otherwise the result is NaN, never a wrong finite value.
     xi = near_pi_xi(G, rng, 0.0)
-    exp = fast_jit(G.exp)  # compiled once, for both calls (eager: an expm op by op)
+    exp = jax.jit(G.exp)  # compiled once, for both calls (eager: an expm op by op)
     g = exp(xi)
-    log = np.asarray(fast_jit(lambda e: e.log())(g))
+    log = np.asarray(jax.jit(lambda e: e.log())(g))
     finite = np.isfinite(log).all(axis=-1)
     assert (finite | np.isnan(log).any(axis=-1)).all()
     back = np.asarray(exp(np.where(finite[:, None], log, 0.0)).as_matrix())[finite]

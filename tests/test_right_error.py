@@ -24,7 +24,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fast_compile import fast_jit
 from liemef import MinimumEnergyFilter
 from liemef.groups import SE2, SE3, SE23
 from liemef.simulation import simulate
@@ -62,7 +61,7 @@ def test_the_dynamics_and_noise_are_the_inverted_flows(case):
     base, right = case.system, right_error(case.system)
     BRB = base.B @ jnp.linalg.solve(base.R, base.B.T)
 
-    @fast_jit
+    @jax.jit
     def both(g, u, t):
         """The flow's derivatives at 0 and the right error's own, in one compiled program."""
         h, lam, d0 = g.inverse(), base.dynamics(g, u, t), jnp.zeros(base.B.shape[1])

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from fast_compile import fast_jit
 from liemef.filters import sample_update
 from liemef.groups import R1, R3, SE2, SE23, SO2, SO3, TSO3
 from tolerances import ROUNDOFF
@@ -166,7 +165,7 @@ def _minimize(output, g_hat, K, y, W):
     W_root = jnp.asarray(np.linalg.cholesky(W).T)
     yj = jnp.asarray(y)
     stacked = lambda xi: jnp.concatenate([L_inv @ xi, W_root @ (yj - output(g_hat.rplus(xi), yj))])  # noqa: E731
-    residual, jac = fast_jit(stacked), fast_jit(jax.jacfwd(stacked))
+    residual, jac = jax.jit(stacked), jax.jit(jax.jacfwd(stacked))
     res = scipy.optimize.least_squares(lambda x: np.asarray(residual(jnp.asarray(x))), np.zeros(K.shape[0]),
                                        jac=lambda x: np.asarray(jac(jnp.asarray(x))), method="lm", xtol=1e-15,
                                        ftol=1e-15, gtol=1e-15, max_nfev=10_000)
@@ -174,7 +173,7 @@ def _minimize(output, g_hat, K, y, W):
     # LM stops on the relative decrease of the cost (gradient ~1e-6 here): polish by solving grad c = 0 with
     # MINPACK's hybrid method from there, derivatives by autodiff of the cost itself
     c = _cost(output, g_hat, K, y, W)
-    grad, hess = fast_jit(jax.grad(c)), fast_jit(jax.hessian(c))
+    grad, hess = jax.jit(jax.grad(c)), jax.jit(jax.hessian(c))
     root = scipy.optimize.root(lambda x: np.asarray(grad(jnp.asarray(x))), res.x,
                                jac=lambda x: np.asarray(hess(jnp.asarray(x))), method="hybr", tol=1e-15)
     assert np.abs(root.fun).max() < 1e-11, root.message
@@ -187,8 +186,8 @@ def _update(output, g_hat, K, y, W, **kw):
     kw = {"iterations": 30, "newton": True, "safe": False} | kw
     key = (_key(output, g_hat, K, W), tuple(sorted(kw.items())))
     if key not in _UPDATES:
-        _UPDATES[key] = fast_jit(lambda yy: sample_update(lambda gg: output(gg, yy), g_hat, jnp.asarray(K), yy,
-                                                          jnp.asarray(W), **kw))
+        _UPDATES[key] = jax.jit(lambda yy: sample_update(lambda gg: output(gg, yy), g_hat, jnp.asarray(K), yy,
+                                                         jnp.asarray(W), **kw))
     return _UPDATES[key](jnp.asarray(y))
 
 
@@ -198,7 +197,7 @@ def test_update_is_the_minimizer_and_K_the_inverse_hessian_there(name, output, g
     g_ref = g_hat.rplus(jnp.asarray(xi_ref))
     # the Hessian of the new value function in the coordinates at the new estimate (no J of the update enters),
     # compiled once for both updates
-    value_hessian = fast_jit(jax.hessian(lambda z, shift: c(shift.rplus(z).log())))
+    value_hessian = jax.jit(jax.hessian(lambda z, shift: c(shift.rplus(z).log())))
     for safe in (False, True):
         g_plus, K_plus, info = _update(output, g_hat, K, y, W, safe=safe)
         assert bool(info.converged), (name, safe, info)
@@ -227,9 +226,9 @@ def test_one_unchecked_newton_step_raises_the_cost_the_update_lowers_it():
     ends at a higher cost than no update at all; the safeguarded update never does, and one Gauss-Newton step is
     already far better than the Newton step."""
     name, output, g_hat, K, y, W = CASES[1]
-    c = fast_jit(_cost(output, g_hat, K, y, W))
+    c = jax.jit(_cost(output, g_hat, K, y, W))
     c0 = float(c(jnp.zeros(3)))
-    c_newton = float(c(fast_jit(lambda: _one_newton_step(output, g_hat, K, y, W))()))  # one program, not eager
+    c_newton = float(c(jax.jit(lambda: _one_newton_step(output, g_hat, K, y, W))()))  # one program, not eager
     assert c_newton > c0, (c0, c_newton)
     for kw in ({"iterations": 1}, {"iterations": 1, "newton": False}, {}, {"safe": True}):
         _, _, info = _update(output, g_hat, K, y, W, **kw)

@@ -9,7 +9,6 @@ import pytest
 from scipy import optimize, stats
 
 import liemef
-from fast_compile import fast_jit
 from liemef.groups import SE2, Rn
 from liemef.smoothers import _batch
 from liemef.studies.experiments import inertial as ins
@@ -313,7 +312,7 @@ def test_inertial_smoother_is_scipy_least_squares_on_se23():
         h = jnp.einsum("kji,klj->kli", Rs, landmarks[None] - ps[:, None]).reshape(seen.size, -1)
         return jnp.concatenate([r0, rp.ravel(), ((ys[seen] - h) @ Lm.T).ravel()])
 
-    jacobian, residuals = fast_jit(jax.jacfwd(residuals)), fast_jit(residuals)
+    jacobian, residuals = jax.jit(jax.jacfwd(residuals)), jax.jit(residuals)
     M = np.asarray(sm.g.as_matrix())
     z_sm = np.concatenate([np.asarray(_so3_log(jnp.asarray(M[:, :3, :3]))), M[:, :3, 3], M[:, :3, 4]], -1).ravel()
     res = optimize.least_squares(lambda z: np.asarray(residuals(z)), z_sm + 1e-3,
@@ -351,7 +350,7 @@ def test_marginal_covariances_are_blocks_of_the_inverse_hessian(localization):
         return jnp.concatenate([chol(prob.P0inv) @ r0, jnp.einsum("kij,kj->ki", chol(prob.Qinv), rp).ravel(),
                                 wm.ravel()])
 
-    J = np.asarray(fast_jit(jax.jacfwd(whitened))(jnp.zeros(M * n)))
+    J = np.asarray(jax.jit(jax.jacfwd(whitened))(jnp.zeros(M * n)))
     H = J.T @ J
     Sigma = np.linalg.inv(H)
     N = ts.size
