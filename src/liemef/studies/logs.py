@@ -951,9 +951,10 @@ def filter_log_to(out: str | os.PathLike, log: str | os.PathLike, *, system: str
         raise _bad("--k0", f"expected a number >= 0, got {float(K0)}")
     if K0 is not None and K0.ndim == 1 and not np.all(np.isfinite(K0) & (K0 >= 0)):
         raise _bad("--k0-diag", f"expected finite numbers >= 0 separated by commas, got {K0.tolist()}")
-    for flag, key, bound in (("--alpha", "alpha", ">= 0"), ("--gap", "gap", "> 0 (s)")):
+    for flag, key, ok, bound in (("--alpha", "alpha", lambda v: v >= 0, ">= 0"),
+                                 ("--gap", "gap", lambda v: v > 0, "> 0 (s)")):
         v = options.get(key)  # checked again by the filter, which would name the keyword, not the option
-        if v is not None and not (math.isfinite(v) and (v >= 0 if key == "alpha" else v > 0)):
+        if v is not None and not (math.isfinite(v) and ok(v)):
             raise _bad(flag, f"expected a finite number {bound}, got {v}")
     if (system is None) == (system_file is None):
         raise ValueError("expected exactly one of --system NAME (a ready system) or --system-file FILE.py (your "
