@@ -244,8 +244,7 @@ def test_the_gyro_scale_is_a_velocity_parameter_that_starts_above_zero():
 
 def test_a_start_beyond_the_bounds_is_refused_not_moved():
     """The search keeps to each parameter's bounds (PARAMETERS); a start beyond them was clipped without a word
-    and the file recorded the clipped value as if it were the start. It is refused, naming the bounds; a start
-    at a bound is the search's own edge and is taken."""
+    and the file recorded the clipped value as if it were the start. It is refused, naming the bounds."""
     recs = [T.Recording(f"v{i}", np.arange(3) / 100.0, np.zeros((3, 6)), np.zeros((3, 11)), {}, None, np.eye(9),
                         system="attitude-velocity") for i in range(2)]
     with pytest.raises(ValueError, match=r"^start: expected each searched parameter within its bounds, velocity_std "

@@ -144,7 +144,8 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     if len(set(ids)) != len(ids):  # a fold "without" a trial given twice would train on it
         raise ValueError(f"trials: expected each trial once, got {ids}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"seconds: expected a window > 0 s (0 or none: whole trials), got {seconds!r}")
+        raise ValueError(f"seconds: expected a window > 0 s, or None for whole trials (liemef tune's --seconds 0), "
+                         f"got {seconds!r}")
     out = []
     for tid in ids:
         tr = datasets.broad(found[tid])
