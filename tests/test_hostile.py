@@ -375,13 +375,19 @@ def test_an_interval_forced_past_the_sub_step_cap_is_said(tmp_path):
     """Held over its interval (updates="hold"), the 1e4 m fix makes the interval so stiff that its integration hits
     the sub-step cap: the run stays ok (the count is in the report), and its warnings say the estimate after such
     an interval may be far off, and how to avoid it; the discrete update of the test above hits no cap and says
-    nothing of it."""
+    nothing of it. From K0 = I the held run fails at such an interval: its warning says the run failed, never that
+    it is ok."""
     _hostile_log(tmp_path / "log.csv")
     held = _filter(tmp_path / "log.csv", updates="hold", K0=0.1)
     assert held.ok and held.report["substeps_capped"] >= 1
     said = [w for w in held.warnings() if "sub-step cap" in w]
     assert len(said) == 1 and said[0].startswith(f"{held.report['substeps_capped']} interval(s) hit the sub-step "
                                                  "cap (256 steps)") and "--updates discrete" in said[0]
+    assert "may be far off though the run is ok" in said[0]
+    failed = _filter(tmp_path / "log.csv", updates="hold", K0=1.0)
+    assert not failed.ok and failed.report["substeps_capped"] >= 1
+    said = [w for w in failed.warnings() if "sub-step cap" in w]
+    assert len(said) == 1 and "and the run failed" in said[0] and "run is ok" not in said[0]
     discrete = _filter(tmp_path / "log.csv", K0=1.0)
     assert discrete.report["substeps_capped"] == 0 and not any("sub-step cap" in w for w in discrete.warnings())
 

@@ -594,11 +594,13 @@ class LogRun:
                        f"used {run_updates!r}: its noise levels were fitted for the other scheme (--updates "
                        f"{tuned['updates']} runs as it was tuned)")
         if self.report.get("substeps_capped"):
+            after = ("the estimate after them may be far off though the run is ok" if self.ok
+                     else "the run failed")  # a failed run's status is not ok: its warning must not say it is
             out.append(f"{self.report['substeps_capped']} interval(s) hit the sub-step cap "
                        f"({self.report['substeps_max']} steps): their last step was forced past the integrator's "
-                       "stability budget, and the estimate after them may be far off though the run is ok (a sample "
-                       "far outside its noise, held over the interval, does this: a gate rejects it, and --updates "
-                       "discrete takes each sample as one safeguarded update)")
+                       f"stability budget, and {after} (a sample far outside its noise, held over the interval, "
+                       "does this: a gate rejects it, and --updates discrete takes each sample as one safeguarded "
+                       "update)")
         for name, o in self.metrics.get("innovation", {}).get("outliers", {}).items():
             if o["count"]:
                 out.append(f"{name}: {o['count']} sample(s) lay beyond the chi-square {1 - OUTLIER_PROB:g} bound of "
