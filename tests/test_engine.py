@@ -82,11 +82,11 @@ def test_run_equals_xla_on_every_ready_system(system):
 
 
 @pytest.mark.parametrize("options", [dict(order="first", connection="plus"), dict(connection="minus"),
-                                     dict(integrator="lie-euler", interpolation="linear"), dict(substeps=3),
-                                     dict(alpha=0.5)], ids=str)
+                                     dict(integrator="lie-euler", interpolation="linear"), dict(integrator="rkmk2"),
+                                     dict(substeps=3), dict(alpha=0.5)], ids=str)
 def test_run_equals_xla_for_every_option(options):
     """The options that change the kernel: order, a connection with torsion (K not symmetric), Lie-Euler with
-    linearly interpolated samples, fixed sub-steps, forgetting."""
+    linearly interpolated samples, the explicit-midpoint RKMK2, fixed sub-steps, forgetting."""
     flt = liemef.MinimumEnergyFilter(SYSTEMS["tse2"].make(), **options)
     c, x = _runs(flt, *_log(flt, seed=1))
     assert x.status.ok

@@ -17,12 +17,12 @@ from scipy.integrate import solve_ivp
 
 import liemef
 from liemef.groups import R3, SE2, SO3, TSE2, TSO3
-from liemef.integrators import RKMK4, LieEuler
+from liemef.integrators import RKMK2, RKMK4, LieEuler
 from liemef.systems import System
 from tolerances import SLOPE
 
 T_END = 1.0
-STEPS = {LieEuler: (100, 200, 400, 800), RKMK4: (64, 128, 256, 512)}
+STEPS = {LieEuler: (100, 200, 400, 800), RKMK2: (64, 128, 256, 512), RKMK4: (64, 128, 256, 512)}
 
 
 def attitude_system() -> System:
@@ -118,7 +118,7 @@ def problem(request):
     return request.param, system, g0, K0, u, y, _reference(flt, g0, K0, u, y)
 
 
-@pytest.mark.parametrize("method", [LieEuler, RKMK4])
+@pytest.mark.parametrize("method", [LieEuler, RKMK2, RKMK4])
 def test_convergence_slope(problem, method):
     """Global error at T = 1 s on the group and in K over 4 step sizes: log-log slope = declared order.
     The steps are the public driver's ``flt.step`` (time passed to the integrator, u and y held)."""
@@ -142,4 +142,4 @@ def test_convergence_slope(problem, method):
 
 
 def test_declared_orders():
-    assert (LieEuler.order, RKMK4.order) == (1, 4)
+    assert (LieEuler.order, RKMK2.order, RKMK4.order) == (1, 2, 4)

@@ -39,7 +39,8 @@ class MinimumEnergyFilter(AbstractFilter):
             (c = 1), a Cartan-Schouten coefficient c, or a bilinear function ``omega(X, Y)``.
         order: ``"second"`` (the paper filter) or ``"first"`` (no Hessian term in E, W = 0: the continuous-time
             left-invariant EKF on the group).
-        integrator: ``"rkmk4"`` (4th-order Runge-Kutta-Munthe-Kaas) or ``"lie-euler"``.
+        integrator: ``"rkmk4"`` (4th-order Runge-Kutta-Munthe-Kaas), ``"rkmk2"`` (its explicit midpoint rule,
+            order 2, half the field evaluations) or ``"lie-euler"``.
         alpha: forgetting factor, >= 0.
         interpolation: ``"hold"`` (inputs and density measurements held over each sample interval, the
             papers' zero-order hold) or ``"linear"`` (interpolated between the interval's two samples where
