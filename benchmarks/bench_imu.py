@@ -1,7 +1,9 @@
 """The real-data filter against VQF, per sample, in one process (issue 36, item 1): ``compare broad``'s
 ``mef-vel``, ``mef-vel-first`` and ``iekf-vel`` on a whole BROAD trial by the C engine, beside VQF 2.1.2's
 ``updateBatch`` (C++) on the same trial's raw samples, each the median of ``--repeats`` runs after a first one
-(the kernel's -O2 build waited for), on one core.
+(the kernel's -O2 build waited for), on one core; and ``mef-vel`` with the explicit-midpoint integrator
+(``mef-vel-rkmk2``: RKMK2, two evaluations of the field a sub-step against RKMK4's four), with its largest
+attitude difference from ``mef-vel`` and both filters' total rms on the trial.
 
 Prints one JSON document: per filter the microseconds per sample and the ratio to VQF's, the first call's
 seconds, the integration sub-steps per sample and the integrator, the trial, its samples, the load average
@@ -24,6 +26,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _timing import cpu_model, one_core  # noqa: E402
 
 FILTERS = ("mef-vel", "mef-vel-first", "iekf-vel")
+VARIANTS = {"mef-vel-rkmk2": ("mef-vel", {"integrator": "rkmk2"})}
+"""Filters of ``compare broad`` with other options: the name, the filter it varies and the options."""
 TARGET = 3.0
 """Issue 36's target: at most 3 times VQF's time per sample."""
 
@@ -45,8 +49,10 @@ def main(argv=None) -> None:
     import vqf
 
     import liemef
+    from liemef.metrics import attitude_rms
     from liemef.studies import datasets
     from liemef.studies.compare import _broad
+    from liemef.studies.compare._common import make_filter
 
     paths = datasets.broad_trials(None if args.realdata is None else Path(args.realdata) / datasets.BROAD_DIR)
     if args.trial not in paths:
@@ -69,9 +75,14 @@ def main(argv=None) -> None:
         runs.append(time.perf_counter() - t0)
     ref = statistics.median(runs) / n * 1e6
     out = {"vqf": {"us_per_sample": round(ref, 3)}}
-    for name in FILTERS:
+    quats = {}
+    for name in FILTERS + tuple(VARIANTS):
         t0 = time.perf_counter()
-        flt, state, log = _broad.setup(name, ctx, logs)
+        base, options = VARIANTS.get(name, (name, None))
+        flt, state, log = _broad.setup(base, ctx, logs)
+        if options is not None:  # the same system and start, the filter rebuilt with the options
+            flt = make_filter("mef", flt.system, updates="discrete", **options)
+            state = flt.init(state.g_hat, state.K)
         traj = jax.block_until_ready(flt.run(state, log.ts, log.us, log.ys, engine="c"))
         first = time.perf_counter() - t0
         if not bool(traj.ok):
@@ -92,6 +103,14 @@ def main(argv=None) -> None:
                      "within_target": us / ref <= TARGET, "first_call_s": round(first, 3),
                      "substeps_per_sample": None if substeps is None else round(substeps, 3),
                      "integrator": getattr(getattr(flt, "integrator", None), "name", None)}
+        quats[name] = np.asarray(traj.g_hat.factors[0].wxyz)
+        if options is not None and base in quats:
+            dot = np.abs(np.sum(quats[name] * quats[base], axis=1))  # unit quaternions: the angle between them
+            diff = np.degrees(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
+            out[name].update({"varies": base, "options": options, "max_attitude_difference_deg": float(diff.max()),
+                              "total_rms_deg": attitude_rms(quats[name], trial.quat_true, trial.movement)["total"],
+                              f"{base}_total_rms_deg": attitude_rms(quats[base], trial.quat_true,
+                                                                    trial.movement)["total"]})
         print(f"{name}: {out[name]}", file=sys.stderr, flush=True)
     print(json.dumps({"trial": args.trial, "samples": n, "target_ratio": TARGET, "filters": out,
                       "loadavg_1min": [round(load0, 2), round(os.getloadavg()[0], 2)], "cpu": cpu_model(),
