@@ -56,7 +56,7 @@ def test_site_builds_strict_with_every_page(site):
 @pytest.mark.parametrize(("page", "module", "names"), [
     ("groups", "groups", ["LieGroup", "LieGroup.rplus", "SO3", "SE2", "Product", "TSE2"]),
     ("connections", "connections", ["Connection", "connection", "CARTAN_SCHOUTEN"]),
-    ("integrators", "integrators", ["RKMK4", "LieEuler"]),
+    ("integrators", "integrators", ["RKMK4", "RKMK2", "LieEuler"]),
     ("systems", "systems", ["AbstractSystem", "System", "PlanarRigidBody"]),
     ("filter", "filters", ["MinimumEnergyFilter", "MinimumEnergyFilter.run", "FilterState", "Trajectory"]),
     ("engines", "engines", ["run", "step", "OnlineFilter", "engine_of"]),

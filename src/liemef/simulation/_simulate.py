@@ -129,8 +129,8 @@ def simulate(system: AbstractSystem, g0: LieGroup, input_fn: InputFn | None, ts:
     r"""Simulate a system's truth and its sensors on the time grid ``ts``.
 
     The truth solves $\dot g = g\,(\lambda(g, u(t), t) + B\delta)$ from ``g0`` with a Lie-group integrator
-    (``"rkmk4"`` or ``"lie-euler"``), ``substeps`` equal steps per sample interval. Over each truth step the
-    nominal input $u(t)$ is held at its value at the start of the step, and so is the model error $\delta$,
+    (``"rkmk4"``, ``"rkmk2"`` or ``"lie-euler"``), ``substeps`` equal steps per sample interval. Over each truth
+    step the nominal input $u(t)$ is held at its value at the start of the step, and so is the model error $\delta$,
     drawn per truth step as $\delta \sim N(0, \sigma_\delta^2 I_d)$ with $\sigma_\delta$ = ``model_error_std``
     (a per-step draw, not a continuous white-noise density: the step size does not rescale it).
 

@@ -71,7 +71,7 @@ class TSE2Config(RunConfig):
         duration, dt: final time T and the step of both the truth and the filter (one sample per step).
         connection: ``"zero"`` (c = 1/2, the paper's), ``"minus"`` (c = 0) or ``"plus"`` (c = 1).
         order: ``"second"`` (the paper's filter) or ``"first"`` (the left-invariant EKF).
-        integrator: ``"rkmk4"`` or ``"lie-euler"``, for the truth and the filter.
+        integrator: ``"rkmk4"``, ``"rkmk2"`` or ``"lie-euler"``, for the truth and the filter.
         weights: ``"printed"`` (Q = D'D, R = B'B, the paper's) or ``"consistent"`` (Q = I, R = I).
         sensor: ``"gps_imu"`` (the paper) or ``"velocity"`` (IMU only, the Segala poster).
         model_error_std: std of the per-step model error delta in the truth (0: the paper's nominal truth).

@@ -96,7 +96,8 @@ class ChaplyginConfig(RunConfig):
         dt: Ts, the step of the truth and of the filter, one measurement per step (paper: 0.01 and 0.001).
         duration: final time T (paper: 20 s).
         order: ``"second"`` (the paper's filter) or ``"first"`` (the left-invariant EKF).
-        integrator: ``"rkmk4"`` (the paper's RK4, on the group) or ``"lie-euler"``, truth and filter.
+        integrator: ``"rkmk4"`` (the paper's RK4, on the group), ``"rkmk2"`` or ``"lie-euler"``, truth and
+            filter.
         weights: ``"consistent"`` (default), ``"printed"`` or ``"unweighted"`` (module docstring).
         model_error_std: std of the unit-variance model error delta per sample in the truth (0: nominal truth;
             :data:`PRINTED_MODEL_ERROR_STD` = 1: the printed level, B2 delta of std 10).
