@@ -1,8 +1,8 @@
 """The names liemef's options take, in one place that loads without JAX or numpy.
 
 The modules that define what a name means take their list from here (:data:`liemef.connections.CARTAN_SCHOUTEN`,
-:data:`liemef.filters.ORDERS`, :data:`liemef.codegen.BACKENDS`, :data:`liemef.integrators.INTEGRATORS`), and so
-does the command line, whose choices and help must be known before JAX is imported.
+:data:`liemef.filters.ORDERS`, :data:`liemef.codegen.BACKENDS`), and so does the command line, whose choices and
+help must be known before JAX is imported.
 """
 
 CONNECTIONS = ("minus", "zero", "plus")
