@@ -420,3 +420,25 @@ def test_dataset_refuses_an_output_liemef_run_cannot_read_and_names_each_option(
         res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", *args)
         assert res.exit_code == 2 and said in res.output, res.output
     assert not (tmp_path / "w.txt").exists() and not (tmp_path / "w.csv").exists()
+
+
+def test_the_integrator_is_an_option_of_run(tmp_path):
+    """`liemef run --integrator rkmk2` filters with RKMK2 (two evaluations of the field a step) and records it in
+    metrics.json; its estimate is RKMK4's to far below the estimate's own uncertainty, and not the same numbers.
+    An integrator the run does not offer is refused, naming the option and the choices."""
+    localization_log(tmp_path / "log.csv")
+    common = ("--system", "localization", "--log", tmp_path / "log.csv", "--updates", "discrete", "--no-progress")
+    runs = {}
+    for name in ("rkmk4", "rkmk2"):
+        extra = () if name == "rkmk4" else ("--integrator", name)  # rkmk4 is the default
+        res = invoke("run", *common, *extra, "--out", tmp_path / name)
+        assert res.exit_code == 0, res.output
+        assert json.loads((tmp_path / name / "metrics.json").read_text())["config"]["integrator"] == name
+        runs[name] = np.loadtxt(tmp_path / name / "estimates.csv", delimiter=",", skiprows=1)
+    (a, b), n = runs.values(), 3  # t, the 3 coordinates, then K's diagonal
+    assert a.shape == b.shape
+    diff, sigma = np.abs(a[:, 1:1 + n] - b[:, 1:1 + n]), np.sqrt(a[:, 1 + n:1 + 2 * n])
+    assert 0 < diff.max() and (diff / sigma).max() < 1e-2
+    res = invoke("run", *common, "--integrator", "rk45", "--out", tmp_path / "bad")
+    assert res.exit_code == 2 and "--integrator" in res.output and "rkmk2" in res.output
+    assert not (tmp_path / "bad").exists()

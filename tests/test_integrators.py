@@ -143,3 +143,14 @@ def test_convergence_slope(problem, method):
 
 def test_declared_orders():
     assert (LieEuler.order, RKMK2.order, RKMK4.order) == (1, 2, 4)
+
+
+def test_the_command_line_offers_every_integrator_by_its_own_name():
+    """`liemef run --integrator` takes its choices from liemef._names (known before JAX loads): they are the
+    integrators' own names, every one of them, and each name gives its integrator."""
+    from liemef import _names
+    from liemef.integrators import INTEGRATORS, integrator
+
+    assert set(_names.INTEGRATORS) == {cls.name for cls in INTEGRATORS.values()}
+    for name in _names.INTEGRATORS:
+        assert integrator(name).name == name

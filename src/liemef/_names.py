@@ -11,6 +11,9 @@ ORDERS = ("second", "first")
 """The filter orders: ``"second"`` (Theorem 4.1, the papers' filter) and ``"first"`` (the left-invariant EKF)."""
 C_BACKENDS = ("auto", "scalar", "array")
 """The C translators of :func:`liemef.codegen.export_c`."""
+INTEGRATORS = ("rkmk4", "rkmk2", "lie-euler")
+"""The integrators ``liemef run`` and ``liemef smooth`` offer: every one of :data:`liemef.integrators.INTEGRATORS`
+by its own name (``tests/test_integrators.py`` checks the two agree)."""
 EXPORT_INTEGRATORS = ("rkmk4", "lie-euler")
 """The integrators ``liemef export-c`` offers."""
 INTERPOLATIONS = ("hold", "linear")

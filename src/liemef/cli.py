@@ -158,8 +158,8 @@ def montecarlo_cmd(experiment, runs, seed, batch_size, out, duration, quick, set
 
 
 def _filter_log(smooth, system_name, system_file, timeout, log_path, topics, tum, out, x0, k0, k0_diag, connection,
-                order, alpha, interpolation, updates, curvature, error, substeps, gap, chunk, params_file, settings,
-                monitor, force, progress):
+                order, alpha, interpolation, updates, curvature, error, substeps, integrator, gap, chunk, params_file,
+                settings, monitor, force, progress):
     """``liemef run`` (``smooth`` None) and ``liemef smooth`` (the smoother's options): filter the log, smooth it
     if asked, write the outputs, print, and exit with the run's status."""
     from .studies import logs
@@ -170,7 +170,7 @@ def _filter_log(smooth, system_name, system_file, timeout, log_path, topics, tum
                                K0=_floats(k0_diag, "'--k0-diag'") if k0_diag is not None else k0, tum=tum,
                                force=force, connection=connection, order=order, alpha=alpha,
                                interpolation=interpolation, updates=updates, curvature=curvature, error=error,
-                               substeps=_substeps(substeps), gap=gap,
+                               substeps=_substeps(substeps), integrator=integrator, gap=gap,
                                chunk=chunk, progress=progress, monitor=monitor, smooth=smooth)
     _echo(saved)
     if saved.run.not_converged:  # the outputs are written: an exit status of its own, for scripts

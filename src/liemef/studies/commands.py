@@ -182,6 +182,10 @@ RUN = Command(
                f"ready system's ({_run_defaults('curvature')})."),
         option("--error", type=choice(_names.ERROR_SIDES), help=ERROR.attrs["help"] + " Default: auto, or the ready "
                f"system's ({_run_defaults('error')})."), SUBSTEPS,
+        option("--integrator", type=choice(_names.INTEGRATORS), default="rkmk4", show_default=True,
+               help="The Lie-group integrator of each sub-step: rkmk4 (order 4), rkmk2 (order 2, two evaluations of "
+               "the filter's field a step instead of four: faster where sub-steps are short, as on a high-rate "
+               "IMU) or lie-euler (order 1)."),
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),
         option("--chunk", type=at_least(16), default=65536, show_default=True,

@@ -641,7 +641,7 @@ class LogRun:
 def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: str = "zero", order: str = "second",
                alpha: float = 0.0, interpolation: str = "hold", updates: str | None = None,
                substeps: int | str = "auto", curvature: str | None = None, error: str | None = None,
-               gap: float | None = None, chunk: int = DEFAULT_CHUNK,
+               integrator: str = "rkmk4", gap: float | None = None, chunk: int = DEFAULT_CHUNK,
                progress: bool = False, log_file: str | os.PathLike | None = None, monitor: bool = True,
                smooth: dict | None = None) -> LogRun:
     """Filter the recorded ``log`` (a path to a CSV or NPZ log, :func:`liemef.reports.io.read_log`, or a read
@@ -698,7 +698,8 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
         raise ValueError(f"{what}: expected the coordinates of an element of {system.group.__name__}, got "
                          f"{q0.tolist()}; {problem}")
     flt = MinimumEnergyFilter(system, connection=connection, order=order, alpha=alpha, interpolation=interpolation,
-                              substeps=substeps, updates=updates, curvature=curvature, error=error)
+                              substeps=substeps, updates=updates, curvature=curvature, error=error,
+                              integrator=integrator)
     state = flt.init(g0, K0)
     if gap is None:
         gap = 10.0 * float(np.median(np.diff(log.ts)))
@@ -809,7 +810,8 @@ def _good_run(common, flt, system, source, log, traj, names, units, connection, 
                 "t1": float(log.ts[-1])},
         "config": {"x0": [float(v) for v in common["x0"]], "K0_diag": [float(v) for v in np.diagonal(common["K0"])],
                    "connection": connection, "order": order, "alpha": alpha, "interpolation": interpolation,
-                   "updates": updates, "substeps": substeps, "curvature": flt.curvature,
+                   "updates": updates, "substeps": substeps, "integrator": flt.integrator.name,
+                   "curvature": flt.curvature,
                    "error": flt.error, "iterations": flt.iterations, "gap": common["gap"], "params": source.params,
                   "system_settings": source.settings, "rest": source.rest},
         "innovation": {"definition": ("y (-) h(g_smoothed) (the sensors' residual, y - h unless declared) at each "
