@@ -1058,7 +1058,7 @@ def _tuning_file(**changes) -> dict:
 
     params = {n: 0.5 for n in tune.SYSTEMS["attitude-imu"]}
     data = {"format": tune.FORMAT, "system": "attitude-imu", "objective": "nll", "names": ["acc_std"],
-            "order": "second", "updates": "hold", "cross_validation": tune.CROSS_VALIDATION,
+            "order": "second", "updates": "hold", "integrator": "rkmk4", "cross_validation": tune.CROSS_VALIDATION,
             "params_from": tune.PARAMS_FROM, "params": params, "train": 1.5,
             "per_recording": {"07": 1.4, "10": 1.6},
             "folds": {"07": {"params": dict(params), "train": 1.6, "held_out": 1.4},
@@ -1105,6 +1105,8 @@ TUNING_CASES = {
     "names of another model": (dict(names=["velocity_std"]), ["names: expected a list of names from"]),
     "a negative count": (dict(evaluations=-1), ["evaluations: expected an integer >= 0", "-1"]),
     "an unknown objective": (dict(objective="mse"), ["objective: expected one of ['truth', 'nll']", '"mse"']),
+    "an unknown integrator": (dict(integrator="rk45"), ["integrator: expected one of ['rkmk4', 'rkmk2', 'lie-euler']",
+                                                         '"rk45"']),
     "no system (an old file)": (dict(system=...), ["system: missing", 'add "system": "attitude-imu"']),
     "no params": (dict(params=...), ["params: missing"]),
     "another format": (dict(format="liemef-tune-0"), ["format: expected a liemef tuning file"]),
@@ -1191,6 +1193,16 @@ def test_run_records_the_tuning_file_and_every_value_it_used(tmp_path):
     assert res.exit_code == 0, res.output
     assert f"WARNING: the tuning file {p} was tuned with updates='discrete' and this run used 'hold'" in res.output
     assert "--updates discrete runs as it was tuned" in res.output
+    # a file tuned with RKMK2, run with the default RKMK4: said; run with RKMK2: not
+    p = _write_json(tmp_path / "rkmk2.json", _tuning_file(integrator="rkmk2", params__acc_std=0.05, **changes))
+    for extra, out in (((), "o3"), (("--integrator", "rkmk2"), "o4")):
+        res = _cli("run", "--system", "attitude-imu", "--params", p, "--log", tmp_path / "log.csv", "--out",
+                   tmp_path / out, "--no-progress", "--no-monitor", *extra)
+        assert res.exit_code == 0, res.output
+        said = (f"WARNING: the tuning file {p} was tuned with the integrator 'rkmk2' and this run used 'rkmk4' "
+                "(--integrator rkmk2 runs as it was tuned)")
+        assert (said in res.output) == (not extra), res.output
+        assert json.loads((tmp_path / out / "metrics.json").read_text())["config"]["params"]["integrator"] == "rkmk2"
 
 
 # A user's SE(2) system (planar GPS): what its functions get wrong, by the function.

@@ -242,12 +242,13 @@ def dataset(kind, path, out, truth, seconds, gps_std, system_name, norms):
 
 @_command(cli, "tune")
 def tune_cmd(data, out, objective, trials, names, seconds, start, maxfev, fold_maxfev, system_name, updates,
-             realdata, workers, force, progress):
+             integrator, realdata, workers, force, progress):
     from .studies.runs import tune_to
 
     _echo(tune_to(out, data, objective=objective, trials=None if trials is None else trials.split(","),
                   names=None if names is None else names.split(","), seconds=seconds,
-                  maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates, realdata=realdata,
+                  maxfev=maxfev, fold_maxfev=fold_maxfev, system=system_name, updates=updates,
+                  integrator=integrator, realdata=realdata,
                   start=None if start is None else start.split(","), force=force, progress=progress,
                   workers=workers))
 

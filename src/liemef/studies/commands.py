@@ -300,6 +300,9 @@ TUNE = Command(
         option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
                help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                     "ending at t_k), as compare broad's mef-imu-d."),
+        option("--integrator", type=choice(_names.INTEGRATORS), default="rkmk4", show_default=True,
+               help="The filter's integrator: rkmk2 evaluates its field half as often as rkmk4, a faster tune; the "
+                    "file records it, and `liemef run --params` warns when a run's integrator is not the file's."),
         option("--realdata", type=PATH, help="The real-data folder (default: found)."),
         option("--workers", type=at_least(1),
                help="Threads that run a point's trials side by side (default: the CPUs this process may use)."),

@@ -593,6 +593,10 @@ class LogRun:
             out.append(f"the tuning file {tuned['file']} was tuned with updates={tuned['updates']!r} and this run "
                        f"used {run_updates!r}: its noise levels were fitted for the other scheme (--updates "
                        f"{tuned['updates']} runs as it was tuned)")
+        run_integrator = self.metrics.get("config", {}).get("integrator")
+        if tuned.get("integrator") and run_integrator and tuned["integrator"] != run_integrator:
+            out.append(f"the tuning file {tuned['file']} was tuned with the integrator {tuned['integrator']!r} and "
+                       f"this run used {run_integrator!r} (--integrator {tuned['integrator']} runs as it was tuned)")
         if self.report.get("substeps_capped"):
             after = ("the estimate after them may be far off though the run is ok" if self.ok
                      else "the run failed")  # a failed run's status is not ok: its warning must not say it is
@@ -1125,7 +1129,8 @@ def _tuned(source: LogSystem, params) -> LogSystem:
     return dataclasses.replace(
         source, system=system, params={"file": str(params), "sha256": tuned.sha256, "system": tuned.system,
                                        "from_file": sorted(chosen), "values": values,
-                                       "updates": tuned.data.get("updates")},
+                                       "updates": tuned.data.get("updates"),
+                                       "integrator": tuned.data.get("integrator")},
         description=f"{base}; the final parameter set of the tuning file {params} (sha256 {tuned.sha256[:12]}; "
                     "every value in metrics.json's config.params)")
 

@@ -309,8 +309,9 @@ class SavedTune:
 
 def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "truth", trials=None,
             names=None, seconds: float | None = 90.0, maxfev: int = 40, fold_maxfev: int | None = None,
-            system: str = "attitude-imu", updates: str = "hold", realdata: str | os.PathLike | None = None,
-            start=None, force: bool = False, progress: bool = False, workers: int | None = None) -> SavedTune:
+            system: str = "attitude-imu", updates: str = "hold", integrator: str = "rkmk4",
+            realdata: str | os.PathLike | None = None, start=None, force: bool = False, progress: bool = False,
+            workers: int | None = None) -> SavedTune:
     """Fit ``system``'s noise levels (:func:`liemef.studies.registry.tune_systems`) to the recordings ``data``
     (:data:`~liemef.studies.registry.TUNE_DATA`: the BROAD ``trials`` present, each id a string; None: all) with
     nested leave-one-trial-out cross-validation (:func:`liemef.studies.tune.tune`, on each trial's first
@@ -320,7 +321,8 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     starting values of every search (None: the system's defaults; the defaults of ``attitude-velocity`` were
     tuned on the shared trials, so a held-out error meant to be honest starts from values chosen without them).
     ``attitude-velocity`` takes
-    ``updates="discrete"`` only. ``workers``: threads that run a point's trials side by side (None: the CPUs
+    ``updates="discrete"`` only. ``integrator``: the filter's (``"rkmk2"``: a faster tune, recorded in the
+    file). ``workers``: threads that run a point's trials side by side (None: the CPUs
     this process may use). Bad input is a ValueError before anything is written; an empty list of
     ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
     empty ``--trials ''`` is not every trial)."""
@@ -346,7 +348,7 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
                                  gyro="backward" if updates == "discrete" else "forward", system=system)
     kw = {} if names is None else {"names": tuple(names)}
     result = tune.tune(recs, objective=objective, maxfev=maxfev, fold_maxfev=fold_maxfev, progress=progress,
-                       updates=updates, start=start, workers=workers, **kw)
+                       updates=updates, integrator=integrator, start=start, workers=workers, **kw)
     text = tune.markdown(result)
     with outputs.staged(target) as d:
         written = [tune.save(result, d / "tune.json"), io.write_text(d / "tune.md", text)]
