@@ -246,9 +246,26 @@ def test_the_integrator_reaches_every_run_and_the_file(monkeypatch, tmp_path):
     seen.clear()
     assert T.tune(recs, names=("acc_std",), maxfev=4, progress=False)["integrator"] == "rkmk4"
     assert set(seen) == {"rkmk4"}
-    monkeypatch.undo()  # the real evaluate hands it to the filter: an unknown one is refused by name
+    seen.clear()  # an alias is the integrator's own name in the file (which reads only those); a bad one runs nothing
+    assert T.tune(recs, names=("acc_std",), maxfev=4, progress=False, integrator="midpoint")["integrator"] == "rkmk2"
+    assert set(seen) == {"rkmk2"}
+    seen.clear()
     with pytest.raises(ValueError, match="^integrator: expected one of"):
-        T.evaluate(recs[0], {}, integrator="rk45")
+        T.tune(recs, names=("acc_std",), maxfev=4, progress=False, integrator="rk45")
+    assert not seen
+    monkeypatch.undo()  # the real evaluate builds the filter with it
+
+    class Built(Exception):
+        pass
+
+    def built(system, **kw):
+        raise Built(kw["integrator"])
+
+    import liemef.filters
+
+    monkeypatch.setattr(liemef.filters, "MinimumEnergyFilter", built)
+    with pytest.raises(Built, match="^rkmk2$"):
+        T.evaluate(recs[0], {}, integrator="rkmk2")
 
 
 def test_the_gyro_scale_is_a_velocity_parameter_that_starts_above_zero():

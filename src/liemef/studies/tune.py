@@ -393,8 +393,10 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     """
     import inspect
 
+    from ..integrators import integrator as make_integrator
     from ..systems import attitude_imu, attitude_velocity
 
+    integrator = make_integrator(integrator).name  # checked before any run; the file keeps its own name
     recs = list(recordings)
     if len(recs) < 2 or not all(isinstance(r, Recording) for r in recs):
         raise ValueError(f"recordings: expected two or more Recording objects, got {len(recs)}")
