@@ -179,7 +179,7 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     if folder is None or "07" not in datasets.broad_trials():
         pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
     out = tmp_path / "broad"
-    tuned = {"format": "liemef-tune-1", "system": "attitude-imu", "params": {"acc_std": 0.05},
+    tuned = {"format": "liemef-tune-1", "system": "attitude-imu", "params": {"acc_std": 0.05}, "integrator": "rkmk2",
              "folds": {"07": {"params": {"acc_std": 0.04, "mag_adapt": 2.0}}}}
     (tmp_path / "tune.json").write_text(json.dumps(tuned))
     res = CliRunner().invoke(cli.cli, ["compare", "broad", "--set", "trials=07", "--set", "seconds=32",
@@ -193,6 +193,7 @@ def test_compare_broad_at_a_tiny_size(tmp_path):
     rows = meta["trials"]["07"]["filters"]
     assert list(rows) == ["iekf", "madgwick", "mahony-broad", "mef-imu", "vqf", "vqf-broad"]
     assert meta["trials"]["07"]["imu_params"] == {"acc_std": 0.04, "mag_adapt": 2.0}   # the fold without 07
+    assert "tuned with integrator='rkmk2', and this study's filters run RKMK4" in meta["study"]["imu_params"]
     assert meta["ratio_to_vqf"]["vqf"] == 1.0
     assert meta["lags"]["vqf"] == meta["lags"]["madgwick"] == {"gyro": 0, "acc": 0, "mag": 0}  # sample k at t_k
     assert meta["lags"]["iekf"] == {"gyro": 1, "acc": 1, "mag": 1}

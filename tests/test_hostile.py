@@ -1193,16 +1193,23 @@ def test_run_records_the_tuning_file_and_every_value_it_used(tmp_path):
     assert res.exit_code == 0, res.output
     assert f"WARNING: the tuning file {p} was tuned with updates='discrete' and this run used 'hold'" in res.output
     assert "--updates discrete runs as it was tuned" in res.output
-    # a file tuned with RKMK2, run with the default RKMK4: said; run with RKMK2: not
+    # a file tuned with RKMK2, run with the default RKMK4: said; run with RKMK2: not. A file that does not say
+    # was tuned with RKMK4 (liemef tune ran no other before it said): run with RKMK2, said; its record stays null
     p = _write_json(tmp_path / "rkmk2.json", _tuning_file(integrator="rkmk2", params__acc_std=0.05, **changes))
-    for extra, out in (((), "o3"), (("--integrator", "rkmk2"), "o4")):
-        res = _cli("run", "--system", "attitude-imu", "--params", p, "--log", tmp_path / "log.csv", "--out",
+    old = _write_json(tmp_path / "old.json", _tuning_file(integrator=..., params__acc_std=0.05, **changes))
+    cases = ((p, (), "o3", "rkmk2", "rkmk4"), (p, ("--integrator", "rkmk2"), "o4", None, None),
+             (old, ("--integrator", "rkmk2"), "o5", "rkmk4", "rkmk2"), (old, (), "o6", None, None))
+    for file, extra, out, was, used in cases:
+        res = _cli("run", "--system", "attitude-imu", "--params", file, "--log", tmp_path / "log.csv", "--out",
                    tmp_path / out, "--no-progress", "--no-monitor", *extra)
         assert res.exit_code == 0, res.output
-        said = (f"WARNING: the tuning file {p} was tuned with the integrator 'rkmk2' and this run used 'rkmk4' "
-                "(--integrator rkmk2 runs as it was tuned)")
-        assert (said in res.output) == (not extra), res.output
-        assert json.loads((tmp_path / out / "metrics.json").read_text())["config"]["params"]["integrator"] == "rkmk2"
+        said = f"WARNING: the tuning file {file} was tuned with integrator="
+        assert (said in res.output) == (was is not None), (out, res.output)
+        if was is not None:
+            assert f"integrator={was!r} and this run used {used!r}" in res.output
+            assert f"--integrator {was} runs as it was tuned" in res.output
+        record = json.loads((tmp_path / out / "metrics.json").read_text())["config"]["params"]["integrator"]
+        assert record == ("rkmk2" if file == p else None)
 
 
 # A user's SE(2) system (planar GPS): what its functions get wrong, by the function.

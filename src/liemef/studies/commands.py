@@ -82,6 +82,12 @@ ORDER = option("--order", type=choice(_names.ORDERS), default="second", show_def
 ALPHA = option("--alpha", type=float, default=0.0, show_default=True, help="Forgetting factor.")
 SUBSTEPS = option("--substeps", default="auto", show_default=True,
                   help="Integrator steps per sample interval: auto (by stiffness) or a number.")
+INTEGRATOR = option("--integrator", type=choice(_names.INTEGRATORS), default="rkmk4", show_default=True,
+                    help="The filter's Lie-group integrator, each sub-step: rkmk4 (order 4), rkmk2 (order 2: two "
+                    "evaluations of the filter's field instead of four, always cheaper, as accurate where sub-steps "
+                    "are short, as on a high-rate IMU) or lie-euler (order 1; on fast motion K can lose positive "
+                    "definiteness, a failed run). A tuning file records the tune's; `liemef run --params` warns when "
+                    "the run's is not the file's.")
 SYSTEM_FILE = option("--system-file", type=PATH, help="A Python file that defines `system`.")
 TIMEOUT = option("--timeout", type=float, default=registry.SYSTEM_FILE_TIMEOUT, show_default=True,
                  help="Seconds --system-file may take to load before it is stopped (0: no limit).")
@@ -182,10 +188,7 @@ RUN = Command(
                f"ready system's ({_run_defaults('curvature')})."),
         option("--error", type=choice(_names.ERROR_SIDES), help=ERROR.attrs["help"] + " Default: auto, or the ready "
                f"system's ({_run_defaults('error')})."), SUBSTEPS,
-        option("--integrator", type=choice(_names.INTEGRATORS), default="rkmk4", show_default=True,
-               help="The Lie-group integrator of each sub-step: rkmk4 (order 4), rkmk2 (order 2, two evaluations of "
-               "the filter's field a step instead of four: faster where sub-steps are short, as on a high-rate "
-               "IMU) or lie-euler (order 1)."),
+        INTEGRATOR,
         option("--gap", type=float, help="An interval longer than this (s) is a gap: predicted through, dense "
                "measurements not held (default: 10 x the median interval)."),
         option("--chunk", type=at_least(16), default=65536, show_default=True,
@@ -300,9 +303,7 @@ TUNE = Command(
         option("--updates", type=choice(_names.UPDATES), default="hold", show_default=True,
                help="discrete: samples at their own time (the hybrid update, gyro sample k over the interval "
                     "ending at t_k), as compare broad's mef-imu-d."),
-        option("--integrator", type=choice(_names.INTEGRATORS), default="rkmk4", show_default=True,
-               help="The filter's integrator: rkmk2 evaluates its field half as often as rkmk4, a faster tune; the "
-                    "file records it, and `liemef run --params` warns when a run's integrator is not the file's."),
+        INTEGRATOR,
         option("--realdata", type=PATH, help="The real-data folder (default: found)."),
         option("--workers", type=at_least(1),
                help="Threads that run a point's trials side by side (default: the CPUs this process may use)."),

@@ -588,15 +588,14 @@ class LogRun:
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
         tuned = self.source.params or {}
-        run_updates = self.metrics.get("config", {}).get("updates")
-        if tuned.get("updates") and run_updates and tuned["updates"] != run_updates:
-            out.append(f"the tuning file {tuned['file']} was tuned with updates={tuned['updates']!r} and this run "
-                       f"used {run_updates!r}: its noise levels were fitted for the other scheme (--updates "
-                       f"{tuned['updates']} runs as it was tuned)")
-        run_integrator = self.metrics.get("config", {}).get("integrator")
-        if tuned.get("integrator") and run_integrator and tuned["integrator"] != run_integrator:
-            out.append(f"the tuning file {tuned['file']} was tuned with the integrator {tuned['integrator']!r} and "
-                       f"this run used {run_integrator!r} (--integrator {tuned['integrator']} runs as it was tuned)")
+        config = self.metrics.get("config", {})
+        # a file without an integrator was tuned with RKMK4, the only one `liemef tune` ran before it said
+        for key, unsaid, what in (("updates", None, "sample updates"), ("integrator", "rkmk4", "integrator")):
+            was, used = tuned.get(key) or (unsaid if tuned else None), config.get(key)
+            if was and used and was != used:
+                out.append(f"the tuning file {tuned['file']} was tuned with {key}={was!r} and this run used "
+                           f"{used!r}: its noise levels were fitted for the other {what} (--{key} {was} runs as it "
+                           "was tuned)")
         if self.report.get("substeps_capped"):
             after = ("the estimate after them may be far off though the run is ok" if self.ok
                      else "the run failed")  # a failed run's status is not ok: its warning must not say it is

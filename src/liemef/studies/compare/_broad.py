@@ -434,7 +434,10 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                       "K0": "diag(0.05^2 I3, 0.01^2 I3)",
                       "initial": f"TRIAD of the first {INITIAL_SAMPLES} samples of the initial rest, zero bias",
                       "imu_params": "attitude_imu() defaults" if tuned is None else
-                      f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"},
+                      f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"
+                      + ("" if tuned.get("integrator", "rkmk4") == "rkmk4" else
+                         f"; the file was tuned with integrator={tuned['integrator']!r}, and this study's filters "
+                         "run RKMK4")},
             "lags": lag, "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners,
             "arrays": arrays}
 
