@@ -1,8 +1,8 @@
 """The names liemef's options take, in one place that loads without JAX or numpy.
 
 The modules that define what a name means take their list from here (:data:`liemef.connections.CARTAN_SCHOUTEN`,
-:data:`liemef.filters.ORDERS`, :data:`liemef.codegen.BACKENDS`), and so does the command line, whose choices and
-help must be known before JAX is imported.
+:data:`liemef.filters.ORDERS`, :data:`liemef.codegen.BACKENDS`, :data:`liemef.integrators.INTEGRATORS`), and so
+does the command line, whose choices and help must be known before JAX is imported.
 """
 
 CONNECTIONS = ("minus", "zero", "plus")
@@ -12,8 +12,8 @@ ORDERS = ("second", "first")
 C_BACKENDS = ("auto", "scalar", "array")
 """The C translators of :func:`liemef.codegen.export_c`."""
 INTEGRATORS = ("rkmk4", "rkmk2", "lie-euler")
-"""The integrators ``liemef run`` and ``liemef smooth`` offer: every one of :data:`liemef.integrators.INTEGRATORS`
-by its own name (``tests/test_integrators.py`` checks the two agree)."""
+"""The integrators by their own names, which :data:`liemef.integrators.INTEGRATORS` takes (adding aliases), and
+``liemef run``, ``smooth`` and ``tune`` offer (``tests/test_integrators.py`` checks that each names one)."""
 EXPORT_INTEGRATORS = ("rkmk4", "lie-euler")
 """The integrators ``liemef export-c`` offers."""
 INTERPOLATIONS = ("hold", "linear")

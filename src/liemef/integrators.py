@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 
+from . import _names
 from ._linalg import mv
 from .groups import LieGroup
 
@@ -98,8 +99,11 @@ class RKMK4(AbstractIntegrator):
         return g.rplus(theta), _axpy(dt, L, v)
 
 
-INTEGRATORS: dict[str, type[AbstractIntegrator]] = {"lie-euler": LieEuler, "euler": LieEuler, "rkmk2": RKMK2,
-                                                    "midpoint": RKMK2, "rkmk4": RKMK4, "rk4": RKMK4}
+_OWN = {cls.name: cls for cls in (LieEuler, RKMK2, RKMK4)}
+INTEGRATORS: dict[str, type[AbstractIntegrator]] = {**{name: _OWN[name] for name in _names.INTEGRATORS},
+                                                    "euler": LieEuler, "midpoint": RKMK2, "rk4": RKMK4}
+"""Every integrator by its own name (:data:`liemef._names.INTEGRATORS`, the command line's choices), then by its
+alias."""
 
 
 def integrator(spec: str | AbstractIntegrator) -> AbstractIntegrator:
