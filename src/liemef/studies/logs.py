@@ -587,10 +587,12 @@ class LogRun:
                        f"{self.report['longest_gap']:.4g} s) were predicted through")
         if self.report["inputs_held"]:
             out.append(f"{self.report['inputs_held']} input sample(s) were missing; the previous input was held")
+        from .tune import UNSAID_INTEGRATOR
+
         tuned = self.source.params or {}
         config = self.metrics.get("config", {})
-        # a file without an integrator was tuned with RKMK4, the only one `liemef tune` ran before it said
-        for key, unsaid, what in (("updates", None, "sample updates"), ("integrator", "rkmk4", "integrator")):
+        for key, unsaid, what in (("updates", None, "sample updates"),
+                                  ("integrator", UNSAID_INTEGRATOR, "integrator")):
             was, used = tuned.get(key) or (unsaid if tuned else None), config.get(key)
             if was and used and was != used:
                 out.append(f"the tuning file {tuned['file']} was tuned with {key}={was!r} and this run used "

@@ -82,6 +82,9 @@ CROSS_VALIDATION = "nested"
 """A tuning file's ``cross_validation``: each fold's search ran on its training recordings only and never saw its
 held-out recording (a file without the key was written by the earlier shared search, whose held-out errors are
 partly in-sample)."""
+UNSAID_INTEGRATOR = "rkmk4"
+"""The integrator of a tuning file without the key ``integrator``: RKMK4, the only one :func:`tune` ran before its
+files named it."""
 PARAMS_FROM = "search-on-all-recordings"
 """A tuning file's ``params_from``: its final set ``params`` is a search, from the same start with the same
 budget as each fold's, over every recording. Its own errors (``per_recording``, ``train``) are training errors;

@@ -364,7 +364,7 @@ def setup(name: str, ctx: dict, logs: dict[str, io.RecordedLog]):
 def compare_broad(study: BroadComparison | None = None, *, progress: bool = True) -> dict:
     """Run the study; returns ``{"study", "trials", "winners", "arrays"}``."""
     st = BroadComparison() if study is None else study
-    from ..tune import load, params_for
+    from ..tune import UNSAID_INTEGRATOR, load, params_for
 
     paths = datasets.broad_trials(Path(st.realdata) / datasets.BROAD_DIR)
     tuned = None if st.params is None else load(st.params)
@@ -435,7 +435,7 @@ def compare_broad(study: BroadComparison | None = None, *, progress: bool = True
                       "initial": f"TRIAD of the first {INITIAL_SAMPLES} samples of the initial rest, zero bias",
                       "imu_params": "attitude_imu() defaults" if tuned is None else
                       f"tuned ({st.params}): trial i uses the fold tuned without it where the file has one"
-                      + ("" if tuned.get("integrator", "rkmk4") == "rkmk4" else
+                      + ("" if tuned.get("integrator", UNSAID_INTEGRATOR) == "rkmk4" else
                          f"; the file was tuned with integrator={tuned['integrator']!r}, and this study's filters "
                          "run RKMK4")},
             "lags": lag, "trials": per_trial, "means": means, "ratio_to_vqf": ratio, "winners": winners,
