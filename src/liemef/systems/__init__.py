@@ -12,7 +12,7 @@ from .attitude import RigidBodyAttitude
 from .attitude_bias import attitude_gyro_bias
 from .attitude_field import attitude_field
 from .attitude_so3 import ukfm_attitude
-from .bounded_velocity import attitude_velocity
+from .bounded_velocity import attitude_position, attitude_velocity
 from .chaplygin import ChaplyginSleigh
 from .imu_noise import attitude_imu
 from .inertial import inertial_navigation
@@ -22,7 +22,8 @@ from .rigid_body_3d import pose3d
 from .unit_circle import UnitCircleBias
 
 __all__ = ["AbstractSystem", "System", "Block", "Noise", "Sensor", "SensorSystem", "ConstantOutput",
-           "planar_localization", "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "attitude_field",
+           "planar_localization", "attitude_gyro_bias", "attitude_imu", "attitude_velocity", "attitude_position",
+           "attitude_field",
            "pose3d", "inertial_navigation",
            "ChaplyginSleigh", "PlanarRigidBody", "RigidBodyAttitude", "UnitCircleBias",
            "tse2_state", "direction_residual", "rotation_residual", "ukfm_attitude", "right_error", "RightErrorSystem",
