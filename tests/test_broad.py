@@ -27,9 +27,9 @@ OFFSETS = {"gyro": ("gyr", np.array([0.05, -0.03, 0.04])), "acc": ("acc", np.arr
 SAME, MOVED = 1e-9, 1e-7
 """An estimate that differs by at most SAME has not moved; one that differs by more than MOVED has."""
 SLOW = {"mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d", "mef-vel",
-        "mef-vel-safe", "mef-vel-first", "iekf-imu", "ukf-left"}
+        "mef-vel-safe", "mef-vel-first", "mef-pos", "mef-pos-first", "iekf-imu", "ukf-left"}
 """The filters whose lags the fast suite checks through a sibling built the same way (same log, same kind of
-update: iekf, mef-imu-d-first, iekf-vel); each takes several seconds to compile."""
+update: iekf, mef-imu-d-first, iekf-vel, iekf-pos); each takes several seconds to compile."""
 
 
 @pytest.fixture(scope="module")

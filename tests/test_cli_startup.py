@@ -106,8 +106,10 @@ def test_the_registry_is_what_the_library_registers():
     for name, spec in SYSTEMS.items():  # each factory is the declared system of its name
         assert spec.name == name and callable(spec.make) and callable(spec.measured)
     assert SYSTEMS["attitude-velocity"].run_options == {"updates": "discrete", "curvature": "exact", "error": "left"}
-    assert SYSTEMS["attitude-field"].run_options == SYSTEMS["attitude-velocity"].run_options  # compare broad's
-    assert all(not SYSTEMS[n].run_options for n in SYSTEMS if n not in ("attitude-velocity", "attitude-field"))
+    for moving in ("attitude-field", "attitude-position"):  # as compare broad runs them
+        assert SYSTEMS[moving].run_options == SYSTEMS["attitude-velocity"].run_options
+    assert all(not SYSTEMS[n].run_options for n in SYSTEMS
+               if n not in ("attitude-velocity", "attitude-field", "attitude-position"))
     assert registry.DEFAULT_BATCH_SIZE == DEFAULT_BATCH_SIZE
 
 
@@ -238,7 +240,7 @@ def test_the_tune_choices_are_the_library_s():
     assert list(params["data"].type.choices) == list(registry.TUNE_DATA) == ["broad"]
     assert list(params["objective"].type.choices) == list(tune.OBJECTIVES) == list(registry.TUNE_OBJECTIVES)
     assert list(params["system_name"].type.choices) == list(tune.SYSTEMS) == list(registry.tune_systems()) == [
-        "attitude-imu", "attitude-velocity"]
+        "attitude-imu", "attitude-velocity", "attitude-position"]
     for name in registry.tune_systems():  # what a tuning file may set is tunable, with bounds; the defaults among it
         declared = registry.SYSTEMS[name]
         assert set(declared.tune_defaults) <= set(declared.tunable) <= set(tune.PARAMETERS), name
@@ -252,11 +254,11 @@ def test_each_dataset_s_systems_are_ready_ones_the_best_first():
         ranks = [r for s in ranked for k, r in registry.SYSTEMS[s].datasets if k == kind]
         assert ranked and len(set(ranks)) == len(ranks) and set(ranked) <= set(registry.SYSTEMS), kind
     assert registry.dataset_systems("broad") == ("attitude-velocity", "attitude-imu", "attitude-bias",
-                                                 "attitude-field")
+                                                 "attitude-field", "attitude-position")
     assert registry.dataset_systems("wifibot") == ("localization",)
     params = {p.name: p for p in cli.cli.commands["dataset"].params}
     assert sorted(params["system_name"].type.choices) == ["attitude-bias", "attitude-field", "attitude-imu",
-                                                          "attitude-velocity", "localization"]
+                                                          "attitude-position", "attitude-velocity", "localization"]
 
 
 def test_reproduce_all_refuses_config_options_before_jax(tmp_path):

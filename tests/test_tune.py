@@ -306,3 +306,24 @@ def test_a_trial_given_twice_is_refused(tmp_path):
     res = CliRunner().invoke(cli.cli, ["tune", "broad", "--trials", "16", "--realdata", str(tmp_path), "--out",
                                        str(tmp_path / "t")])
     assert res.exit_code == 2 and "--trials" in res.output and "two or more" in res.output, res.output
+
+
+@pytest.mark.parametrize("system, p, n", [("attitude-imu", 8, 6), ("attitude-velocity", 11, 9),
+                                          ("attitude-position", 14, 12)])
+def test_each_model_tunes_on_its_own_log_state_and_k0(system, p, n):
+    """broad_recordings gives each IMU model its own log (outputs p), its state at rest (tangent n) and its K0,
+    whole or in a window (where the attitude and bias blocks are what a user measures at rest and the blocks
+    beyond them the model's own K0's); the system built from it takes that log."""
+    from liemef.studies import datasets
+
+    if "16" not in datasets.broad_trials():
+        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
+    whole, = T.broad_recordings(["16"], None, system=system, gyro="backward")
+    window, = T.broad_recordings(["16"], 10.0, system=system, gyro="backward")
+    for rec in (whole, window):
+        assert rec.ys.shape[1] == p and rec.K0.shape == (n, n) and rec.system == system
+        assert T.system_from({}, rec.constants, system).output_dim == p
+        assert jnp.asarray(rec.g0.rminus(rec.g0)).shape == (n,)
+    np.testing.assert_array_equal(np.diag(window.K0)[:6], [0.05**2] * 3 + [0.002**2] * 3)
+    np.testing.assert_array_equal(np.diag(window.K0)[6:], np.diag(whole.K0)[6:])
+    assert window.ts[-1] - window.ts[0] < whole.ts[-1] - whole.ts[0]

@@ -114,6 +114,60 @@ SCHEMAS = {'attitude': {'blocks': [['y', 0, 6]],
                           'CSV header: '
                           't,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,norm_acc,norm_mag\n'
                           'An empty field (or nan) is a missing sample; a missing input holds the previous one.'},
+ 'attitude-position': {'blocks': [['acc', 0, 3],
+                                  ['mag', 3, 6],
+                                  ['norm', 6, 8],
+                                  ['velocity', 8, 11],
+                                  ['position', 11, 14]],
+                       'coords_dim': 12,
+                       'description': 'attitude, gyro bias, velocity and position on SO(3) x R^3 x R^3 x R^3, the '
+                                      'bounded-position model (the bounded-velocity model with the position, the '
+                                      "accelerometer's double integral, kept near where the IMU hovers): the log "
+                                      'of attitude-velocity and a zero position (pseudo measurement); defaults of '
+                                      'liemef.systems.attitude_position, run with samples at their own time',
+                       'inputs': ['gyro_x', 'gyro_y', 'gyro_z', 'force_x', 'force_y', 'force_z'],
+                       'outputs': ['acc_x',
+                                   'acc_y',
+                                   'acc_z',
+                                   'mag_x',
+                                   'mag_y',
+                                   'mag_z',
+                                   'norm_acc',
+                                   'norm_mag',
+                                   'velocity_x',
+                                   'velocity_y',
+                                   'velocity_z',
+                                   'position_x',
+                                   'position_y',
+                                   'position_z'],
+                       'tangent_dim': 12,
+                       'text': 'column      unit   role             noise\n'
+                               't           s      time\n'
+                               'gyro_x      rad/s  input\n'
+                               'gyro_y      rad/s  input\n'
+                               'gyro_z      rad/s  input\n'
+                               'force_x     m/s^2  input\n'
+                               'force_y     m/s^2  input\n'
+                               'force_z     m/s^2  input\n'
+                               'acc_x       1      sensor acc       std 1 1 per sample\n'
+                               'acc_y       1      sensor acc       std 1 1 per sample\n'
+                               'acc_z       1      sensor acc       std 1 1 per sample\n'
+                               'mag_x       1      sensor mag       std 0.0132 1 per sample\n'
+                               'mag_y       1      sensor mag       std 0.0132 1 per sample\n'
+                               'mag_z       1      sensor mag       std 0.0132 1 per sample\n'
+                               'norm_acc    m/s^2  sensor norm      std 0.1 m/s^2 per sample\n'
+                               'norm_mag    uT     sensor norm      std 1 uT per sample\n'
+                               'velocity_x  m/s    sensor velocity  density 1 m/s/sqrt(Hz)\n'
+                               'velocity_y  m/s    sensor velocity  density 1 m/s/sqrt(Hz)\n'
+                               'velocity_z  m/s    sensor velocity  density 1 m/s/sqrt(Hz)\n'
+                               'position_x  m      sensor position  density 0.01 m/sqrt(Hz)\n'
+                               'position_y  m      sensor position  density 0.01 m/sqrt(Hz)\n'
+                               'position_z  m      sensor position  density 0.01 m/sqrt(Hz)\n'
+                               '\n'
+                               'CSV header: '
+                               't,gyro_x,gyro_y,gyro_z,force_x,force_y,force_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z,norm_acc,norm_mag,velocity_x,velocity_y,velocity_z,position_x,position_y,position_z\n'
+                               'An empty field (or nan) is a missing sample; a missing input holds the previous '
+                               'one.'},
  'attitude-velocity': {'blocks': [['acc', 0, 3], ['mag', 3, 6], ['norm', 6, 8], ['velocity', 8, 11]],
                        'coords_dim': 9,
                        'description': 'attitude, gyro bias and velocity on SO(3) x R^3 x R^3, the bounded-velocity '

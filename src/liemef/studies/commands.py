@@ -256,10 +256,10 @@ SCHEMA_COMMAND = Command(
 DATASET = Command(
     """Convert a real recording (read in place, e.g. from ../shared/realdata) into a liemef log for
     `liemef run`, and print the command that filters it: `broad FILE.mat` (BROAD IMU trial; by default the log
-    of the bounded-velocity model attitude-velocity, the best of `liemef compare broad`; --system attitude-imu or
-    attitude-bias for the others) or `wifibot FILE.txt` (wheel odometry input with synthetic 1 Hz GPS, system
-    localization). PATH may also be the id of a recording present in the real-data folder (`broad 16`,
-    `wifibot 4`; found by reading the files).""", (
+    of the bounded-velocity model attitude-velocity, the best of `liemef compare broad`; --system
+    attitude-position, attitude-imu, attitude-bias or attitude-field for the others) or `wifibot FILE.txt`
+    (wheel odometry input with synthetic 1 Hz GPS, system localization). PATH may also be the id of a
+    recording present in the real-data folder (`broad 16`, `wifibot 4`; found by reading the files).""", (
         argument("kind", type=choice(registry.DATASETS)), argument("path", type=PATH),
         option("--out", required=True, type=PATH,
                help="The log to write (.csv, or .npz), in the columns of the matching ready system."),

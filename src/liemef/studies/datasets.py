@@ -281,11 +281,12 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     first: for BROAD ``attitude-velocity``, the bounded-velocity model, whose log holds the gyro as the rate over
     the interval that ends at each sample, :func:`~liemef.systems.bounded_velocity.imu_velocity_log`;
     ``attitude-imu``, also ``norms=True``: directions and raw norms; ``attitude-bias``: the directions;
-    ``attitude-field``: :func:`~liemef.systems.attitude_field.imu_field_log`, the field in uT). ``path``
+    ``attitude-field``: :func:`~liemef.systems.attitude_field.imu_field_log`, the field in uT;
+    ``attitude-position``: :func:`~liemef.systems.bounded_velocity.imu_position_log`). ``path``
     may also be the id of a recording present in the real-data folder (``"16"``; :func:`broad_trials`,
     :func:`wifibot_runs`). Returns the log, the ready system's name and the files written."""
     from ..systems.attitude_field import imu_field_log
-    from ..systems.bounded_velocity import imu_velocity_log
+    from ..systems.bounded_velocity import imu_position_log, imu_velocity_log
     from . import registry
     from .experiments import get_system
 
@@ -309,9 +310,9 @@ def convert(kind: str, path: str | os.PathLike, out: str | os.PathLike, truth: s
     if kind == "broad":
         rec = broad(path)
         rec = rec.head(seconds) if seconds is not None else rec
-        if system == "attitude-velocity":
-            log = io.RecordedLog(*imu_velocity_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
-                                                   gyro="backward"))
+        if system in ("attitude-velocity", "attitude-position"):
+            make = imu_velocity_log if system == "attitude-velocity" else imu_position_log
+            log = io.RecordedLog(*make(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]), gyro="backward"))
         elif system == "attitude-field":
             log = io.RecordedLog(*imu_field_log(rec.gyr, rec.acc, rec.mag, rec.rate, float(rec.ts[0]),
                                                 gyro="backward"))

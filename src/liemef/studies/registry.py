@@ -237,6 +237,16 @@ SYSTEMS: dict[str, ReadySystem] = {
         tunable=("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density", "velocity_std",
                  "gyro_scale_std"),
         tune_defaults=("mag_std", "mag_adapt", "bias_walk", "gyro_std", "velocity_std")),
+    "attitude-position": ReadySystem(
+        "attitude, gyro bias, velocity and position on SO(3) x R^3 x R^3 x R^3, the bounded-position model (the "
+        "bounded-velocity model with the position, the accelerometer's double integral, kept near where the IMU "
+        "hovers): the log of attitude-velocity and a zero position (pseudo measurement); defaults of "
+        "liemef.systems.attitude_position, run with samples at their own time",
+        run_options=(("updates", "discrete"), ("curvature", "exact"), ("error", "left")),
+        datasets=(("broad", 4),), tune="linear acceleration as a bounded position; always with --updates discrete",
+        tunable=("mag_std", "mag_adapt", "dip_std", "bias_walk", "gyro_std", "acc_density", "velocity_std",
+                 "position_std", "position_walk", "gyro_scale_std"),
+        tune_defaults=("gyro_std", "acc_density", "position_std", "mag_std")),
     "attitude-field": ReadySystem(
         "attitude, gyro bias, velocity and two lasting magnetic disturbances (a world field near the path and a "
         "body field carried by the IMU, uT) on SO(3) x R^3 x R^3 x R^3 x R^3, the bounded-velocity model with the "

@@ -320,12 +320,11 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     ``names``: the parameters to tune (None: the system's defaults). ``start``: ``NAME=VALUE`` entries, the
     starting values of every search (None: the system's defaults; the defaults of ``attitude-velocity`` were
     tuned on the shared trials, so a held-out error meant to be honest starts from values chosen without them).
-    ``attitude-velocity`` takes
-    ``updates="discrete"`` only. ``integrator``: the filter's (``"rkmk2"``: a faster tune, recorded in the
-    file). ``workers``: threads that run a point's trials side by side (None: the CPUs
-    this process may use). Bad input is a ValueError before anything is written; an empty list of
-    ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or ``--params`` (an
-    empty ``--trials ''`` is not every trial)."""
+    ``attitude-velocity`` and ``attitude-position`` take ``updates="discrete"`` only. ``integrator``: the
+    filter's (``"rkmk2"``: a faster tune, recorded in the file). ``workers``: threads that run a point's trials
+    side by side (None: the CPUs this process may use). Bad input is a ValueError before anything is written;
+    an empty list of ``trials`` or ``names``, or an empty entry in one, is refused naming ``--trials`` or
+    ``--params`` (an empty ``--trials ''`` is not every trial)."""
     from .registry import TUNE_DATA
     from .settings import OptionError
 
@@ -337,9 +336,9 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
         raise OptionError(f"expected two or more BROAD trial ids for the leave-one-out, got {','.join(trials)!r}",
                           "--trials")
     start = _start(start, system)
-    if system == "attitude-velocity" and updates != "discrete":
-        raise ValueError("--updates: expected discrete with --system attitude-velocity (as compare broad's "
-                         f"mef-vel), got {updates}")
+    if system in ("attitude-velocity", "attitude-position") and updates != "discrete":
+        raise ValueError(f"--updates: expected discrete with --system {system} (as compare broad's mef-vel and "
+                         f"mef-pos), got {updates}")
     target = outputs.claim(out, "tune", force)
     from . import tune
 

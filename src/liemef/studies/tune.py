@@ -63,6 +63,8 @@ PARAMETERS = {
     "gyro_std": (1e-4, 0.1),
     "acc_density": (1e-4, 1.0),
     "velocity_std": (1e-2, 10.0),
+    "position_std": (1e-3, 10.0),
+    "position_walk": (1e-5, 1.0),
     "gyro_scale_std": (1e-4, 0.3),
 }
 """The tunable parameters of the IMU systems and their bounds (the search is in log space)."""
@@ -73,8 +75,8 @@ SYSTEM = "attitude-imu"
 """The default system of a tuning file."""
 SYSTEMS = {name: registry.SYSTEMS[name].tunable for name in registry.tune_systems()}
 """The systems a tuning file may be for (:func:`liemef.systems.attitude_imu`,
-:func:`liemef.systems.attitude_velocity`) and the parameters each takes: a view of
-:data:`liemef.studies.registry.SYSTEMS` (``tunable``), the command line's choices."""
+:func:`liemef.systems.attitude_velocity`, :func:`liemef.systems.attitude_position`) and the parameters each
+takes: a view of :data:`liemef.studies.registry.SYSTEMS` (``tunable``), the command line's choices."""
 DEFAULT_NAMES = {name: registry.SYSTEMS[name].tune_defaults for name in registry.tune_systems()}
 """The parameters :func:`tune` fits by default, per system (``tune_defaults`` of the registry)."""
 FORMAT = "liemef-tune-1"
@@ -126,17 +128,21 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
     the bias, with ``K0 = diag((0.05 rad)^2 I3, (0.002 rad/s)^2 I3)`` (what any user can measure at rest). ``gyro``:
     the gyro's sample convention (:func:`liemef.studies.datasets.broad_to_log`; ``"backward"`` for
     ``updates="discrete"``, as ``liemef compare broad``'s ``mef-imu-d``). ``system``: a key of :data:`SYSTEMS`;
-    ``"attitude-velocity"`` takes its own log (:func:`~liemef.systems.bounded_velocity.imu_velocity_log`), the state
-    with a velocity at rest and ``K0_VELOCITY``."""
+    the bounded-motion models (``"attitude-velocity"``, ``"attitude-position"``) take their own log
+    (:func:`~liemef.systems.bounded_velocity.imu_velocity_log`, ``imu_position_log``), the state at rest at the
+    origin and their K0 (``K0_VELOCITY``, ``K0_POSITION``; in a window, their blocks beyond the bias)."""
     from ..reports import io as _io
-    from ..systems.attitude_bias import K0_GYRO_BIAS as K0
-    from ..systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
+    from ..systems import bounded_velocity as bv
+    from ..systems.attitude_bias import K0_GYRO_BIAS
     from ..systems.imu_rest import initial_estimate, rest_constants
     from . import datasets
 
     if system not in SYSTEMS:
         raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
-    velocity = system == "attitude-velocity"
+    moving = {"attitude-velocity": (bv.imu_velocity_log, bv.attitude_velocity_state, bv.K0_VELOCITY),
+              "attitude-position": (bv.imu_position_log, bv.attitude_position_state, bv.K0_POSITION)}.get(system)
+    K0 = K0_GYRO_BIAS if moving is None else moving[2]
+    state = (lambda g: g) if moving is None else moving[1]
 
     folder = None if realdata is None else Path(realdata) / datasets.BROAD_DIR
     found = datasets.broad_trials(folder)
@@ -154,15 +160,14 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         tr = datasets.broad(found[tid])
         rest = rest_constants(tr.gyr, tr.acc, tr.mag, tr.rate)  # from the IMU alone
         constants = {k: rest[k] for k in ("dip", "gravity", "field")}
-        if velocity:
-            log = _io.RecordedLog(*imu_velocity_log(tr.gyr, tr.acc, tr.mag, tr.rate, float(tr.ts[0]), gyro=gyro))
+        if moving is not None:
+            log = _io.RecordedLog(*moving[0](tr.gyr, tr.acc, tr.mag, tr.rate, float(tr.ts[0]), gyro=gyro))
         else:
             log = datasets.broad_to_log(tr, norms=True, gyro=gyro)
         if seconds is None:
             g0 = initial_estimate(tr.acc[:50], tr.mag[:50])
-            out.append(Recording(tid, log.ts, log.us, log.ys, constants,
-                                 attitude_velocity_state(g0) if velocity else g0, K0_VELOCITY if velocity else K0,
-                                 tr.quat_true, tr.movement, system, rest["rest_s"]))
+            out.append(Recording(tid, log.ts, log.us, log.ys, constants, state(g0), K0, tr.quat_true, tr.movement,
+                                 system, rest["rest_s"]))
             continue
         k_move = rest["rest_samples"]
         a = max(0, k_move - int(lead * tr.rate))
@@ -170,19 +175,19 @@ def broad_recordings(trials: Sequence[str] | None = None, seconds: float | None 
         bias = tr.gyr[:a].mean(axis=0) if a > 0 else np.zeros(3)
         w = slice(a, b)
         g0 = initial_estimate(tr.acc[a:a + 50], tr.mag[a:a + 50], bias)
-        k0 = [0.05**2] * 3 + [0.002**2] * 3 + ([0.1**2] * 3 if velocity else [])
-        out.append(Recording(tid, log.ts[w], log.us[w], log.ys[w], constants,
-                             attitude_velocity_state(g0) if velocity else g0, np.diag(k0), tr.quat_true[w],
+        k0 = np.diag([0.05**2] * 3 + [0.002**2] * 3 + list(np.diag(K0)[6:]))
+        out.append(Recording(tid, log.ts[w], log.us[w], log.ys[w], constants, state(g0), k0, tr.quat_true[w],
                              tr.movement[w], system, rest["rest_s"]))
     return out
 
 
 def _factory(system: str):
-    from ..systems import attitude_imu, attitude_velocity
+    from ..systems import attitude_imu, attitude_position, attitude_velocity
 
     if system not in SYSTEMS:
         raise ValueError(f"system: expected one of {list(SYSTEMS)}, got {system!r}")
-    return attitude_imu if system == "attitude-imu" else attitude_velocity
+    return {"attitude-imu": attitude_imu, "attitude-velocity": attitude_velocity,
+            "attitude-position": attitude_position}[system]
 
 
 def check_params(params, system: str = SYSTEM, where: str = "params") -> dict:
@@ -212,7 +217,7 @@ def check_params(params, system: str = SYSTEM, where: str = "params") -> dict:
 
 def parameters(params: dict, constants: dict, system: str = SYSTEM) -> dict:
     """Every keyword argument the system ``system`` is built with by :func:`system_from`: the factory's
-    defaults (:func:`liemef.systems.attitude_imu` or :func:`liemef.systems.attitude_velocity`), the recording's
+    defaults (:func:`liemef.systems.attitude_imu`, ``attitude_velocity`` or ``attitude_position``), the recording's
     ``constants`` and the tuned ``params`` (checked, :func:`check_params`) over them, as JSON values."""
     import inspect
 
@@ -233,8 +238,8 @@ def _plain(v):
 
 
 def system_from(params: dict, constants: dict, system: str = SYSTEM):
-    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu` or
-    :func:`liemef.systems.attitude_velocity`) with the recording's ``constants`` and the tuned ``params``
+    """The system ``system`` (a key of :data:`SYSTEMS`: :func:`liemef.systems.attitude_imu`,
+    ``attitude_velocity`` or ``attitude_position``) with the recording's ``constants`` and the tuned ``params``
     (:func:`check_params`)."""
     factory = _factory(system)
     return factory(**constants, **check_params(params, system))

@@ -72,7 +72,14 @@ from ...smoothers import OfflineSmoother
 from ...systems import attitude_field, attitude_gyro_bias
 from ...systems.attitude_bias import K0_GYRO_BIAS as K0
 from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_state, imu_field_log
-from ...systems.bounded_velocity import K0_VELOCITY, attitude_velocity_state, imu_velocity_log
+from ...systems.bounded_velocity import (
+    K0_POSITION,
+    K0_VELOCITY,
+    attitude_position_state,
+    attitude_velocity_state,
+    imu_position_log,
+    imu_velocity_log,
+)
 from ...systems.imu_rest import REST_WINDOW, initial_estimate, rest_constants
 from .. import datasets
 from ._common import fmt, make_filter, parse_names, realdata_present, scoring, unscored_lines
@@ -106,6 +113,10 @@ def _imu(ctx):
 
 def _velocity(ctx):
     return _tuned(ctx, "attitude-velocity")
+
+
+def _position(ctx):
+    return _tuned(ctx, "attitude-position")
 
 
 def _field(ctx):
@@ -146,6 +157,13 @@ BROAD_FILTERS = {
                                                  tol=SMOOTH_TOL)),
     "iekf-vel": ("invariant EKF, bounded-velocity model (its sample updates at t_k)",
                  lambda c: make_filter("iekf", _velocity(c))),
+    "mef-pos": ("minimum-energy filter, bounded-position model (attitude_position: the bounded-velocity model with "
+                "a position kept near where the IMU hovers), samples at their own time",
+                lambda c: make_filter("mef", _position(c), updates="discrete")),
+    "mef-pos-first": ("first-order minimum-energy filter, bounded-position model, samples at their own time",
+                      lambda c: make_filter("mef-first", _position(c), updates="discrete")),
+    "iekf-pos": ("invariant EKF, bounded-position model (its sample updates at t_k)",
+                 lambda c: make_filter("iekf", _position(c))),
     "mef-field": ("minimum-energy filter, lasting magnetic disturbances as states (attitude_field: the bounded "
                   "velocity and a world and a body disturbance field), samples at their own time",
                   lambda c: make_filter("mef", _field(c), updates="discrete")),
@@ -181,7 +199,7 @@ BROAD_FILTERS = {
 """The filters of the BROAD study: a description and a factory from the trial's context (its magnetic dip,
 gravity and field at rest, and the IMU model's parameters)."""
 OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-safe", "mef-vel-first", "iekf-vel",
-                      "mef-field", "mef-field-first", "iekf-field"})
+                      "mef-pos", "mef-pos-first", "iekf-pos", "mef-field", "mef-field-first", "iekf-field"})
 """The filters that take gyro sample k as the rate over the interval that ends at t_k
 (``broad_to_log(..., gyro="backward")``), so that state k has seen gyro sample k, with the hybrid update
 (``updates="discrete"``: the accelerometer and magnetometer sample k updates the estimate at t_k, after the state
@@ -192,8 +210,9 @@ DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "m
                    "mef-vel", "mef-vel-first", "iekf-vel", "mef-field", "mef-field-first", "iekf-field", "iekf",
                    "ukf-left", "vqf", "vqf-offline", "madgwick", "madgwick-broad", "mahony",
                    "mahony-broad", "fusion", "fusion-example")
-"""The filters run by default (every one but ``mef-imu-d-first``, ``mef-vel-safe``, ``iekf-imu`` and
-``vqf-broad``, the same filter as ``vqf``)."""
+"""The filters run by default (every one but ``mef-imu-d-first``, ``mef-vel-safe``, ``iekf-imu``, the
+bounded-position rows ``mef-pos``, ``mef-pos-first`` and ``iekf-pos``, and ``vqf-broad``, the same filter as
+``vqf``)."""
 PUBLISHED = {"01": {"madgwick": 2.3, "mahony": 3.4}, "07": {"madgwick": 5.0, "mahony": 5.2},
              "24": {"madgwick": 1.8, "mahony": 2.1}, "10": {"madgwick": 3.6, "mahony": 2.8},
              "16": {"madgwick": 4.8, "mahony": 20.3}, "28": {"madgwick": 8.3, "mahony": 6.3},
@@ -296,10 +315,12 @@ def trial_context(trial: datasets.BroadTrial, params: dict | None = None, tuned_
 def trial_logs(trial: datasets.BroadTrial) -> dict[str, io.RecordedLog]:
     """A trial's logs by the gyro's convention (:func:`liemef.studies.datasets.broad_to_log`, with the raw norms):
     ``"forward"`` (gyro sample k over the interval that starts at t_k), ``"backward"`` (the interval that ends at
-    t_k), ``"velocity"`` (the bounded-velocity model's, backward) and ``"field"`` (:func:`attitude_field`'s,
-    backward)."""
+    t_k), ``"velocity"`` and ``"position"`` (the bounded-motion models', backward) and ``"field"``
+    (:func:`attitude_field`'s, backward)."""
     logs = {g: datasets.broad_to_log(trial, norms=True, gyro=g) for g in ("forward", "backward")}
     logs["velocity"] = io.RecordedLog(*imu_velocity_log(trial.gyr, trial.acc, trial.mag, trial.rate,
+                                                        float(trial.ts[0]), gyro="backward"))
+    logs["position"] = io.RecordedLog(*imu_position_log(trial.gyr, trial.acc, trial.mag, trial.rate,
                                                         float(trial.ts[0]), gyro="backward"))
     logs["field"] = io.RecordedLog(*imu_field_log(trial.gyr, trial.acc, trial.mag, trial.rate, float(trial.ts[0]),
                                                   gyro="backward"))
@@ -311,6 +332,8 @@ def log_kind(name: str, flt) -> str:
     for :data:`OWN_TIME`, else the forward one (the baselines index it themselves: ``broad_indexing``)."""
     if flt.system.group.tangent_dim == 9:
         return "velocity"
+    if flt.system.group.tangent_dim == 12:
+        return "position"
     if isinstance(flt.system, FieldSystem):
         return "field"
     return "backward" if name in OWN_TIME else "forward"
@@ -331,7 +354,7 @@ def lags(name: str, flt) -> dict[str, int | None]:
         lag = 0 if flt.broad_indexing else 1
         return dict.fromkeys(SENSORS, lag)
     kind = log_kind(name, flt)
-    inputs = ("velocity", "field")  # the logs whose accelerometer is an input
+    inputs = ("velocity", "position", "field")  # the logs whose accelerometer is an input
     return {"gyro": 0 if kind in ("backward", *inputs) else 1, "acc": 0 if kind in inputs else 1, "mag": 1}
 
 
@@ -352,6 +375,8 @@ def setup(name: str, ctx: dict, logs: dict[str, io.RecordedLog]):
     g0 = ctx["g0"]
     if kind == "velocity":
         state = flt.init(attitude_velocity_state(g0), K0_VELOCITY)
+    elif kind == "position":
+        state = flt.init(attitude_position_state(g0), K0_POSITION)
     elif kind == "field":
         state = flt.init(attitude_field_state(g0), K0_FIELD)
     else:

@@ -14,6 +14,7 @@ from ...systems import (
     attitude_field,
     attitude_gyro_bias,
     attitude_imu,
+    attitude_position,
     attitude_velocity,
     inertial_navigation,
     planar_localization,
@@ -106,6 +107,9 @@ SYSTEMS: dict[str, SystemSpec] = {
     "attitude-velocity": SystemSpec(
         "attitude-velocity", attitude_velocity,
         ab_vel.velocity_measured_state, K0=ab_vel.K0_VELOCITY, constants=ab_rest.log_rest_constants),
+    "attitude-position": SystemSpec(
+        "attitude-position", attitude_position,
+        ab_vel.position_measured_state, K0=ab_vel.K0_POSITION, constants=ab_rest.log_rest_constants),
     "attitude-field": SystemSpec(
         "attitude-field", attitude_field, field_measured_state, K0=K0_FIELD, constants=field_log_rest_constants),
     "pose3d": SystemSpec("pose3d", pose3d, _position_fix_state(3)),
