@@ -318,6 +318,45 @@ def test_dataset_broad_writes_the_best_model_and_run_filters_it(tmp_path):
     assert res.exit_code == 2 and "--norms" in res.output
 
 
+def test_dataset_broad_writes_the_position_model_s_log(tmp_path):
+    """`liemef dataset broad --system attitude-position` writes the bounded-position model's log: the
+    bounded-velocity model's columns (the gyro over the interval ending at each sample), then a zero position,
+    and prints the command that runs it."""
+    broad_mat(tmp_path / "01_synthetic.mat")
+    for system in ("attitude-velocity", "attitude-position"):
+        res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", system, "--out",
+                     tmp_path / f"{system}.csv")
+        assert res.exit_code == 0, res.output
+        assert f"liemef run --system {system}" in res.output
+    vel = (tmp_path / "attitude-velocity.csv").read_text().splitlines()
+    pos = (tmp_path / "attitude-position.csv").read_text().splitlines()
+    assert pos[0].split(",")[-3:] == ["position_x", "position_y", "position_z"]
+    v, p = (np.loadtxt(t, delimiter=",", skiprows=1) for t in (vel, pos))
+    np.testing.assert_array_equal(p[:, :v.shape[1]], v)
+    assert p.shape[1] == v.shape[1] + 3 and np.all(p[:, -3:] == 0.0)
+
+
+@pytest.mark.slow  # a C kernel of the 12-state model
+def test_run_filters_the_position_model_s_log_as_compare_broad_s_mef_pos(tmp_path):
+    from liemef.systems.bounded_velocity import K0_POSITION
+
+    R = broad_mat(tmp_path / "01_synthetic.mat")
+    res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", "attitude-position", "--out",
+                 tmp_path / "log.csv")
+    assert res.exit_code == 0, res.output
+    res = invoke("run", "--system", "attitude-position", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    config = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]
+    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
+    np.testing.assert_allclose(config["K0_diag"], np.diag(K0_POSITION))
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    from scipy.spatial.transform import Rotation
+
+    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
+    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
+
+
 def test_dataset_broad_writes_the_field_model_s_log_and_run_filters_it(tmp_path):
     """The lasting-disturbance model, compare broad's mef-field, is a ready system too: `liemef dataset broad
     --system attitude-field` writes its log (the field in uT) and `liemef run --system attitude-field` runs it
