@@ -327,3 +327,21 @@ def test_each_model_tunes_on_its_own_log_state_and_k0(system, p, n):
     np.testing.assert_array_equal(np.diag(window.K0)[:6], [0.05**2] * 3 + [0.002**2] * 3)
     np.testing.assert_array_equal(np.diag(window.K0)[6:], np.diag(whole.K0)[6:])
     assert window.ts[-1] - window.ts[0] < whole.ts[-1] - whole.ts[0]
+
+
+def test_every_search_starts_from_its_own_model_s_defaults():
+    """A tune of the bounded-position model starts from attitude_position's defaults (a loose velocity, its
+    position's stiffness), not the bounded-velocity model's stiff velocity: the one table of factories serves the
+    search as it serves the systems it builds; ``start`` wins over a default."""
+    from liemef.systems import imu_noise
+
+    pos = T.start_set("attitude-position")
+    assert pos["velocity_std"] == 1.0 and pos["position_std"] == ab_vel.POSITION_STD
+    assert pos["position_walk"] == ab_vel.POSITION_WALK and pos["acc_density"] == 0.01
+    assert T.start_set("attitude-velocity")["velocity_std"] == ab_vel.VELOCITY_STD
+    assert "velocity_std" not in T.start_set("attitude-imu")
+    assert T.start_set("attitude-imu")["bias_walk"] == imu_noise.IMU_BIAS_WALK != ab.BIAS_WALK
+    assert T.start_set("attitude-position", {"position_std": 0.6})["position_std"] == 0.6
+    assert set(pos) == set(T.SYSTEMS["attitude-position"])
+    with pytest.raises(ValueError, match="^start.velocity_std: expected a finite number > 0"):
+        T.start_set("attitude-position", {"velocity_std": -1.0})

@@ -229,6 +229,16 @@ def parameters(params: dict, constants: dict, system: str = SYSTEM) -> dict:
     return {k: _plain(v) for k, v in values.items()}
 
 
+def start_set(system: str, start: dict | None = None) -> dict:
+    """The values every search of :func:`tune` starts from, for the tunable parameters of ``system``: its
+    factory's defaults (:func:`system_from`'s factory), then ``start`` (checked, :func:`check_params`)."""
+    import inspect
+
+    allowed = SYSTEMS[system] if system in SYSTEMS else ()
+    defaults = {k: v.default for k, v in inspect.signature(_factory(system)).parameters.items() if k in allowed}
+    return {**defaults, **check_params(start or {}, system, "start")}
+
+
 def _plain(v):
     """A parameter's value as JSON: a float, a list of floats, a string or None."""
     if v is None or isinstance(v, str | bool):
@@ -399,10 +409,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     training error and its error on ``name`` (held out); ``evaluations`` counts the filter runs (one recording at
     one point; a run shared by several searches counts once).
     """
-    import inspect
-
     from ..integrators import integrator as make_integrator
-    from ..systems import attitude_imu, attitude_velocity
 
     integrator = make_integrator(integrator).name  # checked before any run; the file keeps its own name
     recs = list(recordings)
@@ -424,9 +431,7 @@ def tune(recordings: Sequence[Recording], names: Sequence[str] | None = None, ob
     maxfev = _validate.integer("maxfev", maxfev, 1)
     workers = _validate.integer("workers", _validate.cpus() if workers is None else workers, 1)
     fold_maxfev = maxfev if fold_maxfev is None else _validate.integer("fold_maxfev", fold_maxfev, 1)
-    factory = attitude_imu if sysname == "attitude-imu" else attitude_velocity
-    defaults = {k: v.default for k, v in inspect.signature(factory).parameters.items() if k in allowed}
-    base = {**defaults, **check_params(start or {}, sysname, "start")}
+    base = start_set(sysname, start)
     first = {n: float(np.atleast_1d(base[n])[0]) for n in names}
     zero = [n for n in names if not first[n] > 0]
     if zero:  # the search is in log space
