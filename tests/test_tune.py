@@ -337,7 +337,7 @@ def test_every_search_starts_from_its_own_model_s_defaults():
 
     pos = T.start_set("attitude-position")
     assert pos["velocity_std"] == 1.0 and pos["position_std"] == ab_vel.POSITION_STD
-    assert pos["position_walk"] == ab_vel.POSITION_WALK and pos["acc_density"] == 0.01
+    assert pos["position_walk"] == ab_vel.POSITION_WALK and pos["acc_density"] == ab_vel.POSITION_ACC_DENSITY
     assert T.start_set("attitude-velocity")["velocity_std"] == ab_vel.VELOCITY_STD
     assert "velocity_std" not in T.start_set("attitude-imu")
     assert T.start_set("attitude-imu")["bias_walk"] == imu_noise.IMU_BIAS_WALK != ab.BIAS_WALK
