@@ -40,6 +40,8 @@ Filters (:data:`BROAD_FILTERS`):
 - ahrs's Madgwick and Mahony (:mod:`liemef.filters.baselines`), with ahrs's default gains and with the gains published
   with the dataset (Madgwick beta = 0.12; Mahony Kp = 0.74, Ki = 0.0012);
 - VQF (Laidig and Seel 2023), online (``vqf``; ``vqf-broad`` is the same filter, its former name) and offline;
+- ``mef-pos``, ``mef-pos-first`` and ``iekf-pos``: the bounded-position model
+  (:func:`liemef.systems.attitude_position`), its three filters, samples at their own time. Not run by default;
 - ``mef-vel-smooth``: beside VQF offline, the minimum-energy smoother of ``mef-vel``'s model
   (:class:`liemef.smoothers.OfflineSmoother`): that filter's cost minimized over the whole trial, from its pass,
   to :data:`SMOOTH_TOL`. Not run by default;
