@@ -336,6 +336,24 @@ def test_dataset_broad_writes_the_position_model_s_log(tmp_path):
     assert p.shape[1] == v.shape[1] + 3 and np.all(p[:, -3:] == 0.0)
 
 
+def run_as_compare_broad(tmp_path, system: str, K0, R) -> tuple[dict, np.ndarray]:
+    """`liemef run --system SYSTEM` on the log in tmp_path/log.csv: it runs as compare broad does (discrete
+    updates, exact curvature, left error, the model's K0) and follows the synthetic trial's turn (``R``). Returns
+    the run's config and its estimates."""
+    from scipy.spatial.transform import Rotation
+
+    res = invoke("run", "--system", system, "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
+                 "--no-monitor", "--no-progress")
+    assert res.exit_code == 0, res.output
+    config = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]
+    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
+    np.testing.assert_allclose(config["K0_diag"], np.diag(K0))
+    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
+    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
+    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
+    return config, est
+
+
 @pytest.mark.slow  # a C kernel of the 12-state model
 def test_run_filters_the_position_model_s_log_as_compare_broad_s_mef_pos(tmp_path):
     from liemef.systems.bounded_velocity import K0_POSITION
@@ -344,17 +362,7 @@ def test_run_filters_the_position_model_s_log_as_compare_broad_s_mef_pos(tmp_pat
     res = invoke("dataset", "broad", tmp_path / "01_synthetic.mat", "--system", "attitude-position", "--out",
                  tmp_path / "log.csv")
     assert res.exit_code == 0, res.output
-    res = invoke("run", "--system", "attitude-position", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
-                 "--no-monitor", "--no-progress")
-    assert res.exit_code == 0, res.output
-    config = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]
-    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
-    np.testing.assert_allclose(config["K0_diag"], np.diag(K0_POSITION))
-    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
-    from scipy.spatial.transform import Rotation
-
-    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
-    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
+    run_as_compare_broad(tmp_path, "attitude-position", K0_POSITION, R)
 
 
 def test_dataset_broad_writes_the_field_model_s_log_and_run_filters_it(tmp_path):
@@ -374,20 +382,10 @@ def test_dataset_broad_writes_the_field_model_s_log_and_run_filters_it(tmp_path)
     assert header[7:13] == ["acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"]
     log = np.loadtxt(tmp_path / "log.csv", delimiter=",", skiprows=1)
     assert np.linalg.norm(log[0, 10:13]) == pytest.approx(np.hypot(16.0, 40.0))  # the field in uT, not a direction
-    res = invoke("run", "--system", "attitude-field", "--log", tmp_path / "log.csv", "--out", tmp_path / "o",
-                 "--no-monitor", "--no-progress")
-    assert res.exit_code == 0, res.output
-    config = json.loads((tmp_path / "o" / "metrics.json").read_text())["config"]
-    assert (config["updates"], config["curvature"], config["error"]) == ("discrete", "exact", "left")
-    np.testing.assert_allclose(config["K0_diag"], np.diag(K0_FIELD))
+    config, est = run_as_compare_broad(tmp_path, "attitude-field", K0_FIELD, R)
     rest = config["rest"]
     assert rest["found"] and rest["measured"] == ["dip", "field", "gravity"]
     assert rest["dip_deg"] == pytest.approx(68.2, abs=0.2) and rest["field"] == pytest.approx(43.08, abs=0.05)
-    est = np.loadtxt(tmp_path / "o" / "estimates.csv", delimiter=",", skiprows=1)
-    from scipy.spatial.transform import Rotation
-
-    err = (Rotation.from_rotvec(est[:, 1:4]) * R.inv()).magnitude()
-    assert np.degrees(np.max(err[200:])) < 2.0  # the turn is followed
     assert np.abs(est[-1, 10:16]).max() < 2.0  # no disturbance in an undisturbed field (uT)
 
 
