@@ -3,6 +3,7 @@ system's column names, and the Wifibot run (Brossard et al., UKF-M, BSD-3-Clause
 localization and synthetic GPS (skipped when the real data are absent)."""
 
 import csv
+import json
 import math
 
 import numpy as np
@@ -203,6 +204,15 @@ def test_the_comparisons_take_every_trial_present(tmp_path):
     with pytest.raises(ValueError, match=r"^trials: expected BROAD trials present .* \['02', '16', '31'\]"):
         BroadComparison(trials="07", realdata=str(tmp_path))
     assert WifibotComparison(realdata=str(tmp_path)).recordings == ("9",)
+    # a tuning file reaches only its own model's rows: with none of them among the filters it would change
+    # nothing while the table said it was used, so it is refused (attitude-position's rows are not run by default)
+    (tmp_path / "tune.json").write_text(json.dumps({"format": "liemef-tune-1", "system": "attitude-position",
+                                                    "params": {"position_std": 0.05}}))
+    with pytest.raises(ValueError, match=r"^params: expected --filters to hold a row of the file's system "
+                                         r"attitude-position \(mef-pos, mef-pos-first, iekf-pos\)"):
+        BroadComparison(realdata=str(tmp_path), params=str(tmp_path / "tune.json"))
+    assert BroadComparison(realdata=str(tmp_path), params=str(tmp_path / "tune.json"), filters="iekf-pos,vqf").filters \
+        == ("iekf-pos", "vqf")
 
 
 def test_the_shared_folder_holds_every_broad_trial_and_wifibot_run():

@@ -77,6 +77,8 @@ from ...systems.attitude_field import K0_FIELD, FieldSystem, attitude_field_stat
 from ...systems.bounded_velocity import (
     K0_POSITION,
     K0_VELOCITY,
+    PositionDynamics,
+    VelocityDynamics,
     attitude_position_state,
     attitude_velocity_state,
     imu_position_log,
@@ -206,6 +208,9 @@ OWN_TIME = frozenset({"mef-imu-d", "mef-imu-d-first", "mef-vel", "mef-vel-safe",
 (``broad_to_log(..., gyro="backward")``), so that state k has seen gyro sample k, with the hybrid update
 (``updates="discrete"``: the accelerometer and magnetometer sample k updates the estimate at t_k, after the state
 recorded at t_k: :func:`lags`)."""
+TUNED_ROWS = {"attitude-imu": "-imu", "attitude-velocity": "-vel", "attitude-position": "-pos"}
+"""Per system a tuning file may be for, the part of the names of the rows its parameters reach (``mef-vel``,
+``iekf-vel``, ...): the rows built with that system's tuned parameters (:func:`_tuned`)."""
 SENSORS = ("gyro", "acc", "mag")
 """The raw sensors whose lag :func:`lags` gives."""
 DEFAULT_FILTERS = ("mef", "mef-first", "mef-minus", "mef-plus", "mef-robust", "mef-imu", "mef-imu-first", "mef-imu-d",
@@ -277,8 +282,9 @@ class BroadComparison:
     :func:`liemef.studies.datasets.broad_trials`; default: every one), ``seconds`` (the head of each trial;
     default: whole trials), ``filters``, ``realdata`` (the folder;
     default :func:`liemef.studies.datasets.realdata_dir`), ``params``: a tuning file (``liemef tune``) for the
-    IMU model (``mef-imu``, ...): trial i uses the parameters tuned without it when the file has that fold
-    (leave-one-out, held-out errors), else its final set; default :func:`liemef.systems.attitude_imu`'s."""
+    IMU model it names (its rows, :data:`TUNED_ROWS`: ``mef-imu``, ``mef-vel``, ``mef-pos``, ..., one of them
+    among ``filters``): trial i uses the parameters tuned without it when the file has that fold (leave-one-out,
+    held-out errors), else its final set; default: each model's own defaults."""
 
     trials: tuple[str, ...] | str | None = None
     seconds: float | None = None
@@ -293,7 +299,11 @@ class BroadComparison:
         if self.params is not None:
             from ..tune import load
 
-            load(self.params)  # checked before any run
+            system = load(self.params)["system"]  # checked before any run
+            rows = [n for n in BROAD_FILTERS if TUNED_ROWS[system] in n]
+            if not set(rows) & set(names):  # the file would change nothing, and the table would say it was used
+                raise ValueError(f"params: expected --filters to hold a row of the file's system {system} "
+                                 f"({', '.join(rows)}), got {', '.join(names)}")
         check_seconds(self.seconds)
         object.__setattr__(self, "trials", tuple(trials))
         object.__setattr__(self, "filters", names)
@@ -330,11 +340,13 @@ def trial_logs(trial: datasets.BroadTrial) -> dict[str, io.RecordedLog]:
 
 
 def log_kind(name: str, flt) -> str:
-    """Which of :func:`trial_logs` the filter ``name`` runs on: the bounded-velocity model's, the backward one
-    for :data:`OWN_TIME`, else the forward one (the baselines index it themselves: ``broad_indexing``)."""
-    if flt.system.group.tangent_dim == 9:
+    """Which of :func:`trial_logs` the filter ``name`` runs on: the bounded-velocity or bounded-position model's
+    (by the model's dynamics), the field model's, the backward one for :data:`OWN_TIME`, else the forward one (the
+    baselines index it themselves: ``broad_indexing``)."""
+    dynamics = getattr(flt.system, "dynamics_fn", None)
+    if isinstance(dynamics, VelocityDynamics):
         return "velocity"
-    if flt.system.group.tangent_dim == 12:
+    if isinstance(dynamics, PositionDynamics):
         return "position"
     if isinstance(flt.system, FieldSystem):
         return "field"
@@ -347,7 +359,7 @@ def lags(name: str, flt) -> dict[str, int | None]:
     k has seen the samples after k). The baselines with ``broad_indexing`` make estimate k from sample k (0); in
     liemef's indexing, as the minimum-energy and Kalman filters record it, the state at t_k comes before the sample
     at t_k acts (1: held over the interval after t_k, or a discrete update at t_k that the state at t_k+1 has
-    seen), but for the inputs of the backward logs (the gyro, and on the bounded-velocity model the accelerometer
+    seen), but for the inputs of the backward logs (the gyro, and on the bounded-motion models the accelerometer
     too), which measure the interval that ends at t_k (0). ``tests/test_broad.py`` checks every filter's lags by
     perturbing the samples."""
     if getattr(flt, "offline", False):
