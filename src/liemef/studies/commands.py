@@ -291,7 +291,8 @@ TUNE = Command(
                     "of motion (0: whole trials); evaluate with `compare broad`."),
         option("--start", metavar="A=X,B=Y,...",
                help="Starting values of every search (default: the model's defaults, which for attitude-velocity "
-                    "were tuned on the shared trials: start elsewhere for an honest held-out error)."),
+                    "and attitude-position were tuned on the shared trials: start elsewhere for an honest "
+                    "held-out error)."),
         option("--maxfev", type=at_least(1), default=40, show_default=True,
                help="Points of the final search (each runs every trial), and of each fold's unless --fold-maxfev."),
         option("--fold-maxfev", type=at_least(1),

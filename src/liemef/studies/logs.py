@@ -658,11 +658,12 @@ def filter_log(source: LogSystem | str, log, *, x0=None, K0=None, connection: st
     median interval); ``log_file``: the file named in the outputs when ``log`` is already read; ``monitor``: run
     the innovation monitor on a good run (:func:`liemef.metrics.innovation_monitor`: ``metrics["innovations"]``,
     :attr:`LogRun.monitor`); the other options are those of :class:`~liemef.filters.MinimumEnergyFilter`, where
-    ``updates``, ``curvature`` and ``error`` None are the ready system's (``attitude-velocity``: discrete, exact,
-    left, as ``liemef compare broad``'s ``mef-vel``), else ``"hold"``, ``"safe"`` and ``"auto"``. ``smooth``: the
-    options of :func:`liemef.smooth` (:func:`smoother_options`) to smooth the log after a good filter run
-    (``liemef smooth``): the estimates, covariances and residuals written are then the smoother's, the
-    innovation monitor stays the filter's, and a smoother that fails makes the run a failure. A ready IMU
+    ``updates``, ``curvature`` and ``error`` None are the ready system's (``attitude-velocity``,
+    ``attitude-position`` and ``attitude-field``: discrete, exact, left, as ``liemef compare broad``'s
+    ``mef-vel``), else ``"hold"``, ``"safe"`` and ``"auto"``. ``smooth``: the options of :func:`liemef.smooth`
+    (:func:`smoother_options`) to smooth the log after a good filter run (``liemef smooth``): the estimates,
+    covariances and residuals written are then the smoother's, the innovation monitor stays the filter's, and a
+    smoother that fails makes the run a failure. A ready IMU
     system is first built with the dip, gravity and field measured over the log's initial rest
     (:func:`with_log_constants`). ValueError for bad input, before any compile. A failure inside the filter is no
     exception: see :attr:`LogRun.ok`.

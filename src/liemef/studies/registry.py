@@ -144,8 +144,9 @@ for _name, _title, _settings, _help in (
      "Mahony and Fusion",
      ("trials", "seconds", "realdata", "params"),
      "the BROAD attitude recordings present in the real-data folder (gyro, accelerometer, magnetometer with "
-     "optical truth), with the MEF (attitude + gyro bias, the IMU noise model mef-imu and the bounded-velocity "
-     "model mef-vel, samples at their own time), the invariant EKF, the UKF-M, VQF (online and offline), "
+     "optical truth), with the MEF (attitude + gyro bias, the IMU noise model mef-imu, the bounded-velocity "
+     "model mef-vel and, on request, the bounded-position model mef-pos, samples at their own time), the "
+     "invariant EKF, the UKF-M, VQF (online and offline), "
      "ahrs's Madgwick and Mahony (default and published gains) and x-io's Fusion (defaults and its example's "
      "settings), every baseline's estimate at t_k made from sample k as BROAD's, and every filter's lag per "
      "sensor stated; one weight set for all trials (--set params=tune.json: a `liemef tune` file, each trial "

@@ -318,8 +318,9 @@ def tune_to(out: str | os.PathLike, data: str = "broad", *, objective: str = "tr
     ``seconds``; 0 or None: whole trials; ``maxfev`` points for the final search and ``fold_maxfev``, default
     ``maxfev``, for each fold's), and write ``tune.json`` (for ``liemef run --params``) and ``tune.md`` to ``out``.
     ``names``: the parameters to tune (None: the system's defaults). ``start``: ``NAME=VALUE`` entries, the
-    starting values of every search (None: the system's defaults; the defaults of ``attitude-velocity`` were
-    tuned on the shared trials, so a held-out error meant to be honest starts from values chosen without them).
+    starting values of every search (None: the system's defaults; the defaults of ``attitude-velocity`` and
+    ``attitude-position`` were tuned on the shared trials, so a held-out error meant to be honest starts from
+    values chosen without them).
     ``attitude-velocity`` and ``attitude-position`` take ``updates="discrete"`` only. ``integrator``: the
     filter's (``"rkmk2"``: a faster tune, recorded in the file). ``workers``: threads that run a point's trials
     side by side (None: the CPUs this process may use). Bad input is a ValueError before anything is written;
