@@ -310,16 +310,16 @@ def test_a_trial_given_twice_is_refused(tmp_path):
 
 @pytest.mark.parametrize("system, p, n", [("attitude-imu", 8, 6), ("attitude-velocity", 11, 9),
                                           ("attitude-position", 14, 12)])
-def test_each_model_tunes_on_its_own_log_state_and_k0(system, p, n):
+def test_each_model_tunes_on_its_own_log_state_and_k0(tmp_path, system, p, n):
     """broad_recordings gives each IMU model its own log (outputs p), its state at rest (tangent n) and its K0,
     whole or in a window (where the attitude and bias blocks are what a user measures at rest and the blocks
-    beyond them the model's own K0's); the system built from it takes that log."""
-    from liemef.studies import datasets
+    beyond them the model's own K0's); the system built from it takes that log. On a synthetic BROAD trial."""
+    from test_cli_run import broad_mat
 
-    if "16" not in datasets.broad_trials():
-        pytest.skip(f"real data absent: set {datasets.ENV_VAR} or provide ../shared/realdata beside the checkout")
-    whole, = T.broad_recordings(["16"], None, system=system, gyro="backward")
-    window, = T.broad_recordings(["16"], 10.0, system=system, gyro="backward")
+    (tmp_path / "broad").mkdir()
+    broad_mat(tmp_path / "broad" / "16_synthetic.mat", rest_s=2.0, seconds=4.0)
+    whole, = T.broad_recordings(["16"], None, str(tmp_path), system=system, gyro="backward")
+    window, = T.broad_recordings(["16"], 1.0, str(tmp_path), lead=0.5, system=system, gyro="backward")
     for rec in (whole, window):
         assert rec.ys.shape[1] == p and rec.K0.shape == (n, n) and rec.system == system
         assert T.system_from({}, rec.constants, system).output_dim == p
