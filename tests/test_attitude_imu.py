@@ -180,43 +180,65 @@ def test_the_velocity_model_beats_the_direction_model_under_translation():
 
 
 # --- the bounded-position model: the velocity model and a position kept near where the IMU hovers -------------
-def test_the_position_model_is_the_velocity_model_when_its_position_weighs_nothing():
-    """attitude_position adds a position that integrates the velocity and is measured by nothing but its
-    pseudo-measurement: with that weighing nothing, no output depends on p and no dynamics reads it, so the
-    attitude, bias and velocity (and their block of K) are the velocity model's. A position placed in the
-    wrong rows, a velocity not integrated, or a noise on the wrong block would break it."""
+KW_BOTH = dict(gyro_std=ab.GYRO_STD, imu_rate=RATE, gravity=G, field=B, acc_density=0.01, velocity_std=0.5,
+               mag_std=0.02)
+"""The noise levels the bounded-velocity and bounded-position models are compared at (every one they share)."""
+
+
+def test_the_position_model_extends_the_velocity_model_block_by_block():
+    """attitude_position is attitude_velocity with a position appended: its log, dynamics, outputs, process noise
+    and weights are the velocity model's in their rows and blocks, then the position's (v its rate, the walk, the
+    zero-position pseudo-measurement). A position placed in the wrong rows, a velocity not integrated, or a noise
+    on the wrong block breaks it (no filter run: the structure only)."""
     from liemef.systems import attitude_position, attitude_velocity
 
-    ts, gyr, acc, mag, R, v = simulate_translation(duration=2.0)
-    kw = dict(gyro_std=ab.GYRO_STD, imu_rate=RATE, gravity=G, field=B, acc_density=0.01, velocity_std=0.5,
-              mag_std=0.02)
-    vel = MinimumEnergyFilter(attitude_velocity(**kw), updates="discrete")
-    pos = MinimumEnergyFilter(attitude_position(**kw, position_std=1e7), updates="discrete")
+    ts, gyr, acc, mag, R, v = simulate_translation(duration=0.2)
+    vel, pos = attitude_velocity(**KW_BOTH), attitude_position(**KW_BOTH, position_std=0.3, position_walk=0.002)
     _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, RATE)
     _, us_p, ys_p = ab_vel.imu_position_log(gyr, acc, mag, RATE)
     np.testing.assert_array_equal(us_p, us)
     np.testing.assert_array_equal(ys_p[:, :11], ys)
     assert ys_p.shape == (len(ts), 14) and np.all(ys_p[:, 11:] == 0.0)
+    g = ab_vel.attitude_position_state(_g0(R), v[5], (0.1, -0.2, 0.05))
+    gv = ab_vel.attitude_velocity_state(TSO3(g.factors[:2]), v[5])
+    lam_p, lam_v = (np.asarray(m.dynamics(x, jnp.asarray(us[5]), 0.0)) for m, x in ((pos, g), (vel, gv)))
+    np.testing.assert_array_equal(lam_p[:9], lam_v)
+    np.testing.assert_array_equal(lam_p[9:], v[5])  # the velocity is the position's rate
+    h_p, h_v = np.asarray(pos.output(g, 0.0)), np.asarray(vel.output(gv, 0.0))
+    np.testing.assert_array_equal(h_p[:11], h_v)
+    np.testing.assert_array_equal(h_p[11:], [0.1, -0.2, 0.05])  # the position, measured as zero
+    Q_p, Q_v = _nominal(pos), _nominal(vel)
+    np.testing.assert_allclose(Q_p[:9, :9], Q_v, rtol=1e-15)
+    np.testing.assert_allclose(Q_p[9:, 9:], 0.002**2 * np.eye(3), rtol=1e-12)
+    assert not np.any(np.asarray(Q_p[:9, 9:]))
+    W_p, W_v = np.asarray(pos.information()), np.asarray(vel.information())
+    np.testing.assert_allclose(W_p[:11, :11], W_v, rtol=1e-15)
+    np.testing.assert_allclose(np.diag(W_p)[11:], 1 / 0.3**2, rtol=1e-12)
+    assert pos.state_names[-6:] == ("vx", "vy", "vz", "px", "py", "pz")
+    with pytest.raises(ValueError, match="position_std"):
+        attitude_position(position_std=[1.0, 2.0])
+    with pytest.raises(ValueError, match="^p: "):
+        ab_vel.attitude_position_state(_g0(R), p=(0.0, 1.0))
+
+
+@pytest.mark.slow  # two filters' compiles, about 20 s from cold caches
+def test_the_position_model_is_the_velocity_model_when_its_position_weighs_nothing():
+    """With its pseudo-measurement weighing nothing, no output depends on the position and no dynamics reads it,
+    so the filter's attitude, bias and velocity (and their block of K) are the velocity model's."""
+    from liemef.systems import attitude_position, attitude_velocity
+
+    ts, gyr, acc, mag, R, v = simulate_translation(duration=2.0)
+    vel = MinimumEnergyFilter(attitude_velocity(**KW_BOTH), updates="discrete")
+    pos = MinimumEnergyFilter(attitude_position(**KW_BOTH, position_std=1e7), updates="discrete")
+    _, us, ys = ab_vel.imu_velocity_log(gyr, acc, mag, RATE)
+    _, us_p, ys_p = ab_vel.imu_position_log(gyr, acc, mag, RATE)
     tv = vel.run(vel.init(ab_vel.attitude_velocity_state(_g0(R), v[0]), ab_vel.K0_VELOCITY), ts, us, ys)
-    g0 = ab_vel.attitude_position_state(_g0(R), v[0])
-    tp = pos.run(pos.init(g0, ab_vel.K0_POSITION), ts, us_p, ys_p)
+    tp = pos.run(pos.init(ab_vel.attitude_position_state(_g0(R), v[0]), ab_vel.K0_POSITION), ts, us_p, ys_p)
     assert tv.status.ok and tp.status.ok
     for i in range(3):
         np.testing.assert_allclose(tp.g_hat.factors[i].coords(), tv.g_hat.factors[i].coords(), rtol=0,
                                    atol=1e-9)
     np.testing.assert_allclose(tp.K[:, :9, :9], tv.K, rtol=1e-7, atol=1e-13)
-    # the dynamics: the velocity model's rows, then the velocity as the position's rate
-    g = tp.g_hat[50]
-    lam_p = np.asarray(pos.system.dynamics(g, jnp.asarray(us_p[50]), 0.0))
-    lam_v = np.asarray(vel.system.dynamics(ab_vel.attitude_velocity_state(TSO3(g.factors[:2]), g.factors[2].x),
-                                           jnp.asarray(us[50]), 0.0))
-    np.testing.assert_array_equal(lam_p[:9], lam_v)
-    np.testing.assert_array_equal(lam_p[9:], np.asarray(g.factors[2].x))
-    assert pos.system.state_names[-6:] == ("vx", "vy", "vz", "px", "py", "pz")
-    with pytest.raises(ValueError, match="position_std"):
-        attitude_position(position_std=[1.0, 2.0])
-    with pytest.raises(ValueError, match="^p: "):
-        ab_vel.attitude_position_state(_g0(R), p=(0.0, 1.0))
 
 
 @pytest.mark.slow
