@@ -219,11 +219,7 @@ def parameters(params: dict, constants: dict, system: str = SYSTEM) -> dict:
     """Every keyword argument the system ``system`` is built with by :func:`system_from`: the factory's
     defaults (:func:`liemef.systems.attitude_imu`, ``attitude_velocity`` or ``attitude_position``), the recording's
     ``constants`` and the tuned ``params`` (checked, :func:`check_params`) over them, as JSON values."""
-    import inspect
-
-    factory = _factory(system)
-    values = {k: p.default for k, p in inspect.signature(factory).parameters.items()
-              if p.default is not inspect.Parameter.empty}
+    values = _defaults(system)
     values.update(constants)
     values.update(check_params(params, system))
     return {k: _plain(v) for k, v in values.items()}
@@ -232,11 +228,16 @@ def parameters(params: dict, constants: dict, system: str = SYSTEM) -> dict:
 def start_set(system: str, start: dict | None = None) -> dict:
     """The values every search of :func:`tune` starts from, for the tunable parameters of ``system``: its
     factory's defaults (:func:`system_from`'s factory), then ``start`` (checked, :func:`check_params`)."""
+    defaults = {k: v for k, v in _defaults(system).items() if k in SYSTEMS[system]}
+    return {**defaults, **check_params(start or {}, system, "start")}
+
+
+def _defaults(system: str) -> dict:
+    """The keyword arguments of ``system``'s factory (:func:`_factory`) that have a default, with it."""
     import inspect
 
-    allowed = SYSTEMS[system] if system in SYSTEMS else ()
-    defaults = {k: v.default for k, v in inspect.signature(_factory(system)).parameters.items() if k in allowed}
-    return {**defaults, **check_params(start or {}, system, "start")}
+    return {k: p.default for k, p in inspect.signature(_factory(system)).parameters.items()
+            if p.default is not inspect.Parameter.empty}
 
 
 def _plain(v):
